@@ -1,0 +1,442 @@
+"""The config: one path from YAML file to a validated, typed, frozen `Config`.
+
+Load -> merge (`extends:` a base file, then `plant:` over `robot:`) -> validate whole. A bad
+file raises ConfigError with the file name and the dotted key. docs/config.md documents
+every key once, with its unit.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass, field
+from pathlib import Path as FsPath
+from typing import Any, Literal, Mapping
+
+import yaml
+
+from ddrt.model import RobotParams
+from ddrt.motor import MotorParams
+from ddrt.schema import ConfigError, build, non_negative, positive
+
+# --------------------------------------------------------------------------- sections
+
+
+@dataclass(frozen=True)
+class SlipConfig:
+    """The seed's torque slip noise: per wheel and plant step, with this probability."""
+
+    probability: float = 0.25
+    sigma_nm: float = 0.01
+
+    def validate(self, where: str) -> None:
+        if not 0.0 <= self.probability <= 1.0:
+            raise ConfigError(f"{where}.probability: must be in [0, 1], got {self.probability}")
+        non_negative(where, sigma_nm=self.sigma_nm)
+
+
+@dataclass(frozen=True)
+class GyroTruth:
+    """How the simulated MPU-6050 departs from the truth."""
+
+    noise_dps_rthz: float = 0.005
+    bias_dps: float = 1.5
+    scale_error: float = 0.0
+    dlpf_hz: float = 98.0
+
+    def validate(self, where: str) -> None:
+        non_negative(where, noise_dps_rthz=self.noise_dps_rthz)
+        positive(where, dlpf_hz=self.dlpf_hz)
+        if abs(self.scale_error) >= 0.5:
+            raise ConfigError(f"{where}.scale_error: must be within +-0.5, got {self.scale_error}")
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """The simulated robot's own settings (the plant's truth beyond its parameters)."""
+
+    step_hz: float = 1000.0
+    friction: bool = True
+    seed: int = 1
+    command_latency_s: float = 0.0015
+    sensor_latency_s: float = 0.001
+    slip: SlipConfig = field(default_factory=SlipConfig)
+    gyro: GyroTruth = field(default_factory=GyroTruth)
+
+    def validate(self, where: str) -> None:
+        positive(where, step_hz=self.step_hz)
+        non_negative(where, command_latency_s=self.command_latency_s, sensor_latency_s=self.sensor_latency_s)
+        if self.command_latency_s > 0.1 or self.sensor_latency_s > 0.1:
+            raise ConfigError(f"{where}: latencies above 0.1 s are not a robot this controller can drive")
+
+
+@dataclass(frozen=True)
+class SensorsConfig:
+    """Facts about the sensors both the controller and the simulated robot share."""
+
+    encoder_counts_per_rev: int = 8192
+    gyro_range_dps: int = 250
+
+    def validate(self, where: str) -> None:
+        positive(where, encoder_counts_per_rev=self.encoder_counts_per_rev)
+        if self.gyro_range_dps not in (250, 500, 1000, 2000):
+            raise ConfigError(f"{where}.gyro_range_dps: must be 250, 500, 1000 or 2000, got {self.gyro_range_dps}")
+
+
+@dataclass(frozen=True)
+class HalConfig:
+    """Which backend drives the robot; the real backend validates its own sub-sections."""
+
+    backend: Literal["sim", "real"] = "sim"
+    motors: Literal["bridge", "pwm_sysfs"] = "bridge"
+    imu: dict[str, Any] = field(default_factory=dict)
+    bridge: dict[str, Any] = field(default_factory=dict)
+    pwm_sysfs: dict[str, Any] = field(default_factory=dict)
+    hold_ticks: int = 3
+
+    def validate(self, where: str) -> None:
+        non_negative(where, hold_ticks=self.hold_ticks)
+
+
+@dataclass(frozen=True)
+class OuterGains:
+    """Kanayama's tracking law (seed eq. 4.3): K_x (1/s), K_y (1/m^2), K_theta (1/m)."""
+
+    k_x: float = 10.0
+    k_y: float = 400.0
+    k_theta: float = 40.0
+
+    def validate(self, where: str) -> None:
+        positive(where, k_x=self.k_x, k_y=self.k_y, k_theta=self.k_theta)
+
+
+@dataclass(frozen=True)
+class PidGains:
+    """PID on a velocity error. Units follow the loop: kp (1/s), ki (1/s^2), kd (-)."""
+
+    kp: float = 40.0
+    ki: float = 400.0
+    kd: float = 0.0
+    integrator_limit: float = 0.2
+
+    def validate(self, where: str) -> None:
+        non_negative(where, kp=self.kp, ki=self.ki, kd=self.kd)
+        positive(where, integrator_limit=self.integrator_limit)
+
+
+@dataclass(frozen=True)
+class WheelPidGains:
+    """Per-wheel speed PID of the kinematic baseline: duty per rad/s of wheel-speed error."""
+
+    kp: float = 0.15
+    ki: float = 1.5
+    kd: float = 0.0
+    integrator_limit: float = 0.3
+
+    def validate(self, where: str) -> None:
+        non_negative(where, kp=self.kp, ki=self.ki, kd=self.kd)
+        positive(where, integrator_limit=self.integrator_limit)
+
+
+@dataclass(frozen=True)
+class AdaptationConfig:
+    """Online estimation of the lumped dynamic parameters (off until proven)."""
+
+    enabled: bool = False
+    forgetting: float = 0.999
+    min_excitation: float = 0.05
+
+    def validate(self, where: str) -> None:
+        if not 0.9 <= self.forgetting <= 1.0:
+            raise ConfigError(f"{where}.forgetting: must be in [0.9, 1], got {self.forgetting}")
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    """The three-stage controller (or the kinematic baseline, or the seed's own method)."""
+
+    mode: Literal["dynamic", "kinematic", "seed"] = "dynamic"
+    rate_hz: float = 200.0
+    outer: OuterGains = field(default_factory=OuterGains)
+    inner: PidGains = field(default_factory=PidGains)
+    wheel_pid: WheelPidGains = field(default_factory=WheelPidGains)
+    heading_gain: float = 8.0
+    adaptation: AdaptationConfig = field(default_factory=AdaptationConfig)
+
+    def validate(self, where: str) -> None:
+        positive(where, rate_hz=self.rate_hz, heading_gain=self.heading_gain)
+        if self.rate_hz > 2000:
+            raise ConfigError(f"{where}.rate_hz: above 2000 Hz is not supported, got {self.rate_hz}")
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    """Kalman filter tuning and sensor supervision."""
+
+    calibration_s: float = 2.0
+    calibration_max_std_dps: float = 0.5
+    accel_noise: float = 0.5  # m/s^2 white acceleration the model does not explain
+    yaw_accel_noise: float = 5.0  # rad/s^2 likewise for yaw
+    gyro_bias_walk: float = 1e-5  # rad/s per sqrt(s): drift of the zero-rate bias
+    gyro_scale: float = 1.0  # believed gyro scale factor (1 + scale error), from calibration
+    gate_sigma: float = 5.0  # innovations beyond this many sigma are outliers
+    max_rejects: int = 10  # after this many outliers in a row, re-sync and report
+    stale_ticks: int = 20  # ticks without a fresh sample before the sensors are stale
+    stuck_gyro_ticks: int = 100  # identical raw gyro readings in a row = stuck sensor
+    encoder_stuck_s: float = 0.3  # commanded motion but no encoder counts for this long
+
+    def validate(self, where: str) -> None:
+        positive(where, accel_noise=self.accel_noise, yaw_accel_noise=self.yaw_accel_noise,
+                 gate_sigma=self.gate_sigma, gyro_scale=self.gyro_scale,
+                 calibration_max_std_dps=self.calibration_max_std_dps, encoder_stuck_s=self.encoder_stuck_s)
+        non_negative(where, calibration_s=self.calibration_s, gyro_bias_walk=self.gyro_bias_walk)
+        positive(where, max_rejects=self.max_rejects, stale_ticks=self.stale_ticks,
+                 stuck_gyro_ticks=self.stuck_gyro_ticks)
+
+
+@dataclass(frozen=True)
+class PursuitConfig:
+    """How the reference is taken from the path."""
+
+    mode: Literal["path", "time"] = "path"
+    lookahead_m: float = 0.05
+    search_window_m: float = 0.3
+
+    def validate(self, where: str) -> None:
+        positive(where, lookahead_m=self.lookahead_m, search_window_m=self.search_window_m)
+
+
+@dataclass(frozen=True)
+class LimitsConfig:
+    """Hard limits: the speed profile respects the motion ones, the controller the rest."""
+
+    v_max: float = 1.0
+    accel: float = 1.0
+    lateral_accel: float = 1.5
+    omega_max: float = 4.0
+    alpha_max: float = 20.0
+    duty_max: float = 1.0
+    torque_max_nm: float = 1.0
+
+    def validate(self, where: str) -> None:
+        positive(where, v_max=self.v_max, accel=self.accel, lateral_accel=self.lateral_accel,
+                 omega_max=self.omega_max, alpha_max=self.alpha_max, duty_max=self.duty_max,
+                 torque_max_nm=self.torque_max_nm)
+        if self.duty_max > 1.0:
+            raise ConfigError(f"{where}.duty_max: must be <= 1, got {self.duty_max}")
+
+
+@dataclass(frozen=True)
+class DaemonConfig:
+    """The long-running service: socket, telemetry files, real-time setup, safety bounds."""
+
+    socket: str = "/run/ddrt/ddrt.sock"
+    telemetry_dir: str = "/var/lib/ddrt/telemetry"
+    telemetry_max_bytes: int = 20_000_000
+    telemetry_max_files: int = 5
+    rt_priority: int = 0  # SCHED_FIFO priority; 0 leaves the scheduler alone
+    cpus: tuple[int, ...] = ()
+    lock_memory: bool = True
+    timer_slack_ns: int = 1000
+    watch_config: bool = False
+    stop_decel: float = 0.5  # m/s^2 for a controlled stop
+
+    def validate(self, where: str) -> None:
+        if not 0 <= self.rt_priority <= 99:
+            raise ConfigError(f"{where}.rt_priority: must be 0..99, got {self.rt_priority}")
+        positive(where, telemetry_max_bytes=self.telemetry_max_bytes,
+                 telemetry_max_files=self.telemetry_max_files, stop_decel=self.stop_decel)
+
+
+@dataclass(frozen=True)
+class Config:
+    """Everything ddrt needs, validated. `robot` is what the controller believes, `plant`
+    what the simulated robot is (missing plant keys default to robot's)."""
+
+    robot: RobotParams
+    robot_motor: MotorParams
+    plant: RobotParams
+    plant_motor_l: MotorParams
+    plant_motor_r: MotorParams
+    sim: SimConfig
+    sensors: SensorsConfig
+    hal: HalConfig
+    controller: ControllerConfig
+    estimator: EstimatorConfig
+    pursuit: PursuitConfig
+    limits: LimitsConfig
+    daemon: DaemonConfig
+    path: Any = None  # a path mapping or file name, resolved by ddrt.path
+    start: tuple[float, float, float] | None = None
+    source: str = "<memory>"
+    base_dir: str = "."
+    raw: Mapping[str, Any] = field(default_factory=dict, repr=False, compare=False)
+
+
+# --------------------------------------------------------------------------- loading
+
+_TOP_KEYS = ("extends", "robot", "plant", "sim", "sensors", "hal", "controller", "estimator",
+             "pursuit", "limits", "daemon", "path", "start", "name", "description")
+
+
+def _merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
+    """Deep merge: mappings merge key by key, anything else in `over` replaces."""
+    out = copy.deepcopy(dict(base))
+    for key, value in over.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def _read_yaml(path: FsPath, chain: tuple[str, ...] = ()) -> dict[str, Any]:
+    if str(path) in chain:
+        raise ConfigError(f"{path}: extends itself through {' -> '.join(chain)}")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        at = f" (line {mark.line + 1}, column {mark.column + 1})" if mark else ""
+        raise ConfigError(f"{path}: not valid YAML{at}: {getattr(exc, 'problem', exc)}") from None
+    if data is None:
+        data = {}
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{path}: the top level must be a mapping of sections")
+    parent = data.get("extends")
+    if parent is not None:
+        if not isinstance(parent, str):
+            raise ConfigError(f"{path}: extends: expected a file name, got {parent!r}")
+        base = _read_yaml((path.parent / parent).resolve(), chain + (str(path),))
+        data = _merge(base, {k: v for k, v in data.items() if k != "extends"})
+    return dict(data)
+
+
+def _params(section: Any, where: str, extras: tuple[str, ...] = ("motor",)) -> tuple[RobotParams, dict[str, Any]]:
+    if not isinstance(section, Mapping):
+        raise ConfigError(f"{where}: expected a mapping of robot parameters")
+    names = set(RobotParams.names())
+    unknown = sorted(str(k) for k in section if k not in names and k not in extras)
+    if unknown:
+        raise ConfigError(f"{where}.{unknown[0]}: unknown key (a robot parameter is one of {', '.join(RobotParams.names())}, or {', '.join(extras)})")
+    missing = [n for n in RobotParams.names() if n not in section]
+    if missing:
+        raise ConfigError(f"{where}.{missing[0]}: missing (required)")
+    for name in RobotParams.names():
+        value = section[name]
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where}.{name}: expected a number, got {value!r}")
+    try:
+        params = RobotParams(**{n: section[n] for n in RobotParams.names()})
+    except ValueError as exc:
+        field_name = str(exc).split(":")[0].removeprefix("RobotParams.")
+        raise ConfigError(f"{where}.{field_name}: {str(exc).split(': ', 1)[-1]}") from None
+    motor = section.get("motor", {}) or {}
+    return params, motor
+
+
+def _motor(mapping: Any, where: str) -> MotorParams:
+    return build(MotorParams, mapping, where)
+
+
+def config_from_mapping(data: Mapping[str, Any], source: str = "<memory>", base_dir: str = ".") -> Config:
+    """Validate a whole merged mapping into a Config; errors name `source` and the key."""
+    try:
+        return _config_from_mapping(data, source, base_dir)
+    except ConfigError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
+
+
+def _config_from_mapping(data: Mapping[str, Any], source: str, base_dir: str) -> Config:
+    unknown = sorted(str(k) for k in data if k not in _TOP_KEYS)
+    if unknown:
+        raise ConfigError(f"{unknown[0]}: unknown section (known: {', '.join(_TOP_KEYS)})")
+    if "robot" not in data:
+        raise ConfigError("robot: missing (required): the controller's robot parameters")
+    robot_section = data["robot"]
+    robot, robot_motor_map = _params(robot_section, "robot")
+    robot_motor = _motor(robot_motor_map, "robot.motor")
+
+    plant_over = data.get("plant") or {}
+    if not isinstance(plant_over, Mapping):
+        raise ConfigError("plant: expected a mapping of robot parameters")
+    plant_section = _merge(robot_section, plant_over)
+    plant, plant_motor_map = _params(plant_section, "plant", ("motor", "motor_l", "motor_r"))
+    # A plant may give one motor for both wheels (motor:) or each its own (motor_l:, motor_r:).
+    plant_motor_l = _motor(_merge(plant_motor_map, plant_over.get("motor_l", {}) or {}), "plant.motor_l")
+    plant_motor_r = _motor(_merge(plant_motor_map, plant_over.get("motor_r", {}) or {}), "plant.motor_r")
+
+    start = data.get("start")
+    if start is not None:
+        if (not isinstance(start, (list, tuple)) or len(start) != 3
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in start)):
+            raise ConfigError(f"start: expected [x, y, theta] in metres and radians, got {start!r}")
+        start = (float(start[0]), float(start[1]), float(start[2]))
+
+    return Config(
+        robot=robot,
+        robot_motor=robot_motor,
+        plant=plant,
+        plant_motor_l=plant_motor_l,
+        plant_motor_r=plant_motor_r,
+        sim=build(SimConfig, data.get("sim") or {}, "sim"),
+        sensors=build(SensorsConfig, data.get("sensors") or {}, "sensors"),
+        hal=build(HalConfig, data.get("hal") or {}, "hal"),
+        controller=build(ControllerConfig, data.get("controller") or {}, "controller"),
+        estimator=build(EstimatorConfig, data.get("estimator") or {}, "estimator"),
+        pursuit=build(PursuitConfig, data.get("pursuit") or {}, "pursuit"),
+        limits=build(LimitsConfig, data.get("limits") or {}, "limits"),
+        daemon=build(DaemonConfig, data.get("daemon") or {}, "daemon"),
+        path=data.get("path"),
+        start=start,
+        source=source,
+        base_dir=base_dir,
+        raw=copy.deepcopy(dict(data)),
+    )
+
+
+def load_config(path: str | FsPath, overrides: Mapping[str, Any] | None = None) -> Config:
+    """Read, merge and validate a YAML config file (plus optional in-memory overrides)."""
+    p = FsPath(path)
+    try:
+        data = _read_yaml(p.resolve())
+    except ConfigError as exc:
+        raise ConfigError(str(exc).replace(str(p.resolve()), str(p), 1)) from None
+    if overrides:
+        data = _merge(data, overrides)
+    return config_from_mapping(data, source=str(p), base_dir=str(p.resolve().parent))
+
+
+def with_overrides(cfg: Config, overrides: Mapping[str, Any]) -> Config:
+    """The same config with some keys replaced (for sweeps and benchmarks)."""
+    return config_from_mapping(_merge(cfg.raw, overrides), source=cfg.source, base_dir=cfg.base_dir)
+
+
+# Keys whose change needs a restart of the daemon (devices and the loop's rate).
+RESTART_KEYS = ("hal", "sensors", "controller.rate_hz", "daemon.socket", "daemon.rt_priority",
+                "daemon.cpus", "daemon.lock_memory", "daemon.telemetry_dir", "sim", "plant")
+
+
+def changed_keys(old: Config, new: Config) -> list[str]:
+    """Dotted top-level-or-second-level keys whose values differ between two configs."""
+    out: list[str] = []
+    for section in sorted(set(old.raw) | set(new.raw)):
+        a, b = old.raw.get(section), new.raw.get(section)
+        if a == b:
+            continue
+        if isinstance(a, Mapping) and isinstance(b, Mapping):
+            for key in sorted(set(a) | set(b)):
+                if a.get(key) != b.get(key):
+                    out.append(f"{section}.{key}")
+        else:
+            out.append(section)
+    return out
+
+
+def needs_restart(keys: list[str]) -> list[str]:
+    """The subset of changed `keys` that cannot be applied while the loop runs."""
+    return [k for k in keys if any(k == r or k.startswith(r + ".") for r in RESTART_KEYS)]
