@@ -179,6 +179,7 @@ class EstimatorConfig:
     yaw_accel_noise: float = 5.0  # rad/s^2 likewise for yaw
     gyro_bias_walk: float = 1e-5  # rad/s per sqrt(s): drift of the zero-rate bias
     gyro_scale: float = 1.0  # believed gyro scale factor (1 + scale error), from calibration
+    gyro_noise_dps: float = 0.07  # std of one gyro sample (deg/s) after the MPU's low-pass
     gate_sigma: float = 5.0  # innovations beyond this many sigma are outliers
     max_rejects: int = 10  # after this many outliers in a row, re-sync and report
     stale_ticks: int = 20  # ticks without a fresh sample before the sensors are stale
@@ -187,7 +188,7 @@ class EstimatorConfig:
 
     def validate(self, where: str) -> None:
         positive(where, accel_noise=self.accel_noise, yaw_accel_noise=self.yaw_accel_noise,
-                 gate_sigma=self.gate_sigma, gyro_scale=self.gyro_scale,
+                 gate_sigma=self.gate_sigma, gyro_scale=self.gyro_scale, gyro_noise_dps=self.gyro_noise_dps,
                  calibration_max_std_dps=self.calibration_max_std_dps, encoder_stuck_s=self.encoder_stuck_s)
         non_negative(where, calibration_s=self.calibration_s, gyro_bias_walk=self.gyro_bias_walk)
         positive(where, max_rejects=self.max_rejects, stale_ticks=self.stale_ticks,

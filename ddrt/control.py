@@ -1,0 +1,321 @@
+"""The controllers: the seed's three-stage design, a kinematic baseline, and the seed's own.
+
+Dynamic (default), the seed's Chapter 4 with ERRATA.md's model:
+  1. outer: Kanayama's law (eq. 4.3) turns the pose error into commanded speeds eta_c;
+  2. inner: PID on e = eta_c - eta, with the reference's acceleration fed forward,
+     integrator clamping and conditional integration (anti-windup), derivative on the
+     measurement (a setpoint step gives no kick);
+  3. compensator: tau = H_hat nu + h_hat, then the inverse motor model gives the duty. The
+     back-EMF and friction are fed forward at the *commanded* wheel speeds, not the measured
+     ones: the motor then keeps its own damping about the command instead of having it
+     cancelled.
+When a wheel saturates, both duties are scaled by the same factor so the robot keeps its
+curve and slows down along it.
+
+Kinematic baseline: pure pursuit's curvature gives (v, omega); a PID per wheel on wheel
+speed, with back-EMF feed-forward, gives the duty (what ros2's diff_drive_controller with
+a wheel PID does).
+
+Seed: the report's own method, for comparison only: time-indexed reference, the report's
+model (h = 0, its smaller I), K_P = 1.732, K_I = K_D = 0.5 on the error eta_c - eta, outer
+gains 10/64/16, and torque turned into duty by cancelling the measured back-EMF.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from ddrt.config import ControllerConfig, LimitsConfig, OuterGains, PidGains
+from ddrt.model import Dynamics
+from ddrt.motor import Motor
+
+SEED_INNER = PidGains(kp=1.732, ki=0.5, kd=0.5, integrator_limit=100.0)
+SEED_OUTER = OuterGains(k_x=10.0, k_y=64.0, k_theta=16.0)
+
+
+def wrap_angle(a: float) -> float:
+    """Angle in (-pi, pi]."""
+    return a - 2.0 * math.pi * math.floor((a + math.pi) / (2.0 * math.pi))
+
+
+@dataclass(slots=True)
+class Setpoint:
+    """What the reference stage hands the controller each tick (SI units).
+
+    q_d = (x_d, y_d, theta_d) is the reference pose; (v_d, omega_d) and (a_d, alpha_d) the
+    reference speeds and their derivatives; `along_err` the path distance by which the
+    schedule leads the robot (path-following mode; 0 when time-indexed); `kappa` the path's
+    curvature at q_d and `pp_curvature` pure pursuit's curvature to its lookahead point.
+    """
+
+    x_d: float = 0.0
+    y_d: float = 0.0
+    theta_d: float = 0.0
+    v_d: float = 0.0
+    omega_d: float = 0.0
+    a_d: float = 0.0
+    alpha_d: float = 0.0
+    along_err: float = 0.0
+    kappa: float = 0.0
+    pp_curvature: float = 0.0
+    pivot: bool = False
+    pivot_radius: float = 0.1
+    active: bool = False  # False: hold still (no path, or finished)
+
+
+@dataclass(slots=True)
+class Command:
+    """The controller's output for one tick, kept for telemetry."""
+
+    duty_l: float = 0.0
+    duty_r: float = 0.0
+    tau_l: float = 0.0
+    tau_r: float = 0.0
+    v_c: float = 0.0
+    omega_c: float = 0.0
+    saturated: bool = False
+
+
+class _Pid:
+    """One PID channel with clamped, conditionally-integrating integrator."""
+
+    __slots__ = ("kp", "ki", "kd", "limit", "integral", "prev_meas", "prev_err", "on_error")
+
+    def __init__(self, gains: PidGains, on_error: bool = False) -> None:
+        self.kp = gains.kp
+        self.ki = gains.ki
+        self.kd = gains.kd
+        self.limit = gains.integrator_limit
+        self.on_error = on_error  # the seed differentiates the error, we the measurement
+        self.integral = 0.0
+        self.prev_meas: float | None = None
+        self.prev_err = 0.0
+
+    def output(self, err: float, meas: float, dt: float, hold_integral: bool) -> float:
+        if not hold_integral:
+            integral = self.integral + err * dt
+            lim = self.limit
+            self.integral = lim if integral > lim else (-lim if integral < -lim else integral)
+        if self.on_error:
+            deriv = (err - self.prev_err) / dt if self.prev_meas is not None else 0.0
+        else:
+            deriv = -(meas - self.prev_meas) / dt if self.prev_meas is not None else 0.0
+        self.prev_meas = meas
+        self.prev_err = err
+        return self.kp * err + self.ki * self.integral + self.kd * deriv
+
+    def retune(self, gains: PidGains, current_output: float, err: float) -> None:
+        """New gains, with the integrator re-seeded so the output does not step (bumpless)."""
+        p_old = self.kp * err + self.ki * self.integral
+        self.kp, self.kd, self.limit = gains.kp, gains.kd, gains.integrator_limit
+        self.ki = gains.ki
+        if gains.ki > 0.0:
+            target = (p_old - gains.kp * err) / gains.ki
+            lim = self.limit
+            self.integral = lim if target > lim else (-lim if target < -lim else target)
+        else:
+            self.integral = 0.0
+
+    def reset(self) -> None:
+        self.integral = 0.0
+        self.prev_meas = None
+        self.prev_err = 0.0
+
+
+def _scale_to_limit(a: float, b: float, limit: float) -> tuple[float, float, bool]:
+    """Scale (a, b) together so neither exceeds `limit` in magnitude; report if it had to."""
+    m = max(abs(a), abs(b))
+    if m > limit:
+        s = limit / m
+        return a * s, b * s, True
+    return a, b, False
+
+
+class DynamicController:
+    """Outer Kanayama law, inner PID, computed-torque compensator, inverse motor model."""
+
+    def __init__(self, dyn: Dynamics, motor: Motor, cfg: ControllerConfig, limits: LimitsConfig,
+                 period_s: float, seed_method: bool = False) -> None:
+        self.dyn = dyn
+        self.motor = motor
+        self.limits = limits
+        self.period = period_s
+        self.seed_method = seed_method
+        outer = SEED_OUTER if seed_method else cfg.outer
+        inner = SEED_INNER if seed_method else cfg.inner
+        self.outer = outer
+        self.heading_gain = cfg.heading_gain
+        self.pid_v = _Pid(inner, on_error=seed_method)
+        self.pid_w = _Pid(inner, on_error=seed_method)
+        self.cmd = Command()
+        self._nu_max = 2.0 * limits.accel
+        self._alpha_max = 2.0 * limits.alpha_max
+
+    def reset(self) -> None:
+        self.pid_v.reset()
+        self.pid_w.reset()
+        self.cmd = Command()
+
+    def set_dynamics(self, dyn: Dynamics) -> None:
+        """Swap the compensator's model (the adaptive law's estimate) between ticks."""
+        self.dyn = dyn
+
+    def retune(self, cfg: ControllerConfig, limits: LimitsConfig) -> None:
+        """Apply new gains between two ticks without a step in the command."""
+        if self.seed_method:
+            return
+        self.outer = cfg.outer
+        self.heading_gain = cfg.heading_gain
+        self.limits = limits
+        self._nu_max = 2.0 * limits.accel
+        self._alpha_max = 2.0 * limits.alpha_max
+        self.pid_v.retune(cfg.inner, 0.0, self._last_err_v)
+        self.pid_w.retune(cfg.inner, 0.0, self._last_err_w)
+
+    _last_err_v = 0.0
+    _last_err_w = 0.0
+
+    def update(self, x: float, y: float, theta: float, v: float, w: float, sp: Setpoint) -> Command:
+        cmd = self.cmd
+        dt = self.period
+        # 1. Outer law (seed eq. 4.3) in the robot frame.
+        dx = sp.x_d - x
+        dy = sp.y_d - y
+        c = math.cos(theta)
+        s = math.sin(theta)
+        x_e = c * dx + s * dy + sp.along_err
+        y_e = -s * dx + c * dy
+        th_e = wrap_angle(sp.theta_d - theta)
+        o = self.outer
+        v_d = sp.v_d
+        v_c = v_d * math.cos(th_e) + o.k_x * x_e
+        # Kanayama's heading feedback vanishes with v_d; keep a floor so the robot still
+        # holds its heading while turning in place or starting from rest.
+        k_th = v_d * o.k_theta
+        if not self.seed_method and k_th < self.heading_gain:
+            k_th = self.heading_gain
+        w_c = sp.omega_d + v_d * o.k_y * y_e + k_th * math.sin(th_e)
+        if sp.pivot and not self.seed_method:
+            w_c += o.k_x * sp.along_err / sp.pivot_radius * (1.0 if sp.omega_d >= 0.0 else -1.0)
+            v_c = v_d * math.cos(th_e) + o.k_x * (c * dx + s * dy)
+        lim = self.limits
+        v_c = max(-lim.v_max, min(lim.v_max, v_c))
+        w_c = max(-lim.omega_max, min(lim.omega_max, w_c))
+
+        # 2. Inner PID on eta_c - eta with acceleration feed-forward.
+        e_v = v_c - v
+        e_w = w_c - w
+        self._last_err_v = e_v
+        self._last_err_w = e_w
+        hold = cmd.saturated
+        nu_v = sp.a_d + self.pid_v.output(e_v, v, dt, hold)
+        nu_w = sp.alpha_d + self.pid_w.output(e_w, w, dt, hold)
+        nu_v = max(-self._nu_max, min(self._nu_max, nu_v))
+        nu_w = max(-self._alpha_max, min(self._alpha_max, nu_w))
+
+        # 3. Computed torque with the model, then the inverse motor model.
+        tau_l, tau_r = self.dyn.inverse(v, w, nu_v, nu_w)
+        tau_l, tau_r, sat_t = _scale_to_limit(tau_l, tau_r, lim.torque_max_nm)
+        dyn = self.dyn
+        wl = (v - dyn.L * w) / dyn.r_L
+        wr = (v + dyn.R * w) / dyn.r_R
+        motor = self.motor
+        if self.seed_method:
+            duty_l, _ = motor.duty_for_torque(tau_l, wl, friction_speed=0.0)
+            duty_r, _ = motor.duty_for_torque(tau_r, wr, friction_speed=0.0)
+        else:
+            wl_c = (v_c - dyn.L * w_c) / dyn.r_L
+            wr_c = (v_c + dyn.R * w_c) / dyn.r_R
+            duty_l, _ = motor.duty_for_torque(tau_l, wl, emf_speed=wl_c, friction_speed=wl_c)
+            duty_r, _ = motor.duty_for_torque(tau_r, wr, emf_speed=wr_c, friction_speed=wr_c)
+        duty_l, duty_r, sat_d = _scale_to_limit(duty_l, duty_r, lim.duty_max)
+
+        cmd.duty_l = duty_l
+        cmd.duty_r = duty_r
+        cmd.tau_l = tau_l
+        cmd.tau_r = tau_r
+        cmd.v_c = v_c
+        cmd.omega_c = w_c
+        cmd.saturated = sat_t or sat_d
+        return cmd
+
+
+class KinematicController:
+    """Pure pursuit curvature plus a speed PID per wheel: the baseline to beat."""
+
+    def __init__(self, dyn: Dynamics, motor: Motor, cfg: ControllerConfig, limits: LimitsConfig,
+                 period_s: float) -> None:
+        self.dyn = dyn
+        self.motor = motor
+        self.limits = limits
+        self.period = period_s
+        self.heading_gain = cfg.heading_gain
+        wheel = cfg.wheel_pid
+        gains = PidGains(kp=wheel.kp, ki=wheel.ki, kd=wheel.kd, integrator_limit=wheel.integrator_limit)
+        self.pid_l = _Pid(gains)
+        self.pid_r = _Pid(gains)
+        self.cmd = Command()
+
+    def reset(self) -> None:
+        self.pid_l.reset()
+        self.pid_r.reset()
+        self.cmd = Command()
+
+    def set_dynamics(self, dyn: Dynamics) -> None:
+        self.dyn = dyn
+
+    def retune(self, cfg: ControllerConfig, limits: LimitsConfig) -> None:
+        wheel = cfg.wheel_pid
+        gains = PidGains(kp=wheel.kp, ki=wheel.ki, kd=wheel.kd, integrator_limit=wheel.integrator_limit)
+        self.pid_l.retune(gains, 0.0, 0.0)
+        self.pid_r.retune(gains, 0.0, 0.0)
+        self.heading_gain = cfg.heading_gain
+        self.limits = limits
+
+    def update(self, x: float, y: float, theta: float, v: float, w: float, sp: Setpoint) -> Command:
+        cmd = self.cmd
+        lim = self.limits
+        th_e = wrap_angle(sp.theta_d - theta)
+        if sp.pivot:
+            v_c = 0.0
+            w_c = sp.omega_d + self.heading_gain * math.sin(th_e)
+        else:
+            v_c = sp.v_d + 10.0 * sp.along_err
+            w_c = v_c * sp.pp_curvature
+            if sp.v_d < 1e-3:
+                w_c += self.heading_gain * math.sin(th_e)
+        v_c = max(-lim.v_max, min(lim.v_max, v_c))
+        w_c = max(-lim.omega_max, min(lim.omega_max, w_c))
+        dyn = self.dyn
+        wl_c = (v_c - dyn.L * w_c) / dyn.r_L
+        wr_c = (v_c + dyn.R * w_c) / dyn.r_R
+        wl = (v - dyn.L * w) / dyn.r_L
+        wr = (v + dyn.R * w) / dyn.r_R
+        motor = self.motor
+        hold = cmd.saturated
+        ff_l, _ = motor.duty_for_torque(0.0, wl_c)
+        ff_r, _ = motor.duty_for_torque(0.0, wr_c)
+        duty_l = ff_l + self.pid_l.output(wl_c - wl, wl, self.period, hold)
+        duty_r = ff_r + self.pid_r.output(wr_c - wr, wr, self.period, hold)
+        duty_l, duty_r, sat = _scale_to_limit(duty_l, duty_r, lim.duty_max)
+        cmd.duty_l = duty_l
+        cmd.duty_r = duty_r
+        cmd.tau_l = motor.electromagnetic_torque(duty_l, wl) - motor.friction(wl)
+        cmd.tau_r = motor.electromagnetic_torque(duty_r, wr) - motor.friction(wr)
+        cmd.v_c = v_c
+        cmd.omega_c = w_c
+        cmd.saturated = sat
+        return cmd
+
+
+def make_controller(mode: str, dyn_true_model: Dynamics, dyn_seed_model: Dynamics, motor: Motor,
+                    cfg: ControllerConfig, limits: LimitsConfig, period_s: float) -> DynamicController | KinematicController:
+    """The controller named by `controller.mode`."""
+    if mode == "dynamic":
+        return DynamicController(dyn_true_model, motor, cfg, limits, period_s)
+    if mode == "kinematic":
+        return KinematicController(dyn_true_model, motor, cfg, limits, period_s)
+    if mode == "seed":
+        return DynamicController(dyn_seed_model, motor, cfg, limits, period_s, seed_method=True)
+    raise ValueError(f"controller.mode: unknown mode {mode!r}")

@@ -1,0 +1,211 @@
+"""State estimation: forward speed, yaw rate and gyro bias from the encoder and the gyro.
+
+Prediction uses the robot's dynamic model driven by the torque the motors actually give
+(the motor model at the applied duty and the estimated wheel speeds), so the filter knows
+about accelerations before the sensors see them. Measurements: the front encoder's
+travelled distance (a position, so quantisation stays white) and the raw gyro. The gyro's
+zero-rate bias is calibrated at rest before the robot moves and re-tracked whenever it
+stands still; outliers are gated; a sensor that stops changing or arriving is reported.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from ddrt.config import EstimatorConfig
+from ddrt.kalman import TravelFilter, YawFilter
+from ddrt.model import Dynamics
+from ddrt.motor import Motor
+from hal.base import HalInfo, Sample
+
+_TWO32 = 1 << 32
+_TWO31 = 1 << 31
+DEG = math.pi / 180.0
+
+
+class CalibrationError(ValueError):
+    """The gyro could not be calibrated: too few samples, or the robot was moving."""
+
+
+@dataclass(slots=True)
+class EstimatorHealth:
+    """Counters and the latest fault; the loop turns a fault into a safe stop."""
+
+    gyro_rejects: int = 0
+    encoder_rejects: int = 0
+    resyncs: int = 0
+    stale_ticks: int = 0
+    fault: str = ""
+
+
+def calibrate_gyro(raw: list[int], lsb_per_rad_s: float, scale: float, max_std_dps: float) -> tuple[float, float]:
+    """Mean and std (rad/s) of gyro readings taken at rest; refuse if the robot moved."""
+    if len(raw) < 10:
+        raise CalibrationError(f"gyro calibration needs at least 10 samples, got {len(raw)}")
+    values = [r / (lsb_per_rad_s * scale) for r in raw]
+    mean = sum(values) / len(values)
+    std = math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1))
+    if std > max_std_dps * DEG:
+        raise CalibrationError(
+            f"gyro calibration refused: noise {std / DEG:.3f} deg/s exceeds "
+            f"estimator.calibration_max_std_dps={max_std_dps} (is the robot moving?)")
+    return mean, std
+
+
+class Estimator:
+    """Kalman-filtered (v, omega), gyro bias, and a dead-reckoned pose of point A."""
+
+    def __init__(self, dyn: Dynamics, motor: Motor, cfg: EstimatorConfig, info: HalInfo,
+                 r_3: float, period_s: float) -> None:
+        self.dyn = dyn
+        self.motor = motor
+        self.cfg = cfg
+        self.period = period_s
+        self.metres_per_count = 2.0 * math.pi * r_3 / info.encoder_counts_per_rev
+        self.rad_s_per_lsb = 1.0 / (info.gyro_lsb_per_rad_s * cfg.gyro_scale)
+        self.gyro_full_scale = info.gyro_full_scale_rad_s / cfg.gyro_scale
+        q = self.metres_per_count
+        self.travel = TravelFilter(cfg.accel_noise, q / math.sqrt(12.0))
+        self.yaw = YawFilter(cfg.yaw_accel_noise, cfg.gyro_bias_walk, cfg.gyro_noise_dps * DEG)
+        self.gate2 = cfg.gate_sigma * cfg.gate_sigma
+        self.health = EstimatorHealth()
+        self.x = self.y = self.theta = 0.0
+        self._last_t: float | None = None
+        self._last_count = 0
+        self._travel_counts = 0  # unwrapped encoder counts since reset
+        self._enc_rejects_row = 0
+        self._gyro_rejects_row = 0
+        self._last_raw_gyro: int | None = None
+        self._same_gyro = 0
+        self._count_still_s = 0.0  # time without counts while the filter says we move
+        self._still_ticks = 0  # ticks in a row without a single encoder count
+
+    # ------------------------------------------------------------------ set-up
+
+    def reset(self, sample: Sample, pose: tuple[float, float, float], bias: float) -> None:
+        """Start from a known pose at rest, with a calibrated gyro bias (rad/s)."""
+        self.x, self.y, self.theta = pose
+        self._last_t = sample.t
+        self._last_count = sample.encoder_count
+        self._travel_counts = 0
+        self.travel.p = 0.0
+        self.travel.v = 0.0
+        self.yaw.w = 0.0
+        self.yaw.b = bias
+        self._last_raw_gyro = sample.gyro_z_raw
+
+    def set_pose(self, pose: tuple[float, float, float]) -> None:
+        self.x, self.y, self.theta = pose
+
+    @property
+    def v(self) -> float:
+        return self.travel.v
+
+    @property
+    def omega(self) -> float:
+        return self.yaw.w
+
+    @property
+    def bias(self) -> float:
+        return self.yaw.b
+
+    # ------------------------------------------------------------------ per tick
+
+    def update(self, sample: Sample, duty_l: float, duty_r: float, commanded_still: bool) -> None:
+        """Advance to `sample` given the duties applied since the previous one.
+
+        `commanded_still` is True when the controller asks for no motion: with the encoder
+        also still, the robot is at rest and the gyro bias is re-tracked (w = 0 exactly).
+        """
+        health = self.health
+        last_t = self._last_t
+        if last_t is None:
+            raise RuntimeError("Estimator.update before reset")
+        dt = sample.t - last_t
+        if not sample.fresh or dt <= 0.0:
+            health.stale_ticks += 1
+            if health.stale_ticks >= self.cfg.stale_ticks:
+                health.fault = f"sensors stale for {health.stale_ticks} ticks"
+            dt = self.period  # dead-reckon through a short gap
+            fresh = False
+        else:
+            health.stale_ticks = 0
+            fresh = True
+            if dt > 10.0 * self.period:
+                health.fault = f"sensor gap of {dt * 1000:.1f} ms"
+        self._last_t = last_t + dt
+
+        # Predict with the model and the torque the motors give at the applied duty.
+        dyn = self.dyn
+        v = self.travel.v
+        w = self.yaw.w
+        wl = (v - dyn.L * w) / dyn.r_L
+        wr = (v + dyn.R * w) / dyn.r_R
+        tau_l = self.motor.electromagnetic_torque(duty_l, wl) - self.motor.friction(wl)
+        tau_r = self.motor.electromagnetic_torque(duty_r, wr) - self.motor.friction(wr)
+        a, alpha = dyn.forward(v, w, tau_l, tau_r)
+        self.travel.predict(dt, a)
+        self.yaw.predict(dt, alpha)
+
+        if fresh:
+            self._fuse_encoder(sample.encoder_count, dt)
+            self._fuse_gyro(sample.gyro_z_raw, commanded_still)
+
+        # Dead reckoning of A with the filtered velocities (midpoint heading).
+        v = self.travel.v
+        w = self.yaw.w
+        half = self.theta + 0.5 * w * dt
+        self.x += v * dt * math.cos(half)
+        self.y += v * dt * math.sin(half)
+        self.theta += w * dt
+
+    def _fuse_encoder(self, count: int, dt: float) -> None:
+        delta = (count - self._last_count + _TWO31) % _TWO32 - _TWO31
+        self._last_count = count
+        self._travel_counts += delta
+        health = self.health
+        self._still_ticks = self._still_ticks + 1 if delta == 0 else 0
+        if delta == 0 and abs(self.travel.v) > 0.05:
+            self._count_still_s += dt
+            if self._count_still_s > self.cfg.encoder_stuck_s:
+                health.fault = (f"encoder stuck: no counts for {self._count_still_s:.2f} s "
+                                f"while moving at {self.travel.v:.2f} m/s")
+        else:
+            self._count_still_s = 0.0
+        z = self._travel_counts * self.metres_per_count
+        y, s = self.travel.innovation(z)
+        if y * y / s > self.gate2 and self._enc_rejects_row < self.cfg.max_rejects:
+            self._enc_rejects_row += 1
+            health.encoder_rejects += 1
+            return
+        if self._enc_rejects_row >= self.cfg.max_rejects:
+            health.resyncs += 1
+            self.travel.p00 += y * y  # re-sync: trust the sensor again
+        self._enc_rejects_row = 0
+        self.travel.update(z)
+
+    def _fuse_gyro(self, raw: int, commanded_still: bool) -> None:
+        health = self.health
+        if raw == self._last_raw_gyro:
+            self._same_gyro += 1
+            if self._same_gyro >= self.cfg.stuck_gyro_ticks:
+                health.fault = f"gyro stuck at raw {raw} for {self._same_gyro} samples"
+        else:
+            self._same_gyro = 0
+        self._last_raw_gyro = raw
+        z = raw * self.rad_s_per_lsb
+        if abs(z) >= self.gyro_full_scale * 0.999:
+            health.fault = "gyro saturated"
+        if commanded_still and self._still_ticks >= 20:  # ~0.1 s without a count: at rest
+            self.yaw.update_at_rest(1e-10)
+        y, s = self.yaw.innovation(z)
+        if y * y / s > self.gate2 and self._gyro_rejects_row < self.cfg.max_rejects:
+            self._gyro_rejects_row += 1
+            health.gyro_rejects += 1
+            return
+        if self._gyro_rejects_row >= self.cfg.max_rejects:
+            health.resyncs += 1
+            self.yaw.p00 += y * y
+        self._gyro_rejects_row = 0
+        self.yaw.update(z)

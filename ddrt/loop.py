@@ -1,0 +1,215 @@
+"""One control tick, the same on the robot and in simulation:
+read -> estimate -> reference -> control -> write -> record.
+
+`ControlLoop` owns the estimator, the reference and the controller and knows nothing of
+where the samples come from (a `hal.base.Hal`). Any fault (a HAL error, a stale or stuck
+sensor, a non-finite number anywhere) zeroes the motors at once and latches the `fault`
+state; `estop` latches until `reset`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from typing import Callable
+
+from ddrt.config import Config
+from ddrt.control import Command, DynamicController, KinematicController, Setpoint, make_controller
+from ddrt.estimator import Estimator, calibrate_gyro
+from ddrt.model import Dynamics
+from ddrt.motor import Motor
+from ddrt.path import Path
+from ddrt.reference import PathReference
+from hal.base import Hal, HalError, Sample
+
+log = logging.getLogger("ddrt.loop")
+
+STATES = ("idle", "following", "stopping", "stopped", "estop", "fault")
+
+COLUMNS = (
+    "t", "x_est", "y_est", "theta_est", "v_est", "omega_est", "gyro_bias",
+    "x_ref", "y_ref", "theta_ref", "v_ref", "omega_ref", "v_cmd", "omega_cmd",
+    "tau_l", "tau_r", "duty_l", "duty_r", "sigma", "cross_track_est", "saturated", "state",
+)
+STATE_CODE = {name: float(i) for i, name in enumerate(STATES)}
+
+
+class ControlLoop:
+    """The controller around one HAL: calibrate, follow a path, stop safely."""
+
+    def __init__(self, cfg: Config, hal: Hal) -> None:
+        self.cfg = cfg
+        self.hal = hal
+        self.period = 1.0 / cfg.controller.rate_hz
+        self.dyn = Dynamics.from_params(cfg.robot)
+        self.seed_dyn = Dynamics.from_params(cfg.robot, seed_report=True)
+        self.motor = Motor(cfg.robot_motor)
+        self.estimator = Estimator(self.dyn, self.motor, cfg.estimator, hal.info, cfg.robot.r_3, self.period)
+        self.controller: DynamicController | KinematicController = make_controller(
+            cfg.controller.mode, self.dyn, self.seed_dyn, self.motor, cfg.controller, cfg.limits, self.period)
+        self.reference: PathReference | None = None
+        self.path: Path | None = None
+        self.setpoint = Setpoint()
+        self.idle_cmd = Command()
+        self.cmd = self.idle_cmd
+        self.state = "idle"
+        self.fault = ""
+        self.ticks = 0
+        self.saturated_ticks = 0
+        self.sample: Sample | None = None
+        self.duty_l = 0.0
+        self.duty_r = 0.0
+        self.row = [0.0] * len(COLUMNS)
+        self.on_tick: Callable[["ControlLoop"], None] | None = None
+
+    # ------------------------------------------------------------------ start-up
+
+    def calibrate(self, sleep_until: Callable[[float], float], now: Callable[[], float]) -> tuple[float, float]:
+        """Hold the motors at zero and measure the gyro bias at rest; returns (bias, std)."""
+        self.hal.stop()
+        est_cfg = self.cfg.estimator
+        n = max(10, int(round(est_cfg.calibration_s / self.period)))
+        raw: list[int] = []
+        t = now()
+        sample = self.hal.read()
+        for _ in range(n):
+            t += self.period
+            sleep_until(t)
+            sample = self.hal.read()
+            raw.append(sample.gyro_z_raw)
+        bias, std = calibrate_gyro(raw, self.hal.info.gyro_lsb_per_rad_s, est_cfg.gyro_scale,
+                                   est_cfg.calibration_max_std_dps)
+        self.estimator.reset(sample, self.estimator_pose(), bias)
+        self.sample = sample
+        log.info("gyro bias %.4f deg/s (noise %.4f deg/s) from %d samples",
+                 math.degrees(bias), math.degrees(std), n)
+        return bias, std
+
+    def estimator_pose(self) -> tuple[float, float, float]:
+        e = self.estimator
+        return e.x, e.y, e.theta
+
+    # ------------------------------------------------------------------ commands
+
+    def follow(self, path: Path, pose: tuple[float, float, float] | None = None) -> None:
+        """Start following `path`; `pose` (if given) resets the dead-reckoned pose."""
+        if self.state in ("estop", "fault"):
+            raise RuntimeError(f"cannot follow a path in state {self.state}: reset first")
+        if pose is not None:
+            self.estimator.set_pose(pose)
+        p = self.cfg.pursuit
+        self.reference = PathReference(path, p.lookahead_m, p.search_window_m, self.period,
+                                       time_indexed=(p.mode == "time" or self.cfg.controller.mode == "seed"))
+        self.path = path
+        self.controller.reset()
+        self.state = "following"
+
+    def stop(self) -> None:
+        """Controlled stop along the path."""
+        if self.state == "following" and self.reference is not None:
+            self.reference.request_stop(self.cfg.daemon.stop_decel)
+            self.state = "stopping"
+
+    def estop(self, reason: str = "estop requested") -> None:
+        """Motors to zero now, latched until reset()."""
+        self._zero_motors()
+        self.state = "estop"
+        self.fault = reason
+
+    def reset(self) -> None:
+        """Leave estop/fault: back to idle, motors still at zero."""
+        self._zero_motors()
+        self.controller.reset()
+        self.reference = None
+        self.estimator.health.fault = ""
+        self.fault = ""
+        self.state = "idle"
+
+    def enter_fault(self, reason: str) -> None:
+        self._zero_motors()
+        if self.state != "fault":
+            log.error("fault: %s; motors zeroed", reason)
+        self.state = "fault"
+        self.fault = reason
+
+    def _zero_motors(self) -> None:
+        self.duty_l = self.duty_r = 0.0
+        self.cmd = self.idle_cmd
+        try:
+            self.hal.stop()
+        except Exception as exc:  # the device may be gone; the MCU's watchdog stops it then
+            log.error("stop failed: %s", exc)
+
+    # ------------------------------------------------------------------ the tick
+
+    def tick(self) -> None:
+        """read -> estimate -> reference -> control -> write -> record."""
+        self.ticks += 1
+        try:
+            sample = self.hal.read()
+        except HalError as exc:
+            self.enter_fault(f"sensor read failed: {exc}")
+            self._record(self.sample.t + self.period if self.sample else 0.0)
+            return
+        self.sample = sample
+        state = self.state
+        moving = state in ("following", "stopping")
+        est = self.estimator
+        est.update(sample, self.duty_l, self.duty_r, commanded_still=not moving)
+        if est.health.fault and state != "fault":
+            self.enter_fault(est.health.fault)
+            state = self.state
+        if state in ("following", "stopping"):
+            ref = self.reference
+            sp = self.setpoint
+            ref.update(est.x, est.y, est.theta, sp)  # type: ignore[union-attr]
+            cmd = self.controller.update(est.x, est.y, est.theta, est.v, est.omega, sp)
+            if ref.done and abs(est.v) < 2e-3 and abs(est.omega) < 5e-3:  # type: ignore[union-attr]
+                self.state = "stopped"
+                self._zero_motors()
+            elif not (math.isfinite(cmd.duty_l) and math.isfinite(cmd.duty_r)
+                      and math.isfinite(est.x) and math.isfinite(est.y) and math.isfinite(est.theta)):
+                self.enter_fault("non-finite value in the controller")
+            else:
+                try:
+                    self.hal.write(cmd.duty_l, cmd.duty_r)
+                except HalError as exc:
+                    self.enter_fault(f"motor write failed: {exc}")
+                else:
+                    self.duty_l = cmd.duty_l
+                    self.duty_r = cmd.duty_r
+                    self.cmd = cmd
+                    if cmd.saturated:
+                        self.saturated_ticks += 1
+        self._record(sample.t)
+        if self.on_tick is not None:
+            self.on_tick(self)
+
+    def _record(self, t: float) -> None:
+        e = self.estimator
+        sp = self.setpoint
+        c = self.cmd
+        r = self.row
+        r[0] = t
+        r[1] = e.x
+        r[2] = e.y
+        r[3] = e.theta
+        r[4] = e.travel.v
+        r[5] = e.yaw.w
+        r[6] = e.yaw.b
+        r[7] = sp.x_d
+        r[8] = sp.y_d
+        r[9] = sp.theta_d
+        r[10] = sp.v_d
+        r[11] = sp.omega_d
+        r[12] = c.v_c
+        r[13] = c.omega_c
+        r[14] = c.tau_l
+        r[15] = c.tau_r
+        r[16] = self.duty_l
+        r[17] = self.duty_r
+        ref = self.reference
+        r[18] = ref.sigma if ref is not None else 0.0
+        r[19] = ref.cross_track if ref is not None else 0.0
+        r[20] = 1.0 if c.saturated else 0.0
+        r[21] = STATE_CODE[self.state]

@@ -1,0 +1,61 @@
+"""Tracking metrics of a finished run, computed offline from the telemetry (numpy is fine here)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ddrt.path import Path
+
+
+def path_polyline(path: Path, step: float = 0.001) -> np.ndarray:
+    """Dense (N, 2) polyline of the path's geometry (pivots collapse to their corner point)."""
+    n = max(2, int(math.ceil(path.length / step)) + 1)
+    pts = np.empty((n, 2))
+    for i, s in enumerate(np.linspace(0.0, path.length, n)):
+        p = path.at(float(s))
+        pts[i, 0] = p.x
+        pts[i, 1] = p.y
+    return pts
+
+
+def distances_to_polyline(poly: np.ndarray, xy: np.ndarray, chunk: int = 2048) -> np.ndarray:
+    """Euclidean distance of each point in `xy` (M, 2) to the polyline `poly` (N, 2)."""
+    a = poly[:-1]
+    ab = poly[1:] - a
+    len2 = np.einsum("ij,ij->i", ab, ab)
+    len2 = np.where(len2 > 0.0, len2, 1.0)
+    out = np.empty(len(xy))
+    for start in range(0, len(xy), chunk):
+        p = xy[start:start + chunk]
+        ap = p[:, None, :] - a[None, :, :]
+        t = np.clip(np.einsum("mij,ij->mi", ap, ab) / len2, 0.0, 1.0)
+        closest = a[None, :, :] + t[:, :, None] * ab[None, :, :]
+        d = np.linalg.norm(p[:, None, :] - closest, axis=2)
+        out[start:start + chunk] = d.min(axis=1)
+    return out
+
+
+def tracking_metrics(path: Path, true_xy: np.ndarray, est_xy: np.ndarray, heading_err: np.ndarray,
+                     saturated: np.ndarray) -> dict[str, float]:
+    """RMS/max cross-track (true and estimated pose), heading, end error, saturation."""
+    if len(true_xy) == 0:
+        return {"rms_cross_track_m": float("nan"), "max_cross_track_m": float("nan"),
+                "rms_tracking_m": float("nan"), "max_tracking_m": float("nan"),
+                "rms_heading_err_rad": float("nan"), "final_pos_err_m": float("nan"),
+                "saturated_fraction": 0.0}
+    poly = path_polyline(path)
+    d_true = distances_to_polyline(poly, true_xy)
+    d_est = distances_to_polyline(poly, est_xy)
+    end = path.at(path.length)
+    final = float(math.hypot(true_xy[-1, 0] - end.x, true_xy[-1, 1] - end.y))
+    return {
+        "rms_cross_track_m": float(np.sqrt(np.mean(d_true ** 2))),
+        "max_cross_track_m": float(d_true.max()),
+        "rms_tracking_m": float(np.sqrt(np.mean(d_est ** 2))),
+        "max_tracking_m": float(d_est.max()),
+        "rms_heading_err_rad": float(np.sqrt(np.mean(heading_err ** 2))),
+        "final_pos_err_m": final,
+        "saturated_fraction": float(np.mean(saturated)),
+    }

@@ -1,0 +1,110 @@
+"""The reference stage: from the path and the estimated pose to the controller's Setpoint.
+
+Path-following (default): pure pursuit's nearest point gives the reference pose (so the
+cross-track and heading errors are purely geometric), and a schedule that runs along the
+path's speed profile in time gives the reference speed and acceleration. The schedule is
+held back whenever it would lead the robot's progress by more than `max_lead_m`, so a robot
+that was stopped or slowed never has to race to catch up; `along_err` (schedule minus
+progress) drives the outer law's K_x term. Time-indexed mode is the seed's own: the
+reference is wherever the profile is at time t, whatever the robot does.
+"""
+
+from __future__ import annotations
+
+from ddrt.control import Setpoint
+from ddrt.path import Path
+from ddrt.pursuit import PurePursuit
+
+
+class PathReference:
+    """Nearest-point geometry plus a governed time schedule along the speed profile."""
+
+    def __init__(self, path: Path, lookahead_m: float, search_window_m: float, period_s: float,
+                 max_lead_m: float = 0.05, time_indexed: bool = False) -> None:
+        self.path = path
+        self.pursuit = PurePursuit(path, lookahead_m=lookahead_m, search_window_m=search_window_m)
+        self.period = period_s
+        self.max_lead = max_lead_m
+        self.time_indexed = time_indexed
+        self.t_sched = 0.0
+        self.sigma = 0.0
+        self.cross_track = 0.0
+        self.done = False
+        self._stop_decel: float | None = None
+        self._stop_v = 0.0
+        self._stop_sigma = 0.0
+
+    def request_stop(self, decel: float) -> None:
+        """Come to rest along the path at `decel` m/s^2 from the current schedule speed."""
+        if self._stop_decel is None:
+            point = self.path.at_time(self.t_sched)
+            self._stop_decel = decel
+            self._stop_v = 0.0 if point.pivot else point.v
+            self._stop_sigma = point.sigma
+
+    @property
+    def stopping(self) -> bool:
+        return self._stop_decel is not None
+
+    def update(self, x: float, y: float, theta: float, sp: Setpoint) -> None:
+        """Fill `sp` for a robot at (x, y, theta)."""
+        near = self.pursuit.update(x, y, theta)
+        self.sigma = near.sigma
+        self.cross_track = near.cross_track
+        path = self.path
+        sp.active = True
+        sp.pp_curvature = near.pp_curvature
+        if self._stop_decel is not None:
+            self._update_stopping(near, sp)
+            return
+        t_next = self.t_sched + self.period
+        if self.time_indexed:
+            self.t_sched = t_next
+            sched = path.at_time(t_next)
+            sp.x_d, sp.y_d, sp.theta_d = sched.x, sched.y, sched.theta
+            sp.v_d, sp.omega_d, sp.a_d, sp.alpha_d = sched.v, sched.omega, sched.a, sched.alpha
+            sp.along_err = 0.0
+            sp.kappa = sched.kappa
+            sp.pivot = sched.pivot
+            self.done = t_next >= path.duration and near.done
+            return
+        sched = path.at_time(t_next)
+        if sched.sigma <= near.sigma + self.max_lead:
+            self.t_sched = t_next
+            held = False
+        else:
+            sched = path.at_time(self.t_sched)
+            held = True
+        sp.x_d, sp.y_d, sp.theta_d = near.x_d, near.y_d, near.theta_d
+        sp.kappa = near.kappa
+        sp.v_d = sched.v
+        sp.a_d = 0.0 if held else sched.a
+        sp.along_err = sched.sigma - near.sigma
+        sp.pivot = sched.pivot or near.pivot
+        if sched.pivot:
+            sp.omega_d = sched.omega
+            sp.alpha_d = 0.0 if held else sched.alpha
+        else:
+            sp.omega_d = sched.v * near.kappa
+            sp.alpha_d = 0.0 if held else sched.a * near.kappa
+        self.done = near.done and self.t_sched >= path.duration
+
+    def _update_stopping(self, near, sp: Setpoint) -> None:
+        decel = self._stop_decel or 1.0
+        dt = self.period
+        v = self._stop_v - decel * dt
+        a = -decel
+        if v <= 0.0:
+            v = 0.0
+            a = 0.0
+        self._stop_sigma += 0.5 * (self._stop_v + v) * dt
+        self._stop_v = v
+        sp.x_d, sp.y_d, sp.theta_d = near.x_d, near.y_d, near.theta_d
+        sp.kappa = near.kappa
+        sp.v_d = v
+        sp.a_d = a
+        sp.omega_d = v * near.kappa
+        sp.alpha_d = a * near.kappa
+        sp.along_err = max(-self.max_lead, min(self.max_lead, self._stop_sigma - near.sigma)) if v > 0 else 0.0
+        sp.pivot = False
+        self.done = v == 0.0

@@ -1,0 +1,1 @@
+"""Hardware abstraction: the interface (`hal.base`) and the real drivers."""

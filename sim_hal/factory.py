@@ -1,0 +1,36 @@
+"""Build the simulated robot from a validated config (`hal.backend: sim`)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from ddrt.config import Config
+from sim_hal.plant import PlantConfig, SimRobot
+from sim_hal.sim_hal import SimHal
+
+
+def plant_config(cfg: Config, seed: int | None = None) -> PlantConfig:
+    """The plant's settings from the config's sim: and sensors: sections."""
+    s = cfg.sim
+    return PlantConfig(
+        step_hz=s.step_hz,
+        friction=s.friction,
+        slip_probability=s.slip.probability,
+        slip_sigma_nm=s.slip.sigma_nm,
+        seed=s.seed if seed is None else seed,
+        command_latency_s=s.command_latency_s,
+        sensor_latency_s=s.sensor_latency_s,
+        encoder_counts_per_rev=cfg.sensors.encoder_counts_per_rev,
+        gyro_range_dps=cfg.sensors.gyro_range_dps,
+        gyro_bias_dps=s.gyro.bias_dps,
+        gyro_noise_dps_rthz=s.gyro.noise_dps_rthz,
+        gyro_scale_error=s.gyro.scale_error,
+        gyro_dlpf_hz=s.gyro.dlpf_hz,
+    )
+
+
+def open_sim_hal(cfg: Config, start: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                 seed: int | None = None, paced: bool = False, **_: Any) -> SimHal:
+    """A SimHal around the plant described by `cfg` (truth: plant:, sim:, sensors:)."""
+    robot = SimRobot(cfg.plant, cfg.plant_motor_l, cfg.plant_motor_r, plant_config(cfg, seed), start=start)
+    return SimHal(robot, paced=paced)
