@@ -110,7 +110,8 @@ def summarise(rows: list[tuple[float, ...]], path: Path, loop: ControlLoop) -> d
     true_xy = arr[:, [idx["x"], idx["y"]]]
     est_xy = arr[:, [idx["x_est"], idx["y_est"]]]
     heading = np.array([wrap_angle(a - b) for a, b in zip(arr[:, idx["theta_ref"]], arr[:, idx["theta"]])])
-    m: dict[str, Any] = tracking_metrics(path, true_xy, est_xy, heading, arr[:, idx["saturated"]])
+    m: dict[str, Any] = tracking_metrics(path, true_xy, est_xy, heading, arr[:, idx["saturated"]],
+                                                 arr[:, idx["sigma"]])
     m.update({
         "completed": loop.state == "stopped",
         "state": loop.state,
