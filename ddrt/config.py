@@ -173,7 +173,7 @@ class ControllerConfig:
 class EstimatorConfig:
     """Kalman filter tuning and sensor supervision."""
 
-    calibration_s: float = 2.0
+    calibration_s: float = 3.0
     calibration_max_std_dps: float = 0.5
     accel_noise: float = 0.5  # m/s^2 white acceleration the model does not explain
     yaw_accel_noise: float = 5.0  # rad/s^2 likewise for yaw

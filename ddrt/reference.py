@@ -86,7 +86,7 @@ class PathReference:
             sp.alpha_d = 0.0 if held else sched.alpha
         else:
             sp.omega_d = sched.v * near.kappa
-            sp.alpha_d = 0.0 if held else sched.a * near.kappa
+            sp.alpha_d = 0.0 if held else sched.alpha  # d(v kappa)/dt: a kappa + v^2 dkappa/ds
         self.done = near.done and self.t_sched >= path.duration
 
     def _update_stopping(self, near, sp: Setpoint) -> None:
