@@ -32,6 +32,7 @@ from ddrt.motor import Motor
 
 SEED_INNER = PidGains(kp=1.732, ki=0.5, kd=0.5, integrator_limit=100.0)
 SEED_OUTER = OuterGains(k_x=10.0, k_y=64.0, k_theta=16.0)
+HOLD_SPEED = 0.005  # m/s: below this reference speed a heading-hold term fades in
 
 
 def wrap_angle(a: float) -> float:
@@ -190,11 +191,12 @@ class DynamicController:
         o = self.outer
         v_d = sp.v_d
         v_c = v_d * math.cos(th_e) + o.k_x * x_e
-        # Kanayama's heading feedback vanishes with v_d; keep a floor so the robot still
-        # holds its heading while turning in place or starting from rest.
+        # Kanayama's heading feedback vanishes with v_d; below HOLD_SPEED a heading-hold term
+        # fades in so the robot keeps its heading while turning in place or at rest. Above
+        # it the law is Kanayama's alone, whose convergence is fixed in distance, not time.
         k_th = v_d * o.k_theta
-        if not self.seed_method and k_th < self.heading_gain:
-            k_th = self.heading_gain
+        if not self.seed_method and (sp.pivot or v_d < HOLD_SPEED):
+            k_th += self.heading_gain * (1.0 if sp.pivot else 1.0 - abs(v_d) / HOLD_SPEED)
         w_c = sp.omega_d + v_d * o.k_y * y_e + k_th * math.sin(th_e)
         if sp.pivot and not self.seed_method:
             w_c += o.k_x * sp.along_err / sp.pivot_radius * (1.0 if sp.omega_d >= 0.0 else -1.0)

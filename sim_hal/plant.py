@@ -1,0 +1,417 @@
+"""The simulated robot: the truth the controller is tested against in CI.
+
+The reduced model of ddrt/model.py (ERRATA.md) plus pose kinematics is integrated with RK4
+at the plant's own fixed step, independent of the controller's rate. Torques come from each
+wheel's DC motor model (ddrt/motor.py), with the seed's random slip torque on top; duty
+commands and sensor readings are delayed like a real driver and bus delay them; the sensors
+report raw integers (a wrapping 32-bit encoder count, a saturating int16 gyro with bias,
+white noise and the MPU-6050's low-pass filter).
+
+Speed matters (a closed-loop CI run must go >= 100x real time), so the inner step is plain
+float arithmetic on locals: the motor and model formulas are inlined there with their
+constants taken from `Motor`'s parameters and `Dynamics`; tests check the inlined torque
+against `Motor.torque` and the motion against an independent derivation of the model.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from collections import deque
+from dataclasses import dataclass, fields, replace
+from typing import Any, Mapping
+
+from ddrt.model import Dynamics, RobotParams
+from ddrt.motor import MotorParams
+
+from sim_hal import sensors
+
+_DEG_PER_RAD = 180.0 / math.pi
+_EPS_T = 1e-12  # times closer than this count as equal (float rounding of k * step)
+
+
+@dataclass(frozen=True)
+class PlantConfig:
+    """Everything about the simulated robot that is not its geometry or its motors."""
+
+    step_hz: float = 1000.0  # RK4 rate of the plant, independent of the controller's rate
+    friction: bool = True  # False zeroes the motors' viscous and Coulomb friction
+    slip: bool = True  # the seed's random slip torque
+    slip_probability: float = 0.25  # chance per wheel per step that a slip term is added
+    slip_fraction: float = 0.01  # slip size ~ N(slip_fraction * tau, slip_sigma_nm)
+    slip_sigma_nm: float = 0.01
+    seed: int | None = 0  # None: a different run every time
+    command_latency_s: float = 0.0015  # duty command -> motor voltage
+    sensor_latency_s: float = 0.001  # age of the state a reading reports
+    encoder_counts_per_rev: int = 8192  # front wheel, lines x 4
+    encoder_offset_counts: int = 0  # counter value at start (a counter need not start at 0)
+    gyro_range_dps: int = 250
+    gyro_scale_error: float = 0.0  # relative error of the gyro's sensitivity
+    gyro_bias_dps: float = 1.5
+    gyro_noise_dps_rthz: float = 0.005  # white noise density before the low-pass
+    gyro_dlpf_hz: float = 98.0  # MPU-6050 digital low-pass (DLPF_CFG=2)
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name in ("friction", "slip"):
+                if not isinstance(value, bool):
+                    raise ValueError(f"PlantConfig.{f.name}: expected true/false, got {value!r}")
+                continue
+            if f.name == "seed" and value is None:
+                continue
+            if f.name in ("seed", "encoder_counts_per_rev", "encoder_offset_counts", "gyro_range_dps"):
+                if isinstance(value, bool) or not isinstance(value, int):
+                    raise ValueError(f"PlantConfig.{f.name}: expected an integer, got {value!r}")
+                continue
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ValueError(f"PlantConfig.{f.name}: expected a finite number, got {value!r}")
+            object.__setattr__(self, f.name, float(value))
+        positive = ("step_hz", "gyro_dlpf_hz", "encoder_counts_per_rev")
+        non_negative = ("slip_fraction", "slip_sigma_nm", "command_latency_s", "sensor_latency_s",
+                        "gyro_noise_dps_rthz")
+        for name in positive:
+            if getattr(self, name) <= 0:
+                raise ValueError(f"PlantConfig.{name}: must be > 0, got {getattr(self, name)!r}")
+        for name in non_negative:
+            if getattr(self, name) < 0:
+                raise ValueError(f"PlantConfig.{name}: must be >= 0, got {getattr(self, name)!r}")
+        if not 0.0 <= self.slip_probability <= 1.0:
+            raise ValueError(
+                f"PlantConfig.slip_probability: must be in [0, 1], got {self.slip_probability!r}"
+            )
+        if self.gyro_scale_error <= -1.0:
+            raise ValueError(f"PlantConfig.gyro_scale_error: must be > -1, got {self.gyro_scale_error!r}")
+        sensors.gyro_lsb_per_rad_s(self.gyro_range_dps)  # raises for a range the part lacks
+
+    @classmethod
+    def from_mapping(cls, mapping: Mapping[str, Any]) -> "PlantConfig":
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(mapping) - known)
+        if unknown:
+            raise ValueError(f"PlantConfig: unknown key(s) {', '.join(unknown)}")
+        return cls(**dict(mapping))
+
+
+@dataclass(frozen=True, slots=True)
+class EnergyLedger:
+    """Cumulative work (J) at the wheels since the start, for energy-balance tests.
+
+    `electromagnetic_j` is the motors' armature torque times wheel speed, `friction_loss_j`
+    the work lost to viscous and Coulomb friction, `slip_j` the work of the slip torque.
+    Their balance `net_j` equals the change of the robot's kinetic energy.
+    """
+
+    electromagnetic_j: float
+    friction_loss_j: float
+    slip_j: float
+
+    @property
+    def net_j(self) -> float:
+        return self.electromagnetic_j - self.friction_loss_j + self.slip_j
+
+
+class SimRobot:
+    """A differential-drive robot integrated at a fixed step; see the module docstring."""
+
+    def __init__(self, params: RobotParams, motor_l: MotorParams, motor_r: MotorParams,
+                 cfg: PlantConfig | None = None,
+                 start: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
+        cfg = PlantConfig() if cfg is None else cfg
+        if len(start) != 3 or not all(math.isfinite(float(s)) for s in start):
+            raise ValueError(f"start: expected finite (x, y, theta), got {start!r}")
+        if not cfg.friction:
+            motor_l = replace(motor_l, viscous_nms=0.0, coulomb_nm=0.0)
+            motor_r = replace(motor_r, viscous_nms=0.0, coulomb_nm=0.0)
+        self.params = params
+        self.motor_l = motor_l
+        self.motor_r = motor_r
+        self.cfg = cfg
+        self.dynamics = Dynamics.from_params(params)
+        self._h = 1.0 / cfg.step_hz
+        self._k = 0  # steps taken; sim time is k * h, so it does not drift
+
+        # Truth state.
+        self._x, self._y, self._th = (float(s) for s in start)
+        self._v = self._w = 0.0
+        self._phi_l = self._phi_r = self._phi_3 = 0.0
+        self._duty_l = self._duty_r = 0.0
+        self._tau_l = self._tau_r = 0.0
+        self._w_em = self._w_fr = self._w_slip = 0.0
+        self._pending: deque[tuple[float, float, float]] = deque()
+
+        seed = cfg.seed
+        self._slip_rng = random.Random(None if seed is None else f"{seed}/slip")
+        self._gyro_rng = random.Random(None if seed is None else f"{seed}/gyro")
+
+        # Gyro: state in deg/s after the low-pass, started where it would have settled.
+        self._gyro_lsb_per_dps = sensors.GYRO_LSB_PER_DPS[cfg.gyro_range_dps]
+        self._gyro_a = sensors.lowpass_coefficient(cfg.gyro_dlpf_hz, cfg.step_hz)
+        self._gyro_sigma = cfg.gyro_noise_dps_rthz * math.sqrt(cfg.step_hz / 2.0)
+        self._gyro_f = cfg.gyro_bias_dps
+
+        # Sensor ring at plant-step resolution: the readings of the last `delay + 1` steps.
+        self._sensor_delay = max(0, math.ceil(cfg.sensor_latency_s * cfg.step_hz - 1e-9))
+        n = self._sensor_delay + 1
+        self._ring_phi3 = [0.0] * n
+        self._ring_gyro = [self._gyro_f] * n
+
+    # --- commands and time -------------------------------------------------------------
+
+    @property
+    def t(self) -> float:
+        """Simulated time (s) since the start."""
+        return self._k * self._h
+
+    @property
+    def step_s(self) -> float:
+        return self._h
+
+    def command(self, duty_l: float, duty_r: float) -> None:
+        """Queue a duty pair; it reaches the motors `command_latency_s` from now."""
+        dl, dr = float(duty_l), float(duty_r)
+        if not -1.0 <= dl <= 1.0:
+            raise ValueError(f"duty_l={duty_l!r} is outside [-1, 1] or not finite")
+        if not -1.0 <= dr <= 1.0:
+            raise ValueError(f"duty_r={duty_r!r} is outside [-1, 1] or not finite")
+        self._pending.append((self.t + self.cfg.command_latency_s, dl, dr))
+
+    def advance_to(self, t: float) -> None:
+        """Integrate whole plant steps until the sim time is >= t (within float rounding)."""
+        if not math.isfinite(t):
+            raise ValueError(f"advance_to: t={t!r} is not finite")
+        fs = self.cfg.step_hz
+        target = max(0, math.floor(t * fs))
+        while target / fs < t - _EPS_T:
+            target += 1
+        while target > 0 and (target - 1) / fs >= t - _EPS_T:
+            target -= 1
+        if target > self._k:
+            self._run(target - self._k)
+
+    # --- sensors, delayed by the sensor latency ------------------------------------------
+
+    def _ring_index(self) -> int:
+        n = len(self._ring_phi3)
+        return max(self._k - self._sensor_delay, 0) % n
+
+    def read_encoder(self) -> int:
+        """Front encoder count as the hardware counter holds it (signed 32-bit, wrapping)."""
+        phi3 = self._ring_phi3[self._ring_index()]
+        return sensors.encoder_count(phi3, self.cfg.encoder_counts_per_rev, self.cfg.encoder_offset_counts)
+
+    def read_gyro_raw(self) -> int:
+        """Gyro z as the int16 the MPU-6050 reports at its configured range (bias included)."""
+        return sensors.gyro_raw(self._ring_gyro[self._ring_index()], self._gyro_lsb_per_dps)
+
+    @property
+    def encoder_counts_per_rev(self) -> int:
+        return self.cfg.encoder_counts_per_rev
+
+    @property
+    def gyro_lsb_per_rad_s(self) -> float:
+        return self._gyro_lsb_per_dps * _DEG_PER_RAD
+
+    @property
+    def gyro_full_scale_rad_s(self) -> float:
+        return sensors.INT16_MAX / self.gyro_lsb_per_rad_s
+
+    # --- truth, for tests and logs -------------------------------------------------------
+
+    @property
+    def pose(self) -> tuple[float, float, float]:
+        """(x, y, theta) of A, mid rear axle; theta is continuous (not wrapped)."""
+        return self._x, self._y, self._th
+
+    @property
+    def velocity(self) -> tuple[float, float]:
+        """(v, omega): forward speed of A (m/s) and yaw rate (rad/s)."""
+        return self._v, self._w
+
+    @property
+    def wheel_angles(self) -> tuple[float, float, float]:
+        """(phi_L, phi_R, phi_3) in rad since the start."""
+        return self._phi_l, self._phi_r, self._phi_3
+
+    @property
+    def applied_duty(self) -> tuple[float, float]:
+        """The duties the motors see now (commands after their latency)."""
+        return self._duty_l, self._duty_r
+
+    @property
+    def wheel_torque(self) -> tuple[float, float]:
+        """Net wheel torques (N m, friction and slip included) at the start of the last step."""
+        return self._tau_l, self._tau_r
+
+    @property
+    def energy(self) -> EnergyLedger:
+        return EnergyLedger(self._w_em, self._w_fr, self._w_slip)
+
+    # --- the integrator -------------------------------------------------------------------
+
+    def _run(self, n_steps: int) -> None:
+        """Take `n_steps` RK4 steps. Hot path: locals only, formulas inlined."""
+        cfg = self.cfg
+        h = self._h
+        h2 = 0.5 * h
+        h6 = h / 6.0
+        dyn = self.dynamics
+        det = dyn.m_k * dyn.I - dyn.mbar * dyn.mbar
+        a11, a12, a22 = dyn.I / det, -dyn.mbar / det, dyn.m_k / det  # inverse mass matrix
+        mx = dyn.m_x
+        p = self.params
+        big_l, big_r = p.L, p.R
+        irl, irr, ir3 = 1.0 / p.r_L, 1.0 / p.r_R, 1.0 / p.r_3
+        ml, mr = self.motor_l, self.motor_r
+        # Motor at the wheel: tau_em = c*duty - e*w; friction = b*w + tc*tanh(w/ws).
+        cl = ml.k_nm_per_a * ml.supply_v / ml.resistance_ohm
+        el = ml.k_nm_per_a * ml.k_nm_per_a / ml.resistance_ohm
+        bl, tcl, iwsl = ml.viscous_nms, ml.coulomb_nm, 1.0 / ml.coulomb_smoothing_rad_s
+        cr = mr.k_nm_per_a * mr.supply_v / mr.resistance_ohm
+        er = mr.k_nm_per_a * mr.k_nm_per_a / mr.resistance_ohm
+        br, tcr, iwsr = mr.viscous_nms, mr.coulomb_nm, 1.0 / mr.coulomb_smoothing_rad_s
+        tanh, sin, cos = math.tanh, math.sin, math.cos
+
+        slip_on = cfg.slip and cfg.slip_probability > 0.0
+        slip_p, slip_frac, slip_sig = cfg.slip_probability, cfg.slip_fraction, cfg.slip_sigma_nm
+        srand, sgauss = self._slip_rng.random, self._slip_rng.gauss
+        ggauss = self._gyro_rng.gauss
+        g_a, g_sig = self._gyro_a, self._gyro_sigma
+        g_scale = (1.0 + cfg.gyro_scale_error) * _DEG_PER_RAD
+        g_bias = cfg.gyro_bias_dps
+        ring_phi3, ring_gyro = self._ring_phi3, self._ring_gyro
+        n_ring = len(ring_phi3)
+        pending = self._pending
+
+        x, y, th, v, w = self._x, self._y, self._th, self._v, self._w
+        phi_l, phi_r, phi_3 = self._phi_l, self._phi_r, self._phi_3
+        dl, dr = self._duty_l, self._duty_r
+        w_em, w_fr, w_slip = self._w_em, self._w_fr, self._w_slip
+        gf = self._gyro_f
+        k = self._k
+        tl = tr = 0.0
+        for _ in range(n_steps):
+            if pending:
+                t_now = k * h + _EPS_T
+                while pending and pending[0][0] <= t_now:
+                    _, dl, dr = pending.popleft()
+
+            # Stage 1 (also fixes the slip torque for the whole step).
+            wl = (v - big_l * w) * irl
+            wr = (v + big_r * w) * irr
+            eml = cl * dl - el * wl
+            emr = cr * dr - er * wr
+            frl = bl * wl + tcl * tanh(wl * iwsl)
+            frr = br * wr + tcr * tanh(wr * iwsr)
+            tl = eml - frl
+            tr = emr - frr
+            sl = sr = 0.0
+            if slip_on:
+                if srand() < slip_p:
+                    sl = sgauss(slip_frac * tl, slip_sig)
+                    if srand() < 0.5:
+                        sl = -sl
+                if srand() < slip_p:
+                    sr = sgauss(slip_frac * tr, slip_sig)
+                    if srand() < 0.5:
+                        sr = -sr
+                tl += sl
+                tr += sr
+            ul, ur = tl * irl, tr * irr
+            fv = ul + ur + mx * w * w
+            fw = big_r * ur - big_l * ul - mx * v * w
+            dv1 = a11 * fv + a12 * fw
+            dw1 = a12 * fv + a22 * fw
+            pem = eml * wl + emr * wr
+            pfr = frl * wl + frr * wr
+            v1, w1, th1 = v, w, th
+
+            # Stage 2.
+            v2 = v + h2 * dv1
+            w2 = w + h2 * dw1
+            th2 = th + h2 * w1
+            wl = (v2 - big_l * w2) * irl
+            wr = (v2 + big_r * w2) * irr
+            eml = cl * dl - el * wl
+            emr = cr * dr - er * wr
+            frl = bl * wl + tcl * tanh(wl * iwsl)
+            frr = br * wr + tcr * tanh(wr * iwsr)
+            ul = (eml - frl + sl) * irl
+            ur = (emr - frr + sr) * irr
+            fv = ul + ur + mx * w2 * w2
+            fw = big_r * ur - big_l * ul - mx * v2 * w2
+            dv2 = a11 * fv + a12 * fw
+            dw2 = a12 * fv + a22 * fw
+            pem += 2.0 * (eml * wl + emr * wr)
+            pfr += 2.0 * (frl * wl + frr * wr)
+
+            # Stage 3.
+            v3 = v + h2 * dv2
+            w3 = w + h2 * dw2
+            th3 = th + h2 * w2
+            wl = (v3 - big_l * w3) * irl
+            wr = (v3 + big_r * w3) * irr
+            eml = cl * dl - el * wl
+            emr = cr * dr - er * wr
+            frl = bl * wl + tcl * tanh(wl * iwsl)
+            frr = br * wr + tcr * tanh(wr * iwsr)
+            ul = (eml - frl + sl) * irl
+            ur = (emr - frr + sr) * irr
+            fv = ul + ur + mx * w3 * w3
+            fw = big_r * ur - big_l * ul - mx * v3 * w3
+            dv3 = a11 * fv + a12 * fw
+            dw3 = a12 * fv + a22 * fw
+            pem += 2.0 * (eml * wl + emr * wr)
+            pfr += 2.0 * (frl * wl + frr * wr)
+
+            # Stage 4.
+            v4 = v + h * dv3
+            w4 = w + h * dw3
+            th4 = th + h * w3
+            wl = (v4 - big_l * w4) * irl
+            wr = (v4 + big_r * w4) * irr
+            eml = cl * dl - el * wl
+            emr = cr * dr - er * wr
+            frl = bl * wl + tcl * tanh(wl * iwsl)
+            frr = br * wr + tcr * tanh(wr * iwsr)
+            ul = (eml - frl + sl) * irl
+            ur = (emr - frr + sr) * irr
+            fv = ul + ur + mx * w4 * w4
+            fw = big_r * ur - big_l * ul - mx * v4 * w4
+            dv4 = a11 * fv + a12 * fw
+            dw4 = a12 * fv + a22 * fw
+            pem += eml * wl + emr * wr
+            pfr += frl * wl + frr * wr
+
+            # Combine. Wheel angles are linear in (v, omega), so their RK4 increments follow
+            # from the path length s and heading change of the step.
+            ds = h6 * (v1 + 2.0 * (v2 + v3) + v4)
+            dth = h6 * (w1 + 2.0 * (w2 + w3) + w4)
+            x += h6 * (v1 * cos(th1) + 2.0 * (v2 * cos(th2) + v3 * cos(th3)) + v4 * cos(th4))
+            y += h6 * (v1 * sin(th1) + 2.0 * (v2 * sin(th2) + v3 * sin(th3)) + v4 * sin(th4))
+            th += dth
+            v += h6 * (dv1 + 2.0 * (dv2 + dv3) + dv4)
+            w += h6 * (dw1 + 2.0 * (dw2 + dw3) + dw4)
+            dphi_l = (ds - big_l * dth) * irl
+            dphi_r = (ds + big_r * dth) * irr
+            phi_l += dphi_l
+            phi_r += dphi_r
+            phi_3 += ds * ir3
+            w_em += h6 * pem
+            w_fr += h6 * pfr
+            w_slip += sl * dphi_l + sr * dphi_r
+            k += 1
+
+            # Sensors at the end of the step: the gyro's low-pass runs at the plant rate.
+            gf += g_a * (g_scale * w + g_bias + ggauss(0.0, g_sig) - gf)
+            i = k % n_ring
+            ring_phi3[i] = phi_3
+            ring_gyro[i] = gf
+
+        self._x, self._y, self._th, self._v, self._w = x, y, th, v, w
+        self._phi_l, self._phi_r, self._phi_3 = phi_l, phi_r, phi_3
+        self._duty_l, self._duty_r = dl, dr
+        self._tau_l, self._tau_r = tl, tr
+        self._w_em, self._w_fr, self._w_slip = w_em, w_fr, w_slip
+        self._gyro_f = gf
+        self._k = k

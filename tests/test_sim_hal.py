@@ -1,0 +1,155 @@
+"""SimHal: the simulated robot behind the Hal interface, and the loop's clock."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import pytest
+
+from ddrt.model import RobotParams
+from ddrt.motor import MotorParams
+from hal.base import Hal, HalError, HalIOError, HalValueError, Sample
+from sim_hal import PlantConfig, SimHal, SimRobot
+
+TABLE_5_1 = dict(
+    H=0.115, L=0.108, R=0.108, r_L=0.049, r_R=0.051, r_3=0.052, d_xc=0.026, d_yc=0.0,
+    m_p=0.8, m_L=1.2, m_R=1.2, m_3=0.6, I_p=6.43e-3, I_L=3.5e-4, I_R=3.5e-4, I_3=6.55e-4,
+    I_wL=6.29e-4, I_wR=6.29e-4, I_w3=6.29e-4,
+)
+
+
+def make_hal(paced: bool = False, **cfg) -> SimHal:
+    return SimHal.from_params(RobotParams(**TABLE_5_1), cfg=PlantConfig(**cfg), paced=paced)
+
+
+def test_is_a_hal_with_the_sensor_facts():
+    hal = make_hal(gyro_range_dps=500, encoder_counts_per_rev=2048)
+    assert isinstance(hal, Hal)
+    assert hal.info.encoder_counts_per_rev == 2048
+    assert hal.info.gyro_lsb_per_rad_s == pytest.approx(65.5 * 180 / math.pi)
+    assert hal.info.gyro_full_scale_rad_s == pytest.approx(math.radians(32767 / 65.5))
+    assert isinstance(hal.robot.motor_l, MotorParams)
+
+
+def test_read_reports_the_robots_sensors_at_sim_time():
+    hal = make_hal()
+    hal.write(0.6, 0.4)
+    assert hal.sleep_until(0.5) == pytest.approx(0.5, abs=1e-12)
+    s = hal.read()
+    assert isinstance(s, Sample)
+    assert s.t == hal.now() == pytest.approx(0.5, abs=1e-12)
+    assert s.encoder_count == hal.robot.read_encoder() > 1000
+    assert s.gyro_z_raw == hal.robot.read_gyro_raw()
+    assert s.fresh and s.faults == ""
+
+
+def test_sleep_until_advances_the_plant_and_not_backwards():
+    hal = make_hal()
+    assert hal.now() == 0.0
+    assert hal.sleep_until(0.0125) == pytest.approx(0.013, abs=1e-12)  # whole plant steps
+    assert hal.sleep_until(0.005) == pytest.approx(0.013, abs=1e-12)
+    with pytest.raises(HalValueError):
+        hal.sleep_until(math.nan)
+
+
+@pytest.mark.parametrize("bad", [1.5, -1.0001, math.nan, math.inf])
+def test_write_rejects_bad_duty_without_moving(bad):
+    hal = make_hal(slip=False)  # slip torque alone would jiggle the robot
+    with pytest.raises(HalValueError, match="duty_l"):
+        hal.write(bad, 0.0)
+    with pytest.raises(ValueError, match="duty_r"):  # HalValueError is also a ValueError
+        hal.write(0.2, bad)
+    hal.sleep_until(0.1)
+    assert hal.robot.applied_duty == (0.0, 0.0)
+    assert hal.robot.velocity == (0.0, 0.0)
+
+
+def test_write_takes_effect_after_the_command_latency():
+    hal = make_hal(command_latency_s=0.004)
+    hal.sleep_until(0.010)
+    hal.write(0.5, -0.5)
+    hal.sleep_until(0.013)
+    assert hal.robot.applied_duty == (0.0, 0.0)
+    hal.sleep_until(0.015)
+    assert hal.robot.applied_duty == (0.5, -0.5)
+
+
+def test_stop_and_close():
+    hal = make_hal()
+    hal.write(0.8, 0.8)
+    hal.sleep_until(0.5)
+    hal.stop()
+    hal.sleep_until(0.51)
+    assert hal.robot.applied_duty == (0.0, 0.0)
+    hal.write(0.8, 0.8)
+    hal.close()
+    hal.close()  # idempotent
+    hal.stop()  # must not raise on a closed device
+    hal.sleep_until(0.52)
+    assert hal.robot.applied_duty == (0.0, 0.0)  # close stopped the motors last
+    with pytest.raises(HalIOError):
+        hal.read()
+    with pytest.raises(HalError):
+        hal.write(0.1, 0.1)
+
+
+def test_context_manager_stops_the_robot():
+    with make_hal() as hal:
+        hal.write(0.5, 0.5)
+        hal.sleep_until(0.1)
+    hal.robot.advance_to(0.2)
+    assert hal.robot.applied_duty == (0.0, 0.0)
+
+
+def test_a_loop_over_the_hal_sees_the_robot_move():
+    """A 100 Hz loop that only uses the Hal and the clock: counts rise with the wheel."""
+    hal = make_hal()
+    cpr = hal.info.encoder_counts_per_rev
+    counts = []
+    deadline = hal.now()
+    for _ in range(100):
+        s = hal.read()
+        counts.append(s.encoder_count)
+        hal.write(0.5, 0.5)
+        deadline += 0.01
+        hal.sleep_until(deadline)
+    assert hal.now() == pytest.approx(1.0, abs=1e-9)
+    assert all(b >= a for a, b in zip(counts, counts[1:]))
+    distance = counts[-1] * 2 * math.pi / cpr * hal.robot.params.r_3
+    assert distance == pytest.approx(hal.robot.pose[0], rel=0.05)
+
+
+def test_paced_mode_follows_the_wall_clock():
+    hal = make_hal(paced=True)
+    wall0, sim0 = time.monotonic(), hal.now()
+    deadline = sim0
+    for _ in range(6):
+        deadline += 0.02
+        assert hal.sleep_until(deadline) >= deadline - 1e-12
+    wall = time.monotonic() - wall0
+    sim = hal.now() - sim0
+    assert wall >= 0.12 - 0.002  # it did wait
+    assert sim == pytest.approx(wall, abs=0.02)  # and sim time is wall time
+    time.sleep(0.03)
+    assert hal.now() - sim0 >= sim + 0.03 - 0.002  # the plant keeps up with the wall clock
+
+
+def test_unpaced_mode_runs_faster_than_real_time():
+    hal = make_hal()
+    start = time.perf_counter()
+    deadline = 0.0
+    for _ in range(500):  # 5 s at 100 Hz
+        hal.read()
+        hal.write(0.3, 0.35)
+        deadline += 0.01
+        hal.sleep_until(deadline)
+    assert time.perf_counter() - start < 1.0
+
+
+def test_wraps_an_existing_robot():
+    robot = SimRobot(RobotParams(**TABLE_5_1), MotorParams(), MotorParams(), PlantConfig(seed=7),
+                     start=(1.0, 2.0, 0.5))
+    hal = SimHal(robot)
+    assert hal.robot is robot and hal.now() == 0.0
+    assert robot.pose == (1.0, 2.0, 0.5)
