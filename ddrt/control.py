@@ -62,6 +62,7 @@ class Setpoint:
     pp_curvature: float = 0.0
     pivot: bool = False
     pivot_radius: float = 0.1
+    path_frame: bool = False  # errors in the path's frame at q_d (path-following mode)
     active: bool = False  # False: hold still (no path, or finished)
 
 
@@ -183,8 +184,14 @@ class DynamicController:
         # 1. Outer law (seed eq. 4.3) in the robot frame.
         dx = sp.x_d - x
         dy = sp.y_d - y
-        c = math.cos(theta)
-        s = math.sin(theta)
+        # Time-indexed: Kanayama's robot-frame errors. Path-following: the reference is the
+        # nearest point, so the errors are taken in the path's frame there, where the
+        # along-track part is exactly the schedule's lead and the lateral part is the
+        # cross-track error (in the robot's frame a heading error would leak the
+        # cross-track offset into x_e and make the robot surge).
+        frame = sp.theta_d if sp.path_frame else theta
+        c = math.cos(frame)
+        s = math.sin(frame)
         x_e = c * dx + s * dy + sp.along_err
         y_e = -s * dx + c * dy
         th_e = wrap_angle(sp.theta_d - theta)

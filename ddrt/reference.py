@@ -64,6 +64,7 @@ class PathReference:
             sp.x_d, sp.y_d, sp.theta_d = sched.x, sched.y, sched.theta
             sp.v_d, sp.omega_d, sp.a_d, sp.alpha_d = sched.v, sched.omega, sched.a, sched.alpha
             sp.along_err = 0.0
+            sp.path_frame = False
             sp.kappa = sched.kappa
             sp.pivot = sched.pivot
             self.done = t_next >= path.duration and near.done
@@ -76,6 +77,7 @@ class PathReference:
             sched = path.at_time(self.t_sched)
             held = True
         sp.x_d, sp.y_d, sp.theta_d = near.x_d, near.y_d, near.theta_d
+        sp.path_frame = True
         sp.kappa = near.kappa
         sp.v_d = sched.v
         sp.a_d = 0.0 if held else sched.a
@@ -100,6 +102,7 @@ class PathReference:
         self._stop_sigma += 0.5 * (self._stop_v + v) * dt
         self._stop_v = v
         sp.x_d, sp.y_d, sp.theta_d = near.x_d, near.y_d, near.theta_d
+        sp.path_frame = True
         sp.kappa = near.kappa
         sp.v_d = v
         sp.a_d = a
