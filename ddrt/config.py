@@ -280,6 +280,12 @@ _TOP_KEYS = ("extends", "robot", "plant", "sim", "sensors", "hal", "controller",
              "pursuit", "limits", "daemon", "path", "start", "name", "description")
 
 
+def _section(data: Mapping[str, Any], key: str) -> Any:
+    """A section's mapping; absent or empty (None) is {}, anything else is validated as is."""
+    value = data.get(key)
+    return {} if value is None else value
+
+
 def _merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
     """Deep merge: mappings merge key by key, anything else in `over` replaces."""
     out = copy.deepcopy(dict(base))
@@ -312,7 +318,10 @@ def _read_yaml(path: FsPath, chain: tuple[str, ...] = ()) -> dict[str, Any]:
     if parent is not None:
         if not isinstance(parent, str):
             raise ConfigError(f"{path}: extends: expected a file name, got {parent!r}")
-        base = _read_yaml((path.parent / parent).resolve(), chain + (str(path),))
+        base_path = (path.parent / parent).resolve()
+        if not base_path.is_file():
+            raise ConfigError(f"{path}: extends: no such file {parent!r} (looked for {base_path})")
+        base = _read_yaml(base_path, chain + (str(path),))
         data = _merge(base, {k: v for k, v in data.items() if k != "extends"})
     return dict(data)
 
@@ -336,8 +345,11 @@ def _params(section: Any, where: str, extras: tuple[str, ...] = ("motor",)) -> t
     except ValueError as exc:
         field_name = str(exc).split(":")[0].removeprefix("RobotParams.")
         raise ConfigError(f"{where}.{field_name}: {str(exc).split(': ', 1)[-1]}") from None
-    motor = section.get("motor", {}) or {}
-    return params, motor
+    for key in extras:
+        if section.get(key) is not None and not isinstance(section[key], Mapping):
+            raise ConfigError(f"{where}.{key}: expected a mapping of motor constants, got {section[key]!r}")
+    motor = section.get("motor")
+    return params, {} if motor is None else motor
 
 
 def _motor(mapping: Any, where: str) -> MotorParams:
@@ -362,14 +374,14 @@ def _config_from_mapping(data: Mapping[str, Any], source: str, base_dir: str) ->
     robot, robot_motor_map = _params(robot_section, "robot")
     robot_motor = _motor(robot_motor_map, "robot.motor")
 
-    plant_over = data.get("plant") or {}
+    plant_over = _section(data, "plant")
     if not isinstance(plant_over, Mapping):
         raise ConfigError("plant: expected a mapping of robot parameters")
     plant_section = _merge(robot_section, plant_over)
     plant, plant_motor_map = _params(plant_section, "plant", ("motor", "motor_l", "motor_r"))
     # A plant may give one motor for both wheels (motor:) or each its own (motor_l:, motor_r:).
-    plant_motor_l = _motor(_merge(plant_motor_map, plant_over.get("motor_l", {}) or {}), "plant.motor_l")
-    plant_motor_r = _motor(_merge(plant_motor_map, plant_over.get("motor_r", {}) or {}), "plant.motor_r")
+    plant_motor_l = _motor(_merge(plant_motor_map, plant_section.get("motor_l") or {}), "plant.motor_l")
+    plant_motor_r = _motor(_merge(plant_motor_map, plant_section.get("motor_r") or {}), "plant.motor_r")
 
     start = data.get("start")
     if start is not None:
@@ -384,14 +396,14 @@ def _config_from_mapping(data: Mapping[str, Any], source: str, base_dir: str) ->
         plant=plant,
         plant_motor_l=plant_motor_l,
         plant_motor_r=plant_motor_r,
-        sim=build(SimConfig, data.get("sim") or {}, "sim"),
-        sensors=build(SensorsConfig, data.get("sensors") or {}, "sensors"),
-        hal=build(HalConfig, data.get("hal") or {}, "hal"),
-        controller=build(ControllerConfig, data.get("controller") or {}, "controller"),
-        estimator=build(EstimatorConfig, data.get("estimator") or {}, "estimator"),
-        pursuit=build(PursuitConfig, data.get("pursuit") or {}, "pursuit"),
-        limits=build(LimitsConfig, data.get("limits") or {}, "limits"),
-        daemon=build(DaemonConfig, data.get("daemon") or {}, "daemon"),
+        sim=build(SimConfig, _section(data, "sim"), "sim"),
+        sensors=build(SensorsConfig, _section(data, "sensors"), "sensors"),
+        hal=build(HalConfig, _section(data, "hal"), "hal"),
+        controller=build(ControllerConfig, _section(data, "controller"), "controller"),
+        estimator=build(EstimatorConfig, _section(data, "estimator"), "estimator"),
+        pursuit=build(PursuitConfig, _section(data, "pursuit"), "pursuit"),
+        limits=build(LimitsConfig, _section(data, "limits"), "limits"),
+        daemon=build(DaemonConfig, _section(data, "daemon"), "daemon"),
         path=data.get("path"),
         start=start,
         source=source,
@@ -427,6 +439,10 @@ def changed_keys(old: Config, new: Config) -> list[str]:
     out: list[str] = []
     for section in sorted(set(old.raw) | set(new.raw)):
         a, b = old.raw.get(section), new.raw.get(section)
+        if a is None and isinstance(b, Mapping):
+            a = {}
+        if b is None and isinstance(a, Mapping):
+            b = {}
         if a == b:
             continue
         if isinstance(a, Mapping) and isinstance(b, Mapping):

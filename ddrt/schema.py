@@ -119,7 +119,12 @@ def build(cls: type[T], mapping: Any, where: str = "") -> T:
     except ConfigError:
         raise
     except (ValueError, TypeError) as exc:
-        raise ConfigError(f"{where or cls.__name__}: {exc}") from None
+        # "MotorParams.supply_v: must be > 0" -> "robot.motor.supply_v: must be > 0"
+        text = str(exc)
+        head, sep, reason = text.partition(": ")
+        if sep and head.startswith(cls.__name__ + "."):
+            raise ConfigError(f"{_join(where, head[len(cls.__name__) + 1:])}: {reason}") from None
+        raise ConfigError(f"{where or cls.__name__}: {text}") from None
     check = getattr(obj, "validate", None)
     if callable(check):
         check(where)

@@ -1,0 +1,305 @@
+"""Telemetry: a fixed-size ring the loop appends to, a thread that writes it out as CSV.
+
+The loop must never wait on a disk (an SD card can stall for hundreds of milliseconds), so
+the hot path only copies a row of floats into a preallocated ring. A background thread
+drains the ring every ~0.2 s and writes batches to size-bounded rotating CSV files. If the
+writer falls behind, the ring overwrites the OLDEST unwritten rows and counts them: the
+robot keeps running and the log says how much is missing.
+
+Also `configure_logging`: stderr without timestamps (journald stamps every line) and, when
+asked, sd-daemon "<N>" priority prefixes so `journalctl -p warning` works.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+import threading
+from array import array
+from pathlib import Path
+from typing import Iterable, Sequence
+
+log = logging.getLogger(__name__)
+
+
+def _check_columns(owner: str, columns: Sequence[str]) -> tuple[str, ...]:
+    cols = tuple(columns)
+    if not cols:
+        raise ValueError(f"{owner}.columns: need at least one column")
+    for c in cols:
+        if not isinstance(c, str) or not c or any(ch in c for ch in ',"\r\n'):
+            raise ValueError(f"{owner}.columns: {c!r} is not a plain CSV column name")
+    if len(set(cols)) != len(cols):
+        raise ValueError(f"{owner}.columns: duplicate names in {cols!r}")
+    return cols
+
+
+def _positive_int(name: str, value: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"{name}: expected an int >= 1, got {value!r}")
+    return value
+
+
+class TelemetryRing:
+    """`capacity` rows of `len(columns)` floats in one preallocated array.
+
+    One producer (the loop) and one consumer (the writer thread). The lock is held for a few
+    float stores or one slice copy, so the loop never waits long on it.
+    """
+
+    __slots__ = ("columns", "width", "capacity", "_buf", "_head", "_tail", "dropped", "_lock")
+
+    def __init__(self, columns: tuple[str, ...], capacity: int) -> None:
+        self.columns = _check_columns("TelemetryRing", columns)
+        self.width = len(self.columns)
+        self.capacity = _positive_int("TelemetryRing.capacity", capacity)
+        self._buf = array("d", bytes(8 * self.capacity * self.width))
+        self._head = 0  # rows ever appended
+        self._tail = 0  # rows ever consumed (drained or overwritten)
+        self.dropped = 0  # rows overwritten before the writer got them
+        self._lock = threading.Lock()
+
+    def __len__(self) -> int:
+        """Rows waiting to be drained."""
+        return self._head - self._tail
+
+    @property
+    def appended(self) -> int:
+        return self._head
+
+    def append(self, values: Sequence[float]) -> None:
+        """Copy one row in, O(1); when full, the oldest unwritten row is overwritten."""
+        width = self.width
+        if len(values) != width:
+            raise ValueError(f"TelemetryRing.append: expected {width} values {self.columns}, got {len(values)}")
+        buf = self._buf
+        with self._lock:
+            head = self._head
+            j = (head % self.capacity) * width
+            for v in values:
+                buf[j] = v
+                j += 1
+            self._head = head + 1
+            if head + 1 - self._tail > self.capacity:
+                self._tail += 1
+                self.dropped += 1
+
+    def drain(self, max_rows: int | None = None) -> list[tuple[float, ...]]:
+        """Take the unwritten rows, oldest first (at most `max_rows`)."""
+        width, cap = self.width, self.capacity
+        with self._lock:
+            tail, head = self._tail, self._head
+            n = head - tail if max_rows is None else min(head - tail, max_rows)
+            if n <= 0:
+                return []
+            start = (tail % cap) * width
+            end = start + n * width
+            if end <= cap * width:
+                flat = self._buf[start:end]
+            else:
+                flat = self._buf[start:] + self._buf[: end - cap * width]
+            self._tail = tail + n
+        # Building tuples happens outside the lock.
+        return [tuple(flat[i : i + width]) for i in range(0, n * width, width)]
+
+
+def _format_row(row: Sequence[float]) -> str:
+    return ",".join([repr(float(v)) for v in row]) + "\n"
+
+
+class RotatingCsvWriter:
+    """CSV files `prefix.csv`, `prefix.1.csv` ... `prefix.<max_files-1>.csv` (oldest last).
+
+    Each file starts with the header row. A file is rotated once it has reached `max_bytes`,
+    so no file exceeds `max_bytes` by more than one row. An existing `prefix.csv` from an
+    earlier run is rotated away at open, so every run starts a fresh file.
+    """
+
+    def __init__(self, directory: str | os.PathLike[str], prefix: str, columns: Sequence[str],
+                 max_bytes: int, max_files: int) -> None:
+        self.columns = _check_columns("RotatingCsvWriter", columns)
+        if not prefix or "/" in prefix or prefix.startswith("."):
+            raise ValueError(f"RotatingCsvWriter.prefix: expected a plain file name stem, got {prefix!r}")
+        self.directory = Path(directory)
+        if not self.directory.is_dir():
+            raise FileNotFoundError(f"RotatingCsvWriter.directory: {self.directory} is not a directory")
+        self.prefix = prefix
+        self.max_bytes = _positive_int("RotatingCsvWriter.max_bytes", max_bytes)
+        self.max_files = _positive_int("RotatingCsvWriter.max_files", max_files)
+        self._header = ",".join(self.columns) + "\n"
+        self.rows_written = 0
+        self.rotations = 0
+        current = self.path(0)
+        if current.exists() and current.stat().st_size > 0:
+            self._rotate()
+        self._open_new()
+
+    def path(self, index: int) -> Path:
+        """File `index` (0 is the one being written)."""
+        name = f"{self.prefix}.csv" if index == 0 else f"{self.prefix}.{index}.csv"
+        return self.directory / name
+
+    def _rotate(self) -> None:
+        last = self.path(self.max_files - 1)
+        last.unlink(missing_ok=True)
+        for i in range(self.max_files - 2, -1, -1):
+            src = self.path(i)
+            if src.exists():
+                os.replace(src, self.path(i + 1))
+        self.rotations += 1
+
+    def _open_new(self) -> None:
+        self._file = open(self.path(0), "w", encoding="ascii", newline="")
+        self._file.write(self._header)
+        self._size = len(self._header)
+
+    def write_rows(self, rows: Iterable[Sequence[float]]) -> int:
+        """Append rows, rotating as needed; flushed to the OS before returning."""
+        n = 0
+        width = len(self.columns)
+        for row in rows:
+            if len(row) != width:
+                raise ValueError(f"RotatingCsvWriter.write_rows: expected {width} values, got {len(row)}")
+            if self._size >= self.max_bytes:
+                self._file.close()
+                self._rotate()
+                self._open_new()
+            line = _format_row(row)
+            self._file.write(line)
+            self._size += len(line)
+            n += 1
+        self._file.flush()
+        self.rows_written += n
+        return n
+
+    def close(self) -> None:
+        if not self._file.closed:
+            self._file.close()
+
+    def __enter__(self) -> "RotatingCsvWriter":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class TelemetryLogger:
+    """Background thread: every `interval_s`, drain the ring and write the batch.
+
+    A write error (disk full, card removed) is logged once and counted; the rows of that
+    batch are lost but the thread keeps going, because telemetry must never stop the robot.
+    `close()` writes whatever is still in the ring, then closes the writer.
+    """
+
+    def __init__(self, ring: TelemetryRing, writer: RotatingCsvWriter, interval_s: float = 0.2) -> None:
+        if tuple(writer.columns) != ring.columns:
+            raise ValueError(f"TelemetryLogger: writer columns {writer.columns} != ring columns {ring.columns}")
+        if not (isinstance(interval_s, (int, float)) and 0 < interval_s < 60):
+            raise ValueError(f"TelemetryLogger.interval_s: expected seconds in (0, 60), got {interval_s!r}")
+        self.ring = ring
+        self.writer = writer
+        self.interval_s = float(interval_s)
+        self.write_errors = 0
+        self.rows_lost_to_errors = 0
+        self._stop = threading.Event()
+        self._closed = False
+        self._thread = threading.Thread(target=self._run, name="ddrt-telemetry", daemon=True)
+        self._thread.start()
+
+    def _flush_once(self) -> None:
+        rows = self.ring.drain()
+        if not rows:
+            return
+        try:
+            self.writer.write_rows(rows)
+        except Exception as exc:  # noqa: BLE001 - a dead writer thread would lose rows silently
+            self.write_errors += 1
+            self.rows_lost_to_errors += len(rows)
+            if self.write_errors == 1:
+                log.warning("telemetry write failed, dropping rows: %s: %s", type(exc).__name__, exc)
+
+    def _run(self) -> None:
+        from ddrt.rt import demote_current_thread
+
+        demote_current_thread()
+        while not self._stop.wait(self.interval_s):
+            self._flush_once()
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        self._stop.set()
+        self._thread.join()
+        self._flush_once()
+        self.writer.close()
+
+    def __enter__(self) -> "TelemetryLogger":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class JournalFormatter(logging.Formatter):
+    """`LEVEL name: message`, or `<N>name: message` on every line when `sd_prefix` is set.
+
+    journald takes a leading <N> as the syslog priority of that line; tracebacks are split
+    into lines by journald, so every line gets the prefix.
+    """
+
+    def __init__(self, sd_prefix: bool) -> None:
+        super().__init__()
+        self.sd_prefix = sd_prefix
+
+    def format(self, record: logging.LogRecord) -> str:
+        text = f"{record.name}: {record.getMessage()}"
+        if record.exc_info:
+            text += "\n" + self.formatException(record.exc_info)
+        if record.stack_info:
+            text += "\n" + self.formatStack(record.stack_info)
+        if not self.sd_prefix:
+            return f"{record.levelname} {text}"
+        level = record.levelno
+        prio = 7 if level < logging.INFO else 6 if level < logging.WARNING else 4 if level < logging.ERROR \
+            else 3 if level < logging.CRITICAL else 2
+        prefix = f"<{prio}>"
+        return "\n".join(prefix + line for line in text.split("\n"))
+
+
+def stderr_is_journal() -> bool:
+    """True when stderr is connected to journald ($JOURNAL_STREAM names its device:inode)."""
+    value = os.environ.get("JOURNAL_STREAM", "")
+    try:
+        dev, ino = (int(x) for x in value.split(":"))
+        st = os.fstat(sys.stderr.fileno())
+    except (ValueError, OSError, AttributeError):
+        return False
+    return st.st_dev == dev and st.st_ino == ino
+
+
+def configure_logging(level: int | str = "INFO", sd_prefix: bool | None = None) -> logging.Handler:
+    """Send log records to stderr with no timestamps; sd_prefix=None means "if journald".
+
+    Replaces a handler installed by an earlier call (so reloads can change the level).
+    """
+    if isinstance(level, str):
+        number = logging.getLevelName(level.upper())
+        if not isinstance(number, int):
+            raise ValueError(f"log level: expected one of debug/info/warning/error/critical, got {level!r}")
+        level = number
+    elif isinstance(level, bool) or not isinstance(level, int):
+        raise ValueError(f"log level: expected a name or a number, got {level!r}")
+    if sd_prefix is None:
+        sd_prefix = stderr_is_journal()
+    root = logging.getLogger()
+    for h in list(root.handlers):
+        if getattr(h, "_ddrt", False):
+            root.removeHandler(h)
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(JournalFormatter(sd_prefix))
+    handler._ddrt = True  # type: ignore[attr-defined]
+    root.addHandler(handler)
+    root.setLevel(level)
+    return handler

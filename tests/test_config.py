@@ -1,0 +1,475 @@
+"""ddrt.config: the seed configs, plant defaults, error messages, docs/config.md coverage,
+and which changes need a restart."""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+import re
+import types
+import typing
+from pathlib import Path
+from typing import Any, Callable
+
+import pytest
+import yaml
+
+from ddrt import config as config_mod
+from ddrt.config import (
+    AdaptationConfig, Config, ControllerConfig, DaemonConfig, EstimatorConfig, GyroTruth,
+    HalConfig, LimitsConfig, OuterGains, PidGains, PursuitConfig, SensorsConfig, SimConfig,
+    SlipConfig, WheelPidGains, changed_keys, config_from_mapping, load_config, needs_restart,
+    with_overrides,
+)
+from ddrt.model import RobotParams
+from ddrt.motor import MotorParams
+from ddrt.schema import ConfigError
+
+ROOT = Path(__file__).resolve().parents[1]
+SIM = ROOT / "configs" / "sim.yaml"
+OFFSET = ROOT / "configs" / "sim-offset-mass.yaml"
+DOC = ROOT / "docs" / "config.md"
+REAL_HAL = ROOT / "hal" / "real.py"
+
+# The seed's Table 5.1 "estimate" column in SI (mm -> m, kg mm^2 -> 1e-6 kg m^2). r_3 is left
+# out: configs/sim.yaml holds a calibrated encoder-wheel radius instead of the seed's.
+TABLE_5_1 = {
+    "H": 0.115, "L": 0.1078, "R": 0.1078, "r_L": 0.050, "r_R": 0.050,
+    "d_xc": 0.02579, "d_yc": 0.0, "m_p": 0.75, "m_L": 1.15, "m_R": 1.15, "m_3": 0.55,
+    "I_p": 6.42868e-3, "I_L": 3.51882e-4, "I_R": 3.51882e-4, "I_3": 6.53657e-4,
+    "I_wL": 6.28378e-4, "I_wR": 6.28378e-4, "I_w3": 6.28378e-4,
+}
+
+
+def _sim_mapping() -> dict[str, Any]:
+    """configs/sim.yaml as a plain mapping, without its path (tests need no path file)."""
+    data = yaml.safe_load(SIM.read_text(encoding="utf-8"))
+    data.pop("path", None)
+    return data
+
+
+def _minimal() -> dict[str, Any]:
+    """The smallest valid config: the seed robot and nothing else."""
+    return {"robot": copy.deepcopy(_sim_mapping()["robot"])}
+
+
+def _write(tmp_path: Path, name: str, data: Any) -> Path:
+    p = tmp_path / name
+    p.parent.mkdir(parents=True, exist_ok=True)
+    p.write_text(data if isinstance(data, str) else yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
+    return p
+
+
+# --------------------------------------------------------------------------- seed configs
+
+
+def test_sim_config_holds_table_5_1_in_si() -> None:
+    cfg = load_config(SIM)
+    for name, value in TABLE_5_1.items():
+        assert getattr(cfg.robot, name) == pytest.approx(value, rel=1e-12, abs=1e-15), name
+    assert cfg.robot.r_3 == pytest.approx(0.052)
+    # the plant is the "actual" column: close to the belief, but not equal
+    assert cfg.plant.m_p == pytest.approx(0.8)
+    assert cfg.plant.r_L == pytest.approx(0.049) and cfg.plant.r_R == pytest.approx(0.051)
+    assert cfg.plant != cfg.robot
+    # per-wheel motors merge over robot.motor: supply_v is inherited, the rest overridden
+    assert cfg.plant_motor_l.resistance_ohm == pytest.approx(3.95)
+    assert cfg.plant_motor_r.k_nm_per_a == pytest.approx(0.390)
+    assert cfg.plant_motor_l.supply_v == cfg.plant_motor_r.supply_v == cfg.robot_motor.supply_v == 12.0
+    assert cfg.plant_motor_l.coulomb_smoothing_rad_s == cfg.robot_motor.coulomb_smoothing_rad_s
+    assert cfg.hal.backend == "sim"
+    assert cfg.controller.mode == "dynamic" and cfg.controller.rate_hz == 200.0
+    assert cfg.sim.slip.probability == 0.25
+
+
+def test_offset_mass_config_holds_table_5_2() -> None:
+    base = load_config(SIM)
+    cfg = load_config(OFFSET)
+    assert cfg.plant.m_p == 2.8
+    assert cfg.plant.m_p - base.plant.m_p == pytest.approx(2.0)  # the added 2 kg
+    assert cfg.plant.d_xc == pytest.approx(0.056) and cfg.plant.d_yc == pytest.approx(0.010)
+    assert cfg.robot == base.robot  # the controller is not told
+    assert cfg.robot.I_p == 6.42868e-3
+    # everything not overridden comes from the base file through extends:
+    assert cfg.plant.L == base.plant.L == pytest.approx(0.108)
+    assert cfg.plant_motor_l == base.plant_motor_l
+    assert cfg.controller == base.controller and cfg.sim == base.sim
+    assert cfg.raw["name"] != base.raw["name"]
+    assert "extends" not in cfg.raw
+
+
+@pytest.mark.parametrize("path", [SIM, OFFSET], ids=lambda p: p.name)
+def test_seed_configs_name_an_existing_path_file(path: Path) -> None:
+    cfg = load_config(path)
+    assert isinstance(cfg.path, str)
+    assert (Path(cfg.base_dir) / cfg.path).is_file()
+    assert cfg.source == str(path)
+
+
+# --------------------------------------------------------------------------- plant defaults
+
+
+def test_plant_keys_default_to_robot_key_by_key(tmp_path: Path) -> None:
+    data = _minimal()
+    data["plant"] = {"m_p": 3.0, "d_yc": 0.02, "motor_l": {"resistance_ohm": 5.0}}
+    cfg = load_config(_write(tmp_path, "partial.yaml", data))
+    assert cfg.plant.m_p == 3.0 and cfg.plant.d_yc == 0.02
+    for name in RobotParams.names():
+        if name not in ("m_p", "d_yc"):
+            assert getattr(cfg.plant, name) == getattr(cfg.robot, name), name
+    assert cfg.plant_motor_l.resistance_ohm == 5.0
+    for f in dataclasses.fields(MotorParams):
+        if f.name != "resistance_ohm":
+            assert getattr(cfg.plant_motor_l, f.name) == getattr(cfg.robot_motor, f.name), f.name
+    assert cfg.plant_motor_r == cfg.robot_motor
+    assert cfg.robot.m_p == 0.75  # robot: itself is untouched
+
+
+def test_plant_motor_applies_to_both_wheels_and_is_deep_merged(tmp_path: Path) -> None:
+    data = _minimal()
+    data["plant"] = {"motor": {"supply_v": 24.0}, "motor_r": {"supply_v": 18.0}}
+    cfg = load_config(_write(tmp_path, "motors.yaml", data))
+    assert cfg.robot_motor.supply_v == 12.0
+    assert cfg.plant_motor_l.supply_v == 24.0
+    assert cfg.plant_motor_r.supply_v == 18.0
+    assert cfg.plant_motor_l.k_nm_per_a == cfg.robot_motor.k_nm_per_a
+
+
+def test_no_plant_section_means_the_plant_is_the_robot(tmp_path: Path) -> None:
+    cfg = load_config(_write(tmp_path, "noplant.yaml", _minimal()))
+    assert cfg.plant == cfg.robot
+    assert cfg.plant_motor_l == cfg.plant_motor_r == cfg.robot_motor
+    assert cfg.controller == ControllerConfig() and cfg.daemon == DaemonConfig()
+
+
+def test_extends_is_relative_to_the_extending_file_and_deep_merges(tmp_path: Path) -> None:
+    base = _minimal()
+    base["daemon"] = {"cpus": [0, 1], "stop_decel": 0.7}
+    base["limits"] = {"v_max": 0.5}
+    _write(tmp_path, "base.yaml", base)
+    child = _write(tmp_path / "sub", "child.yaml",
+                   {"extends": "../base.yaml", "daemon": {"cpus": [2]}, "limits": {"accel": 0.3}})
+    cfg = load_config(child)
+    assert cfg.daemon.cpus == (2,)  # lists replace
+    assert cfg.daemon.stop_decel == 0.7  # mappings merge key by key
+    assert cfg.limits.v_max == 0.5 and cfg.limits.accel == 0.3
+    assert cfg.robot.I_p == 6.42868e-3
+
+
+# --------------------------------------------------------------------------- bad files
+
+
+def _set(path: str, value: Any) -> Callable[[dict[str, Any]], None]:
+    def mutate(data: dict[str, Any]) -> None:
+        node = data
+        *parents, last = path.split(".")
+        for part in parents:
+            node = node.setdefault(part, {})
+        node[last] = value
+    return mutate
+
+
+def _delete(path: str) -> Callable[[dict[str, Any]], None]:
+    def mutate(data: dict[str, Any]) -> None:
+        node = data
+        *parents, last = path.split(".")
+        for part in parents:
+            node = node[part]
+        del node[last]
+    return mutate
+
+
+
+# (id, mutation of the seed mapping, dotted key the message must name)
+BAD_VALUES = [
+    ("unknown_section", _set("controler", {"rate_hz": 100}), "controler"),
+    ("unknown_inner_key", _set("controller.inner.kp_", 1.0), "controller.inner.kp_"),
+    ("string_for_number", _set("controller.inner.kp", "abc"), "controller.inner.kp"),
+    ("bool_for_number", _set("controller.rate_hz", True), "controller.rate_hz"),
+    ("negative_mass", _set("robot.m_p", -0.75), "robot.m_p"),
+    ("zero_radius", _set("robot.r_L", 0), "robot.r_L"),
+    ("nan_robot", _set("robot.I_p", float("nan")), "robot.I_p"),
+    ("inf_limit", _set("limits.v_max", float("inf")), "limits.v_max"),
+    ("nan_gain", _set("controller.inner.ki", float("nan")), "controller.inner.ki"),
+    ("minus_inf_nested", _set("sim.gyro.bias_dps", float("-inf")), "sim.gyro.bias_dps"),
+    ("bad_mode", _set("controller.mode", "fast"), "controller.mode"),
+    ("duty_above_one", _set("limits.duty_max", 1.5), "limits.duty_max"),
+    ("missing_robot", _delete("robot"), "robot"),
+    ("missing_robot_key", _delete("robot.I_w3"), "robot.I_w3"),
+    ("unknown_robot_key", _set("robot.mass", 3.0), "robot.mass"),
+    ("negative_plant_mass", _set("plant.m_p", -2.0), "plant.m_p"),
+    ("unknown_motor_key", _set("plant.motor_l.ohms", 3.0), "plant.motor_l.ohms"),
+    ("nan_motor", _set("robot.motor.coulomb_nm", float("nan")), "robot.motor.coulomb_nm"),
+    ("start_two_values", _set("start", [0.0, 1.0]), "start"),
+    ("start_not_numbers", _set("start", [0.0, "x", 0.0]), "start"),
+    ("gyro_range", _set("sensors.gyro_range_dps", 300), "sensors.gyro_range_dps"),
+    ("backend", _set("hal.backend", "usb"), "hal.backend"),
+    ("rt_priority", _set("daemon.rt_priority", 100), "daemon.rt_priority"),
+    ("cpu_not_int", _set("daemon.cpus", [0, "one"]), "daemon.cpus"),
+    ("slip_probability", _set("sim.slip.probability", 1.5), "sim.slip.probability"),
+    ("forgetting", _set("controller.adaptation.forgetting", 0.5), "controller.adaptation.forgetting"),
+    ("section_not_mapping", _set("limits", 3), "limits"),
+    ("extends_not_text", _set("extends", ["sim.yaml"]), "extends"),
+    ("negative_motor", _set("robot.motor.supply_v", -12.0), "robot.motor.supply_v"),
+    ("motor_l_not_mapping", _set("plant.motor_l", 5), "plant.motor_l"),
+    ("plant_motor_not_mapping", _set("plant.motor", [1]), "plant.motor"),
+    ("section_empty_list", _set("sim", []), "sim"),
+]
+
+
+@pytest.mark.parametrize(("case", "mutate", "key"), BAD_VALUES, ids=[
+    c.values[0] if hasattr(c, "values") else c[0] for c in BAD_VALUES])
+def test_bad_value_names_file_and_key(tmp_path: Path, case: str, mutate: Callable[[dict[str, Any]], None],
+                                      key: str) -> None:
+    data = _sim_mapping()
+    mutate(data)
+    path = _write(tmp_path, f"bad_{case}.yaml", data)
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    msg = str(info.value)
+    assert path.name in msg
+    assert re.search(rf"(^|[\s:]){re.escape(key)}([\s:\[]|$)", msg), msg
+
+
+@pytest.mark.parametrize(("text", "line"), [
+    ("robot:\n  H: 0.1\n   L: 2\n", 3),
+    ("name: x\n\nsim:\n\tstep_hz: 1\n", 4),
+])
+def test_invalid_yaml_names_file_and_line(tmp_path: Path, text: str, line: int) -> None:
+    path = _write(tmp_path, "syntax.yaml", text)
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    msg = str(info.value)
+    assert "syntax.yaml" in msg
+    assert f"line {line}" in msg
+
+
+def test_empty_file_reports_missing_robot(tmp_path: Path) -> None:
+    path = _write(tmp_path, "empty.yaml", "")
+    with pytest.raises(ConfigError, match=r"empty\.yaml: robot: missing"):
+        load_config(path)
+
+
+def test_top_level_not_a_mapping(tmp_path: Path) -> None:
+    path = _write(tmp_path, "list.yaml", "- robot\n- plant\n")
+    with pytest.raises(ConfigError, match=r"list\.yaml"):
+        load_config(path)
+
+
+def test_extends_a_missing_file_names_the_missing_file(tmp_path: Path) -> None:
+    path = _write(tmp_path, "child.yaml", "extends: nowhere.yaml\n")
+    with pytest.raises(ConfigError, match=r"nowhere\.yaml"):
+        load_config(path)
+
+
+def test_extends_a_missing_file_names_the_extending_file_and_key(tmp_path: Path) -> None:
+    path = _write(tmp_path, "child.yaml", "extends: nowhere.yaml\n")
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    assert "child.yaml" in str(info.value) and "extends" in str(info.value)
+
+
+@pytest.mark.parametrize("files", [
+    {"a.yaml": "extends: b.yaml\n", "b.yaml": "extends: a.yaml\n"},
+    {"a.yaml": "extends: a.yaml\n"},
+    {"a.yaml": "extends: b.yaml\n", "b.yaml": "extends: c.yaml\n", "c.yaml": "extends: b.yaml\n"},
+], ids=["two", "self", "three"])
+def test_extends_cycle_is_an_error(tmp_path: Path, files: dict[str, str]) -> None:
+    for name, text in files.items():
+        _write(tmp_path, name, text)
+    with pytest.raises(ConfigError) as info:
+        load_config(tmp_path / "a.yaml")
+    msg = str(info.value)
+    assert "a.yaml" in msg and "extends" in msg
+
+
+def test_config_error_is_a_value_error() -> None:
+    assert issubclass(ConfigError, ValueError)
+
+
+def test_overrides_are_validated_with_the_file_name() -> None:
+    cfg = load_config(SIM)
+    with pytest.raises(ConfigError, match=r"sim\.yaml: limits\.duty_max"):
+        with_overrides(cfg, {"limits": {"duty_max": 2.0}})
+    assert with_overrides(cfg, {"limits": {"duty_max": 0.8}}).limits.duty_max == 0.8
+    assert cfg.limits.duty_max == 1.0  # the original is untouched
+
+
+# --------------------------------------------------------------------------- docs/config.md
+
+_ROW = re.compile(r"^\|\s*`([^`]+)`\s*\|([^|]*)\|([^|]*)\|(.*)\|\s*$")
+
+# Config fields whose keys live elsewhere in the file: plant: takes robot:'s keys.
+_CONFIG_FIELD_KEY = {"robot_motor": "robot.motor", "plant": "robot", "plant_motor_l": "robot.motor",
+                     "plant_motor_r": "robot.motor"}
+# Sub-sections passed as they are to the real backend (which validates them).
+_BACKEND_SECTIONS = ("hal.imu.", "hal.bridge.", "hal.pwm_sysfs.")
+
+
+def _doc_rows() -> list[tuple[str, str, str, str]]:
+    rows = []
+    for line in DOC.read_text(encoding="utf-8").splitlines():
+        m = _ROW.match(line)
+        if m:
+            rows.append(tuple(s.strip() for s in m.groups()))  # type: ignore[arg-type]
+    return rows
+
+
+def _dataclass_in(tp: Any) -> type | None:
+    """The dataclass a field's type holds (directly or as Optional), else None."""
+    if dataclasses.is_dataclass(tp):
+        return tp
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
+        for arg in typing.get_args(tp):
+            if dataclasses.is_dataclass(arg):
+                return arg
+    return None
+
+
+def _walk(cls: type, prefix: str, out: dict[str, tuple[type, dataclasses.Field]]) -> None:
+    hints = typing.get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        if not f.init:
+            continue
+        key = f"{prefix}.{f.name}"
+        out[key] = (cls, f)
+        sub = _dataclass_in(hints[f.name])
+        if sub is not None:
+            _walk(sub, key, out)
+
+
+def _schema_keys() -> dict[str, tuple[type, dataclasses.Field]]:
+    """Every dotted key the config's dataclasses define, found from Config's own fields."""
+    out: dict[str, tuple[type, dataclasses.Field]] = {}
+    hints = typing.get_type_hints(Config)
+    for f in dataclasses.fields(Config):
+        cls = _dataclass_in(hints[f.name])
+        if cls is not None:
+            _walk(cls, _CONFIG_FIELD_KEY.get(f.name, f.name), out)
+    return out
+
+
+def test_schema_walk_reaches_every_section_class() -> None:
+    reached = {cls for cls, _ in _schema_keys().values()}
+    for cls in (SimConfig, SlipConfig, GyroTruth, SensorsConfig, HalConfig, ControllerConfig,
+                OuterGains, PidGains, WheelPidGains, AdaptationConfig, EstimatorConfig,
+                PursuitConfig, LimitsConfig, DaemonConfig, RobotParams, MotorParams):
+        assert cls in reached, cls.__name__
+
+
+def test_docs_document_each_key_once() -> None:
+    keys = [r[0] for r in _doc_rows()]
+    assert len(keys) > 100
+    dupes = sorted({k for k in keys if keys.count(k) > 1})
+    assert not dupes, f"documented more than once: {dupes}"
+
+
+def test_docs_cover_every_config_field() -> None:
+    documented = {r[0] for r in _doc_rows()}
+    missing = sorted(set(_schema_keys()) - documented)
+    assert not missing, f"docs/config.md lacks: {missing}"
+
+
+def test_docs_cover_every_top_level_key() -> None:
+    documented = {r[0] for r in _doc_rows()}
+    missing = [k for k in config_mod._TOP_KEYS if k not in documented]
+    assert not missing, f"docs/config.md lacks: {missing}"
+
+
+def test_docs_document_no_key_that_does_not_exist() -> None:
+    known = (set(_schema_keys()) | set(config_mod._TOP_KEYS) | set(_CONFIG_FIELD_KEY.values())
+             | {"plant.motor_l", "plant.motor_r"})
+    stale = [k for k in (r[0] for r in _doc_rows())
+             if k not in known and not k.startswith(_BACKEND_SECTIONS)]
+    assert not stale, f"docs/config.md documents unknown keys: {stale}"
+
+
+def test_every_row_has_unit_default_and_meaning() -> None:
+    for key, unit, default, meaning in _doc_rows():
+        assert unit and default and len(meaning) > 10, key
+
+
+def test_docs_defaults_match_the_dataclasses() -> None:
+    rows = {r[0]: r for r in _doc_rows()}
+    checked = 0
+    for key, (_, f) in _schema_keys().items():
+        default_cell = rows[key][2]
+        if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+            assert default_cell == "required", key
+            continue
+        value = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+        if dataclasses.is_dataclass(value):
+            continue  # a sub-section: its own keys carry the defaults
+        assert default_cell.startswith("`") and default_cell.endswith("`"), (key, default_cell)
+        doc_value = yaml.safe_load(default_cell.strip("`"))
+        if isinstance(value, tuple):
+            value = list(value)
+        assert doc_value == value and type(doc_value) is type(value) or (
+            isinstance(value, float) and isinstance(doc_value, float) and math.isclose(doc_value, value)), \
+            (key, doc_value, value)
+        checked += 1
+    assert checked > 60
+
+
+@pytest.mark.skipif(not REAL_HAL.exists(), reason="hal/real.py not present")
+def test_docs_cover_the_real_backends_keys() -> None:
+    """The real backend validates hal.imu/bridge/pwm_sysfs itself; its keys are in its source."""
+    used = set(re.findall(r"\"(hal\.(?:imu|bridge|pwm_sysfs)\.[a-z_]+)\"", REAL_HAL.read_text(encoding="utf-8")))
+    assert {"hal.imu.bus", "hal.bridge.url", "hal.pwm_sysfs.root"} <= used
+    documented = {r[0] for r in _doc_rows() if r[0].startswith(_BACKEND_SECTIONS)}
+    assert used - documented == set(), "undocumented backend keys"
+    assert documented - used == set(), "documented backend keys the backend does not read"
+
+
+# --------------------------------------------------------------------------- live changes
+
+
+def test_gain_change_needs_no_restart() -> None:
+    old = load_config(SIM)
+    new = with_overrides(old, {"controller": {"inner": {"kp": 20.0, "ki": 100.0}}})
+    keys = changed_keys(old, new)
+    assert keys == ["controller.inner"]
+    assert needs_restart(keys) == []
+
+
+def test_rate_change_needs_a_restart() -> None:
+    old = load_config(SIM)
+    new = with_overrides(old, {"controller": {"rate_hz": 100.0, "heading_gain": 4.0}})
+    keys = changed_keys(old, new)
+    assert set(keys) == {"controller.rate_hz", "controller.heading_gain"}
+    assert needs_restart(keys) == ["controller.rate_hz"]
+
+
+def test_backend_change_needs_a_restart() -> None:
+    old = load_config(SIM)
+    new = with_overrides(old, {"hal": {"backend": "real"}})
+    assert changed_keys(old, new) == ["hal.backend"]
+    assert needs_restart(changed_keys(old, new)) == ["hal.backend"]
+
+
+def test_no_change_reports_nothing() -> None:
+    old = load_config(SIM)
+    same = with_overrides(old, {"controller": {"rate_hz": old.controller.rate_hz}})
+    assert changed_keys(old, same) == []
+    assert changed_keys(old, old) == []
+
+
+@pytest.mark.parametrize(("key", "restart"), [
+    ("controller.rate_hz", True), ("controller.inner", False), ("controller.rate_hz_x", False),
+    ("hal", True), ("hal.imu", True), ("sensors.gyro_range_dps", True), ("sim.seed", True),
+    ("plant.m_p", True), ("robot.m_p", False), ("daemon.socket", True), ("daemon.cpus", True),
+    ("daemon.stop_decel", False), ("limits.v_max", False), ("simulation", False), ("path", False),
+])
+def test_needs_restart_by_key(key: str, restart: bool) -> None:
+    assert needs_restart([key]) == ([key] if restart else [])
+
+
+@pytest.mark.parametrize("direction", ["added", "removed"])
+def test_rate_change_in_an_added_or_removed_section_needs_a_restart(direction: str) -> None:
+    without = _minimal()
+    with_rate = _minimal()
+    with_rate["controller"] = {"rate_hz": 100.0}
+    a, b = config_from_mapping(without), config_from_mapping(with_rate)
+    old, new = (a, b) if direction == "added" else (b, a)
+    assert needs_restart(changed_keys(old, new)) != []
