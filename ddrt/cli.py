@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 from typing import Sequence
 
 
@@ -37,6 +38,36 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     return 0 if result.metrics["completed"] else 1
 
 
+def _cmd_run(args: argparse.Namespace) -> int:
+    import os
+
+    # One BLAS thread: the loop does no large linear algebra, and each OpenBLAS thread
+    # holds buffers that mlockall would pin (must be set before numpy is imported).
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    from ddrt.daemon import run_daemon
+    from ddrt.telemetry import configure_logging
+
+    configure_logging(args.log_level)
+    return run_daemon(args.config, args.socket, args.duration, args.stats_json, args.follow)
+
+
+def _cmd_ctl(args: argparse.Namespace) -> int:
+    from ddrt.ctlsocket import request
+
+    payload: dict = {"cmd": args.command_name}
+    if args.command_name == "follow":
+        if not args.args:
+            raise ValueError("ctl follow: give a path file")
+        payload["path"] = str(Path(args.args[0]).resolve())
+    try:
+        reply = request(args.socket, payload, timeout=args.timeout)
+    except (OSError, TimeoutError) as exc:
+        print(f"ddrt ctl: cannot reach {args.socket}: {exc}", file=sys.stderr)
+        return 1
+    print(json.dumps(reply, indent=2, sort_keys=True))
+    return 0 if reply.get("ok") else 1
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="ddrt", description="Real-time controller for differential-drive robots.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -51,6 +82,23 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--plot", action="store_true", help="also write the seed's figures as PNG")
     sim.add_argument("--quiet", action="store_true", help="no progress line")
     sim.set_defaults(func=_cmd_sim)
+
+    run = sub.add_parser("run", help="the long-running controller (systemd service)")
+    run.add_argument("config", help="YAML config (e.g. /etc/ddrt/ddrt.yaml)")
+    run.add_argument("--socket", default=None, help="control socket path (e.g. /run/ddrt/ddrt.sock)")
+    run.add_argument("--duration", type=float, help="stop after this many seconds")
+    run.add_argument("--follow", action="store_true", help="start following the config's path at once")
+    run.add_argument("--stats-json", help="write timing statistics to this file at exit")
+    run.add_argument("--log-level", default="info", help="debug, info, warning or error")
+    run.set_defaults(func=_cmd_run)
+
+    ctl = sub.add_parser("ctl", help="talk to a running daemon over its control socket")
+    ctl.add_argument("--socket", default="/run/ddrt/ddrt.sock", help="control socket path")
+    ctl.add_argument("--timeout", type=float, default=2.0)
+    ctl.add_argument("command_name", metavar="COMMAND",
+                     choices=("status", "follow", "stop", "estop", "reset", "gains", "reload"))
+    ctl.add_argument("args", nargs="*", help="follow: the path file")
+    ctl.set_defaults(func=_cmd_ctl)
     return parser
 
 

@@ -237,7 +237,7 @@ class DaemonConfig:
     telemetry_max_files: int = 5
     rt_priority: int = 0  # SCHED_FIFO priority; 0 leaves the scheduler alone
     cpus: tuple[int, ...] = ()
-    lock_memory: bool = True
+    lock_memory: bool = False  # mlockall; pins every mapped page, shared libraries too
     timer_slack_ns: int = 1000
     watch_config: bool = False
     stop_decel: float = 0.5  # m/s^2 for a controlled stop
@@ -314,6 +314,11 @@ def _read_yaml(path: FsPath, chain: tuple[str, ...] = ()) -> dict[str, Any]:
         data = {}
     if not isinstance(data, Mapping):
         raise ConfigError(f"{path}: the top level must be a mapping of sections")
+    data = dict(data)
+    if isinstance(data.get("path"), str) and not FsPath(data["path"]).is_absolute():
+        # A path file is named relative to the config file that names it, even when that
+        # file is the base of another through extends:.
+        data["path"] = str(path.parent / data["path"])
     parent = data.get("extends")
     if parent is not None:
         if not isinstance(parent, str):
@@ -430,7 +435,7 @@ def with_overrides(cfg: Config, overrides: Mapping[str, Any]) -> Config:
 
 
 # Keys whose change needs a restart of the daemon (devices and the loop's rate).
-RESTART_KEYS = ("hal", "sensors", "controller.rate_hz", "daemon.socket", "daemon.rt_priority",
+RESTART_KEYS = ("hal", "sensors", "controller.rate_hz", "controller.mode", "estimator", "daemon.socket", "daemon.rt_priority",
                 "daemon.cpus", "daemon.lock_memory", "daemon.telemetry_dir", "sim", "plant")
 
 

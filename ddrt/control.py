@@ -107,7 +107,7 @@ class _Pid:
         self.prev_err = err
         return self.kp * err + self.ki * self.integral + self.kd * deriv
 
-    def retune(self, gains: PidGains, current_output: float, err: float) -> None:
+    def retune(self, gains: PidGains, err: float) -> None:
         """New gains, with the integrator re-seeded so the output does not step (bumpless)."""
         p_old = self.kp * err + self.ki * self.integral
         self.kp, self.kd, self.limit = gains.kp, gains.kd, gains.integrator_limit
@@ -172,8 +172,8 @@ class DynamicController:
         self.limits = limits
         self._nu_max = 2.0 * limits.accel
         self._alpha_max = 2.0 * limits.alpha_max
-        self.pid_v.retune(cfg.inner, 0.0, self._last_err_v)
-        self.pid_w.retune(cfg.inner, 0.0, self._last_err_w)
+        self.pid_v.retune(cfg.inner, self._last_err_v)
+        self.pid_w.retune(cfg.inner, self._last_err_w)
 
     _last_err_v = 0.0
     _last_err_w = 0.0
@@ -253,6 +253,9 @@ class DynamicController:
 class KinematicController:
     """Pure pursuit curvature plus a speed PID per wheel: the baseline to beat."""
 
+    _last_err_l = 0.0
+    _last_err_r = 0.0
+
     def __init__(self, dyn: Dynamics, motor: Motor, cfg: ControllerConfig, limits: LimitsConfig,
                  period_s: float) -> None:
         self.dyn = dyn
@@ -277,8 +280,8 @@ class KinematicController:
     def retune(self, cfg: ControllerConfig, limits: LimitsConfig) -> None:
         wheel = cfg.wheel_pid
         gains = PidGains(kp=wheel.kp, ki=wheel.ki, kd=wheel.kd, integrator_limit=wheel.integrator_limit)
-        self.pid_l.retune(gains, 0.0, 0.0)
-        self.pid_r.retune(gains, 0.0, 0.0)
+        self.pid_l.retune(gains, self._last_err_l)
+        self.pid_r.retune(gains, self._last_err_r)
         self.heading_gain = cfg.heading_gain
         self.limits = limits
 
@@ -305,8 +308,10 @@ class KinematicController:
         hold = cmd.saturated
         ff_l, _ = motor.duty_for_torque(0.0, wl_c)
         ff_r, _ = motor.duty_for_torque(0.0, wr_c)
-        duty_l = ff_l + self.pid_l.output(wl_c - wl, wl, self.period, hold)
-        duty_r = ff_r + self.pid_r.output(wr_c - wr, wr, self.period, hold)
+        self._last_err_l = wl_c - wl
+        self._last_err_r = wr_c - wr
+        duty_l = ff_l + self.pid_l.output(self._last_err_l, wl, self.period, hold)
+        duty_r = ff_r + self.pid_r.output(self._last_err_r, wr, self.period, hold)
         duty_l, duty_r, sat = _scale_to_limit(duty_l, duty_r, lim.duty_max)
         cmd.duty_l = duty_l
         cmd.duty_r = duty_r

@@ -181,6 +181,13 @@ class ControlLoop:
                     self.cmd = cmd
                     if cmd.saturated:
                         self.saturated_ticks += 1
+        elif state != "fault":
+            # Standing still is a command too: one write per tick keeps a serial bridge's
+            # watchdog fed and re-asserts zero if anything else touched the motors.
+            try:
+                self.hal.write(0.0, 0.0)
+            except HalError as exc:
+                self.enter_fault(f"motor write failed: {exc}")
         self._record(sample.t)
         if self.on_tick is not None:
             self.on_tick(self)

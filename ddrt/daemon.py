@@ -1,0 +1,394 @@
+"""`ddrt run`: the long-running service around one ControlLoop.
+
+Start-up: config -> HAL -> control socket and telemetry thread -> real-time set-up -> gyro
+calibration at rest -> fixed-rate loop (READY=1 after the first good tick). Each period:
+sleep to an absolute deadline, tick, record timing, then (outside the timed part) serve
+the control socket, ping the watchdog, apply a pending reload. Signals only set flags.
+
+Exit codes: 0 after a requested stop (SIGTERM, SIGINT, --duration), 1 after a fault (so
+systemd restarts the service), 2 for a bad config at start-up.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import resource
+import signal
+import threading
+import time
+from pathlib import Path as FsPath
+from typing import Any
+
+from ddrt import rt
+from ddrt.clock import MonotonicClock
+from ddrt.config import Config, changed_keys, load_config, needs_restart
+from ddrt.ctlsocket import ControlServer
+from ddrt.loop import COLUMNS, ControlLoop
+from ddrt.path import PathError, load_path
+from ddrt.schema import ConfigError
+from ddrt.sdnotify import Notifier
+from ddrt.simrun import resolve_path, speed_limits
+from ddrt.telemetry import RotatingCsvWriter, TelemetryLogger, TelemetryRing
+from ddrt.timing import RateScheduler, TimingStats
+from hal.base import HalError
+from hal.registry import open_hal
+
+log = logging.getLogger("ddrt.daemon")
+
+COMMANDS = ("status", "follow", "stop", "estop", "reset", "gains", "reload")
+
+
+class Daemon:
+    """One process, one robot: the loop, its socket, its telemetry, its signals."""
+
+    def __init__(self, config_path: str, socket_path: str | None = None, duration: float | None = None,
+                 stats_json: str | None = None, follow: bool = False) -> None:
+        self.t_start = time.monotonic()
+        self.config_path = config_path
+        self.cfg: Config = load_config(config_path)
+        self.socket_path = socket_path
+        self.duration = duration
+        self.stats_json = stats_json
+        self.follow_at_start = follow
+        self.notifier = Notifier()
+        self.stop_requested = False
+        self.reload_requested = False
+        self.exit_code = 0
+        self.ready_s: float | None = None
+        self.period = 1.0 / self.cfg.controller.rate_hz
+        self.stats = TimingStats(self.period)
+        self.server: ControlServer | None = None
+        self.telemetry: TelemetryLogger | None = None
+        self.ring: TelemetryRing | None = None
+        self.loop: ControlLoop | None = None
+        self.hal: Any = None
+        self.clock: Any = None
+        self.reloads = {"applied": 0, "rejected": 0}
+
+    # ------------------------------------------------------------------ set-up
+
+    def _open_hal(self) -> None:
+        cfg = self.cfg
+        if cfg.hal.backend == "sim":
+            start = cfg.start or (0.0, 0.0, 0.0)
+            if cfg.start is None and cfg.path is not None:
+                start = resolve_path(cfg).start_pose
+            # Paced: every read first brings the plant up to the wall clock, so the loop is
+            # scheduled (and its lateness measured) on the real monotonic clock.
+            self.hal = open_hal(cfg, start=start, paced=True)
+            self.clock = MonotonicClock()
+        else:
+            self.clock = MonotonicClock()
+            self.hal = open_hal(cfg, clock=self.clock)
+
+    def _open_telemetry(self) -> None:
+        d = self.cfg.daemon
+        directory = os.environ.get("LOGS_DIRECTORY") or d.telemetry_dir
+        try:
+            FsPath(directory).mkdir(parents=True, exist_ok=True)
+            writer = RotatingCsvWriter(directory, "telemetry", COLUMNS, d.telemetry_max_bytes, d.telemetry_max_files)
+        except OSError as exc:
+            log.warning("telemetry disabled: cannot write to %s: %s", directory, exc)
+            return
+        self.ring = TelemetryRing(COLUMNS, capacity=4096)
+        self.telemetry = TelemetryLogger(self.ring, writer)
+
+    def _signals(self) -> None:
+        def on_stop(signum: int, _frame: object) -> None:
+            self.stop_requested = True
+
+        def on_hup(_signum: int, _frame: object) -> None:
+            self.reload_requested = True
+
+        signal.signal(signal.SIGTERM, on_stop)
+        signal.signal(signal.SIGINT, on_stop)
+        signal.signal(signal.SIGHUP, on_hup)
+
+    # ------------------------------------------------------------------ main
+
+    def run(self) -> int:
+        self._signals()
+        try:
+            self._open_hal()
+        except (HalError, OSError, ValueError) as exc:
+            log.error("cannot open the robot (hal.backend=%s): %s", self.cfg.hal.backend, exc)
+            return 1
+        try:
+            return self._run_opened()
+        finally:
+            self._shutdown()
+
+    def _run_opened(self) -> int:
+        cfg = self.cfg
+        # Helper threads (socket, telemetry) need little stack; with mlockall every byte of
+        # the default 8 MiB per thread would be resident.
+        threading.stack_size(512 * 1024)
+        self.loop = loop = ControlLoop(cfg, self.hal)
+        if self.socket_path:
+            FsPath(self.socket_path).parent.mkdir(parents=True, exist_ok=True)
+            self.server = ControlServer(self.socket_path, commands=COMMANDS)
+        self._open_telemetry()
+        d = cfg.daemon
+        for warning in rt.apply_realtime(d.rt_priority or None, set(d.cpus) or None, d.lock_memory,
+                                         d.timer_slack_ns or None, gil_switch_interval_s=0.0005):
+            log.warning("real-time set-up: %s (running without it)", warning)
+        clock = self.clock
+        try:
+            loop.calibrate(clock.sleep_until, clock.now)
+        except (HalError, ValueError) as exc:
+            log.error("start-up calibration failed: %s", exc)
+            self.exit_code = 1
+            return 1
+        if self.follow_at_start and cfg.path is not None:
+            loop.follow(resolve_path(cfg))
+        rt.freeze_gc()
+        self._fixed_rate_loop()
+        return self.exit_code
+
+    def _fixed_rate_loop(self) -> None:
+        loop = self.loop
+        assert loop is not None
+        clock = self.clock
+        stats = self.stats
+        ring = self.ring
+        notifier = self.notifier
+        sched = RateScheduler(self.period, clock.now())
+        perf = time.perf_counter
+        wd_interval = notifier.watchdog_interval() or 1.0
+        next_watchdog = 0.0
+        next_status = 0.0
+        end = sched.next_deadline() + self.duration if self.duration is not None else math.inf
+        # The simulated robot integrates its physics when asked for the time: do that before
+        # the timed part, so a tick's compute time is the controller's alone.
+        advance_plant = getattr(self.hal, "now", None) if self.cfg.hal.backend == "sim" else None
+        while not self.stop_requested:
+            deadline = sched.next_deadline()
+            woke = clock.sleep_until(deadline)
+            skipped = sched.account(woke)
+            if advance_plant is not None:
+                advance_plant()
+            t0 = perf()
+            loop.tick()
+            if ring is not None:
+                ring.append(loop.row)
+            compute = perf() - t0
+            stats.record(compute, woke - deadline, skipped)
+            if loop.state == "fault":
+                log.error("stopping after fault: %s", loop.fault)
+                self.exit_code = 1
+                break
+            if self.ready_s is None:
+                self.ready_s = time.monotonic() - self.t_start
+                notifier.ready()
+                log.info("ready after %.3f s at %.0f Hz", self.ready_s, 1.0 / self.period)
+            if self.server is not None:
+                self.server.poll(self.handle)
+            if self.reload_requested:
+                self.reload_requested = False
+                self.reload()
+            now = woke
+            if now >= next_watchdog and skipped == 0:
+                notifier.watchdog()
+                next_watchdog = now + wd_interval
+            if now >= next_status:
+                notifier.status(self.status_line())
+                next_status = now + 1.0
+            if woke >= end:
+                break
+
+    def _shutdown(self) -> None:
+        self.notifier.stopping()
+        if self.loop is not None:
+            self.loop._zero_motors()
+        elif self.hal is not None:
+            try:
+                self.hal.stop()
+            except Exception as exc:  # noqa: BLE001 - shutting down regardless
+                log.error("stop failed: %s", exc)
+        if self.hal is not None:
+            try:
+                self.hal.close()
+            except Exception as exc:  # noqa: BLE001
+                log.error("close failed: %s", exc)
+        if self.server is not None:
+            self.server.close()
+        if self.telemetry is not None:
+            self.telemetry.close()
+        if self.stats_json:
+            FsPath(self.stats_json).write_text(json.dumps(self.stats_report(), indent=2) + "\n")
+        self.notifier.close()
+
+    # ------------------------------------------------------------------ reporting
+
+    def status_line(self) -> str:
+        loop = self.loop
+        s = self.stats.summary()
+        state = loop.state if loop else "starting"
+        p99 = s.get("compute_p99_us")
+        return f"{state}; tick p99 {p99:.0f} us; missed {s['missed_ticks']}" if p99 is not None else state
+
+    def stats_report(self) -> dict[str, Any]:
+        s = self.stats.summary()
+        usage = resource.getrusage(resource.RUSAGE_SELF)
+        return {
+            "rate_hz": 1.0 / self.period,
+            "ticks": s["count"],
+            "missed": s["missed_ticks"],
+            "overruns": s["overruns"],
+            "compute_us": {"p50": s["compute_p50_us"], "p99": s["compute_p99_us"], "max": s["compute_worst_us"]},
+            "lateness_us": {"p50": s["late_p50_us"], "p99": s["late_p99_us"], "max": s["late_worst_us"]},
+            "ready_s": self.ready_s,
+            "maxrss_kb": usage.ru_maxrss,
+            "cpu_s": usage.ru_utime + usage.ru_stime,
+            "wall_s": time.monotonic() - self.t_start,
+            "exit_code": self.exit_code,
+            "reloads": dict(self.reloads),
+        }
+
+    def status(self) -> dict[str, Any]:
+        loop = self.loop
+        assert loop is not None
+        est = loop.estimator
+        ref = loop.reference
+        progress = None
+        if ref is not None and loop.path is not None:
+            progress = {"sigma_m": ref.sigma, "length_m": loop.path.length,
+                        "fraction": ref.sigma / loop.path.length if loop.path.length else 1.0,
+                        "cross_track_m": ref.cross_track}
+        return {
+            "state": loop.state,
+            "fault": loop.fault,
+            "pose": {"x": est.x, "y": est.y, "theta": est.theta},
+            "speeds": {"v": est.v, "omega": est.omega},
+            "gyro_bias_rad_s": est.bias,
+            "duty": {"l": loop.duty_l, "r": loop.duty_r},
+            "progress": progress,
+            "timing": self.stats.summary(),
+            "faults": {"gyro_rejects": est.health.gyro_rejects, "encoder_rejects": est.health.encoder_rejects,
+                       "resyncs": est.health.resyncs, "stale_ticks": est.health.stale_ticks,
+                       **getattr(self.hal, "fault_counters", lambda: {})()},
+            "config": self.cfg.source,
+            "reloads": dict(self.reloads),
+        }
+
+    # ------------------------------------------------------------------ commands
+
+    def handle(self, req: dict[str, Any]) -> dict[str, Any]:
+        """One control-socket request, between two ticks; never raises into the loop."""
+        loop = self.loop
+        assert loop is not None
+        cmd = req["cmd"]
+        if cmd == "status":
+            return {"ok": True, "status": self.status()}
+        if cmd == "gains":
+            c = self.cfg.controller
+            return {"ok": True, "mode": c.mode, "outer": vars_of(c.outer), "inner": vars_of(c.inner),
+                    "wheel_pid": vars_of(c.wheel_pid), "heading_gain": c.heading_gain}
+        if cmd == "stop":
+            loop.stop()
+            return {"ok": True, "state": loop.state}
+        if cmd == "estop":
+            loop.estop("estop requested over the control socket")
+            return {"ok": True, "state": loop.state}
+        if cmd == "reset":
+            loop.reset()
+            return {"ok": True, "state": loop.state}
+        if cmd == "reload":
+            ok, message = self.reload()
+            return {"ok": ok, "message" if ok else "error": message}
+        if cmd == "follow":
+            return self._follow(req)
+        return {"ok": False, "error": f"unknown command {cmd!r}"}
+
+    def _follow(self, req: dict[str, Any]) -> dict[str, Any]:
+        loop = self.loop
+        assert loop is not None
+        if loop.state in ("following", "stopping"):
+            return {"ok": False, "error": f"already {loop.state}: send stop first"}
+        if loop.state in ("estop", "fault"):
+            return {"ok": False, "error": f"in {loop.state}: send reset first"}
+        source: Any
+        if "path" in req:
+            source = req["path"]
+            if not isinstance(source, str):
+                return {"ok": False, "error": "follow: path: expected a file name"}
+        elif "points" in req:
+            source = {"points": req["points"], "speed": req.get("speed", 0.3)}
+        elif "shape" in req:
+            source = {k: v for k, v in req.items() if k not in ("cmd", "id")}
+        else:
+            return {"ok": False, "error": "follow: give path (a file), points ([[x, y], ...]) or shape"}
+        try:
+            path = load_path(source, speed_limits(self.cfg))
+        except (PathError, ValueError, TypeError, OSError) as exc:
+            return {"ok": False, "error": f"follow: {exc}"}
+        pose = req.get("pose")
+        if pose is not None:
+            if (not isinstance(pose, list) or len(pose) != 3
+                    or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in pose)):
+                return {"ok": False, "error": "follow: pose: expected [x, y, theta]"}
+            pose = (float(pose[0]), float(pose[1]), float(pose[2]))
+        loop.follow(path, pose)
+        return {"ok": True, "state": loop.state, "length_m": path.length, "duration_s": path.duration}
+
+    def reload(self) -> tuple[bool, str]:
+        """Re-read the config; swap in a valid one between ticks, bumplessly."""
+        self.notifier.reloading()
+        try:
+            try:
+                new = load_config(self.config_path)
+            except (ConfigError, OSError) as exc:
+                self.reloads["rejected"] += 1
+                log.error("reload rejected, running gains kept: %s", exc)
+                return False, str(exc)
+            changed = changed_keys(self.cfg, new)
+            restart = needs_restart(changed)
+            live = [k for k in changed if k not in restart]
+            if restart:
+                log.warning("reload: %s changed but need a restart to take effect", ", ".join(restart))
+            loop = self.loop
+            assert loop is not None
+            loop.controller.retune(new.controller, new.limits)
+            if any(k.startswith("robot") for k in live):
+                from ddrt.model import Dynamics
+
+                loop.controller.set_dynamics(Dynamics.from_params(new.robot))
+            self.cfg = _keep_restart_sections(self.cfg, new)
+            loop.cfg = self.cfg
+            self.reloads["applied"] += 1
+            log.info("reload applied: %s", ", ".join(live) or "nothing changed")
+            msg = f"applied: {', '.join(live) or 'nothing changed'}"
+            if restart:
+                msg += f"; need a restart: {', '.join(restart)}"
+            return True, msg
+        finally:
+            self.notifier.ready()
+
+
+def vars_of(obj: Any) -> dict[str, Any]:
+    return {k: getattr(obj, k) for k in obj.__dataclass_fields__}
+
+
+def _keep_restart_sections(old: Config, new: Config) -> Config:
+    """The new config, except the parts that only a restart may change."""
+    import dataclasses
+
+    controller = dataclasses.replace(new.controller, rate_hz=old.controller.rate_hz, mode=old.controller.mode)
+    return dataclasses.replace(new, hal=old.hal, sensors=old.sensors, sim=old.sim, plant=old.plant,
+                               plant_motor_l=old.plant_motor_l, plant_motor_r=old.plant_motor_r,
+                               estimator=old.estimator, controller=controller,
+                               daemon=dataclasses.replace(new.daemon, socket=old.daemon.socket,
+                                                          telemetry_dir=old.daemon.telemetry_dir))
+
+
+def run_daemon(config_path: str, socket_path: str | None, duration: float | None, stats_json: str | None,
+               follow: bool) -> int:
+    try:
+        daemon = Daemon(config_path, socket_path, duration, stats_json, follow)
+    except (ConfigError, PathError) as exc:
+        log.error("%s", exc)
+        return 2
+    return daemon.run()
