@@ -62,6 +62,7 @@ class SimConfig:
     sensor_latency_s: float = 0.001
     slip: SlipConfig = field(default_factory=SlipConfig)
     gyro: GyroTruth = field(default_factory=GyroTruth)
+    sensors_freeze_after_s: float | None = None  # fault injection: no fresh samples after this
 
     def validate(self, where: str) -> None:
         positive(where, step_hz=self.step_hz)

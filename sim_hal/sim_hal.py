@@ -29,6 +29,8 @@ class SimHal(Hal):
             gyro_full_scale_rad_s=robot.gyro_full_scale_rad_s,
         )
         self._closed = False
+        self.freeze_after: float | None = None  # fault injection: sensors stop updating
+        self._last_sample: Sample | None = None
         self._wall0 = time.monotonic()
         self._sim0 = robot.t
 
@@ -71,7 +73,12 @@ class SimHal(Hal):
         if self._closed:
             raise HalIOError("SimHal.read: the HAL is closed")
         t = self.now()
-        return Sample(t=t, encoder_count=self.robot.read_encoder(), gyro_z_raw=self.robot.read_gyro_raw())
+        last = self._last_sample
+        if self.freeze_after is not None and t >= self.freeze_after and last is not None:
+            return Sample(t=last.t, encoder_count=last.encoder_count, gyro_z_raw=last.gyro_z_raw,
+                          fresh=False, faults="sensors frozen (injected)")
+        self._last_sample = Sample(t=t, encoder_count=self.robot.read_encoder(), gyro_z_raw=self.robot.read_gyro_raw())
+        return self._last_sample
 
     def write(self, duty_l: float, duty_r: float) -> None:
         dl = check_duty("duty_l", duty_l)

@@ -1,0 +1,378 @@
+"""Host side of protocol v1: the serial link to the microcontroller that counts the encoder
+and drives both PWMs (docs/protocol.md).
+
+The port is opened only through `serial.serial_for_url`, so the same driver runs on
+/dev/ttyACM0, on a pseudo-terminal of the emulator, over `socket://host:port` and on
+`loop://`. Each control tick sends exactly one DRIVE (`drive`) and reads, without blocking,
+whatever STATE frames arrived (`state`, which keeps the newest). The MCU's own watchdog
+zeroes the motors when DRIVEs stop, so a dead host cannot leave the robot running.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+from hal.base import HalError, HalInitError, HalIOError, HalTimeoutError, check_duty
+from hal.protocol import (
+    DELIMITER, DUTY_FULL_SCALE, FLAG_BAD_FRAME, FLAG_WATCHDOG, PROTOCOL_VERSION,
+    TIMEOUT_MS_MAX, TIMEOUT_MS_MIN, Drive, FrameDecoder, Hello, HelloReply, Message, Packet,
+    State, Stop, encode_frame, seq_gap,
+)
+
+__all__ = ["Bridge", "BridgeState", "Clock", "WallClock", "wrap_i32"]
+
+_READ_CHUNK = 4096
+_MAX_READS_PER_POLL = 16  # bounds the time one poll can take when the MCU floods the line
+
+
+class Clock(Protocol):
+    """The two clock calls the HAL needs (same shape as ddrt's Clock)."""
+
+    def now(self) -> float: ...
+    def sleep_until(self, deadline: float) -> float: ...
+
+
+class WallClock:
+    """Monotonic wall clock, the default when no simulated clock is injected."""
+
+    def now(self) -> float:
+        return time.monotonic()
+
+    def sleep_until(self, deadline: float) -> float:
+        delay = deadline - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        return time.monotonic()
+
+
+def wrap_i32(x: int) -> int:
+    """Reduce `x` to a signed 32-bit integer, the way the MCU's counter wraps."""
+    return ((x + 0x80000000) & 0xFFFFFFFF) - 0x80000000
+
+
+@dataclass(frozen=True, slots=True)
+class BridgeState:
+    """The newest STATE as the host sees it.
+
+    `count` continues across MCU resets (the jump at a reset is removed, assuming the wheel
+    did not move during the reboot); `raw_count` is what the MCU sent. `new` is True when at
+    least one STATE arrived since the previous `state()` call; `resets` is the running
+    number of MCU resets seen, so a caller notices one by its change.
+    """
+
+    count: int
+    raw_count: int
+    t_us: int
+    flags: int
+    ack_seq: int
+    age_s: float
+    new: bool
+    resets: int
+
+
+class Bridge:
+    """Protocol v1 host driver. Use as a context manager, or call `close()` (safe twice)."""
+
+    def __init__(
+        self,
+        url: str,
+        baudrate: int = 115200,
+        drive_timeout_ms: int = 100,
+        state_stale_s: float = 0.05,
+        *,
+        hello_timeout_s: float = 0.5,
+        hello_resend_s: float = 0.1,
+        write_timeout_s: float = 0.05,
+        max_wheel_rev_s: float = 20.0,
+        clock: Clock | None = None,
+        connect: bool = True,
+    ) -> None:
+        if not isinstance(url, str) or not url:
+            raise ValueError(f"url: expected a non-empty port or URL string, got {url!r}")
+        if isinstance(baudrate, bool) or not isinstance(baudrate, int) or baudrate <= 0:
+            raise ValueError(f"baudrate: expected a positive int, got {baudrate!r}")
+        if (isinstance(drive_timeout_ms, bool) or not isinstance(drive_timeout_ms, int)
+                or not TIMEOUT_MS_MIN <= drive_timeout_ms <= TIMEOUT_MS_MAX):
+            raise ValueError(f"drive_timeout_ms: expected an int in {TIMEOUT_MS_MIN}.."
+                             f"{TIMEOUT_MS_MAX}, got {drive_timeout_ms!r}")
+        for name, v in (("state_stale_s", state_stale_s), ("hello_timeout_s", hello_timeout_s),
+                        ("hello_resend_s", hello_resend_s), ("write_timeout_s", write_timeout_s),
+                        ("max_wheel_rev_s", max_wheel_rev_s)):
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"{name}: expected a positive finite number, got {v!r}")
+        self.url = url
+        self.drive_timeout_ms = drive_timeout_ms
+        self.state_stale_s = float(state_stale_s)
+        self.hello_timeout_s = float(hello_timeout_s)
+        self.hello_resend_s = float(hello_resend_s)
+        self.max_wheel_rev_s = float(max_wheel_rev_s)
+        self.clock: Clock = clock if clock is not None else WallClock()
+        self.protocol_version: int | None = None
+        self.counts_per_rev = 0
+        self.state_rate_hz = 0
+        self._decoder = FrameDecoder()
+        self._tx_seq = 0
+        self._rx_seq: int | None = None
+        self._connected = False
+        self._connected_at = 0.0
+        self._closed = False
+        self._fatal: HalError | None = None
+        self._last: State | None = None
+        self._last_at = 0.0
+        self._new = False
+        self._offset = 0
+        self._count = 0
+        self.last_drive_seq: int | None = None
+        self._hellos_outstanding = 0
+        self._stats = {
+            "lost_packets": 0, "mcu_resets": 0, "watchdog_trips": 0, "mcu_bad_frames": 0,
+            "unknown_packets": 0, "hello_replies": 0, "states": 0, "drives_sent": 0, "stale": 0,
+            "io_errors": 0,
+        }
+        import serial  # lazy: only the real backend needs pyserial
+
+        self._serial_mod = serial
+        try:
+            self._port: Any = serial.serial_for_url(
+                url, baudrate=baudrate, timeout=0, write_timeout=write_timeout_s)
+        except (serial.SerialException, OSError, ValueError) as e:
+            raise HalInitError(f"{url}: cannot open serial port: {e}") from e
+        if connect:
+            try:
+                self.connect()
+            except BaseException:
+                self.close()
+                raise
+
+    # -- public API ---------------------------------------------------------------------
+
+    @property
+    def port(self) -> Any:
+        """The pyserial port (tests on loop:// read the bytes the bridge wrote from it)."""
+        return self._port
+
+    @property
+    def stats(self) -> dict[str, int]:
+        """Fault and traffic counters for telemetry (copy)."""
+        d = self._decoder
+        out = dict(self._stats)
+        out.update(crc_errors=d.crc_errors, undecodable=d.undecodable, oversize=d.oversize,
+                   malformed=d.malformed, frames_ok=d.frames_ok)
+        return out
+
+    def connect(self, flush_input: bool = True) -> None:
+        """HELLO handshake: checks the protocol version within `hello_timeout_s`.
+
+        Input queued before the handshake is discarded (`flush_input`), so an old boot
+        announcement is not taken for the reply. A lone 0x00 goes before the HELLO so the
+        MCU drops whatever partial frame it holds.
+        """
+        self._connected = False
+        self._rx_seq = None
+        self._last = None
+        self._hellos_outstanding = 0
+        if flush_input:
+            try:
+                self._port.reset_input_buffer()
+            except (self._serial_mod.SerialException, OSError) as e:
+                raise HalInitError(f"{self.url}: cannot flush input: {e}") from e
+        start = self.clock.now()
+        deadline = start + self.hello_timeout_s
+        self._send_hello(DELIMITER)
+        resend_at = start + self.hello_resend_s
+        while True:
+            self._poll(init=True)
+            if self._connected:
+                break
+            now = self.clock.now()
+            if now >= deadline:
+                raise HalInitError(
+                    f"{self.url}: no HELLO_REPLY within {self.hello_timeout_s:g} s "
+                    "(is the microcontroller powered and running protocol v1 firmware?)")
+            if now >= resend_at:
+                self._send_hello(b"")
+                resend_at = now + self.hello_resend_s
+            self.clock.sleep_until(min(now + 0.002, deadline))
+        if self._fatal is not None:
+            raise self._fatal
+        if self.state_rate_hz <= 0 or 1.0 / self.state_rate_hz >= self.state_stale_s:
+            raise HalInitError(
+                f"{self.url}: MCU streams STATE at {self.state_rate_hz} Hz, too slow for "
+                f"state_stale_s={self.state_stale_s:g}")
+
+    def drive(self, duty_l: float, duty_r: float) -> None:
+        """Send one DRIVE (duty in [-1, 1]); the MCU zeroes both outputs if the next one
+        does not arrive within drive_timeout_ms."""
+        dl = check_duty("duty_l", duty_l)
+        dr = check_duty("duty_r", duty_r)
+        self._check_fatal()
+        msg = Drive(round(dl * DUTY_FULL_SCALE), round(dr * DUTY_FULL_SCALE),
+                    self.drive_timeout_ms)
+        self.last_drive_seq = self._tx_seq
+        self._write(self._frame(msg))
+        self._stats["drives_sent"] += 1
+
+    def stop(self) -> None:
+        """Send STOP (zero both outputs now). Raises HalIOError if the write fails."""
+        self._write(self._frame(Stop()))
+
+    def poll(self) -> None:
+        """Read whatever arrived, without blocking. Raises HalIOError if the port failed."""
+        self._poll(init=False)
+
+    def state(self) -> BridgeState:
+        """Poll, then return the newest STATE. Raises HalTimeoutError when it is older than
+        state_stale_s (or none arrived that long after the handshake)."""
+        self._check_fatal()
+        self._poll(init=False)
+        self._check_fatal()
+        now = self.clock.now()
+        last = self._last
+        age = now - (self._last_at if last is not None else self._connected_at)
+        if age > self.state_stale_s:
+            self._stats["stale"] += 1
+            what = "no STATE" if last is None else "newest STATE is"
+            raise HalTimeoutError(f"{self.url}: {what} {age * 1e3:.1f} ms old "
+                                  f"(limit {self.state_stale_s * 1e3:.1f} ms)")
+        if last is None:
+            raise HalTimeoutError(f"{self.url}: no STATE received yet")
+        new, self._new = self._new, False
+        return BridgeState(count=self._count, raw_count=last.count, t_us=last.t_us,
+                           flags=last.flags, ack_seq=last.ack_seq, age_s=age, new=new,
+                           resets=self._stats["mcu_resets"])
+
+    def close(self) -> None:
+        """Send STOP (best effort) and close the port. Safe to call twice or half-built."""
+        if self._closed:
+            return
+        self._closed = True
+        port = getattr(self, "_port", None)
+        if port is None:
+            return
+        try:
+            if port.is_open:
+                port.write(self._frame(Stop()))
+        except Exception:  # noqa: BLE001 - the device may already be gone; closing anyway
+            self._stats["io_errors"] += 1
+        try:
+            port.close()
+        except Exception:  # noqa: BLE001
+            self._stats["io_errors"] += 1
+
+    def __enter__(self) -> "Bridge":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- internals ------------------------------------------------------------------------
+
+    def _frame(self, msg: Message) -> bytes:
+        frame = encode_frame(Packet(self._tx_seq, msg))
+        self._tx_seq = (self._tx_seq + 1) & 0xFF
+        return frame
+
+    def _send_hello(self, prefix: bytes) -> None:
+        self._write(prefix + self._frame(Hello()), init=True)
+        self._hellos_outstanding += 1
+
+    def _write(self, data: bytes, init: bool = False) -> None:
+        if self._closed:
+            raise HalIOError(f"{self.url}: bridge is closed")
+        try:
+            n = self._port.write(data)
+        except (self._serial_mod.SerialException, OSError) as e:
+            self._stats["io_errors"] += 1
+            cls = HalInitError if init else HalIOError
+            raise cls(f"{self.url}: write failed: {e}") from e
+        if n is not None and n != len(data):
+            self._stats["io_errors"] += 1
+            raise (HalInitError if init else HalIOError)(
+                f"{self.url}: short write ({n} of {len(data)} bytes)")
+
+    def _poll(self, init: bool) -> None:
+        if self._closed:
+            raise HalIOError(f"{self.url}: bridge is closed")
+        for _ in range(_MAX_READS_PER_POLL):
+            try:
+                data = self._port.read(_READ_CHUNK)
+            except (self._serial_mod.SerialException, OSError) as e:
+                self._stats["io_errors"] += 1
+                cls = HalInitError if init else HalIOError
+                raise cls(f"{self.url}: read failed: {e}") from e
+            if not data:
+                return
+            for pkt in self._decoder.feed(data):
+                self._on_packet(pkt)
+            if len(data) < _READ_CHUNK:
+                return
+
+    def _check_fatal(self) -> None:
+        if self._fatal is not None:
+            raise self._fatal
+
+    def _on_packet(self, pkt: Packet) -> None:
+        msg = pkt.msg
+        if isinstance(msg, HelloReply):
+            self._on_hello_reply(pkt.seq, msg)
+            return
+        if not isinstance(msg, State):
+            self._stats["unknown_packets"] += 1  # host-bound unknown types (or our echo)
+            return
+        if not self._connected:
+            return  # a STATE queued before our HELLO was answered
+        prev_seq = self._rx_seq
+        self._rx_seq = pkt.seq
+        prev = self._last
+        reset = False
+        if prev is not None:
+            dt_us = (msg.t_us - prev.t_us) & 0xFFFFFFFF
+            jump = abs(wrap_i32(msg.count - prev.count))
+            limit = self.max_wheel_rev_s * self.counts_per_rev * dt_us * 1e-6 + 256
+            if dt_us >= 0x80000000 or jump > limit:
+                # The MCU clock went backwards or the count jumped: it rebooted (its boot
+                # HELLO_REPLY, if it got through, only announced it; this is the evidence).
+                reset = True
+                self._stats["mcu_resets"] += 1
+        if reset:
+            # Hold the count over the reset: the reboot takes milliseconds, the wheel barely moves.
+            self._offset = wrap_i32(self._count - msg.count)
+        elif prev_seq is not None:
+            self._stats["lost_packets"] += seq_gap(prev_seq, pkt.seq)
+        self._count = wrap_i32(msg.count + self._offset)
+        if msg.flags & FLAG_WATCHDOG:
+            self._stats["watchdog_trips"] += 1
+        if msg.flags & FLAG_BAD_FRAME:
+            self._stats["mcu_bad_frames"] += 1
+        self._last = msg
+        self._last_at = self.clock.now()
+        self._new = True
+        self._stats["states"] += 1
+
+    def _on_hello_reply(self, seq: int, msg: HelloReply) -> None:
+        if msg.protocol_version != PROTOCOL_VERSION:
+            self._fatal = HalInitError(
+                f"{self.url}: MCU speaks protocol version {msg.protocol_version}, "
+                f"this host speaks {PROTOCOL_VERSION}")
+        solicited = self._hellos_outstanding > 0
+        self._hellos_outstanding = max(0, self._hellos_outstanding - 1)
+        if self._connected and solicited:
+            pass  # the answer to a HELLO we resent during the handshake
+        elif self._connected:
+            # Unsolicited: the MCU announces a reboot this way, but a stale boot announcement
+            # can also arrive just after the handshake; the next STATE decides (_on_packet).
+            self._stats["hello_replies"] += 1
+            if msg.encoder_counts_per_rev != self.counts_per_rev and self._fatal is None:
+                self._fatal = HalIOError(
+                    f"{self.url}: MCU came back with {msg.encoder_counts_per_rev} counts/rev, "
+                    f"was {self.counts_per_rev}")
+        else:
+            self._connected = True
+            self._connected_at = self.clock.now()
+            self.protocol_version = msg.protocol_version
+            self.counts_per_rev = msg.encoder_counts_per_rev
+            self.state_rate_hz = msg.state_rate_hz
+        self._rx_seq = seq

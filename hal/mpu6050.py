@@ -1,0 +1,189 @@
+"""InvenSense MPU-6050 gyro driver (z axis only: the robot's yaw rate), over any SMBus.
+
+The bus is handed in (anything with smbus2.SMBus's `read_byte_data`, `write_byte_data`,
+`read_i2c_block_data`), so a dict-backed register file tests it completely. Each sample is
+ONE 2-byte block read, so the high and low bytes cannot come from different samples. A
+transfer that fails with EIO/EREMOTEIO/ETIMEDOUT is retried once, then raised; a fake value
+is never returned.
+"""
+
+from __future__ import annotations
+
+import errno
+import math
+import time
+from typing import Any, Callable, Protocol
+
+from hal.base import HalInitError, HalIOError, HalTimeoutError, HalValueError
+
+__all__ = [
+    "DEFAULT_ADDRESS", "GYRO_CONFIG", "GYRO_LSB_PER_DPS", "GYRO_ZOUT_H", "PWR_MGMT_1",
+    "SMPLRT_DIV", "CONFIG", "WHO_AM_I", "WHO_AM_I_VALUE", "Mpu6050", "SmbusLike",
+    "gyro_scale", "open_i2c_bus",
+]
+
+DEFAULT_ADDRESS = 0x68
+# Register map (MPU-6000/6050 Register Map rev 4.2)
+SMPLRT_DIV = 0x19
+CONFIG = 0x1A  # DLPF_CFG in bits 2:0
+GYRO_CONFIG = 0x1B  # FS_SEL in bits 4:3
+GYRO_ZOUT_H = 0x47  # GYRO_ZOUT_L follows at 0x48
+PWR_MGMT_1 = 0x6B
+WHO_AM_I = 0x75
+WHO_AM_I_VALUE = 0x68
+
+PWR_SLEEP = 0x40
+PWR_CLKSEL_PLL_XGYRO = 0x01  # steadier than the internal 8 MHz oscillator
+FS_SEL_SHIFT = 3
+# Full-scale range (deg/s) -> (FS_SEL, LSB per deg/s)
+GYRO_LSB_PER_DPS: dict[int, tuple[int, float]] = {
+    250: (0, 131.0), 500: (1, 65.5), 1000: (2, 32.8), 2000: (3, 16.4),
+}
+_RETRY_ERRNOS = frozenset({errno.EIO, errno.EREMOTEIO, errno.ETIMEDOUT})
+_DEG = math.pi / 180.0
+
+
+class SmbusLike(Protocol):
+    """The three smbus2.SMBus calls this driver uses."""
+
+    def read_byte_data(self, i2c_addr: int, register: int) -> int: ...
+    def write_byte_data(self, i2c_addr: int, register: int, value: int) -> None: ...
+    def read_i2c_block_data(self, i2c_addr: int, register: int, length: int) -> list[int]: ...
+
+
+def gyro_scale(gyro_range_dps: int) -> tuple[float, float]:
+    """(LSB per rad/s, full scale in rad/s) for a range; ValueError naming gyro_range_dps."""
+    entry = GYRO_LSB_PER_DPS.get(gyro_range_dps) if not isinstance(gyro_range_dps, bool) else None
+    if entry is None:
+        raise ValueError(f"gyro_range_dps: expected one of {sorted(GYRO_LSB_PER_DPS)}, "
+                         f"got {gyro_range_dps!r}")
+    return entry[1] / _DEG, gyro_range_dps * _DEG
+
+
+def open_i2c_bus(spec: int | str) -> Any:
+    """Open /dev/i2c-N for an int N. "sim" is not opened here: the caller wires an emulator."""
+    if isinstance(spec, bool) or not isinstance(spec, int):
+        if spec == "sim":
+            raise ValueError("bus 'sim': the emulated bus must be built by the caller "
+                             "(sim_hal.mpu_emulator.MpuEmulator) and passed in")
+        raise ValueError(f"bus: expected an I2C bus number or 'sim', got {spec!r}")
+    if spec < 0:
+        raise ValueError(f"bus: expected a non-negative bus number, got {spec!r}")
+    import smbus2  # lazy: only needed on the robot
+
+    try:
+        return smbus2.SMBus(spec)
+    except OSError as e:
+        raise HalInitError(f"/dev/i2c-{spec}: cannot open I2C bus: {e}") from e
+
+
+class Mpu6050:
+    """Configures the part on construction; `read_gyro_z_raw()` is the per-tick call."""
+
+    def __init__(self, bus: SmbusLike, address: int = DEFAULT_ADDRESS, gyro_range_dps: int = 250,
+                 dlpf_cfg: int = 2, sample_rate_div: int = 4) -> None:
+        self.lsb_per_rad_s, self.full_scale_rad_s = gyro_scale(gyro_range_dps)
+        if isinstance(address, bool) or not isinstance(address, int) or not 0x03 <= address <= 0x77:
+            raise ValueError(f"address: expected a 7-bit I2C address, got {address!r}")
+        if isinstance(dlpf_cfg, bool) or not isinstance(dlpf_cfg, int) or not 0 <= dlpf_cfg <= 6:
+            raise ValueError(f"dlpf_cfg: expected an int in 0..6, got {dlpf_cfg!r}")
+        if (isinstance(sample_rate_div, bool) or not isinstance(sample_rate_div, int)
+                or not 0 <= sample_rate_div <= 255):
+            raise ValueError(f"sample_rate_div: expected an int in 0..255, got {sample_rate_div!r}")
+        self.bus = bus
+        self.address = address
+        self.gyro_range_dps = gyro_range_dps
+        self.dlpf_cfg = dlpf_cfg
+        self.sample_rate_div = sample_rate_div
+        self._rad_per_lsb = 1.0 / self.lsb_per_rad_s
+        self.retries = 0  # transfers that failed once and were retried
+        self.errors = 0  # transfers that failed after the retry
+        self._init_device()
+
+    @property
+    def sample_rate_hz(self) -> float:
+        """Gyro output rate: 1 kHz with the DLPF on (cfg 1..6), 8 kHz off, over 1 + div."""
+        base = 8000.0 if self.dlpf_cfg == 0 else 1000.0
+        return base / (1 + self.sample_rate_div)
+
+    def _init_device(self) -> None:
+        where = f"MPU-6050 at 0x{self.address:02x}"
+        try:
+            who = self._xfer(self.bus.read_byte_data, self.address, WHO_AM_I)
+            if who != WHO_AM_I_VALUE:
+                raise HalInitError(f"{where}: WHO_AM_I (0x{WHO_AM_I:02x}) read 0x{who:02x}, "
+                                   f"expected 0x{WHO_AM_I_VALUE:02x} (wrong part or address?)")
+            fs_sel = GYRO_LSB_PER_DPS[self.gyro_range_dps][0]
+            for reg, value in ((PWR_MGMT_1, PWR_CLKSEL_PLL_XGYRO),  # SLEEP cleared
+                               (SMPLRT_DIV, self.sample_rate_div),
+                               (CONFIG, self.dlpf_cfg),
+                               (GYRO_CONFIG, fs_sel << FS_SEL_SHIFT)):
+                self._xfer(self.bus.write_byte_data, self.address, reg, value)
+        except HalInitError:
+            raise
+        except HalIOError as e:
+            raise HalInitError(f"{where}: no answer during set-up: {e}") from e
+
+    def _xfer(self, fn: Callable[..., Any], *args: Any) -> Any:
+        try:
+            return fn(*args)
+        except OSError as e:
+            if e.errno not in _RETRY_ERRNOS:
+                self.errors += 1
+                raise HalIOError(f"MPU-6050 at 0x{self.address:02x}: {fn.__name__} "
+                                 f"failed: {e}") from e
+        self.retries += 1
+        try:
+            return fn(*args)
+        except OSError as e:
+            self.errors += 1
+            cls = HalTimeoutError if e.errno == errno.ETIMEDOUT else HalIOError
+            raise cls(f"MPU-6050 at 0x{self.address:02x}: {fn.__name__} failed twice: "
+                      f"{e}") from e
+
+    def read_gyro_z_raw(self) -> int:
+        """Raw int16 z rate at the configured range (bias not removed)."""
+        data = self._xfer(self.bus.read_i2c_block_data, self.address, GYRO_ZOUT_H, 2)
+        if len(data) != 2:
+            self.errors += 1
+            raise HalIOError(f"MPU-6050 at 0x{self.address:02x}: block read returned "
+                             f"{len(data)} bytes, expected 2")
+        raw = (data[0] << 8) | data[1]
+        return raw - 0x10000 if raw & 0x8000 else raw
+
+    def read_gyro_z(self) -> float:
+        """z rate in rad/s (bias not removed)."""
+        return self.read_gyro_z_raw() * self._rad_per_lsb
+
+    def calibrate_bias(self, samples: int = 200, max_std_rad_s: float = 0.01,
+                       sleep: Callable[[float], None] | None = time.sleep) -> tuple[float, float]:
+        """Mean and standard deviation of the z rate over `samples` readings at rest (rad/s).
+
+        Spaced one output period apart (pass sleep=None to read back to back). Raises
+        HalValueError when the spread exceeds `max_std_rad_s` or a reading saturates: the
+        robot is moving, and a bias taken now would be wrong.
+        """
+        if isinstance(samples, bool) or not isinstance(samples, int) or samples < 2:
+            raise ValueError(f"samples: expected an int >= 2, got {samples!r}")
+        if not (math.isfinite(max_std_rad_s) and max_std_rad_s > 0):
+            raise ValueError(f"max_std_rad_s: expected a positive number, got {max_std_rad_s!r}")
+        period = 1.0 / self.sample_rate_hz
+        total = 0.0
+        total_sq = 0.0
+        for i in range(samples):
+            raw = self.read_gyro_z_raw()
+            if raw in (-32768, 32767):
+                raise HalValueError(f"calibrate_bias: gyro saturated (raw {raw}); robot moving?")
+            total += raw
+            total_sq += raw * raw
+            if sleep is not None and i + 1 < samples:
+                sleep(period)
+        mean = total / samples
+        var = max(0.0, (total_sq - samples * mean * mean) / (samples - 1))
+        bias = mean * self._rad_per_lsb
+        std = math.sqrt(var) * self._rad_per_lsb
+        if std > max_std_rad_s:
+            raise HalValueError(
+                f"calibrate_bias: gyro spread {std:.4f} rad/s exceeds max_std_rad_s="
+                f"{max_std_rad_s:g}; is the robot moving?")
+        return bias, std
