@@ -30,6 +30,7 @@ COLUMNS = (
     "t", "x_est", "y_est", "theta_est", "v_est", "omega_est", "gyro_bias",
     "x_ref", "y_ref", "theta_ref", "v_ref", "omega_ref", "v_cmd", "omega_cmd",
     "tau_l", "tau_r", "duty_l", "duty_r", "sigma", "cross_track_est", "saturated", "state",
+    "fresh", "hal_fault_ticks",
 )
 STATE_CODE = {name: float(i) for i, name in enumerate(STATES)}
 
@@ -56,6 +57,7 @@ class ControlLoop:
         self.fault = ""
         self.ticks = 0
         self.saturated_ticks = 0
+        self.hal_fault_ticks = 0  # ticks whose sample reported a fault (retry, hold, lost packets)
         self.sample: Sample | None = None
         self.duty_l = 0.0
         self.duty_r = 0.0
@@ -70,7 +72,8 @@ class ControlLoop:
         est_cfg = self.cfg.estimator
         n = max(10, int(round(est_cfg.calibration_s / self.period)))
         raw: list[int] = []
-        t = now()
+        t = now() + self.period
+        sleep_until(t)  # a device may need one period after opening to deliver a sample
         sample = self.hal.read()
         for _ in range(n):
             t += self.period
@@ -152,6 +155,8 @@ class ControlLoop:
             self._record(self.sample.t + self.period if self.sample else 0.0)
             return
         self.sample = sample
+        if sample.faults:
+            self.hal_fault_ticks += 1
         state = self.state
         moving = state in ("following", "stopping")
         est = self.estimator
@@ -220,3 +225,6 @@ class ControlLoop:
         r[19] = ref.cross_track if ref is not None else 0.0
         r[20] = 1.0 if c.saturated else 0.0
         r[21] = STATE_CODE[self.state]
+        s = self.sample
+        r[22] = 1.0 if (s is not None and s.fresh) else 0.0
+        r[23] = float(self.hal_fault_ticks)

@@ -1,0 +1,147 @@
+"""The real drivers on emulated devices: MPU-6050 register file + protocol-v1 MCU, both
+backed by the simulated robot (`hal.backend: real`, `hal.imu.bus: sim`,
+`hal.bridge.url: ddrtsim://NAME`).
+
+The simulated robot is also the loop's clock here, as with the sim backend: sleeping until a
+deadline integrates the plant and lets the emulated MCU run (stream STATE, run its DRIVE
+watchdog) up to it. Paced, it follows the wall clock instead.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+from typing import Any
+
+from ddrt.config import Config
+from hal.base import Hal, Sample
+from hal.real import RealHal
+from sim_hal import protocol_ddrtsim
+from sim_hal.factory import plant_config
+from sim_hal.mcu_emulator import McuEmulator
+from sim_hal.mpu_emulator import MpuEmulator
+from sim_hal.plant import SimRobot
+
+_names = itertools.count()
+
+
+class _PlantMotorsAndEncoder:
+    """What the emulated MCU drives and counts: the simulated robot's motors and encoder."""
+
+    def __init__(self, robot: SimRobot) -> None:
+        self.robot = robot
+
+    def set_duty(self, duty_l: float, duty_r: float) -> None:
+        self.robot.command(duty_l, duty_r)
+
+    def encoder_count(self) -> int:
+        return self.robot.read_encoder()
+
+
+class _PlantGyro:
+    """What the emulated MPU-6050 measures: the simulated robot's gyro (noise, bias, lag)."""
+
+    def __init__(self, robot: SimRobot) -> None:
+        self.robot = robot
+
+    def gyro_z_rad_s(self) -> float:
+        return self.robot.read_gyro_raw() / self.robot.gyro_lsb_per_rad_s
+
+
+class EmulatedDevices:
+    """The simulated robot, its two emulated devices, and the clock that drives them."""
+
+    def __init__(self, cfg: Config, start: tuple[float, float, float], seed: int | None = None,
+                 paced: bool = False, state_rate_hz: int | None = None) -> None:
+        self.robot = SimRobot(cfg.plant, cfg.plant_motor_l, cfg.plant_motor_r, plant_config(cfg, seed), start=start)
+        rate = state_rate_hz or int(round(cfg.controller.rate_hz))
+        self.mcu = McuEmulator(_PlantMotorsAndEncoder(self.robot), now=self.robot.t,
+                               counts_per_rev=cfg.sensors.encoder_counts_per_rev, state_rate_hz=rate)
+        url = cfg.hal.bridge.get("url", "ddrtsim://robot")
+        self.name = f"{url.split('://', 1)[-1].strip('/') or 'robot'}-{next(_names)}"
+        self.url = f"ddrtsim://{self.name}"
+        self.link = protocol_ddrtsim.register(self.name, self.mcu, self.robot.t)
+        self.i2c = MpuEmulator(_PlantGyro(self.robot))
+        self.paced = paced
+        self._wall0 = time.monotonic()
+        self._sim0 = self.robot.t
+        self.link.pump(self.robot.t)
+
+    def now(self) -> float:
+        if self.paced:
+            self._advance(time.monotonic() - self._wall0 + self._sim0)
+        return self.robot.t
+
+    def sleep_until(self, deadline: float) -> float:
+        if self.paced:
+            remaining = deadline - (time.monotonic() - self._wall0 + self._sim0)
+            if remaining > 0:
+                time.sleep(remaining)
+            deadline = max(deadline, time.monotonic() - self._wall0 + self._sim0)
+        self._advance(deadline)
+        return self.robot.t
+
+    def _advance(self, t: float) -> None:
+        """Integrate in plant steps, letting the MCU run at each, so STATE frames carry the
+        count of the moment they were sent and the DRIVE watchdog fires on time."""
+        robot = self.robot
+        step = robot.step_s
+        while robot.t < t - 1e-12:
+            robot.advance_to(min(t, robot.t + step))
+            self.link.pump(robot.t)
+
+    def close(self) -> None:
+        protocol_ddrtsim.unregister(self.name)
+
+
+class EmulatedRealHal(Hal):
+    """RealHal (the real drivers) over EmulatedDevices; also the clock, like SimHal."""
+
+    def __init__(self, real: RealHal, devices: EmulatedDevices) -> None:
+        self.real = real
+        self.devices = devices
+        self.robot = devices.robot
+        self.info = real.info
+
+    def now(self) -> float:
+        return self.devices.now()
+
+    def sleep_until(self, deadline: float) -> float:
+        if not math.isfinite(deadline):
+            raise ValueError(f"deadline={deadline!r} is not finite")
+        return self.devices.sleep_until(deadline)
+
+    def read(self) -> Sample:
+        return self.real.read()
+
+    def write(self, duty_l: float, duty_r: float) -> None:
+        self.real.write(duty_l, duty_r)
+
+    def stop(self) -> None:
+        self.real.stop()
+
+    @property
+    def fault_counters(self) -> dict[str, int]:
+        return self.real.fault_counters
+
+    def close(self) -> None:
+        try:
+            self.real.close()
+        finally:
+            self.devices.close()
+
+
+def open_emulated_real_hal(cfg: Config, start: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                           seed: int | None = None, paced: bool = False, **_: Any) -> EmulatedRealHal:
+    devices = EmulatedDevices(cfg, start, seed, paced)
+    hal_section = dict(cfg.raw.get("hal") or {})
+    bridge = dict(hal_section.get("bridge") or {})
+    bridge["url"] = devices.url
+    hal_section["bridge"] = bridge
+    try:
+        real = RealHal.from_config({"hal": hal_section}, clock=devices, i2c_bus=devices.i2c)
+    except BaseException:
+        devices.close()
+        raise
+    return EmulatedRealHal(real, devices)
