@@ -203,3 +203,17 @@ def test_microcontroller_reset_is_reported_and_the_count_stays_continuous():
     if loop.state == "following":
         assert abs(loop.reference.cross_track) < 0.005
     hal.close()
+
+
+def test_robot_config_validates_and_names_real_devices():
+    cfg = load_config(ROOT / "configs" / "robot.yaml")
+    assert cfg.hal.backend == "real"
+    assert cfg.hal.imu["bus"] == 1 and cfg.hal.imu["address"] == 0x68
+    assert cfg.hal.bridge["url"].startswith("/dev/")
+    assert cfg.path is None  # the robot waits for `ddrt ctl follow`
+    # Opening it here must fail cleanly (no I2C bus on this machine), never half-open.
+    from hal.base import HalError
+
+    with pytest.raises((HalError, OSError, ValueError)):
+        hal = open_hal(cfg)
+        hal.close()
