@@ -38,6 +38,10 @@ from hal.registry import open_hal
 
 log = logging.getLogger("ddrt.daemon")
 
+class _Interrupted(Exception):
+    """A stop was requested before the loop started."""
+
+
 COMMANDS = ("status", "follow", "stop", "estop", "reset", "gains", "reload")
 
 
@@ -136,8 +140,17 @@ class Daemon:
                                          d.timer_slack_ns or None, gil_switch_interval_s=0.0005):
             log.warning("real-time set-up: %s (running without it)", warning)
         clock = self.clock
+
+        def sleep_unless_stopped(deadline: float) -> float:
+            if self.stop_requested:
+                raise _Interrupted()
+            return clock.sleep_until(deadline)
+
         try:
-            loop.calibrate(clock.sleep_until, clock.now)
+            loop.calibrate(sleep_unless_stopped, clock.now)
+        except _Interrupted:
+            log.info("stopped during start-up calibration")
+            return 0
         except (HalError, ValueError) as exc:
             log.error("start-up calibration failed: %s", exc)
             self.exit_code = 1
