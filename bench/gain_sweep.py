@@ -26,32 +26,43 @@ from ddrt.simrun import resolve_path, run_sim
 ROOT = FsPath(__file__).resolve().parents[1]
 SCENARIOS = ("figure8_slow", "figure8_fast", "figure8_fast_offset_mass", "rectangle", "s_curve",
              "waypoints_sparse", "circle_fast", "seed_circle_offset_mass")
-K_Y = (64.0, 200.0, 400.0, 800.0, 1600.0)
-W0 = (0.58, 5.0, 10.0, 20.0, 40.0)
+K_Y = (64.0, 400.0, 1600.0, 6400.0)
+W0 = (0.58, 10.0, 20.0, 40.0, 80.0)
+# Robustness: the same run with three times the latency (a slower bus, a busier computer).
+SLOW = {"sim": {"command_latency_s": 0.0045, "sensor_latency_s": 0.003}}
 
 
-def _one(job: tuple[str, float, float]) -> tuple[str, float, float, float, bool]:
-    name, k_y, w0 = job
-    overrides = {"controller": {"outer": {"k_x": 10.0, "k_y": k_y, "k_theta": 2.0 * math.sqrt(k_y)},
-                                "inner": {"kp": 2.0 * w0, "ki": w0 * w0, "kd": 0.0}}}
+def _one(job: tuple[str, float, float, bool]) -> tuple[str, float, float, bool, float, float, bool]:
+    """(scenario, K_y, w0, slow, RMS estimated-pose error, duty roughness, completed)."""
+    name, k_y, w0, slow = job
+    overrides: dict = {"controller": {"outer": {"k_x": 10.0, "k_y": k_y, "k_theta": 2.0 * math.sqrt(k_y)},
+                                      "inner": {"kp": 2.0 * w0, "ki": w0 * w0, "kd": 0.0}}}
+    if slow:
+        overrides.update(SLOW)
     cfg = load_config(ROOT / "configs" / "scenarios" / f"{name}.yaml", overrides)
-    m = run_sim(cfg, resolve_path(cfg)).metrics
-    return name, k_y, w0, m["rms_tracking_m"], m["completed"]
+    result = run_sim(cfg, resolve_path(cfg))
+    m = result.metrics
+    dl = result.column("duty_l")
+    rough = float(((dl[1:] - dl[:-1]) ** 2).mean() ** 0.5) if len(dl) > 1 else 0.0
+    return name, k_y, w0, slow, m["rms_tracking_m"], rough, m["completed"]
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--out", default=str(ROOT / "docs" / "TUNING.md"))
     args = ap.parse_args()
-    jobs = list(itertools.product(SCENARIOS, K_Y, W0))
+    jobs = list(itertools.product(SCENARIOS, K_Y, W0, (False, True)))
     t0 = time.perf_counter()
     with Pool(2) as pool:
         results = pool.map(_one, jobs)
     table: dict[tuple[float, float], list[float]] = {}
-    failed: dict[tuple[float, float], int] = {}
-    for name, k_y, w0, rms, done in results:
-        table.setdefault((k_y, w0), []).append(rms if done else math.inf)
-        failed[(k_y, w0)] = failed.get((k_y, w0), 0) + (0 if done else 1)
+    slow_table: dict[tuple[float, float], list[float]] = {}
+    rough: dict[tuple[float, float], list[float]] = {}
+    for name, k_y, w0, slow, rms, r, done in results:
+        target = slow_table if slow else table
+        target.setdefault((k_y, w0), []).append(rms if done else math.inf)
+        if not slow:
+            rough.setdefault((k_y, w0), []).append(r)
     lines = [
         "# Tuning: why the default gains",
         "",
@@ -62,26 +73,49 @@ def main() -> int:
         "Scenarios (same noise seed for every cell): " + ", ".join(SCENARIOS) + ".",
         "Outer law: K_theta = 2 sqrt(K_y) (critically damped in distance), K_x = 10 /s. "
         "Inner PID: K_P = 2 w0, K_I = w0^2, K_D = 0 (critically damped, eq. 4.21).",
-        "Each cell: worst / median RMS cross-track error of the estimated pose over the "
-        "scenarios, in mm (inf: a scenario did not complete).",
+        "Each cell: worst RMS cross-track error of the estimated pose over the scenarios "
+        "(mm) / the same with three times the latency (4.5 ms command, 3 ms sensor) / median "
+        "RMS tick-to-tick change of the left duty (%, how hard the motors are driven). "
+        "inf: a scenario did not complete.",
         "",
         "| K_y (1/m^2) \\ inner w0 (rad/s) | " + " | ".join(f"{w:g}" for w in W0) + " |",
         "|---|" + "---|" * len(W0),
     ]
-    best = min(table, key=lambda k: (max(table[k]), statistics.median(table[k])))
+    # The default must be robust, not the sharpest corner of the grid: among the cells whose
+    # every neighbour in the grid completes all scenarios at both latencies, and whose own
+    # error grows by less than 25% with tripled latency, the lowest worst-case error.
+    def finite(k: tuple[float, float]) -> bool:
+        return max(table[k]) < math.inf and max(slow_table[k]) < math.inf
+
+    def robust(k: tuple[float, float]) -> bool:
+        i, j = K_Y.index(k[0]), W0.index(k[1])
+        neighbours = [(K_Y[a], W0[b]) for a, b in ((i - 1, j), (i + 1, j), (i, j - 1), (i, j + 1))
+                      if 0 <= a < len(K_Y) and 0 <= b < len(W0)]
+        return (finite(k) and all(finite(n) for n in neighbours)
+                and max(slow_table[k]) < 1.25 * max(table[k]))
+
+    candidates = [k for k in table if robust(k)] or list(table)
+    best = min(candidates, key=lambda k: max(table[k]))
     for k_y in K_Y:
         cells = []
         for w0 in W0:
             vals = table[(k_y, w0)]
-            cell = f"{max(vals) * 1000:.3f} / {statistics.median(vals) * 1000:.3f}"
+            cell = (f"{max(vals) * 1000:.3f} / {max(slow_table[(k_y, w0)]) * 1000:.3f} / "
+                    f"{statistics.median(rough[(k_y, w0)]) * 100:.2f}")
             if (k_y, w0) == best:
                 cell = f"**{cell}**"
             cells.append(cell)
         lines.append(f"| {k_y:g} (K_theta {2 * math.sqrt(k_y):.0f}) | " + " | ".join(cells) + " |")
     lines += [
         "",
-        f"Best worst-case: K_y = {best[0]:g}, K_theta = {2 * math.sqrt(best[0]):.0f}, w0 = {best[1]:g} rad/s "
-        f"(worst {max(table[best]) * 1000:.3f} mm, median {statistics.median(table[best]) * 1000:.3f} mm).",
+        "Chosen (bold): among the cells whose every neighbour completes every scenario at both "
+        "latencies and whose error grows by less than 25% with tripled latency, the lowest "
+        "worst-case error. Stiffer corners of the grid track the estimate more tightly in "
+        "this simulator but sit next to unstable cells and drive the motors harder: a margin "
+        "a real robot (backlash, compliance, a slower bus) needs.",
+        f"Chosen: K_y = {best[0]:g}, K_theta = {2 * math.sqrt(best[0]):.0f}, "
+        f"w0 = {best[1]:g} rad/s (worst {max(table[best]) * 1000:.3f} mm nominal, "
+        f"{max(slow_table[best]) * 1000:.3f} mm with tripled latency).",
         "The seed's own values are K_y = 64, K_theta = 16 and w0 = 0.58 rad/s.",
         "",
     ]

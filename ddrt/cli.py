@@ -68,6 +68,53 @@ def _cmd_ctl(args: argparse.Namespace) -> int:
     return 0 if reply.get("ok") else 1
 
 
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    import math
+
+    from ddrt import calibrate as cal
+    from ddrt.config import load_config
+    from hal.registry import open_hal
+
+    cfg = load_config(args.config)
+    kind = args.kind
+    if kind == "gyro":
+        with open_hal(cfg) as hal:
+            text = cal.gyro_fragment(cal.calibrate_gyro_at_rest(cfg, hal))
+    elif kind == "identify":
+        width, height = cal.parse_area(args.area)
+        path = cal.excitation_path(cfg, width, height, args.duration, args.speed)
+        print(f"identify: a {path.duration:.1f} s figure-eight, {path.length:.1f} m, centred on the robot; the "
+              f"area's {width:g} m side lies {math.degrees(-path.start_pose[2]):+.1f} deg from the robot's "
+              f"heading (counter-clockwise positive)", file=sys.stderr)
+        with open_hal(cfg, start=(0.0, 0.0, 0.0)) as hal:
+            res = cal.identify(cfg, hal, width, height, args.duration, args.speed)
+        text = cal.identify_fragment(cfg, res)
+    else:
+        if args.from_sim_truth and cfg.hal.backend != "sim":
+            raise ValueError("--from-sim-truth: only with hal.backend: sim")
+        with open_hal(cfg, start=(0.0, 0.0, 0.0)) as hal:
+            run = cal.odometry_run(cfg, hal, args.distance)
+        if args.from_sim_truth:
+            dist, turn, source = run.true_distance_m, run.true_turn_rad, "simulation truth"
+        else:
+            dist = args.measured_distance
+            turn_deg = args.measured_turn_deg
+            if dist is None:
+                dist = float(input(f"Distance the robot actually drove, in metres (commanded {args.distance:g}): "))
+            if turn_deg is None:
+                turn_deg = float(input("Angle the robot actually turned, in degrees (360 if it ended facing "
+                                       "exactly as it started): "))
+            turn, source = math.radians(turn_deg), "measured by hand"
+        assert dist is not None and turn is not None
+        corr = cal.odometry_correction(cfg, run, dist, turn)
+        text = cal.odometry_fragment(cfg, run, corr, dist, turn, source)
+    print(text, end="")
+    out = args.out or f"calibration-{kind}.yaml"
+    Path(out).write_text(text, encoding="utf-8")
+    print(f"wrote {out}", file=sys.stderr)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="ddrt", description="Real-time controller for differential-drive robots.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -99,6 +146,23 @@ def build_parser() -> argparse.ArgumentParser:
                      choices=("status", "follow", "stop", "estop", "reset", "gains", "reload"))
     ctl.add_argument("args", nargs="*", help="follow: the path file")
     ctl.set_defaults(func=_cmd_ctl)
+
+    cal = sub.add_parser("calibrate", help="gyro at rest, dynamic identification, odometry")
+    cal_sub = cal.add_subparsers(dest="kind", required=True)
+    c_gyro = cal_sub.add_parser("gyro", help="gyro bias and noise at rest")
+    c_id = cal_sub.add_parser("identify", help="identify the dynamic parameters in a bounded excitation run")
+    c_id.add_argument("--area", required=True, help="free area WIDTHxHEIGHT in metres, centred on the robot")
+    c_id.add_argument("--duration", type=float, default=30.0, help="longest run in seconds (default 30)")
+    c_id.add_argument("--speed", type=float, help="top speed in m/s (default min(limits.v_max, 0.8))")
+    c_odo = cal_sub.add_parser("odometry", help="straight run and full turn: encoder radius and gyro scale")
+    c_odo.add_argument("--distance", type=float, default=1.0, help="straight distance in metres (default 1)")
+    c_odo.add_argument("--measured-distance", type=float, help="what you measured (m); else asked on stdin")
+    c_odo.add_argument("--measured-turn-deg", type=float, help="what you measured (deg); else asked on stdin")
+    c_odo.add_argument("--from-sim-truth", action="store_true", help="simulation: use the plant's true pose")
+    for c in (c_gyro, c_id, c_odo):
+        c.add_argument("config", help="YAML config of the robot")
+        c.add_argument("--out", help="write the config fragment here (default calibration-KIND.yaml)")
+        c.set_defaults(func=_cmd_calibrate)
     return parser
 
 

@@ -145,11 +145,25 @@ class AdaptationConfig:
 
     enabled: bool = False
     forgetting: float = 0.999
-    min_excitation: float = 0.05
+    min_excitation: float = 0.05  # m/s^2 (yaw: times the half track) of filtered acceleration
+    filter_hz: float = 2.0  # cut-off of the low-pass both sides of the regression pass through
+    min_updates: int = 200  # excited updates before the estimate replaces the configured model
+    bound_ratio: float = 3.0  # m + k and I stay within [1/ratio, ratio] x configured
+    max_com_shift_m: float = 0.05  # mbar, m_x move at most this x (m + k) x ratio from configured
+    max_friction_nm: float = 0.1  # bound on the extra Coulomb friction at each wheel (N m)
+    min_wheel_speed: float = 1.0  # rad/s: both wheels faster than this, else no update
+    blend_s: float = 1.0  # time constant with which the model in use follows the estimate
+    update_estimator: bool = False  # also hand the estimate to the estimator's prediction
 
     def validate(self, where: str) -> None:
         if not 0.9 <= self.forgetting <= 1.0:
             raise ConfigError(f"{where}.forgetting: must be in [0.9, 1], got {self.forgetting}")
+        non_negative(where, min_excitation=self.min_excitation, min_updates=self.min_updates,
+                     blend_s=self.blend_s, min_wheel_speed=self.min_wheel_speed)
+        positive(where, filter_hz=self.filter_hz, max_com_shift_m=self.max_com_shift_m,
+                 max_friction_nm=self.max_friction_nm)
+        if not self.bound_ratio > 1.0:
+            raise ConfigError(f"{where}.bound_ratio: must be > 1, got {self.bound_ratio}")
 
 
 @dataclass(frozen=True)
@@ -436,7 +450,7 @@ def with_overrides(cfg: Config, overrides: Mapping[str, Any]) -> Config:
 
 
 # Keys whose change needs a restart of the daemon (devices and the loop's rate).
-RESTART_KEYS = ("hal", "sensors", "controller.rate_hz", "controller.mode", "estimator", "daemon.socket", "daemon.rt_priority",
+RESTART_KEYS = ("hal", "sensors", "controller.rate_hz", "controller.mode", "controller.adaptation", "estimator", "daemon.socket", "daemon.rt_priority",
                 "daemon.cpus", "daemon.lock_memory", "daemon.telemetry_dir", "sim", "plant")
 
 

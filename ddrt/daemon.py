@@ -285,6 +285,7 @@ class Daemon:
                        **getattr(self.hal, "fault_counters", lambda: {})()},
             "config": self.cfg.source,
             "reloads": dict(self.reloads),
+            "adaptation": loop.adapter.status() if loop.adapter is not None else None,
         }
 
     # ------------------------------------------------------------------ commands

@@ -13,6 +13,7 @@ import logging
 import math
 from typing import Callable
 
+from ddrt.adapt import DynamicsAdapter
 from ddrt.config import Config
 from ddrt.control import Command, DynamicController, KinematicController, Setpoint, make_controller
 from ddrt.estimator import Estimator, calibrate_gyro
@@ -31,6 +32,7 @@ COLUMNS = (
     "x_ref", "y_ref", "theta_ref", "v_ref", "omega_ref", "v_cmd", "omega_cmd",
     "tau_l", "tau_r", "duty_l", "duty_r", "sigma", "cross_track_est", "saturated", "state",
     "fresh", "hal_fault_ticks",
+    "ad_m_k", "ad_mbar", "ad_I", "ad_m_x", "ad_fric_l", "ad_fric_r", "ad_active",
 )
 STATE_CODE = {name: float(i) for i, name in enumerate(STATES)}
 
@@ -62,6 +64,12 @@ class ControlLoop:
         self.duty_l = 0.0
         self.duty_r = 0.0
         self.row = [0.0] * len(COLUMNS)
+        # The adaptive law drives the dynamic controller's compensator and the estimator's
+        # prediction; the seed's method keeps its own (deliberately reproduced) model.
+        self.adapter: DynamicsAdapter | None = None
+        if cfg.controller.adaptation.enabled and cfg.controller.mode == "dynamic":
+            self.adapter = DynamicsAdapter(self.dyn, self.motor, cfg.controller.adaptation, self.period)
+        self._adapt_active = False
         self.on_tick: Callable[["ControlLoop"], None] | None = None
 
     # ------------------------------------------------------------------ start-up
@@ -96,13 +104,20 @@ class ControlLoop:
 
     def follow(self, path: Path, pose: tuple[float, float, float] | None = None) -> None:
         """Start following `path`; `pose` (if given) resets the dead-reckoned pose."""
+        p = self.cfg.pursuit
+        ref = PathReference(path, p.lookahead_m, p.search_window_m, self.period,
+                            time_indexed=(p.mode == "time" or self.cfg.controller.mode == "seed"))
+        self.follow_reference(ref, pose, path)
+
+    def follow_reference(self, reference: PathReference, pose: tuple[float, float, float] | None = None,
+                         path: Path | None = None) -> None:
+        """Start following any reference with PathReference's interface (update, done, sigma,
+        cross_track, request_stop): calibration's turn in place is one."""
         if self.state in ("estop", "fault"):
             raise RuntimeError(f"cannot follow a path in state {self.state}: reset first")
         if pose is not None:
             self.estimator.set_pose(pose)
-        p = self.cfg.pursuit
-        self.reference = PathReference(path, p.lookahead_m, p.search_window_m, self.period,
-                                       time_indexed=(p.mode == "time" or self.cfg.controller.mode == "seed"))
+        self.reference = reference
         self.path = path
         self.controller.reset()
         self.state = "following"
@@ -161,6 +176,8 @@ class ControlLoop:
         moving = state in ("following", "stopping")
         est = self.estimator
         est.update(sample, self.duty_l, self.duty_r, commanded_still=not moving)
+        if self.adapter is not None and moving:
+            self._adapt()
         if est.health.fault and state != "fault":
             self.enter_fault(est.health.fault)
             state = self.state
@@ -197,6 +214,20 @@ class ControlLoop:
         if self.on_tick is not None:
             self.on_tick(self)
 
+    def _adapt(self) -> None:
+        """Feed the adapter; every 10th tick move the model in use towards its estimate."""
+        ad = self.adapter
+        est = self.estimator
+        ad.update(est.travel.v, est.yaw.w, self.duty_l, self.duty_r)  # type: ignore[union-attr]
+        if self.ticks % 10 == 0:
+            active = ad.trusted  # type: ignore[union-attr]
+            if active or self._adapt_active:
+                dyn = ad.blend(10 * self.period)  # type: ignore[union-attr]
+                self.controller.set_dynamics(dyn)
+                if self.cfg.controller.adaptation.update_estimator:
+                    est.dyn = dyn
+            self._adapt_active = active or ad.used != ad.theta0  # type: ignore[union-attr]
+
     def _record(self, t: float) -> None:
         e = self.estimator
         sp = self.setpoint
@@ -228,3 +259,13 @@ class ControlLoop:
         s = self.sample
         r[22] = 1.0 if (s is not None and s.fresh) else 0.0
         r[23] = float(self.hal_fault_ticks)
+        ad = self.adapter
+        if ad is not None:
+            th = ad.theta
+            r[24] = th[0]
+            r[25] = th[1]
+            r[26] = th[2]
+            r[27] = th[3]
+            r[28] = th[4]
+            r[29] = th[5]
+            r[30] = 1.0 if self._adapt_active else 0.0

@@ -1,0 +1,254 @@
+"""`python -m bench.run [--quick] [--out docs/BENCHMARKS.md]`: regenerate the benchmark report.
+
+One command measures everything and writes the Markdown; nobody edits BENCHMARKS.md by hand,
+so every number in it can be traced to a run on the machine it names. The timing sections run
+one after another on an otherwise idle process; only the accuracy grid uses a process pool.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import os
+import platform
+import shlex
+import statistics
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path as FsPath
+from typing import Callable, Sequence
+
+import numpy as np
+
+from bench import accuracy, io_bound, loop_timing, startup, tick_cost
+from ddrt.config import load_config
+from ddrt.simrun import resolve_path, run_sim
+
+REPO = loop_timing.REPO
+SCENARIO_DIR = REPO / "configs" / "scenarios"
+TICK_CONFIG = REPO / "configs" / "sim.yaml"
+
+SECTIONS = (
+    "Machine",
+    "1. Accuracy",
+    "2. Tick cost",
+    "3. Loop timing",
+    "4. Simulation speed",
+    "5. Start-up and memory",
+    "6. The physical bound",
+)
+
+
+@dataclass(frozen=True)
+class BenchOptions:
+    """How much to measure. FULL is the documented run; QUICK a smoke run of every section."""
+
+    seeds: tuple[int, ...] = (1, 2, 3)
+    lookaheads: tuple[float, ...] = accuracy.LOOKAHEADS_M
+    scenarios: tuple[str, ...] | None = None  # None: every file in configs/scenarios/
+    workers: int = 2
+    ticks: int = 100_000
+    loop_rates: tuple[float, ...] = loop_timing.RATES_HZ
+    loop_duration_s: float = 30.0
+    speed_scenarios: tuple[str, ...] = ("figure8_slow", "seed_circle")
+    import_modules: tuple[str, ...] = startup.MODULES
+    import_repeats: int = 3
+    sim_rss_duration_s: float | None = None
+
+
+FULL = BenchOptions()
+QUICK = BenchOptions(seeds=(1,), ticks=20_000, loop_duration_s=5.0)
+
+
+@dataclass
+class Results:
+    options: BenchOptions
+    command: str
+    machine: dict[str, str]
+    accuracy: accuracy.AccuracyResult
+    ticks: tick_cost.TickCost
+    loop: loop_timing.LoopTiming
+    speed: dict[str, list[float]]  # scenario -> realtime factors, one per seed
+    startup: startup.Startup
+    bound: io_bound.IoBound
+    wall_s: dict[str, float] = field(default_factory=dict)
+
+
+# --------------------------------------------------------------------------- machine
+
+
+def cpu_model() -> str:
+    try:
+        for line in FsPath("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def load_average() -> str:
+    load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
+    return " ".join(f"{x:.2f}" for x in load)
+
+
+def machine_info() -> dict[str, str]:
+    return {
+        "CPU": cpu_model(),
+        "cores": f"{os.cpu_count()} (usable by this process: {len(os.sched_getaffinity(0))})",
+        "OS": f"{platform.system()} {platform.release()} ({platform.machine()})",
+        "Python": f"{platform.python_implementation()} {platform.python_version()}",
+        "numpy": np.__version__,
+        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        "load average at start": load_average(),
+    }
+
+
+# --------------------------------------------------------------------------- measuring
+
+
+def measure_speed(scenarios: Sequence[str], seeds: Sequence[int]) -> dict[str, list[float]]:
+    """Closed-loop real-time factor (start-up excluded) of the dynamic controller, per seed."""
+    out: dict[str, list[float]] = {}
+    for name in scenarios:
+        cfg = load_config(SCENARIO_DIR / f"{name}.yaml", {"controller": {"mode": "dynamic"}})
+        path = resolve_path(cfg)
+        out[name] = [float(run_sim(cfg, path, seed=s).metrics["realtime_factor"]) for s in seeds]
+    return out
+
+
+def _say(text: str) -> None:
+    sys.stderr.write(text + "\n")
+    sys.stderr.flush()
+
+
+def measure_all(opts: BenchOptions, command: str, say: Callable[[str], None] = _say,
+                progress: Callable[[int, int], None] | None = accuracy.stderr_progress) -> Results:
+    """Every section, timing-sensitive ones first while nothing else of ours runs."""
+    walls: dict[str, float] = {}
+    machine = machine_info()
+
+    def timed(name: str, fn: Callable[[], object]) -> object:
+        say(f"{name} ...")
+        t0 = time.perf_counter()
+        value = fn()
+        walls[name] = time.perf_counter() - t0
+        say(f"{name}: {walls[name]:.1f} s")
+        return value
+
+    ticks = timed("tick cost", lambda: tick_cost.measure_tick_cost(load_config(TICK_CONFIG), opts.ticks))
+    loop = timed("loop timing", lambda: loop_timing.measure_loop_timing(opts.loop_rates, opts.loop_duration_s))
+    speed = timed("simulation speed", lambda: measure_speed(opts.speed_scenarios, opts.seeds))
+    st = timed("start-up", lambda: startup.measure_startup(opts.import_modules, opts.import_repeats,
+                                                           opts.sim_rss_duration_s))
+    acc = timed("accuracy", lambda: accuracy.measure_accuracy(SCENARIO_DIR, opts.seeds, opts.lookaheads,
+                                                              opts.workers, opts.scenarios, progress))
+    machine["load average at the end"] = (load_average() + " (other work on this machine shows in the maxima "
+                                          "and the loop timing)")
+    return Results(options=opts, command=command, machine=machine, accuracy=acc,  # type: ignore[arg-type]
+                   ticks=ticks, loop=loop, speed=speed, startup=st, bound=io_bound.io_bound(),  # type: ignore[arg-type]
+                   wall_s=walls)
+
+
+# --------------------------------------------------------------------------- the document
+
+
+def _header(n: int) -> str:
+    return f"## {SECTIONS[n]}"
+
+
+def render_document(r: Results) -> str:
+    o = r.options
+    acc = r.accuracy
+    lines: list[str] = [
+        "# Benchmarks",
+        "",
+        f"Generated by `{r.command}` (from the repository root); do not edit by hand. "
+        f"Total measuring time {sum(r.wall_s.values()) / 60:.1f} min "
+        f"({', '.join(f'{k} {v:.0f} s' for k, v in r.wall_s.items())}).",
+        "",
+        _header(0),
+        "",
+    ]
+    lines += [f"- {k}: {v}" for k, v in r.machine.items()]
+    lines += [
+        "",
+        _header(1),
+        "",
+        f"Every scenario in configs/scenarios/ ({len(acc.scenarios)}) with three controllers on the same simulated "
+        f"robot, sensors and noise seeds ({', '.join(map(str, acc.seeds))}): **dynamic** (the three-stage "
+        f"controller), **kinematic** (pure pursuit + wheel-speed PID) at its best single lookahead, "
+        f"{acc.best.lookahead_m:.2f} m, from the sweep below, and **seed** (the seed report's own method). "
+        "true = cross-track error of the true pose, est = of the estimated pose (what the controller can "
+        "correct, and what it is judged by). Cells are the median over seeds with the min–max spread in "
+        "brackets when the seeds differ; time is the simulated time to complete (or to the fault or the time "
+        f"limit of 1.5 x path duration + 10 s); {acc.runs} runs on {o.workers} worker processes, "
+        f"{acc.wall_s:.0f} s wall.",
+        "",
+    ]
+    lines += accuracy.render_table(acc)
+    lines += [
+        "",
+        "### Kinematic lookahead sweep",
+        "",
+        "Median est-pose RMS cross-track (mm) over the seeds, per lookahead. The kept lookahead is the one "
+        "whose worst scenario is best, among those with the fewest scenarios that failed to complete (a run "
+        "that faults early has a small RMS over a short stretch, which must not win).",
+        "",
+    ]
+    lines += accuracy.render_sweep(acc)
+    lines += ["", f"Kept: **{acc.best.lookahead_m:.2f} m**.", "", "### Verdict", ""]
+    lines += [f"- {v}" for v in acc.verdict]
+    lines += ["", _header(2), ""]
+    lines += tick_cost.render(r.ticks)
+    lines += ["", _header(3), ""]
+    lines += loop_timing.render(r.loop)
+    lines += ["", _header(4), "",
+              "Closed loop on the simulated robot as fast as the CPU allows (`run_sim`, dynamic controller, "
+              "1 kHz plant, 200 Hz controller): simulated seconds per wall second, start-up and calibration "
+              "excluded (metrics `realtime_factor`).", "",
+              "| scenario | real-time factor (median) | per seed |", "|---|---|---|"]
+    for name, fs in r.speed.items():
+        lines.append(f"| {name} | {statistics.median(fs):.0f}x | {', '.join(f'{f:.0f}x' for f in fs)} |")
+    daemon_rss = None
+    for run in r.loop.runs:
+        if run.stats and run.rate_hz == 200 and isinstance(run.stats.get("maxrss_kb"), int):
+            daemon_rss = run.stats["maxrss_kb"]
+    lines += ["", _header(5), ""]
+    lines += startup.render(r.startup, loop_timing.ready_s(r.loop), daemon_rss)
+    lines += ["", _header(6), ""]
+    lines += io_bound.render(r.bound, r.ticks.compute.p50_us, r.ticks.compute.p99_us, r.ticks.period_s)
+    return "\n".join(lines) + "\n"
+
+
+# --------------------------------------------------------------------------- command line
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m bench.run", description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="1 seed, fewer ticks, 5 s loop runs (a smoke run)")
+    ap.add_argument("--out", default="docs/BENCHMARKS.md", help="where to write (default: docs/BENCHMARKS.md)")
+    ap.add_argument("--workers", type=int, default=2, help="processes for the accuracy grid (default: 2)")
+    args = ap.parse_args(argv)
+    if args.workers < 1:
+        ap.error(f"--workers: must be at least 1, got {args.workers}")
+    opts = QUICK if args.quick else FULL
+    if args.workers != opts.workers:
+        opts = dataclasses.replace(opts, workers=args.workers)
+    command = shlex.join(["python", "-m", "bench.run"] + list(argv if argv is not None else sys.argv[1:]))
+    results = measure_all(opts, command)
+    out = FsPath(args.out)
+    if not out.is_absolute():
+        out = REPO / out
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(render_document(results), encoding="utf-8")
+    _say(f"wrote {out}")
+    for v in results.accuracy.verdict:
+        _say("  " + v)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,381 @@
+"""`ddrt calibrate`: gyro at rest, dynamic identification, odometry (UMBmark style).
+
+Every procedure drives the robot only through a `ControlLoop` around a `hal.base.Hal`, so the
+same commands run on the simulated robot (`hal.backend: sim`) and on the real one. Results
+are config fragments (YAML text with a comment of what was measured and how well) to merge
+into the robot's config; nothing is written into an existing config.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import yaml
+
+from ddrt.adapt import NAMES, DynamicsAdapter
+from ddrt.config import Config
+from ddrt.control import Setpoint, wrap_angle
+from ddrt.loop import ControlLoop
+from ddrt.model import Dynamics, RobotParams
+from ddrt.path import Path, load_path
+from hal.base import Hal
+
+DEG = math.pi / 180.0
+
+
+class CalibrationRunError(RuntimeError):
+    """A calibration run could not finish (fault, timeout, bad area or measurement)."""
+
+
+# --------------------------------------------------------------------------- driving
+
+
+def _clock(hal: Hal) -> Any:
+    """The simulated HAL is its own clock; a real robot runs on the monotonic clock."""
+    if hasattr(hal, "sleep_until") and hasattr(hal, "now"):
+        return hal
+    from ddrt.clock import MonotonicClock
+
+    return MonotonicClock()
+
+
+def _drive(loop: ControlLoop, clock: Any, limit_s: float) -> None:
+    """Tick on absolute deadlines until the loop stops; fault or timeout raise."""
+    t0 = clock.now()
+    for i in range(int(math.ceil(limit_s / loop.period))):
+        clock.sleep_until(t0 + (i + 1) * loop.period)
+        loop.tick()
+        if loop.state == "stopped":
+            return
+        if loop.state == "fault":
+            raise CalibrationRunError(f"the robot faulted during calibration: {loop.fault}")
+    loop.estop("calibration run timed out")
+    raise CalibrationRunError(f"the calibration run did not finish within {limit_s:.0f} s")
+
+
+def _start(cfg: Config, hal: Hal) -> tuple[ControlLoop, Any]:
+    loop = ControlLoop(cfg, hal)
+    clock = _clock(hal)
+    loop.calibrate(clock.sleep_until, clock.now)
+    return loop, clock
+
+
+# --------------------------------------------------------------------------- gyro
+
+
+@dataclass(frozen=True)
+class GyroResult:
+    bias_rad_s: float
+    std_rad_s: float
+    seconds: float
+
+
+def calibrate_gyro_at_rest(cfg: Config, hal: Hal) -> GyroResult:
+    """Bias and per-sample noise of the gyro with the motors held at zero."""
+    loop = ControlLoop(cfg, hal)
+    clock = _clock(hal)
+    bias, std = loop.calibrate(clock.sleep_until, clock.now)
+    return GyroResult(bias, std, cfg.estimator.calibration_s)
+
+
+def gyro_fragment(res: GyroResult) -> str:
+    head = (f"# ddrt calibrate gyro: {res.seconds:.1f} s at rest; bias {res.bias_rad_s / DEG:+.4f} deg/s "
+            f"(re-measured at every start, not a config key), noise {res.std_rad_s / DEG:.4f} deg/s per sample\n")
+    return head + yaml.safe_dump({"estimator": {"gyro_noise_dps": round(max(res.std_rad_s / DEG, 1e-4), 5)}},
+                                 sort_keys=False)
+
+
+# --------------------------------------------------------------------------- identification
+
+
+@dataclass(frozen=True)
+class IdentifyResult:
+    """Batch least squares over one excitation run: values, standard errors, fit quality."""
+
+    values: dict[str, float]
+    std_err: dict[str, float]
+    r2: float
+    residual_rms_n: float
+    rows: int
+    duration_s: float
+    area: tuple[float, float]
+
+
+def parse_area(text: str) -> tuple[float, float]:
+    """'2x1.5' -> (2.0, 1.5) metres."""
+    try:
+        w, h = (float(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ValueError(f"--area: expected WIDTHxHEIGHT in metres (e.g. 2x1.5), got {text!r}") from None
+    if not (w > 0 and h > 0 and math.isfinite(w) and math.isfinite(h)):
+        raise ValueError(f"--area: width and height must be > 0, got {text!r}")
+    return w, h
+
+
+def footprint_margin(p: RobotParams) -> float:
+    """How far the robot reaches from point A, plus 5 cm: the path keeps this off the edges."""
+    return max(p.L, p.R, p.H) + 0.05
+
+
+def excitation_path(cfg: Config, width: float, height: float, max_s: float = 30.0,
+                    speed: float | None = None) -> Path:
+    """A figure-eight centred on the start that stays `footprint_margin` inside the area.
+
+    Its lobes turn both ways (yaw acceleration of both signs) and the lateral-acceleration
+    limit makes the speed rise and fall along it (forward acceleration): the whole regressor
+    is excited. As many laps as fit in `max_s`.
+    """
+    margin = footprint_margin(cfg.robot)
+    w, h = width - 2.0 * margin, height - 2.0 * margin
+    if w < 0.3 or h < 0.15:
+        raise ValueError(f"--area {width}x{height}: too small for the robot (needs at least "
+                         f"{0.3 + 2 * margin:.2f} x {0.15 + 2 * margin:.2f} m)")
+    if h > 0.5 * w:  # Gerono's lemniscate gets a cusp-like waist when taller than half its width
+        h = 0.5 * w
+    v = min(cfg.limits.v_max, 0.8) if speed is None else speed
+    from ddrt.simrun import speed_limits
+
+    spec = {"shape": "figure_eight", "width": w, "height": h, "speed": v}
+    one = load_path(spec, speed_limits(cfg))
+    laps = max(1, int(max_s // one.duration))
+    if laps == 1 and one.duration > max_s:
+        raise ValueError(f"one lap takes {one.duration:.1f} s, more than {max_s:.0f} s: give a smaller area "
+                         f"or a higher speed")
+    return load_path(dict(spec, laps=float(laps)), speed_limits(cfg))
+
+
+def identify(cfg: Config, hal: Hal, width: float, height: float, max_s: float = 30.0,
+             speed: float | None = None) -> IdentifyResult:
+    """Drive the excitation path and fit (m_k, mbar, I, m_x, c_L, c_R) by least squares."""
+    path = excitation_path(cfg, width, height, max_s, speed)
+    loop, clock = _start(cfg, hal)
+    adapter = DynamicsAdapter(loop.dyn, loop.motor, cfg.controller.adaptation, loop.period)
+    adapter.recorder = []
+    prev = [0.0, 0.0]
+
+    def feed(lp: ControlLoop) -> None:
+        if lp.state in ("following", "stopping"):
+            adapter.update(lp.estimator.travel.v, lp.estimator.yaw.w, prev[0], prev[1])
+        prev[0], prev[1] = lp.duty_l, lp.duty_r
+
+    loop.on_tick = feed
+    loop.follow(path, path.start_pose)
+    _drive(loop, clock, path.duration + 15.0)
+    return fit(adapter.recorder, path.duration, (width, height))
+
+
+def fit(rows: list[tuple[list[float], float]], duration_s: float, area: tuple[float, float]) -> IdentifyResult:
+    """Least squares over the recorded regressor rows, with standard errors and R^2."""
+    if len(rows) < 50:
+        raise CalibrationRunError(f"only {len(rows)} excited samples: the run did not excite the dynamics "
+                                  f"(larger area or higher speed)")
+    phi = np.array([r[0] for r in rows])
+    y = np.array([r[1] for r in rows])
+    theta, *_ = np.linalg.lstsq(phi, y, rcond=None)
+    res = y - phi @ theta
+    dof = max(1, len(y) - phi.shape[1])
+    s2 = float(res @ res) / dof
+    cov = s2 * np.linalg.pinv(phi.T @ phi)
+    ss = float(((y - y.mean()) ** 2).sum())
+    r2 = 1.0 - float(res @ res) / ss if ss > 0 else 0.0
+    return IdentifyResult(values=dict(zip(NAMES, (float(v) for v in theta))),
+                          std_err=dict(zip(NAMES, (float(math.sqrt(max(c, 0.0))) for c in np.diag(cov)))),
+                          r2=r2, residual_rms_n=math.sqrt(s2), rows=len(rows), duration_s=duration_s, area=area)
+
+
+def robot_update(p: RobotParams, values: dict[str, float]) -> dict[str, float]:
+    """The platform's m_p, d_xc, d_yc, I_p that make `Dynamics.from_params` give `values`.
+
+    The lumped model has four mass parameters; the platform's four are the ones a payload
+    changes, so the wheels' own values stay as configured.
+    """
+    k = p.I_wL / p.r_L**2 + p.I_wR / p.r_R**2 + p.I_w3 / p.r_3**2
+    m_p = values["m_k"] - k - p.m_L - p.m_R - p.m_3
+    if m_p <= 0.0:
+        raise CalibrationRunError(f"identified m + k = {values['m_k']:.3f} kg leaves no platform mass")
+    d_xc = (values["m_x"] - p.m_3 * p.H) / m_p
+    d_yc = -(values["mbar"] + p.m_L * p.L - p.m_R * p.R + p.L * p.I_wL / p.r_L**2 - p.R * p.I_wR / p.r_R**2) / m_p
+    rest = (p.I_L + p.I_R + p.I_3 + p.m_3 * p.H**2 + p.L**2 * p.I_wL / p.r_L**2 + p.R**2 * p.I_wR / p.r_R**2
+            + p.m_L * p.L**2 + p.m_R * p.R**2)
+    i_p = values["I"] - m_p * (d_xc**2 + d_yc**2) - rest
+    if i_p <= 0.0:
+        raise CalibrationRunError(f"identified I = {values['I']:.4f} kg m^2 leaves no platform inertia")
+    return {"m_p": m_p, "d_xc": d_xc, "d_yc": d_yc, "I_p": i_p}
+
+
+def identify_fragment(cfg: Config, res: IdentifyResult) -> str:
+    """robot: keys for the identified platform and motor friction, with a comment of the fit."""
+    upd = robot_update(cfg.robot, res.values)
+    coulomb = max(0.0, cfg.robot_motor.coulomb_nm + 0.5 * (res.values["fric_l"] + res.values["fric_r"]))
+    motor = {f: getattr(cfg.robot_motor, f) for f in ("supply_v", "resistance_ohm", "k_nm_per_a", "viscous_nms")}
+    motor["coulomb_nm"] = round(coulomb, 5)
+    robot = {k: float(f"{v:.6g}") for k, v in upd.items()}
+    robot["motor"] = motor
+    v, e = res.values, res.std_err
+    lines = [
+        f"# ddrt calibrate identify: {res.duration_s:.1f} s figure-eight in a {res.area[0]:g} x {res.area[1]:g} m area,",
+        f"# {res.rows} excited regression rows, R^2 = {res.r2:.4f}, residual rms {res.residual_rms_n:.3f} N.",
+        "# Identified (value +- standard error):",
+    ]
+    units = {"m_k": "kg", "mbar": "kg m", "I": "kg m^2", "m_x": "kg m", "fric_l": "N m", "fric_r": "N m"}
+    for name in NAMES:
+        lines.append(f"#   {name:7s} {v[name]:+.5f} +- {e[name]:.5f} {units[name]}")
+    lines.append("# Platform parameters below reproduce m_k, mbar, I, m_x exactly; wheel friction is the mean")
+    lines.append("# of both wheels' extra Coulomb friction added to the motor's.")
+    return "\n".join(lines) + "\n" + yaml.safe_dump({"robot": robot}, sort_keys=False)
+
+
+# --------------------------------------------------------------------------- odometry
+
+
+class SpinReference:
+    """Turn in place by `angle` rad about the start pose (trapezoidal yaw rate)."""
+
+    def __init__(self, pose: tuple[float, float, float], angle: float, omega_max: float, alpha_max: float,
+                 period_s: float) -> None:
+        self.x0, self.y0, self.th0 = pose
+        self.angle = angle
+        self.sign = 1.0 if angle >= 0.0 else -1.0
+        span = abs(angle)
+        self.w = min(omega_max, math.sqrt(span * alpha_max))
+        self.a = alpha_max
+        self.t_ramp = self.w / alpha_max
+        self.t_end = span / self.w + self.t_ramp
+        self.period = period_s
+        self.t = 0.0
+        self.sigma = 0.0
+        self.cross_track = 0.0
+        self.done = False
+
+    def request_stop(self, decel: float) -> None:
+        self.t = max(self.t, self.t_end)
+
+    def _profile(self, t: float) -> tuple[float, float, float]:
+        """(angle turned, rate, acceleration) at time t."""
+        w, a, tr, te = self.w, self.a, self.t_ramp, self.t_end
+        if t <= 0.0:
+            return 0.0, 0.0, 0.0
+        if t < tr:
+            return 0.5 * a * t * t, a * t, a
+        if t < te - tr:
+            return 0.5 * a * tr * tr + w * (t - tr), w, 0.0
+        if t < te:
+            r = te - t
+            return abs(self.angle) - 0.5 * a * r * r, a * r, -a
+        return abs(self.angle), 0.0, 0.0
+
+    def update(self, x: float, y: float, theta: float, sp: Setpoint) -> None:
+        self.t += self.period
+        ang, w, alpha = self._profile(self.t)
+        s = self.sign
+        sp.x_d, sp.y_d = self.x0, self.y0
+        sp.theta_d = self.th0 + s * ang
+        sp.v_d = sp.a_d = sp.along_err = sp.kappa = sp.pp_curvature = 0.0
+        sp.omega_d = s * w
+        sp.alpha_d = s * alpha
+        sp.pivot = True
+        sp.path_frame = False
+        sp.active = True
+        self.sigma = ang
+        self.cross_track = math.hypot(x - self.x0, y - self.y0)
+        self.done = self.t >= self.t_end
+
+
+@dataclass(frozen=True)
+class OdometryRun:
+    """What the robot believes it did, and (simulation only) what it really did."""
+
+    distance_cmd_m: float
+    est_distance_m: float
+    est_turn_rad: float
+    true_distance_m: float | None = None
+    true_turn_rad: float | None = None
+
+
+def _truth(hal: Hal) -> tuple[float, float, float] | None:
+    robot = getattr(hal, "robot", None)
+    return None if robot is None else robot.pose
+
+
+def odometry_run(cfg: Config, hal: Hal, distance: float = 1.0, turns: float = 1.0) -> OdometryRun:
+    """Drive `distance` m straight ahead, stop, then turn in place `turns` full turns."""
+    if not distance > 0.0 or not turns > 0.0:
+        raise ValueError("odometry: distance and turns must be > 0")
+    loop, clock = _start(cfg, hal)
+    from ddrt.simrun import speed_limits
+
+    line = load_path({"shape": "line", "length": distance, "speed": min(0.3, cfg.limits.v_max)}, speed_limits(cfg))
+    true0 = _truth(hal)
+    loop.follow(line, (0.0, 0.0, 0.0))
+    _drive(loop, clock, line.duration + 15.0)
+    _settle(loop, clock)
+    x1, y1, th1 = loop.estimator_pose()
+    true1 = _truth(hal)
+    angle = 2.0 * math.pi * turns
+    spin = SpinReference((x1, y1, th1), angle, min(1.5, cfg.limits.omega_max), min(3.0, cfg.limits.alpha_max),
+                         loop.period)
+    loop.follow_reference(spin)
+    _drive(loop, clock, spin.t_end + 15.0)
+    _settle(loop, clock)
+    th2 = loop.estimator_pose()[2]
+    true2 = _truth(hal)
+    true_d = true_t = None
+    if true0 is not None and true1 is not None and true2 is not None:
+        true_d = math.hypot(true1[0] - true0[0], true1[1] - true0[1])
+        true_t = angle + wrap_angle((true2[2] - true1[2]) - angle)
+    return OdometryRun(distance, math.hypot(x1, y1), th2 - th1, true_d, true_t)
+
+
+def _settle(loop: ControlLoop, clock: Any, seconds: float = 0.5) -> None:
+    """Stand still a moment (zero duty) so the robot has stopped before measuring."""
+    t0 = clock.now()
+    for i in range(int(seconds / loop.period)):
+        clock.sleep_until(t0 + (i + 1) * loop.period)
+        loop.tick()
+
+
+@dataclass(frozen=True)
+class OdometryCorrection:
+    r_3: float
+    gyro_scale: float
+    distance_ratio: float
+    turn_ratio: float
+
+
+def odometry_correction(cfg: Config, run: OdometryRun, measured_distance: float,
+                        measured_turn_rad: float) -> OdometryCorrection:
+    """Encoder radius and gyro scale that make the estimates match what was measured.
+
+    The estimated distance is counts x r_3 (scale with the measured distance); the estimated
+    turn is the gyro's integral / gyro_scale (so the scale goes with estimated / measured).
+    """
+    if not measured_distance > 0.0:
+        raise ValueError(f"--measured-distance: must be > 0 m, got {measured_distance}")
+    if not measured_turn_rad > 0.0:
+        raise ValueError(f"--measured-turn-deg: must be > 0, got {measured_turn_rad / DEG}")
+    d_ratio = measured_distance / run.est_distance_m
+    t_ratio = run.est_turn_rad / measured_turn_rad
+    if not (0.8 < d_ratio < 1.25 and 0.8 < t_ratio < 1.25):
+        raise CalibrationRunError(f"measurements are {d_ratio:.3f} x the encoder distance and "
+                                  f"{1 / t_ratio:.3f} x the gyro's turn: more than 20% off, check them")
+    return OdometryCorrection(cfg.robot.r_3 * d_ratio, cfg.estimator.gyro_scale * t_ratio, d_ratio, t_ratio)
+
+
+def odometry_fragment(cfg: Config, run: OdometryRun, corr: OdometryCorrection, measured_distance: float,
+                      measured_turn_rad: float, source: str) -> str:
+    head = (f"# ddrt calibrate odometry ({source}): drove {run.distance_cmd_m:g} m, encoder said "
+            f"{run.est_distance_m:.4f} m, measured {measured_distance:.4f} m; turned, gyro said "
+            f"{run.est_turn_rad / DEG:.2f} deg, measured {measured_turn_rad / DEG:.2f} deg.\n"
+            f"# r_3 {cfg.robot.r_3:.5f} -> {corr.r_3:.5f} m, gyro_scale {cfg.estimator.gyro_scale:.5f} -> "
+            f"{corr.gyro_scale:.5f}\n")
+    body = {"robot": {"r_3": float(f"{corr.r_3:.6g}")}, "estimator": {"gyro_scale": float(f"{corr.gyro_scale:.6g}")}}
+    return head + yaml.safe_dump(body, sort_keys=False)
+
+
+def true_values(cfg: Config) -> dict[str, float]:
+    """The simulated robot's lumped parameters (for benchmarks and tests)."""
+    d = Dynamics.from_params(cfg.plant)
+    return {"m_k": d.m_k, "mbar": d.mbar, "I": d.I, "m_x": d.m_x}

@@ -1,0 +1,205 @@
+"""ddrt.adapt: the RLS estimate on synthetic motion, its gates, bounds and fallback, and the
+closed loop with the 2 kg offset mass the controller is not told about."""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+import pytest
+
+from ddrt.adapt import NAMES, AdaptedDynamics, DynamicsAdapter
+from ddrt.config import AdaptationConfig, ConfigError, load_config, with_overrides
+from ddrt.loop import COLUMNS
+from ddrt.model import Dynamics
+from ddrt.motor import Motor, MotorParams
+from ddrt.simrun import resolve_path, run_sim
+
+ROOT = Path(__file__).resolve().parents[1]
+NOMINAL = Dynamics(m_k=4.3, mbar=0.0, I=0.048, m_x=0.083, L=0.108, R=0.108, r_L=0.05, r_R=0.05)
+TRUE = AdaptedDynamics(m_k=6.5, mbar=-0.03, I=0.059, m_x=0.226, L=0.108, R=0.108, r_L=0.05, r_R=0.05,
+                       fric_l=0.012, fric_r=-0.006)
+MOTOR = Motor(MotorParams())
+DT = 0.005
+
+
+def _simulate(adapter: DynamicsAdapter, true: Dynamics, seconds: float, duties,
+              state: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)) -> tuple[float, float, float, float]:
+    """Integrate `true` driven by duties(t) through the motor model; feed the adapter.
+
+    `state` (v, omega, duty_l, duty_r) continues a previous run; the final one is returned.
+    """
+    v, w, dl, dr = state
+    sub = 10
+    for k in range(int(seconds / DT)):
+        adapter.update(v, w, dl, dr)
+        dl, dr = duties(k * DT)
+        for _ in range(sub):
+            wl = (v - true.L * w) / true.r_L
+            wr = (v + true.R * w) / true.r_R
+            tl = MOTOR.electromagnetic_torque(dl, wl) - MOTOR.friction(wl)
+            tr = MOTOR.electromagnetic_torque(dr, wr) - MOTOR.friction(wr)
+            a, alpha = true.forward(v, w, tl, tr)
+            v += a * DT / sub
+            w += alpha * DT / sub
+    return v, w, dl, dr
+
+
+def _rich(t: float) -> tuple[float, float]:
+    """Sum of sines on both wheels, both always driving forward (wheels well away from 0)."""
+    base = 0.45 + 0.12 * math.sin(1.3 * t) + 0.06 * math.sin(3.1 * t + 0.4)
+    turn = 0.12 * math.sin(0.9 * t + 1.0) + 0.05 * math.sin(2.3 * t)
+    return base - turn, base + turn
+
+
+def _adapter(**over) -> DynamicsAdapter:
+    return DynamicsAdapter(NOMINAL, MOTOR, AdaptationConfig(**over), DT)
+
+
+def test_converges_to_the_true_parameters_on_exact_model_data() -> None:
+    ad = _adapter(forgetting=1.0)
+    _simulate(ad, TRUE, 30.0, _rich)
+    est = dict(zip(NAMES, ad.theta))
+    truth = {"m_k": TRUE.m_k, "mbar": TRUE.mbar, "I": TRUE.I, "m_x": TRUE.m_x, "fric_l": TRUE.fric_l,
+             "fric_r": TRUE.fric_r}
+    assert est["m_k"] == pytest.approx(truth["m_k"], rel=0.03)
+    assert est["I"] == pytest.approx(truth["I"], rel=0.03)
+    assert est["m_x"] == pytest.approx(truth["m_x"], rel=0.05)
+    assert est["mbar"] == pytest.approx(truth["mbar"], abs=0.01)
+    assert est["fric_l"] == pytest.approx(truth["fric_l"], abs=0.004)
+    assert est["fric_r"] == pytest.approx(truth["fric_r"], abs=0.004)
+    assert ad.trusted
+    assert ad.res_adapt < ad.res_nominal
+
+
+def test_no_update_without_excitation() -> None:
+    """Straight at constant speed: no acceleration, so the estimate must not drift."""
+    ad = _adapter()
+    state = _simulate(ad, TRUE, 20.0, lambda t: (0.5, 0.5))
+    late_updates = ad.updates
+    before = list(ad.theta)
+    _simulate(ad, TRUE, 10.0, lambda t: (0.5, 0.5), state)
+    # After the start-up transient has died out, no further update happens.
+    assert ad.updates == late_updates
+    assert all(abs(a - b) <= 1e-6 * max(1.0, abs(b)) for a, b in zip(ad.theta, before))
+
+
+def test_no_update_near_zero_wheel_speed() -> None:
+    """Slow motion (friction-dominated) is gated out even when it accelerates."""
+    ad = _adapter()
+    _simulate(ad, TRUE, 10.0, lambda t: (0.03 + 0.03 * math.sin(2 * t), 0.03 + 0.03 * math.sin(2 * t)))
+    assert ad.updates == 0
+    assert ad.theta == ad.theta0
+    assert not ad.trusted
+
+
+def test_estimates_stay_within_bounds_and_h_positive_definite() -> None:
+    """Data from a robot far outside the bounds: clamped, never outside, never singular."""
+    ad = _adapter()
+    huge = AdaptedDynamics(m_k=40.0, mbar=0.5, I=0.6, m_x=2.0, L=0.108, R=0.108, r_L=0.05, r_R=0.05)
+    _simulate(ad, huge, 15.0, _rich)
+    assert ad.updates > 100
+    for x, lo, hi in zip(ad.theta, ad.lo, ad.hi):
+        assert lo <= x <= hi
+    assert ad.theta[0] == pytest.approx(ad.hi[0])  # the mass hit its bound
+    m_k, mbar, inertia = ad.theta[0], ad.theta[1], ad.theta[2]
+    assert m_k * inertia - mbar * mbar > 0.0
+
+
+def test_fallback_on_non_finite_input_and_blend_towards_target() -> None:
+    ad = _adapter(min_updates=50)
+    _simulate(ad, TRUE, 8.0, _rich)
+    assert ad.trusted
+    d1 = ad.blend(0.5)
+    assert NOMINAL.m_k < d1.m_k < ad.theta[0]  # part of the way, not a jump
+    for _ in range(100):
+        d2 = ad.blend(0.5)
+    assert d2.m_k == pytest.approx(ad.theta[0], rel=1e-6)
+    ad.update(float("nan"), 0.0, 0.5, 0.5)
+    assert ad.fallbacks == 1
+    assert ad.theta == ad.theta0 and not ad.trusted
+    assert ad.blend(100.0).m_k == pytest.approx(NOMINAL.m_k)
+
+
+def test_not_trusted_before_min_updates() -> None:
+    ad = _adapter(min_updates=10_000)
+    _simulate(ad, TRUE, 5.0, _rich)
+    assert 0 < ad.updates < 10_000
+    assert not ad.trusted
+    assert ad.target() == ad.theta0
+
+
+def test_adapted_dynamics_inverse_undoes_forward_with_friction() -> None:
+    tl, tr = TRUE.inverse(0.4, 0.7, 0.3, -1.2)
+    a, alpha = TRUE.forward(0.4, 0.7, tl, tr)
+    assert a == pytest.approx(0.3, abs=1e-9)
+    assert alpha == pytest.approx(-1.2, abs=1e-9)
+    plain_l, _ = Dynamics.inverse(TRUE, 0.4, 0.7, 0.3, -1.2)
+    assert tl - plain_l == pytest.approx(TRUE.fric_l * math.tanh((0.4 - 0.108 * 0.7) / (0.05 * 0.2)))
+
+
+def test_update_cost_is_small() -> None:
+    ad = _adapter()
+    n = 4000
+    t0 = time.perf_counter()
+    for i in range(n):
+        ad.update(0.5 + 0.2 * math.sin(i * 0.01), math.sin(i * 0.013), 0.5, 0.4)
+    per_tick = (time.perf_counter() - t0) / n
+    assert ad.updates > n // 2
+    assert per_tick < 300e-6  # measured ~25 us; a 200 Hz tick has 5000 us
+
+
+@pytest.mark.parametrize("key,value", [("bound_ratio", 1.0), ("filter_hz", 0.0), ("blend_s", -1.0),
+                                       ("min_wheel_speed", -0.5), ("forgetting", 0.5)])
+def test_bad_config_names_the_key(key: str, value: float) -> None:
+    with pytest.raises(ConfigError, match=f"controller.adaptation.{key}"):
+        load_config(ROOT / "configs/sim.yaml", {"controller": {"adaptation": {key: value}}})
+
+
+# --------------------------------------------------------------------------- closed loop
+
+
+def _run(scenario: str, enabled: bool, **over):
+    cfg = load_config(ROOT / "configs/scenarios" / scenario)
+    cfg = with_overrides(cfg, {"controller": {"adaptation": {"enabled": enabled, **over}}})
+    return cfg, run_sim(cfg, resolve_path(cfg))
+
+
+def test_offset_mass_figure8_fast_is_identified_and_tracks_better() -> None:
+    cfg, off = _run("figure8_fast_offset_mass.yaml", False)
+    _, on = _run("figure8_fast_offset_mass.yaml", True)
+    assert on.metrics["completed"]
+    truth = Dynamics.from_params(cfg.plant)
+    assert on.column("ad_m_k")[-1] == pytest.approx(truth.m_k, rel=0.03)
+    assert on.column("ad_I")[-1] == pytest.approx(truth.I, rel=0.03)
+    assert on.column("ad_m_x")[-1] == pytest.approx(truth.m_x, rel=0.03)
+    assert on.column("ad_active")[-1] == 1.0
+    # Estimated-pose tracking: better than the configured model (measured 0.054 -> 0.041 mm)...
+    assert on.metrics["rms_tracking_m"] < 0.9 * off.metrics["rms_tracking_m"]
+    # The true pose gains only when the estimator predicts with the estimate too (1.79 -> 1.38 mm).
+    assert on.metrics["rms_cross_track_m"] < 1.05 * off.metrics["rms_cross_track_m"]
+    _, both = _run("figure8_fast_offset_mass.yaml", True, update_estimator=True)
+    assert both.metrics["rms_cross_track_m"] < 0.85 * off.metrics["rms_cross_track_m"]
+
+
+def test_no_harm_on_the_nominal_slow_figure8() -> None:
+    """0.3 m/s, nominal robot: within 10% of the configured model on both poses."""
+    _, off = _run("figure8_slow.yaml", False)
+    _, on = _run("figure8_slow.yaml", True)
+    assert on.column("ad_active").max() == 1.0  # it did adapt
+    assert on.metrics["rms_tracking_m"] < 1.1 * off.metrics["rms_tracking_m"]
+    assert on.metrics["rms_cross_track_m"] < 1.1 * off.metrics["rms_cross_track_m"]
+
+
+def test_slow_seed_circle_is_untouched() -> None:
+    """31 mm/s: wheels below min_wheel_speed, so the adapter never updates and nothing changes."""
+    _, off = _run("seed_circle_offset_mass.yaml", False)
+    _, on = _run("seed_circle_offset_mass.yaml", True)
+    assert on.column("ad_active").max() == 0.0
+    assert on.metrics["rms_tracking_m"] == pytest.approx(off.metrics["rms_tracking_m"], rel=1e-9)
+
+
+def test_telemetry_columns_appended_at_the_end() -> None:
+    assert COLUMNS[-7:] == ("ad_m_k", "ad_mbar", "ad_I", "ad_m_x", "ad_fric_l", "ad_fric_r", "ad_active")
+    assert COLUMNS[:2] == ("t", "x_est")

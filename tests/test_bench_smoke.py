@@ -1,0 +1,161 @@
+"""A fast subset of `python -m bench.run` as a regression guard, with generous bounds.
+
+The full run (docs/BENCHMARKS.md) is not part of CI; these check that every section still
+measures something real and that the report still has every section.
+"""
+
+from __future__ import annotations
+
+from array import array
+
+import pytest
+
+from bench import accuracy, io_bound, run, tick_cost
+from ddrt.config import load_config
+from ddrt.loop import ControlLoop
+from ddrt.simrun import resolve_path
+from hal.protocol import Drive, Packet, encode_frame
+from hal.registry import open_hal
+
+SIM = run.TICK_CONFIG
+
+
+# ------------------------------------------------------------------ tick cost
+
+
+def _following_loop(seed: int) -> ControlLoop:
+    cfg = load_config(SIM)
+    path = resolve_path(cfg)
+    hal = open_hal(cfg, start=path.start_pose, seed=seed)
+    loop = ControlLoop(cfg, hal)
+    loop.calibrate(hal.sleep_until, hal.now)
+    loop.follow(path, path.start_pose)
+    return loop
+
+
+def test_timed_tick_makes_the_same_calls_as_tick() -> None:
+    """Twin loops on the same noise seed: the timed copy must leave the loop exactly where tick() does."""
+    a = _following_loop(seed=7)
+    b = _following_loop(seed=7)
+    out = [array("q", bytes(8 * 400)) for _ in tick_cost.STAGES]
+    for i in range(400):
+        deadline = a.hal.now() + a.period
+        a.hal.sleep_until(deadline)
+        b.hal.sleep_until(deadline)
+        a.tick()
+        tick_cost.timed_tick(b, out, i)
+        assert b.row == a.row, f"tick {i}: timed tick diverged from ControlLoop.tick"
+    assert (a.ticks, a.saturated_ticks, a.state) == (b.ticks, b.saturated_ticks, b.state)
+    assert a.row[10] > 0.0  # the reference speed: the twins were really moving
+    assert all(max(o) > 0 for o in out)
+
+
+def test_tick_cost_small_run_is_well_inside_the_period() -> None:
+    tc = tick_cost.measure_tick_cost(load_config(SIM), ticks=3000, seed=3)
+    assert set(tc.stages) == set(tick_cost.STAGES)
+    assert tc.restarts >= 1  # 15 s of ticks on a 12.5 s path: restarted, still all "following"
+    assert 0.0 < tc.tick.p50_us < 1000.0
+    assert tc.fraction_of_period(tc.tick.p50_us) < 0.2
+    for p in tc.stages.values():
+        assert 0.0 < p.p50_us <= p.p99_us <= p.max_us <= tc.tick.max_us
+    assert tc.compute.p50_us < tc.tick.p50_us
+    assert tc.plant.p50_us > 0.0
+
+
+# ------------------------------------------------------------------ io bound
+
+
+def test_i2c_gyro_read_time() -> None:
+    fast = io_bound.i2c_register_read(400_000)
+    slow = io_bound.i2c_register_read(100_000)
+    assert 50e-6 < fast.seconds < 150e-6
+    assert slow.seconds == pytest.approx(4 * fast.seconds)
+    assert fast.bits == 3 + 9 * 5  # START, Sr, STOP + addr W, reg, addr R, 2 data bytes
+    with pytest.raises(ValueError, match="clock_hz"):
+        io_bound.i2c_register_read(0)
+
+
+def test_serial_frames_use_the_protocol_encoder() -> None:
+    f = io_bound.tick_frames()
+    # docs/protocol.md's example DRIVE is 12 bytes on the wire; every DRIVE has that length.
+    assert f.drive_wire == len(encode_frame(Packet(1, Drive(5000, -2500, 100)))) == 12
+    assert f.state_wire > f.state_raw > f.drive_raw
+    assert io_bound.uart_seconds(f.drive_wire) == pytest.approx(12 * 10 / 115200)
+    b = io_bound.io_bound()
+    assert b.uart_both_s == pytest.approx(b.uart_drive_s + b.uart_state_s)
+    assert 2e-3 < b.usb_worst_s < 2.2e-3
+    assert b.usb_best_s < 100e-6
+
+
+# ------------------------------------------------------------------ accuracy and the report
+
+
+TINY = run.BenchOptions(seeds=(1,), lookaheads=(0.03, 0.12), scenarios=("s_curve",), workers=1, ticks=1000,
+                        loop_rates=(), loop_duration_s=1.0, speed_scenarios=("s_curve",),
+                        import_modules=("yaml",), import_repeats=1, sim_rss_duration_s=1.0)
+
+
+@pytest.fixture(scope="module")
+def tiny_results() -> run.Results:
+    return run.measure_all(TINY, "pytest tiny", say=lambda _t: None, progress=None)
+
+
+def test_short_scenario_both_controllers_complete(tiny_results: run.Results) -> None:
+    row = tiny_results.accuracy.table["s_curve"]
+    for name in ("dynamic", "kinematic"):
+        cell = row[name]
+        assert cell.all_completed, f"{name}: {cell.faults}"
+        assert cell.stats["rms_tracking_m"].median < 5e-3
+        assert cell.stats["rms_cross_track_m"].median < 5e-3
+        assert cell.stats["sim_duration_s"].median < 20.0
+    assert row["seed"].runs == 1
+
+
+def test_sweep_keeps_the_lookahead_with_the_best_worst_case(tiny_results: run.Results) -> None:
+    acc = tiny_results.accuracy
+    worst = {r.lookahead_m: r.worst_m for r in acc.sweep}
+    assert set(worst) == {0.03, 0.12}
+    assert acc.best.worst_m == min(worst.values())
+    assert acc.table["s_curve"]["kinematic"].lookahead_m == acc.best.lookahead_m
+
+
+def _record(scenario: str, lookahead: float, rms: float, completed: bool) -> accuracy.RunRecord:
+    job = accuracy.Job(scenario, f"{scenario}.yaml", "kinematic", 1, lookahead)
+    metrics = {m: rms for m in accuracy.METRICS}
+    return accuracy.RunRecord(job, metrics, completed, "" if completed else "gyro saturated")
+
+
+def test_a_lookahead_that_faults_early_does_not_win() -> None:
+    recs = [_record("a", 0.02, 1e-5, False), _record("b", 0.02, 1e-5, True),
+            _record("a", 0.05, 4e-4, True), _record("b", 0.05, 2e-4, True)]
+    rows = accuracy.sweep_rows(accuracy.aggregate(recs), ["a", "b"], [0.02, 0.05])
+    best = accuracy.best_lookahead(rows)
+    assert best.lookahead_m == 0.05
+    assert best.worst_scenario == "a" and best.worst_m == pytest.approx(4e-4)
+    assert rows[0].incomplete == ("a",)
+
+
+def test_document_has_every_section(tiny_results: run.Results, tmp_path) -> None:
+    doc = run.render_document(tiny_results)
+    for title in run.SECTIONS:
+        assert f"\n## {title}\n" in doc, title
+    assert "| s_curve | dynamic |" in doc
+    assert "### Kinematic lookahead sweep" in doc
+    assert "not evaluated" in doc  # the encoder-radius pair was not in this run
+    assert f"Kept: **{tiny_results.accuracy.best.lookahead_m:.2f} m**" in doc
+    assert "pytest tiny" in doc
+    assert tiny_results.startup.imports[0].module == "yaml" and tiny_results.startup.imports[0].median_ms > 0
+    assert tiny_results.startup.sim.maxrss_kb > 10_000  # a Python with numpy is tens of MiB at least
+    assert all(f > 1.0 for f in tiny_results.speed["s_curve"])  # faster than real time
+    assert tiny_results.startup.loop_loads == {"yaml": True}
+    out = tmp_path / "BENCHMARKS.md"
+    out.write_text(doc)
+    assert out.read_text().count("\n## ") == len(run.SECTIONS)
+
+
+def test_quick_preset_is_smaller_than_full() -> None:
+    assert len(run.QUICK.seeds) == 1 and len(run.FULL.seeds) == 3
+    assert run.FULL.ticks >= 100_000 > run.QUICK.ticks
+    assert run.FULL.loop_duration_s == 30.0 and run.QUICK.loop_duration_s == 5.0
+    assert tuple(run.FULL.loop_rates) == (100, 200, 500, 1000)
+    assert run.FULL.workers == 2

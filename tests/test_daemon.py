@@ -1,0 +1,871 @@
+"""The real `ddrt run` process on the simulated robot, driven from outside as systemd and
+an operator would: sd_notify datagrams, signals, the control socket, `ddrt ctl`, and the
+telemetry CSV it leaves behind.
+
+Each daemon is a subprocess (paced to the wall clock, 0.5 s gyro calibration) whose output
+goes to files, never pipes, so a chatty child cannot block; every wait is bounded and every
+child is killed in a fixture's teardown. One scripted follow/reload/SIGTERM run is recorded
+once and read by many tests; one idle daemon serves the control-socket and `ddrt ctl`
+tests; a few short-lived ones meet a sensor freeze, a bad config or a long path.
+
+Known defects are pinned with strict xfails whose reasons name the file and the cause.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import random
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from ddrt.ctlsocket import ControlClientError, request
+from ddrt.loop import COLUMNS, STATE_CODE
+
+REPO = Path(__file__).resolve().parents[1]
+SIM_YAML = REPO / "configs" / "sim.yaml"
+PATHS = REPO / "configs" / "paths"
+CALIBRATION_S = 0.5  # >= 10 ticks at 200 Hz; the default 3 s would make every start slow
+RATE_HZ = 200.0
+START_TIMEOUT_S = 20.0
+NOOP_RELOADS = 10  # enough reloads that at least one shows the cost of parsing in the loop  # a cold interpreter on a loaded 2-core CI box, plus calibration
+
+FOLLOWING = STATE_CODE["following"]
+FAULT = STATE_CODE["fault"]
+
+
+# ---------------------------------------------------------------------------- helpers
+
+
+def wait_for(cond: Callable[[], Any], timeout: float, what: str, interval: float = 0.02) -> Any:
+    """Poll `cond` until it returns something truthy; fail naming `what` after `timeout`."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = cond()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            pytest.fail(f"timed out after {timeout:g} s waiting for {what}")
+        time.sleep(interval)
+
+
+def write_config(cfg_path: Path, telemetry_dir: Path, **sections: Any) -> None:
+    """A config over configs/sim.yaml; written whole then renamed, so a reload never reads half."""
+    doc: dict[str, Any] = {
+        "extends": str(SIM_YAML),
+        # SCHED_FIFO where permitted (as configs/robot.yaml), so a busy CI box does not stall
+        # the loop past the estimator's 10-period sample-gap fault; elsewhere a warning.
+        "daemon": {"telemetry_dir": str(telemetry_dir), "rt_priority": 10},
+        "estimator": {"calibration_s": CALIBRATION_S},
+        "controller": {"inner": {"kp": 40.0}},
+        "path": str(PATHS / "figure8_slow.yaml"),
+    }
+    for key, value in sections.items():
+        if isinstance(value, dict) and isinstance(doc.get(key), dict):
+            merged = dict(doc[key])
+            merged.update(value)
+            doc[key] = merged
+        else:
+            doc[key] = value
+    tmp = cfg_path.with_suffix(".tmp")
+    tmp.write_text(yaml.safe_dump(doc, sort_keys=False))
+    os.replace(tmp, cfg_path)
+
+
+class NotifyListener:
+    """Stands in for systemd's notification socket; stamps each datagram on arrival."""
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self.sock.bind(path)
+        self.sock.settimeout(0.1)
+        self.messages: list[tuple[float, str]] = []  # (time.monotonic(), text)
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="notify-listener", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                data = self.sock.recv(4096)
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            with self._lock:
+                self.messages.append((time.monotonic(), data.decode()))
+
+    def snapshot(self) -> list[tuple[float, str]]:
+        with self._lock:
+            return list(self.messages)
+
+    def first(self, text: str, after: float = 0.0) -> float | None:
+        """Arrival time of the first datagram equal to `text` that arrived after `after`."""
+        return next((t for t, m in self.snapshot() if m == text and t > after), None)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        self.sock.close()
+
+
+@dataclass
+class DaemonProc:
+    """One `ddrt run` child with its files."""
+
+    proc: subprocess.Popen[bytes]
+    workdir: Path
+    config: Path
+    socket: str
+    telemetry_dir: Path
+    stats_json: Path
+    stderr_file: Path
+    t_start: float
+    notify: NotifyListener | None = None
+    _closed: bool = field(default=False, repr=False)
+
+    def request(self, payload: dict[str, Any], timeout: float = 3.0) -> dict[str, Any]:
+        try:
+            return request(self.socket, payload, timeout=timeout)
+        except (ControlClientError, TimeoutError):
+            self.check_alive()  # a dead daemon: fail with its log, not a socket error
+            raise
+
+    def status(self) -> dict[str, Any]:
+        reply = self.request({"cmd": "status"})
+        assert reply["ok"] is True, reply
+        return reply["status"]
+
+    def stderr(self) -> str:
+        return self.stderr_file.read_text(errors="replace")
+
+    def telemetry(self) -> list[dict[str, float]]:
+        with open(self.telemetry_dir / "telemetry.csv", newline="") as f:
+            reader = csv.reader(f)
+            header = next(reader)
+            assert tuple(header) == COLUMNS
+            return [dict(zip(header, map(float, row))) for row in reader if len(row) == len(header)]
+
+    def check_alive(self) -> None:
+        if self.proc.poll() is not None:
+            pytest.fail(f"daemon exited with {self.proc.returncode}:\n{self.stderr()}")
+
+    def wait_ready(self) -> None:
+        """Until the loop answers on its socket (the socket exists before calibration ends)."""
+        def answers() -> bool:
+            self.check_alive()
+            try:
+                return bool(self.request({"cmd": "status"}, timeout=1.0).get("ok"))
+            except (ControlClientError, TimeoutError):
+                return False
+        wait_for(answers, START_TIMEOUT_S, "the daemon's first status reply", interval=0.05)
+
+    def close(self) -> None:
+        """Kill the child if it still runs; close the notify socket; remove the files."""
+        if self._closed:
+            return
+        self._closed = True
+        if self.proc.poll() is None:
+            self.proc.kill()
+        try:
+            self.proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            pass
+        if self.notify is not None:
+            self.notify.close()
+        shutil.rmtree(self.workdir, ignore_errors=True)
+
+
+def start_daemon(*args: str, notify: bool = False, env_extra: dict[str, str] | None = None,
+                 **sections: Any) -> DaemonProc:
+    """Write a config (sim.yaml plus `sections`) and start `ddrt run` on it with `args`."""
+    workdir = Path(tempfile.mkdtemp(prefix="ddrtd-", dir="/tmp"))  # short: sun_path is 108 bytes
+    listener = None
+    try:
+        telemetry_dir = workdir / "tel"
+        config = workdir / "cfg.yaml"
+        write_config(config, telemetry_dir, **sections)
+        sock = str(workdir / "ctl.sock")
+        stats = workdir / "stats.json"
+        stderr_file = workdir / "stderr.log"
+        env = {k: v for k, v in os.environ.items()
+               if k not in ("NOTIFY_SOCKET", "WATCHDOG_USEC", "WATCHDOG_PID", "JOURNAL_STREAM", "LOGS_DIRECTORY")}
+        if notify:
+            listener = NotifyListener(str(workdir / "notify"))
+            env["NOTIFY_SOCKET"] = listener.path
+        env.update(env_extra or {})
+        cmd = [sys.executable, "-m", "ddrt.cli", "run", str(config), "--socket", sock,
+               "--stats-json", str(stats), *args]
+        with open(stderr_file, "wb") as err, open(workdir / "stdout.log", "wb") as out:
+            t_start = time.monotonic()
+            proc = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=out, stderr=err, stdin=subprocess.DEVNULL)
+    except BaseException:
+        if listener is not None:
+            listener.close()
+        shutil.rmtree(workdir, ignore_errors=True)
+        raise
+    return DaemonProc(proc, workdir, config, sock, telemetry_dir, stats, stderr_file, t_start, listener)
+
+
+def max_step(rows: list[dict[str, float]]) -> float:
+    """Largest tick-to-tick change of either wheel's duty over consecutive rows."""
+    return max((max(abs(b["duty_l"] - a["duty_l"]), abs(b["duty_r"] - a["duty_r"]))
+                for a, b in zip(rows, rows[1:])), default=0.0)
+
+
+def ctl(sock: str, *args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "ddrt.cli", "ctl", "--socket", sock, *args],
+                          cwd=REPO, capture_output=True, text=True, timeout=20)
+
+
+def raw_exchange(sock_path: str, data: bytes, timeout: float = 3.0) -> dict[str, Any]:
+    """Send raw bytes on a fresh connection and return the first reply line as JSON."""
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
+        s.settimeout(timeout)
+        s.connect(sock_path)
+        s.sendall(data)
+        return read_reply(s)
+
+
+def read_reply(s: socket.socket) -> dict[str, Any]:
+    buf = b""
+    while b"\n" not in buf:
+        chunk = s.recv(65536)
+        if not chunk:
+            raise AssertionError(f"connection closed without a reply (got {buf[:200]!r})")
+        buf += chunk
+    return json.loads(buf[: buf.index(b"\n")])
+
+
+# ------------------------------------------------- scripted run: notify, reloads, SIGTERM
+
+
+@dataclass
+class Recording:
+    """Everything observed during one follow -> reloads -> SIGTERM run."""
+
+    t_start: float
+    t_ready: float
+    t_hup: float
+    t_hup_applied: float
+    gains_before: dict[str, Any]
+    gains_after_hup: dict[str, Any]
+    status_after_hup: dict[str, Any]
+    bad_reply: dict[str, Any]
+    status_after_bad: dict[str, Any]
+    gains_after_bad: dict[str, Any]
+    restart_reply: dict[str, Any]
+    status_after_restart: dict[str, Any]
+    noop_replies: list[dict[str, Any]]
+    status_final: dict[str, Any]
+    t_term: float
+    t_exit: float
+    returncode: int
+    messages: list[tuple[float, str]]
+    stats: dict[str, Any]
+    rows: list[dict[str, float]]
+    stderr: str
+    socket_left: bool
+    reload_windows: list[tuple[int, int]]  # status timing.count just before and just after each reload
+
+
+@pytest.fixture(scope="module")
+def recording() -> Iterator[Recording]:
+    d = start_daemon("--follow", notify=True, env_extra={"WATCHDOG_USEC": "200000"})
+    try:
+        notify = d.notify
+        assert notify is not None
+        wait_for(lambda: d.check_alive() or notify.first("READY=1"), START_TIMEOUT_S, "READY=1")
+        t_ready = notify.first("READY=1")
+        assert t_ready is not None
+        d.wait_ready()
+        time.sleep(1.5)  # steady following: the reference for duty steps, and watchdog pings
+        gains_before = d.request({"cmd": "gains"})
+        windows: list[tuple[int, int]] = []
+
+        def count() -> int:
+            return d.status()["timing"]["count"]
+
+        # 1. SIGHUP with a valid gain change.
+        write_config(d.config, d.telemetry_dir, controller={"inner": {"kp": 60.0}})
+        before = count()
+        t_hup = time.monotonic()
+        d.proc.send_signal(signal.SIGHUP)
+        gains_after_hup = wait_for(
+            lambda: (g := d.request({"cmd": "gains"}))["inner"]["kp"] == 60.0 and g, 3.0, "kp 60 after SIGHUP")
+        t_hup_applied = time.monotonic()
+        status_after_hup = d.status()
+        windows.append((before, status_after_hup["timing"]["count"]))
+        time.sleep(1.0)
+
+        # 2. A bad value, reloaded over the socket.
+        write_config(d.config, d.telemetry_dir, controller={"inner": {"kp": "abc"}})
+        before = count()
+        bad_reply = d.request({"cmd": "reload"})
+        status_after_bad = d.status()
+        windows.append((before, status_after_bad["timing"]["count"]))
+        gains_after_bad = d.request({"cmd": "gains"})
+        time.sleep(0.5)
+
+        # 3. A key only a restart can change, next to a valid one.
+        write_config(d.config, d.telemetry_dir, controller={"inner": {"kp": 60.0}, "rate_hz": 100.0})
+        before = count()
+        restart_reply = d.request({"cmd": "reload"})
+        status_after_restart = d.status()
+        windows.append((before, status_after_restart["timing"]["count"]))
+
+        # 4. Reloads of an unchanged file: more samples of what a reload costs the loop.
+        noop_replies = []
+        for _ in range(NOOP_RELOADS):
+            time.sleep(0.2)
+            before = count()
+            noop_replies.append(d.request({"cmd": "reload"}))
+            windows.append((before, count()))
+        time.sleep(1.0)
+        status_final = d.status()
+
+        # 5. SIGTERM while following.
+        t_term = time.monotonic()
+        d.proc.send_signal(signal.SIGTERM)
+        try:
+            returncode = d.proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"no exit within 10 s of SIGTERM:\n{d.stderr()}")
+        t_exit = time.monotonic()
+        time.sleep(0.1)  # the last datagrams are already queued; let the listener take them
+        yield Recording(
+            t_start=d.t_start, t_ready=t_ready, t_hup=t_hup, t_hup_applied=t_hup_applied,
+            gains_before=gains_before, gains_after_hup=gains_after_hup, status_after_hup=status_after_hup,
+            bad_reply=bad_reply, status_after_bad=status_after_bad, gains_after_bad=gains_after_bad,
+            restart_reply=restart_reply, status_after_restart=status_after_restart,
+            noop_replies=noop_replies, status_final=status_final, t_term=t_term, t_exit=t_exit,
+            returncode=returncode, messages=notify.snapshot(), stats=json.loads(d.stats_json.read_text()),
+            rows=d.telemetry(), stderr=d.stderr(), socket_left=os.path.exists(d.socket),
+            reload_windows=windows,
+        )
+    finally:
+        d.close()
+
+
+def texts(rec: Recording) -> list[str]:
+    return [m for _, m in rec.messages]
+
+
+def test_ready_comes_first_and_only_after_calibration(recording: Recording) -> None:
+    rec = recording
+    assert texts(rec)[0] == "READY=1"  # no watchdog ping or status before the loop runs
+    # Calibration alone is 0.5 s of paced ticks; READY=1 cannot come sooner after exec.
+    assert rec.t_ready - rec.t_start >= CALIBRATION_S
+    assert rec.stats["ready_s"] >= CALIBRATION_S
+    assert rec.t_ready - rec.t_start < START_TIMEOUT_S
+
+
+def test_watchdog_pings_faster_than_watchdog_usec(recording: Recording) -> None:
+    rec = recording
+    pings = [t for t, m in rec.messages if m == "WATCHDOG=1" and rec.t_ready <= t <= rec.t_term]
+    running_s = rec.t_term - rec.t_ready
+    # WATCHDOG_USEC=200000: the daemon pings every 0.1 s, so about 10 per second.
+    assert len(pings) >= 0.6 * running_s / 0.1, (len(pings), running_s)
+    assert len(pings) <= 1.5 * running_s / 0.1 + 2, (len(pings), running_s)
+    gaps = [b - a for a, b in zip(pings, pings[1:])]
+    assert max(gaps) < 0.2, f"a watchdog gap of {max(gaps):.3f} s would have let systemd kill the service"
+
+
+def test_status_lines_describe_the_loop(recording: Recording) -> None:
+    status = [m for _, m in recording.messages if m.startswith("STATUS=")]
+    assert len(status) >= 3  # one a second
+    assert all("\n" not in m for m in status)
+    assert any(m.startswith("STATUS=following; tick p99 ") and "missed" in m for m in status), status[:3]
+
+
+def test_sighup_reload_is_bracketed_by_reloading_and_ready(recording: Recording) -> None:
+    rec = recording
+    after = [(t, m) for t, m in rec.messages if t >= rec.t_hup]
+    reloading = [(t, m) for t, m in after if m.startswith("RELOADING=1")]
+    assert reloading, "no RELOADING=1 after SIGHUP"
+    t_rel, msg = reloading[0]
+    lines = msg.split("\n")
+    assert len(lines) == 2 and lines[0] == "RELOADING=1" and lines[1].startswith("MONOTONIC_USEC=")
+    usec = int(lines[1].removeprefix("MONOTONIC_USEC="))
+    # CLOCK_MONOTONIC is shared by both processes: the stamp lies between our signal and its arrival.
+    assert rec.t_hup * 1e6 - 1000 <= usec <= t_rel * 1e6 + 1000
+    assert t_rel <= rec.t_hup_applied
+    ready_after = [t for t, m in after if m == "READY=1" and t >= t_rel]
+    assert ready_after and ready_after[0] <= rec.t_hup_applied + 0.5
+    # Every reload (SIGHUP, rejected, restart key, unchanged): a RELOADING/READY pair, the
+    # rejected one included (systemd must not wait for a READY that never comes).
+    n = 3 + NOOP_RELOADS
+    assert sum(m.startswith("RELOADING=1") for m in texts(rec)) == n
+    assert texts(rec).count("READY=1") == n + 1
+    kinds = [m.split("=")[0] for m in texts(rec) if m.startswith(("RELOADING", "READY"))]
+    assert kinds == ["READY"] + ["RELOADING", "READY"] * n
+
+
+def test_sigterm_sends_stopping(recording: Recording) -> None:
+    rec = recording
+    stopping = [t for t, m in rec.messages if m == "STOPPING=1"]
+    assert len(stopping) == 1 and rec.t_term <= stopping[0] <= rec.t_exit + 0.05
+    assert texts(rec)[-1] == "STOPPING=1"
+
+
+def test_sighup_applies_new_gains_live(recording: Recording) -> None:
+    rec = recording
+    assert rec.gains_before["ok"] and rec.gains_before["inner"]["kp"] == 40.0
+    assert rec.gains_after_hup["inner"]["kp"] == 60.0
+    assert rec.gains_after_hup["inner"]["ki"] == rec.gains_before["inner"]["ki"]
+    assert rec.status_after_hup["reloads"] == {"applied": 1, "rejected": 0}
+    assert rec.status_after_hup["state"] == "following"
+    assert "reload applied: controller.inner" in rec.stderr
+
+
+def test_bad_reload_is_rejected_and_following_goes_on(recording: Recording) -> None:
+    rec = recording
+    assert rec.bad_reply["ok"] is False
+    assert "controller.inner.kp" in rec.bad_reply["error"]
+    assert rec.status_after_bad["state"] == "following"
+    assert rec.status_after_bad["reloads"] == {"applied": 1, "rejected": 1}
+    assert rec.gains_after_bad["inner"]["kp"] == 60.0  # the last valid gains stay
+    assert "reload rejected" in rec.stderr and "controller.inner.kp" in rec.stderr
+    # The loop kept ticking through the rejected reload and after it.
+    before, after = rec.reload_windows[1]
+    assert after > before
+    assert rec.status_final["timing"]["count"] > after + 100
+
+
+def test_restart_only_key_is_reported_not_applied(recording: Recording) -> None:
+    rec = recording
+    reply = rec.restart_reply
+    assert reply["ok"] is True
+    assert "need a restart" in reply["message"] and "controller.rate_hz" in reply["message"]
+    assert rec.status_after_restart["reloads"] == {"applied": 2, "rejected": 1}
+    assert rec.stats["rate_hz"] == RATE_HZ
+    assert "controller.rate_hz changed but need a restart" in rec.stderr
+    # Still 200 ticks a second after the reload, not 100.
+    ticks = rec.status_final["timing"]["count"] - rec.status_after_restart["timing"]["count"]
+    assert ticks > 0.8 * RATE_HZ * (0.2 * NOOP_RELOADS + 1.0), ticks  # the sleeps in between
+    assert all(r["ok"] is True for r in rec.noop_replies)
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "ddrt/daemon.py _keep_restart_sections: the running Config keeps the old controller.rate_hz "
+    "but takes the new file's `raw`, which changed_keys() compares: after a reload that "
+    "reported 'need a restart: controller.rate_hz', reloading the same file says 'nothing "
+    "changed' although the loop still runs at the old rate"))
+def test_pending_restart_key_is_still_reported_on_the_next_reload(recording: Recording) -> None:
+    reply = recording.noop_replies[0]  # same file as the restart-key reload: rate_hz 100, running 200
+    assert "controller.rate_hz" in reply["message"], reply
+
+
+def _period() -> float:
+    return 1.0 / RATE_HZ
+
+
+def _reload_rows(rec: Recording, before: int = 3, after: int = 8) -> set[int]:
+    """Row indices near any reload (row i is tick i+1: one row per tick, as timing.count)."""
+    out: set[int] = set()
+    for lo, hi in rec.reload_windows:
+        out.update(range(max(lo - before, 0), hi + after))
+    return out
+
+
+def _steady_steps(rec: Recording) -> list[float]:
+    """Duty steps while following on time, away from reloads and from the first second."""
+    rows = rec.rows
+    near_reload = _reload_rows(rec)
+    p = _period()
+    late = [i for i in range(1, len(rows)) if abs(rows[i]["t"] - rows[i - 1]["t"] - p) > 0.5 * p]
+    after_late = {j for i in late for j in range(i, i + 8)}
+    out = []
+    for i in range(int(RATE_HZ) + 1, len(rows)):
+        if i in near_reload or i - 1 in near_reload or i in after_late:
+            continue
+        a, b = rows[i - 1], rows[i]
+        if a["state"] == b["state"] == FOLLOWING:
+            out.append(max(abs(b["duty_l"] - a["duty_l"]), abs(b["duty_r"] - a["duty_r"])))
+    return out
+
+
+def test_reload_windows_are_in_the_telemetry(recording: Recording) -> None:
+    rec = recording
+    rows = rec.rows
+    assert len(rec.reload_windows) == 3 + NOOP_RELOADS
+    for lo, hi in rec.reload_windows:
+        assert 0 < lo < hi < len(rows)
+        assert all(r["state"] == FOLLOWING for r in rows[lo - 3:hi + 8])
+    assert len(_steady_steps(rec)) > 150  # enough on-time ticks to compare with
+
+
+# Not strict: whether a reload makes a tick late depends on the machine's speed and load
+# (here about 4 runs in 5 show it); strict would turn the lucky runs red.
+@pytest.mark.xfail(strict=False, reason=(
+    "ddrt/daemon.py Daemon.reload (called from _fixed_rate_loop and handle) runs "
+    "load_config -> yaml.safe_load in the loop thread between two ticks; parsing sim.yaml "
+    "takes several ms, often more than the 5 ms period, so the tick after a reload is late "
+    "(sample-time gap 9-11 ms). Because ddrt/reference.py PathReference.update advances the "
+    "schedule by a fixed period per tick, the robot is then ahead of it and the controller "
+    "brakes: a duty step of 0.05-0.13 after the reload (also after rejected and no-op "
+    "reloads, so not the retune) against 0.03-0.06 at most in on-time steady following"))
+def test_reload_does_not_step_the_motor_command(recording: Recording) -> None:
+    """Around every reload: no late tick, and no tick-to-tick duty change larger than the
+    largest in on-time steady following (or 0.05)."""
+    rec = recording
+    rows = rec.rows
+    p = _period()
+    step_steady = max(_steady_steps(rec))
+    for lo, hi in rec.reload_windows:
+        seg = rows[max(lo - 3, 0):hi + 8]
+        gap = max(b["t"] - a["t"] for a, b in zip(seg, seg[1:]))
+        assert gap < 1.5 * p, ("late tick", lo, hi, gap)
+        step = max_step(seg)
+        assert step <= max(step_steady, 0.05), ("duty step", lo, hi, step, step_steady)
+
+
+def test_sigterm_exits_zero_within_one_second(recording: Recording) -> None:
+    rec = recording
+    assert rec.returncode == 0, rec.stderr
+    assert rec.t_exit - rec.t_term < 1.0, f"exit took {rec.t_exit - rec.t_term:.2f} s"
+    assert rec.stats["exit_code"] == 0
+    assert rec.stats["reloads"] == {"applied": 2 + NOOP_RELOADS, "rejected": 1}
+    assert not rec.socket_left  # the control socket file is removed on the way out
+
+
+def test_sigterm_telemetry_is_complete(recording: Recording) -> None:
+    rec = recording
+    # Every tick reached the CSV (the ring is drained at close), all of them while following.
+    assert len(rec.rows) == rec.stats["ticks"]
+    assert rec.rows[-1]["state"] == FOLLOWING
+    ts = [r["t"] for r in rec.rows]
+    # Sample times never go back (a tick right after a late one may repeat the plant's
+    # 1 ms-quantised time), and the rows span the run at 200 Hz.
+    assert all(b >= a for a, b in zip(ts, ts[1:]))
+    span = ts[-1] - ts[0]
+    assert span == pytest.approx((len(ts) - 1) / RATE_HZ, rel=0.05)
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "ddrt/daemon.py Daemon._shutdown zeroes the motors (loop._zero_motors) but records no "
+    "row afterwards and the stats JSON has no duty: nothing the daemon leaves behind shows "
+    "the motors at zero after SIGTERM while following"))
+def test_sigterm_leaves_a_record_of_zeroed_motors(recording: Recording) -> None:
+    last = recording.rows[-1]
+    assert last["duty_l"] == 0.0 and last["duty_r"] == 0.0
+
+
+# ------------------------------------------------------ control socket on an idle daemon
+
+
+@pytest.fixture(scope="module")
+def idle_daemon() -> Iterator[DaemonProc]:
+    d = start_daemon()
+    try:
+        d.wait_ready()
+        yield d
+    finally:
+        d.close()
+
+
+@pytest.fixture()
+def daemon(idle_daemon: DaemonProc) -> DaemonProc:
+    """The shared daemon, back in idle whatever the previous test left."""
+    d = idle_daemon
+    assert d.proc.poll() is None, f"the shared daemon died:\n{d.stderr()}"
+    reply = d.request({"cmd": "reset"})
+    assert reply == {"ok": True, "state": "idle"}
+    return d
+
+
+def test_status_fields(daemon: DaemonProc) -> None:
+    s = daemon.status()
+    assert s["state"] == "idle" and s["fault"] == ""
+    assert set(s["pose"]) == {"x", "y", "theta"} and set(s["speeds"]) == {"v", "omega"}
+    assert s["duty"] == {"l": 0.0, "r": 0.0}
+    assert s["progress"] is None
+    t = s["timing"]
+    for key in ("compute_p50_us", "compute_p99_us", "late_p50_us", "late_p99_us"):
+        assert isinstance(t[key], float) and t[key] >= 0.0, key
+    assert t["compute_p50_us"] <= t["compute_p99_us"] < 1e6 / RATE_HZ  # a tick fits its period
+    for key in ("gyro_rejects", "encoder_rejects", "resyncs", "stale_ticks"):
+        assert isinstance(s["faults"][key], int), key
+    # Calibration measured the simulated gyro's 1.5 deg/s bias.
+    assert abs(s["gyro_bias_rad_s"] - 1.5 * 3.141592653589793 / 180) < 0.005
+    assert s["config"] == str(daemon.config)
+    later = daemon.status()["timing"]["count"]
+    assert later > t["count"]  # it ticks
+
+
+def test_gains(daemon: DaemonProc) -> None:
+    g = daemon.request({"cmd": "gains"})
+    assert g["ok"] is True and g["mode"] == "dynamic"
+    assert g["inner"]["kp"] == 40.0
+    assert {"k_x", "k_y", "k_theta"} <= set(g["outer"])
+    assert {"kp", "ki", "kd"} <= set(g["wheel_pid"])
+
+
+def test_follow_path_file_then_stop_goes_stopping_then_stopped(daemon: DaemonProc) -> None:
+    path = PATHS / "circle_1m.yaml"
+    reply = daemon.request({"cmd": "follow", "path": str(path)})
+    assert reply["ok"] is True and reply["state"] == "following"
+    assert abs(reply["length_m"] - 3.14159) < 0.05  # one lap of a 0.5 m radius circle
+    assert reply["duration_s"] > reply["length_m"] / 0.4
+    again = daemon.request({"cmd": "follow", "path": str(path)})
+    assert again["ok"] is False and "stop first" in again["error"]
+
+    def moving() -> dict[str, Any] | None:
+        s = daemon.status()
+        return s if s["progress"]["sigma_m"] > 0.05 else None
+    s = wait_for(moving, 5.0, "progress along the circle")
+    assert s["state"] == "following"
+    assert s["progress"]["length_m"] == pytest.approx(reply["length_m"])
+    assert 0.0 < s["progress"]["fraction"] < 1.0
+    assert s["duty"]["l"] != 0.0 or s["duty"]["r"] != 0.0
+
+    stop = daemon.request({"cmd": "stop"})
+    assert stop == {"ok": True, "state": "stopping"}
+    stopped = wait_for(lambda: (s := daemon.status())["state"] == "stopped" and s, 6.0, "state stopped")
+    assert stopped["duty"] == {"l": 0.0, "r": 0.0}
+    assert abs(stopped["speeds"]["v"]) < 0.01
+
+
+def test_follow_inline_points(daemon: DaemonProc) -> None:
+    pts = [[0.0, 0.0], [0.4, 0.0], [0.8, 0.0]]
+    reply = daemon.request({"cmd": "follow", "points": pts, "speed": 0.2, "pose": [0.0, 0.0, 0.0]})
+    assert reply["ok"] is True and reply["state"] == "following"
+    assert reply["length_m"] == pytest.approx(0.8, abs=1e-6)
+    s = wait_for(lambda: (s := daemon.status())["progress"]["sigma_m"] > 0.02 and s, 5.0, "progress")
+    assert s["progress"]["length_m"] == pytest.approx(0.8, abs=1e-6)
+    assert s["pose"]["x"] > 0.0 and abs(s["pose"]["y"]) < 0.05  # along the line from the given pose
+
+
+def test_estop_latches_until_reset(daemon: DaemonProc) -> None:
+    reply = daemon.request({"cmd": "follow", "path": str(PATHS / "circle_1m.yaml")})
+    assert reply["ok"] is True
+    wait_for(lambda: daemon.status()["duty"] != {"l": 0.0, "r": 0.0}, 3.0, "motors driven")
+    assert daemon.request({"cmd": "estop"}) == {"ok": True, "state": "estop"}
+    s = daemon.status()
+    assert s["state"] == "estop" and "estop" in s["fault"]
+    assert s["duty"] == {"l": 0.0, "r": 0.0}
+    refused = daemon.request({"cmd": "follow", "path": str(PATHS / "circle_1m.yaml")})
+    assert refused["ok"] is False and "reset" in refused["error"]
+    assert daemon.status()["state"] == "estop"  # still latched some ticks later
+    assert daemon.request({"cmd": "stop"})["state"] == "estop"  # stop does not unlatch it
+    assert daemon.request({"cmd": "reset"}) == {"ok": True, "state": "idle"}
+    assert daemon.status()["fault"] == ""
+    again = daemon.request({"cmd": "follow", "path": str(PATHS / "circle_1m.yaml")})
+    assert again["ok"] is True and again["state"] == "following"
+
+
+def test_reload_over_socket_on_unchanged_file(daemon: DaemonProc) -> None:
+    before = daemon.status()["reloads"]
+    reply = daemon.request({"cmd": "reload"})
+    assert reply == {"ok": True, "message": "applied: nothing changed"}
+    after = daemon.status()["reloads"]
+    assert after == {"applied": before["applied"] + 1, "rejected": before["rejected"]}
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "ddrt/daemon.py Daemon._follow, 'shape' branch: every request key but cmd and id goes into "
+    "the path mapping, 'pose' included, so load_path rejects it ('key pose: unknown key'); "
+    "pose works with 'points' only"))
+def test_follow_shape_with_pose(daemon: DaemonProc) -> None:
+    reply = daemon.request({"cmd": "follow", "shape": "circle", "radius": 0.5, "speed": 0.3,
+                            "pose": [0.0, 0.0, 0.0]})
+    assert reply["ok"] is True, reply
+    assert reply["state"] == "following"
+
+
+@pytest.mark.parametrize("payload, needle", [
+    ({"cmd": "follow"}, "give path"),
+    ({"cmd": "follow", "path": 5}, "expected a file name"),
+    ({"cmd": "follow", "path": "/nonexistent/ddrt/path.yaml"}, "follow:"),
+    ({"cmd": "follow", "points": "abc"}, "follow:"),
+    ({"cmd": "follow", "points": [[0, 0], [1, 0]], "pose": [0, 0]}, "pose"),
+    ({"cmd": "follow", "points": [[0, 0], [1, 0]], "pose": [0, "x", 0]}, "pose"),
+])
+def test_bad_follow_requests_get_errors(daemon: DaemonProc, payload: dict[str, Any], needle: str) -> None:
+    reply = daemon.request(payload)
+    assert reply["ok"] is False and needle in reply["error"], reply
+    assert daemon.status()["state"] == "idle"
+
+
+def test_garbage_gets_errors_and_the_loop_keeps_ticking(daemon: DaemonProc) -> None:
+    before = daemon.status()["timing"]
+    junk = random.Random(20240601).randbytes(3000).replace(b"\n", b"\x00")
+    cases = [
+        (b"this is not json\n", "malformed JSON"),
+        (b"[1, 2, 3]\n", "must be a JSON object"),
+        (b'{"no_cmd": 1}\n', "missing field 'cmd'"),
+        (b'{"cmd": 7}\n', "must be a string"),
+        (b'{"cmd": "launch", "id": 9}\n', "unknown command 'launch'"),
+        (b"x" * (70 * 1024) + b"\n", "request too large"),
+        (junk + b"\n", "malformed JSON"),
+    ]
+    for data, needle in cases:
+        reply = raw_exchange(daemon.socket, data)
+        assert reply["ok"] is False and needle in reply["error"], (data[:40], reply)
+    assert raw_exchange(daemon.socket, b'{"cmd": "launch", "id": 9}\n')["id"] == 9
+
+    # After an oversized line the same connection still serves the next request.
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
+        s.settimeout(3.0)
+        s.connect(daemon.socket)
+        s.sendall(b"y" * (100 * 1024) + b"\n")
+        assert "too large" in read_reply(s)["error"]
+        s.sendall(b'{"cmd": "status", "id": "after"}\n')
+        reply = read_reply(s)
+        assert reply["ok"] is True and reply["id"] == "after" and reply["status"]["state"] == "idle"
+
+    # A client that sends half a line and goes away costs nothing either.
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
+        s.connect(daemon.socket)
+        s.sendall(b'{"cmd": "sta')
+
+    time.sleep(0.3)
+    after = daemon.status()["timing"]
+    ticks = after["count"] - before["count"]
+    assert ticks > 0.3 * RATE_HZ * 0.5  # it went on ticking
+    assert after["missed_ticks"] - before["missed_ticks"] <= max(5, ticks // 20), (before, after)
+    assert after["overruns"] - before["overruns"] <= max(5, ticks // 20)
+
+
+# ------------------------------------------------------------------ `ddrt ctl` CLI
+
+
+def test_ctl_status_prints_json_and_exits_0(daemon: DaemonProc) -> None:
+    res = ctl(daemon.socket, "status")
+    assert res.returncode == 0, res.stderr
+    reply = json.loads(res.stdout)
+    assert reply["ok"] is True and reply["status"]["state"] == "idle"
+
+
+def test_ctl_gains_and_follow_stop(daemon: DaemonProc) -> None:
+    res = ctl(daemon.socket, "gains")
+    assert res.returncode == 0 and json.loads(res.stdout)["inner"]["kp"] == 40.0
+    # A relative path file name is resolved by `ddrt ctl`, not by the daemon's cwd.
+    res = ctl(daemon.socket, "follow", os.path.relpath(PATHS / "circle_1m.yaml", REPO))
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert json.loads(res.stdout)["state"] == "following"
+    res = ctl(daemon.socket, "stop")
+    assert res.returncode == 0 and json.loads(res.stdout)["state"] == "stopping"
+
+
+def test_ctl_error_reply_exits_1(daemon: DaemonProc) -> None:
+    res = ctl(daemon.socket, "follow", "/nonexistent/ddrt/path.yaml")
+    assert res.returncode == 1
+    reply = json.loads(res.stdout)
+    assert reply["ok"] is False and "follow:" in reply["error"]
+
+
+def test_ctl_without_a_daemon_exits_1() -> None:
+    d = tempfile.mkdtemp(prefix="ddrtc-", dir="/tmp")
+    try:
+        res = ctl(os.path.join(d, "none.sock"), "status")
+    finally:
+        shutil.rmtree(d, ignore_errors=True)
+    assert res.returncode == 1
+    assert "cannot reach" in res.stderr and res.stdout == ""
+
+
+# ------------------------------------------------------------- faults and start-up errors
+
+
+def test_stale_sensors_zero_the_motors_and_exit_1() -> None:
+    freeze_s = 4.0
+    d = start_daemon("--follow", sim={"sensors_freeze_after_s": freeze_s})
+    try:
+        try:
+            rc = d.proc.wait(timeout=START_TIMEOUT_S + freeze_s)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"the daemon did not stop after its sensors froze:\n{d.stderr()}")
+        t_exit = time.monotonic()
+        assert rc == 1, d.stderr()
+        stats = json.loads(d.stats_json.read_text())
+        assert stats["exit_code"] == 1
+        err = d.stderr()
+        assert "fault: sensors stale" in err and "motors zeroed" in err
+        assert "stopping after fault" in err
+
+        rows = d.telemetry()
+        assert len(rows) == stats["ticks"]
+        # sim time starts at 0 when the robot is opened; the freeze begins at freeze_s.
+        first_stale = next(r for r in rows if r["fresh"] == 0.0)
+        assert first_stale["t"] >= freeze_s - 0.01
+        assert all(r["state"] == FOLLOWING for r in rows if r["t"] < freeze_s - 0.01)
+        last = rows[-1]
+        assert last["state"] == FAULT
+        assert last["duty_l"] == 0.0 and last["duty_r"] == 0.0
+        # Noticed within the 20 stale ticks (0.1 s) of estimator.stale_ticks, plus slack.
+        fault_row = next(r for r in rows if r["state"] == FAULT)
+        assert fault_row["t"] - freeze_s < 0.25, fault_row["t"]
+        assert fault_row is last  # the loop stops on the fault tick itself
+        # And the process is gone soon after: 4 s of following after a bounded start-up.
+        assert t_exit - d.t_start < START_TIMEOUT_S + freeze_s
+    finally:
+        d.close()
+
+
+LONG_PATH = {"shape": "circle", "radius": 0.5, "laps": 40, "speed": 0.3}  # 126 m: a long patrol
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "ddrt/daemon.py Daemon._follow builds the path (load_path) in the loop thread between two "
+    "ticks; a 40-lap circle takes ~90-150 ms, the estimator then sees a sample gap > 10 periods "
+    "(ddrt/estimator.py update) and the daemon faults and exits 1 on a valid follow request. "
+    "Building the path off the loop thread (the ctl I/O thread) would avoid it"))
+def test_follow_request_for_a_long_path_keeps_the_daemon_running() -> None:
+    d = start_daemon()
+    try:
+        d.wait_ready()
+        reply = d.request({"cmd": "follow", **LONG_PATH})
+        assert reply["ok"] is True and reply["duration_s"] > 400
+        time.sleep(0.3)
+        assert d.proc.poll() is None, d.stderr()
+        s = d.status()
+        assert s["state"] == "following" and s["fault"] == ""
+    finally:
+        d.close()
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "ddrt/daemon.py Daemon._run_opened resolves the path (resolve_path) and runs rt.freeze_gc() "
+    "AFTER the gyro calibration and before the first tick; that time counts as a sensor gap, "
+    "so `ddrt run --follow` on a long path (or any path on a loaded CPU: ~25 ms unloaded here) "
+    "faults with 'sensor gap of ... ms' and exits 1 right after calibration. Resolving the path "
+    "and freezing the GC before calibrating would avoid it"))
+def test_follow_at_start_on_a_long_path_starts() -> None:
+    d = start_daemon("--follow", path=LONG_PATH)
+    try:
+        d.wait_ready()
+        s = d.status()
+        assert s["state"] == "following" and s["progress"]["length_m"] > 100
+    finally:
+        d.close()
+
+
+def test_bad_config_at_start_exits_2_naming_the_key() -> None:
+    d = start_daemon(controller={"inner": {"kp": "abc"}})
+    try:
+        try:
+            rc = d.proc.wait(timeout=START_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            pytest.fail("the daemon did not refuse its bad config")
+        assert rc == 2
+        assert "controller.inner.kp" in d.stderr()
+        assert not os.path.exists(d.socket)  # nothing was opened
+    finally:
+        d.close()
