@@ -1,8 +1,7 @@
 """What each stage of one control tick costs, on the simulated backend.
 
-`timed_tick` makes the same calls as `ControlLoop.tick` (ddrt/loop.py) in the same order, for
-a loop that is following a path, with `time.perf_counter_ns` around each stage; loop.py itself
-is not touched. A test checks that it leaves the loop in exactly the state `tick()` would.
+`timed_tick` runs the real `ControlLoop.tick`, which records `time.perf_counter_ns` after
+each stage when handed a list (`tick(stamps)`), for a loop that is following a path.
 The simulated plant's integration (`hal.sleep_until`) runs between ticks, outside the timed
 region, and is reported on its own: on the robot that time is the motors' and the world's.
 """
@@ -63,55 +62,23 @@ class TickCost:
         return us * 1e-6 / self.period_s
 
 
-def timed_tick(loop: ControlLoop, out: list[array], i: int) -> None:
-    """One `ControlLoop.tick()` of a following loop, each stage's duration stored in out[k][i] (ns).
+def timed_tick(loop: ControlLoop, out: list[array], i: int, stamps: list[int] | None = None) -> None:
+    """One real `ControlLoop.tick()` of a following loop; each stage's duration into out[k][i] (ns).
 
-    The done/finite checks between control and write are counted in "write". A HAL error
-    or an estimator fault raises TickBenchError instead of latching the fault state.
+    The tick stamps itself (`tick(stamps)`): the done/finite checks between control and write
+    count in "write", the adapter (if on) in "estimate". A tick that did not run every stage
+    (a HAL error, a fault, the path's end) raises TickBenchError.
     """
-    ns = time.perf_counter_ns
-    loop.ticks += 1
-    t0 = ns()
-    sample = loop.hal.read()
-    t1 = ns()
-    loop.sample = sample
-    state = loop.state
-    moving = state in ("following", "stopping")
-    est = loop.estimator
-    est.update(sample, loop.duty_l, loop.duty_r, commanded_still=not moving)
-    t2 = ns()
-    if est.health.fault or not moving:
-        raise TickBenchError(f"loop not following (state {state}, estimator fault {est.health.fault!r})")
-    ref = loop.reference
-    sp = loop.setpoint
-    ref.update(est.x, est.y, est.theta, sp)  # type: ignore[union-attr]
-    t3 = ns()
-    cmd = loop.controller.update(est.x, est.y, est.theta, est.v, est.omega, sp)
-    t4 = ns()
-    if ref.done and abs(est.v) < 2e-3 and abs(est.omega) < 5e-3:  # type: ignore[union-attr]
-        loop.state = "stopped"
-        loop._zero_motors()
-    elif not (math.isfinite(cmd.duty_l) and math.isfinite(cmd.duty_r)
-              and math.isfinite(est.x) and math.isfinite(est.y) and math.isfinite(est.theta)):
-        raise TickBenchError("non-finite value in the controller")
+    if stamps is None:
+        stamps = []
     else:
-        loop.hal.write(cmd.duty_l, cmd.duty_r)
-        loop.duty_l = cmd.duty_l
-        loop.duty_r = cmd.duty_r
-        loop.cmd = cmd
-        if cmd.saturated:
-            loop.saturated_ticks += 1
-    t5 = ns()
-    loop._record(sample.t)
-    t6 = ns()
-    out[0][i] = t1 - t0
-    out[1][i] = t2 - t1
-    out[2][i] = t3 - t2
-    out[3][i] = t4 - t3
-    out[4][i] = t5 - t4
-    out[5][i] = t6 - t5
-    if loop.on_tick is not None:
-        loop.on_tick(loop)
+        stamps.clear()
+    state = loop.state
+    loop.tick(stamps)
+    if len(stamps) != len(STAGES) + 1 or loop.state == "fault" or state not in ("following", "stopping"):
+        raise TickBenchError(f"loop not following (state {loop.state}, fault {loop.fault!r})")
+    for k in range(len(STAGES)):
+        out[k][i] = stamps[k + 1] - stamps[k]
 
 
 def timer_overhead_ns(n: int = 20000) -> float:

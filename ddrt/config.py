@@ -19,6 +19,10 @@ from ddrt.model import RobotParams
 from ddrt.motor import MotorParams
 from ddrt.schema import ConfigError, build, non_negative, positive
 
+# libyaml's safe loader when present: six times faster than the pure-Python one, which
+# matters for a reload between two ticks.
+YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
 # --------------------------------------------------------------------------- sections
 
 
@@ -320,7 +324,7 @@ def _read_yaml(path: FsPath, chain: tuple[str, ...] = ()) -> dict[str, Any]:
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read: {exc.strerror or exc}") from None
     try:
-        data = yaml.safe_load(text)
+        data = yaml.load(text, Loader=YAML_LOADER)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         at = f" (line {mark.line + 1}, column {mark.column + 1})" if mark else ""

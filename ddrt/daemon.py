@@ -24,7 +24,7 @@ from typing import Any
 
 from ddrt import rt
 from ddrt.clock import MonotonicClock
-from ddrt.config import Config, changed_keys, load_config, needs_restart
+from ddrt.config import RESTART_KEYS, Config, changed_keys, load_config, needs_restart
 from ddrt.ctlsocket import ControlServer
 from ddrt.loop import COLUMNS, ControlLoop
 from ddrt.path import PathError, load_path
@@ -140,12 +140,16 @@ class Daemon:
                                          d.timer_slack_ns or None, gil_switch_interval_s=0.0005):
             log.warning("real-time set-up: %s (running without it)", warning)
         clock = self.clock
+        # Everything slow happens before the calibration: once it has started, the loop's
+        # samples must keep coming at the rate.
+        path = resolve_path(cfg) if self.follow_at_start and cfg.path is not None else None
 
         def sleep_unless_stopped(deadline: float) -> float:
             if self.stop_requested:
                 raise _Interrupted()
             return clock.sleep_until(deadline)
 
+        rt.freeze_gc()
         try:
             loop.calibrate(sleep_unless_stopped, clock.now)
         except _Interrupted:
@@ -155,9 +159,8 @@ class Daemon:
             log.error("start-up calibration failed: %s", exc)
             self.exit_code = 1
             return 1
-        if self.follow_at_start and cfg.path is not None:
-            loop.follow(resolve_path(cfg))
-        rt.freeze_gc()
+        if path is not None:
+            loop.follow(path)
         self._fixed_rate_loop()
         return self.exit_code
 
@@ -215,7 +218,9 @@ class Daemon:
     def _shutdown(self) -> None:
         self.notifier.stopping()
         if self.loop is not None:
-            self.loop._zero_motors()
+            self.loop.shutdown()
+            if self.ring is not None:
+                self.ring.append(self.loop.row)
         elif self.hal is not None:
             try:
                 self.hal.stop()
@@ -258,6 +263,8 @@ class Daemon:
             "cpu_s": usage.ru_utime + usage.ru_stime,
             "wall_s": time.monotonic() - self.t_start,
             "exit_code": self.exit_code,
+            "final_duty": [self.loop.duty_l, self.loop.duty_r] if self.loop is not None else None,
+            "final_state": self.loop.state if self.loop is not None else None,
             "reloads": dict(self.reloads),
         }
 
@@ -332,7 +339,7 @@ class Daemon:
         elif "points" in req:
             source = {"points": req["points"], "speed": req.get("speed", 0.3)}
         elif "shape" in req:
-            source = {k: v for k, v in req.items() if k not in ("cmd", "id")}
+            source = {k: v for k, v in req.items() if k not in ("cmd", "id", "pose")}
         else:
             return {"ok": False, "error": "follow: give path (a file), points ([[x, y], ...]) or shape"}
         try:
@@ -387,11 +394,37 @@ def vars_of(obj: Any) -> dict[str, Any]:
 
 
 def _keep_restart_sections(old: Config, new: Config) -> Config:
-    """The new config, except the parts that only a restart may change."""
+    """The new config, except the parts that only a restart may change.
+
+    Its `raw` keeps the old values of those parts too, so a later reload still reports them
+    as needing a restart until the process is restarted.
+    """
+    import copy
     import dataclasses
 
+    raw = copy.deepcopy(dict(new.raw))
+    for key in RESTART_KEYS:
+        section, _, sub = key.partition(".")
+        old_sec = old.raw.get(section)
+        if not sub:
+            if old_sec is None:
+                raw.pop(section, None)
+            else:
+                raw[section] = copy.deepcopy(old_sec)
+            continue
+        old_val = old_sec.get(sub) if isinstance(old_sec, dict) else None
+        new_sec = raw.get(section)
+        if not isinstance(new_sec, dict):
+            new_sec = {}
+        new_sec = dict(new_sec)
+        if old_val is None:
+            new_sec.pop(sub, None)
+        else:
+            new_sec[sub] = copy.deepcopy(old_val)
+        raw[section] = new_sec
+
     controller = dataclasses.replace(new.controller, rate_hz=old.controller.rate_hz, mode=old.controller.mode)
-    return dataclasses.replace(new, hal=old.hal, sensors=old.sensors, sim=old.sim, plant=old.plant,
+    return dataclasses.replace(new, raw=raw, hal=old.hal, sensors=old.sensors, sim=old.sim, plant=old.plant,
                                plant_motor_l=old.plant_motor_l, plant_motor_r=old.plant_motor_r,
                                estimator=old.estimator, controller=controller,
                                daemon=dataclasses.replace(new.daemon, socket=old.daemon.socket,

@@ -71,6 +71,7 @@ class Estimator:
         self.gate2 = cfg.gate_sigma * cfg.gate_sigma
         self.health = EstimatorHealth()
         self.x = self.y = self.theta = 0.0
+        self.dt = period_s  # the time step of the last update (what the reference advances by)
         self._last_t: float | None = None
         self._last_count = 0
         self._travel_counts = 0  # unwrapped encoder counts since reset
@@ -124,17 +125,28 @@ class Estimator:
             raise RuntimeError("Estimator.update before reset")
         dt = sample.t - last_t
         if not sample.fresh or dt <= 0.0:
+            # No new measurement: a repeated value (dead-reckon through the time that
+            # passed), or a repeated timestamp (no time passed: nothing to predict).
             health.stale_ticks += 1
             if health.stale_ticks >= self.cfg.stale_ticks:
                 health.fault = f"sensors stale for {health.stale_ticks} ticks"
-            dt = self.period  # dead-reckon through a short gap
             fresh = False
+            if dt <= 0.0:
+                dt = 0.0
+                new_anchor = last_t
+            else:
+                new_anchor = sample.t
         else:
             health.stale_ticks = 0
             fresh = True
+            new_anchor = sample.t
             if dt > 10.0 * self.period:
-                health.fault = f"sensor gap of {dt * 1000:.1f} ms"
-        self._last_t = last_t + dt
+                if commanded_still:
+                    dt = self.period  # standing still: a pause in the loop endangers nothing
+                else:
+                    health.fault = f"sensor gap of {dt * 1000:.1f} ms"
+        self._last_t = new_anchor
+        self.dt = dt
 
         # Predict with the model and the torque the motors give at the applied duty.
         dyn = self.dyn

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import math
+from time import perf_counter_ns
 from typing import Callable
 
 from ddrt.adapt import DynamicsAdapter
@@ -59,6 +60,7 @@ class ControlLoop:
         self.fault = ""
         self.ticks = 0
         self.saturated_ticks = 0
+        self._starting = False
         self.hal_fault_ticks = 0  # ticks whose sample reported a fault (retry, hold, lost packets)
         self.sample: Sample | None = None
         self.duty_l = 0.0
@@ -121,6 +123,7 @@ class ControlLoop:
         self.path = path
         self.controller.reset()
         self.state = "following"
+        self._starting = True  # the robot stood still until now: a pause before this is no gap
 
     def stop(self) -> None:
         """Controlled stop along the path."""
@@ -143,6 +146,13 @@ class ControlLoop:
         self.fault = ""
         self.state = "idle"
 
+    def shutdown(self) -> None:
+        """The process is stopping: motors to zero, and a last row that shows it."""
+        self._zero_motors()
+        if self.state in ("following", "stopping", "idle"):
+            self.state = "stopped"
+        self._record(self.sample.t if self.sample is not None else 0.0)
+
     def enter_fault(self, reason: str) -> None:
         self._zero_motors()
         if self.state != "fault":
@@ -160,22 +170,31 @@ class ControlLoop:
 
     # ------------------------------------------------------------------ the tick
 
-    def tick(self) -> None:
-        """read -> estimate -> reference -> control -> write -> record."""
+    def tick(self, stamps: list[int] | None = None) -> None:
+        """read -> estimate -> reference -> control -> write -> record.
+
+        `stamps` (benchmarks only): perf_counter_ns() is appended at the start and after
+        each stage that ran, so the cost of each stage can be measured on the real tick.
+        """
         self.ticks += 1
+        if stamps is not None:
+            stamps.append(perf_counter_ns())
         try:
             sample = self.hal.read()
         except HalError as exc:
             self.enter_fault(f"sensor read failed: {exc}")
             self._record(self.sample.t + self.period if self.sample else 0.0)
             return
+        if stamps is not None:
+            stamps.append(perf_counter_ns())
         self.sample = sample
         if sample.faults:
             self.hal_fault_ticks += 1
         state = self.state
         moving = state in ("following", "stopping")
         est = self.estimator
-        est.update(sample, self.duty_l, self.duty_r, commanded_still=not moving)
+        est.update(sample, self.duty_l, self.duty_r, commanded_still=not moving or self._starting)
+        self._starting = False
         if self.adapter is not None and moving:
             self._adapt()
         if est.health.fault and state != "fault":
@@ -184,8 +203,14 @@ class ControlLoop:
         if state in ("following", "stopping"):
             ref = self.reference
             sp = self.setpoint
-            ref.update(est.x, est.y, est.theta, sp)  # type: ignore[union-attr]
+            if stamps is not None:
+                stamps.append(perf_counter_ns())
+            ref.update(est.x, est.y, est.theta, sp, est.dt)  # type: ignore[union-attr]
+            if stamps is not None:
+                stamps.append(perf_counter_ns())
             cmd = self.controller.update(est.x, est.y, est.theta, est.v, est.omega, sp)
+            if stamps is not None:
+                stamps.append(perf_counter_ns())
             if ref.done and abs(est.v) < 2e-3 and abs(est.omega) < 5e-3:  # type: ignore[union-attr]
                 self.state = "stopped"
                 self._zero_motors()
@@ -210,7 +235,11 @@ class ControlLoop:
                 self.hal.write(0.0, 0.0)
             except HalError as exc:
                 self.enter_fault(f"motor write failed: {exc}")
+        if stamps is not None:
+            stamps.append(perf_counter_ns())
         self._record(sample.t)
+        if stamps is not None:
+            stamps.append(perf_counter_ns())
         if self.on_tick is not None:
             self.on_tick(self)
 

@@ -55,6 +55,8 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 import yaml
 
+YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml when present
+
 __all__ = ["PathError", "SpeedLimits", "PathPoint", "Path", "load_path"]
 
 TWO_PI = 2.0 * math.pi
@@ -784,7 +786,7 @@ def load_path(source: str | os.PathLike[str] | Mapping[str, Any], limits: SpeedL
     if low.endswith((".yaml", ".yml")):
         try:
             with open(fname, encoding="utf-8") as fh:
-                data = yaml.safe_load(fh)
+                data = yaml.load(fh, Loader=YAML_LOADER)
         except OSError as exc:
             raise PathError(f"{fname}: cannot read: {exc.strerror or exc}") from None
         except yaml.YAMLError as exc:

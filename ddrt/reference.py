@@ -46,18 +46,22 @@ class PathReference:
     def stopping(self) -> bool:
         return self._stop_decel is not None
 
-    def update(self, x: float, y: float, theta: float, sp: Setpoint) -> None:
-        """Fill `sp` for a robot at (x, y, theta)."""
+    def update(self, x: float, y: float, theta: float, sp: Setpoint, dt: float | None = None) -> None:
+        """Fill `sp` for a robot at (x, y, theta), `dt` seconds after the previous call.
+
+        The schedule advances by the time that really passed (a late or skipped tick moves
+        it further), not by a nominal period."""
         near = self.pursuit.update(x, y, theta)
         self.sigma = near.sigma
         self.cross_track = near.cross_track
         path = self.path
         sp.active = True
         sp.pp_curvature = near.pp_curvature
+        step = self.period if dt is None else dt
         if self._stop_decel is not None:
-            self._update_stopping(near, sp)
+            self._update_stopping(near, sp, step)
             return
-        t_next = self.t_sched + self.period
+        t_next = self.t_sched + step
         if self.time_indexed:
             self.t_sched = t_next
             sched = path.at_time(t_next)
@@ -91,9 +95,8 @@ class PathReference:
             sp.alpha_d = 0.0 if held else sched.alpha  # d(v kappa)/dt: a kappa + v^2 dkappa/ds
         self.done = near.done and self.t_sched >= path.duration
 
-    def _update_stopping(self, near, sp: Setpoint) -> None:
+    def _update_stopping(self, near, sp: Setpoint, dt: float) -> None:
         decel = self._stop_decel or 1.0
-        dt = self.period
         v = self._stop_v - decel * dt
         a = -decel
         if v <= 0.0:

@@ -33,8 +33,8 @@ def _following_loop(seed: int) -> ControlLoop:
     return loop
 
 
-def test_timed_tick_makes_the_same_calls_as_tick() -> None:
-    """Twin loops on the same noise seed: the timed copy must leave the loop exactly where tick() does."""
+def test_stamped_tick_behaves_exactly_like_tick() -> None:
+    """Twin loops on the same noise seed: timing the stages must not change what a tick does."""
     a = _following_loop(seed=7)
     b = _following_loop(seed=7)
     out = [array("q", bytes(8 * 400)) for _ in tick_cost.STAGES]

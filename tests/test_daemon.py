@@ -46,6 +46,7 @@ NOOP_RELOADS = 10  # enough reloads that at least one shows the cost of parsing 
 
 FOLLOWING = STATE_CODE["following"]
 FAULT = STATE_CODE["fault"]
+STOPPED = STATE_CODE["stopped"]
 
 
 # ---------------------------------------------------------------------------- helpers
@@ -462,11 +463,6 @@ def test_restart_only_key_is_reported_not_applied(recording: Recording) -> None:
     assert all(r["ok"] is True for r in rec.noop_replies)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "ddrt/daemon.py _keep_restart_sections: the running Config keeps the old controller.rate_hz "
-    "but takes the new file's `raw`, which changed_keys() compares: after a reload that "
-    "reported 'need a restart: controller.rate_hz', reloading the same file says 'nothing "
-    "changed' although the loop still runs at the old rate"))
 def test_pending_restart_key_is_still_reported_on_the_next_reload(recording: Recording) -> None:
     reply = recording.noop_replies[0]  # same file as the restart-key reload: rate_hz 100, running 200
     assert "controller.rate_hz" in reply["message"], reply
@@ -513,14 +509,6 @@ def test_reload_windows_are_in_the_telemetry(recording: Recording) -> None:
 
 # Not strict: whether a reload makes a tick late depends on the machine's speed and load
 # (here about 4 runs in 5 show it); strict would turn the lucky runs red.
-@pytest.mark.xfail(strict=False, reason=(
-    "ddrt/daemon.py Daemon.reload (called from _fixed_rate_loop and handle) runs "
-    "load_config -> yaml.safe_load in the loop thread between two ticks; parsing sim.yaml "
-    "takes several ms, often more than the 5 ms period, so the tick after a reload is late "
-    "(sample-time gap 9-11 ms). Because ddrt/reference.py PathReference.update advances the "
-    "schedule by a fixed period per tick, the robot is then ahead of it and the controller "
-    "brakes: a duty step of 0.05-0.13 after the reload (also after rejected and no-op "
-    "reloads, so not the retune) against 0.03-0.06 at most in on-time steady following"))
 def test_reload_does_not_step_the_motor_command(recording: Recording) -> None:
     """Around every reload: no late tick, and no tick-to-tick duty change larger than the
     largest in on-time steady following (or 0.05)."""
@@ -548,9 +536,10 @@ def test_sigterm_exits_zero_within_one_second(recording: Recording) -> None:
 def test_sigterm_telemetry_is_complete(recording: Recording) -> None:
     rec = recording
     # Every tick reached the CSV (the ring is drained at close), all of them while following.
-    assert len(rec.rows) == rec.stats["ticks"]
-    assert rec.rows[-1]["state"] == FOLLOWING
-    ts = [r["t"] for r in rec.rows]
+    assert len(rec.rows) == rec.stats["ticks"] + 1  # every tick, and the row the shutdown leaves
+    assert rec.rows[-2]["state"] == FOLLOWING  # following until the signal
+    assert rec.rows[-1]["state"] == STOPPED and rec.rows[-1]["duty_l"] == rec.rows[-1]["duty_r"] == 0.0
+    ts = [r["t"] for r in rec.rows[:-1]]
     # Sample times never go back (a tick right after a late one may repeat the plant's
     # 1 ms-quantised time), and the rows span the run at 200 Hz.
     assert all(b >= a for a, b in zip(ts, ts[1:]))
@@ -558,10 +547,6 @@ def test_sigterm_telemetry_is_complete(recording: Recording) -> None:
     assert span == pytest.approx((len(ts) - 1) / RATE_HZ, rel=0.05)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "ddrt/daemon.py Daemon._shutdown zeroes the motors (loop._zero_motors) but records no "
-    "row afterwards and the stats JSON has no duty: nothing the daemon leaves behind shows "
-    "the motors at zero after SIGTERM while following"))
 def test_sigterm_leaves_a_record_of_zeroed_motors(recording: Recording) -> None:
     last = recording.rows[-1]
     assert last["duty_l"] == 0.0 and last["duty_r"] == 0.0
@@ -678,10 +663,6 @@ def test_reload_over_socket_on_unchanged_file(daemon: DaemonProc) -> None:
     assert after == {"applied": before["applied"] + 1, "rejected": before["rejected"]}
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "ddrt/daemon.py Daemon._follow, 'shape' branch: every request key but cmd and id goes into "
-    "the path mapping, 'pose' included, so load_path rejects it ('key pose: unknown key'); "
-    "pose works with 'points' only"))
 def test_follow_shape_with_pose(daemon: DaemonProc) -> None:
     reply = daemon.request({"cmd": "follow", "shape": "circle", "radius": 0.5, "speed": 0.3,
                             "pose": [0.0, 0.0, 0.0]})
@@ -801,7 +782,7 @@ def test_stale_sensors_zero_the_motors_and_exit_1() -> None:
         assert "stopping after fault" in err
 
         rows = d.telemetry()
-        assert len(rows) == stats["ticks"]
+        assert len(rows) == stats["ticks"] + 1  # every tick, and the row the shutdown leaves
         # sim time starts at 0 when the robot is opened; the freeze begins at freeze_s.
         first_stale = next(r for r in rows if r["fresh"] == 0.0)
         assert first_stale["t"] >= freeze_s - 0.01
@@ -812,7 +793,7 @@ def test_stale_sensors_zero_the_motors_and_exit_1() -> None:
         # Noticed within the 20 stale ticks (0.1 s) of estimator.stale_ticks, plus slack.
         fault_row = next(r for r in rows if r["state"] == FAULT)
         assert fault_row["t"] - freeze_s < 0.25, fault_row["t"]
-        assert fault_row is last  # the loop stops on the fault tick itself
+        assert fault_row is rows[-2]  # the loop stops on the fault tick itself (then the shutdown row)
         # And the process is gone soon after: 4 s of following after a bounded start-up.
         assert t_exit - d.t_start < START_TIMEOUT_S + freeze_s
     finally:
@@ -822,11 +803,6 @@ def test_stale_sensors_zero_the_motors_and_exit_1() -> None:
 LONG_PATH = {"shape": "circle", "radius": 0.5, "laps": 40, "speed": 0.3}  # 126 m: a long patrol
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "ddrt/daemon.py Daemon._follow builds the path (load_path) in the loop thread between two "
-    "ticks; a 40-lap circle takes ~90-150 ms, the estimator then sees a sample gap > 10 periods "
-    "(ddrt/estimator.py update) and the daemon faults and exits 1 on a valid follow request. "
-    "Building the path off the loop thread (the ctl I/O thread) would avoid it"))
 def test_follow_request_for_a_long_path_keeps_the_daemon_running() -> None:
     d = start_daemon()
     try:
@@ -841,12 +817,6 @@ def test_follow_request_for_a_long_path_keeps_the_daemon_running() -> None:
         d.close()
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "ddrt/daemon.py Daemon._run_opened resolves the path (resolve_path) and runs rt.freeze_gc() "
-    "AFTER the gyro calibration and before the first tick; that time counts as a sensor gap, "
-    "so `ddrt run --follow` on a long path (or any path on a loaded CPU: ~25 ms unloaded here) "
-    "faults with 'sensor gap of ... ms' and exits 1 right after calibration. Resolving the path "
-    "and freezing the GC before calibrating would avoid it"))
 def test_follow_at_start_on_a_long_path_starts() -> None:
     d = start_daemon("--follow", path=LONG_PATH)
     try:
