@@ -267,8 +267,8 @@ class SpinReference:
             return abs(self.angle) - 0.5 * a * r * r, a * r, -a
         return abs(self.angle), 0.0, 0.0
 
-    def update(self, x: float, y: float, theta: float, sp: Setpoint) -> None:
-        self.t += self.period
+    def update(self, x: float, y: float, theta: float, sp: Setpoint, dt: float | None = None) -> None:
+        self.t += self.period if dt is None else dt
         ang, w, alpha = self._profile(self.t)
         s = self.sign
         sp.x_d, sp.y_d = self.x0, self.y0
