@@ -233,7 +233,7 @@ class LimitsConfig:
     v_max: float = 1.0
     accel: float = 1.0
     lateral_accel: float = 1.5
-    omega_max: float = 4.0
+    omega_max: float = 3.0  # well inside the gyro's range (250 deg/s = 4.36 rad/s)
     alpha_max: float = 20.0
     duty_max: float = 1.0
     torque_max_nm: float = 1.0
@@ -414,6 +414,15 @@ def _config_from_mapping(data: Mapping[str, Any], source: str, base_dir: str) ->
             raise ConfigError(f"start: expected [x, y, theta] in metres and radians, got {start!r}")
         start = (float(start[0]), float(start[1]), float(start[2]))
 
+    limits = build(LimitsConfig, _section(data, "limits"), "limits")
+    sensors = build(SensorsConfig, _section(data, "sensors"), "sensors")
+    gyro_limit = 0.8 * math.radians(sensors.gyro_range_dps)
+    if limits.omega_max > gyro_limit:
+        raise ConfigError(
+            f"limits.omega_max: {limits.omega_max} rad/s leaves no margin below the gyro's range "
+            f"(sensors.gyro_range_dps = {sensors.gyro_range_dps} deg/s): at most {gyro_limit:.2f} rad/s, "
+            "or raise the range")
+
     return Config(
         robot=robot,
         robot_motor=robot_motor,
@@ -421,12 +430,12 @@ def _config_from_mapping(data: Mapping[str, Any], source: str, base_dir: str) ->
         plant_motor_l=plant_motor_l,
         plant_motor_r=plant_motor_r,
         sim=build(SimConfig, _section(data, "sim"), "sim"),
-        sensors=build(SensorsConfig, _section(data, "sensors"), "sensors"),
+        sensors=sensors,
         hal=build(HalConfig, _section(data, "hal"), "hal"),
         controller=build(ControllerConfig, _section(data, "controller"), "controller"),
         estimator=build(EstimatorConfig, _section(data, "estimator"), "estimator"),
         pursuit=build(PursuitConfig, _section(data, "pursuit"), "pursuit"),
-        limits=build(LimitsConfig, _section(data, "limits"), "limits"),
+        limits=limits,
         daemon=build(DaemonConfig, _section(data, "daemon"), "daemon"),
         path=data.get("path"),
         start=start,
