@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from ddrt.config import ControllerConfig, LimitsConfig, OuterGains, PidGains
+from ddrt.config import ControllerConfig, LimitsConfig, OuterGains, PidGains, WheelPidGains
 from ddrt.model import Dynamics
 from ddrt.motor import Motor
 
@@ -84,7 +84,7 @@ class _Pid:
 
     __slots__ = ("kp", "ki", "kd", "limit", "integral", "prev_meas", "prev_err", "on_error")
 
-    def __init__(self, gains: PidGains, on_error: bool = False) -> None:
+    def __init__(self, gains: PidGains | WheelPidGains, on_error: bool = False) -> None:
         self.kp = gains.kp
         self.ki = gains.ki
         self.kd = gains.kd
@@ -107,7 +107,7 @@ class _Pid:
         self.prev_err = err
         return self.kp * err + self.ki * self.integral + self.kd * deriv
 
-    def retune(self, gains: PidGains, err: float) -> None:
+    def retune(self, gains: PidGains | WheelPidGains, err: float) -> None:
         """New gains, with the integrator re-seeded so the output does not step (bumpless)."""
         p_old = self.kp * err + self.ki * self.integral
         self.kp, self.kd, self.limit = gains.kp, gains.kd, gains.integrator_limit
@@ -134,7 +134,24 @@ def _scale_to_limit(a: float, b: float, limit: float) -> tuple[float, float, boo
     return a, b, False
 
 
-class DynamicController:
+class _Controller:
+    """What both controllers share: a model to swap, PIDs to reset, the last command."""
+
+    dyn: Dynamics
+    cmd: Command
+    _pids: tuple[_Pid, ...] = ()
+
+    def reset(self) -> None:
+        for pid in self._pids:
+            pid.reset()
+        self.cmd = Command()
+
+    def set_dynamics(self, dyn: Dynamics) -> None:
+        """Swap the model (the adaptive law's estimate) between ticks."""
+        self.dyn = dyn
+
+
+class DynamicController(_Controller):
     """Outer Kanayama law, inner PID, computed-torque compensator, inverse motor model."""
 
     def __init__(self, dyn: Dynamics, motor: Motor, cfg: ControllerConfig, limits: LimitsConfig,
@@ -150,18 +167,10 @@ class DynamicController:
         self.heading_gain = cfg.heading_gain
         self.pid_v = _Pid(inner, on_error=seed_method)
         self.pid_w = _Pid(inner, on_error=seed_method)
+        self._pids = (self.pid_v, self.pid_w)
         self.cmd = Command()
         self._nu_max = 2.0 * limits.accel
         self._alpha_max = 2.0 * limits.alpha_max
-
-    def reset(self) -> None:
-        self.pid_v.reset()
-        self.pid_w.reset()
-        self.cmd = Command()
-
-    def set_dynamics(self, dyn: Dynamics) -> None:
-        """Swap the compensator's model (the adaptive law's estimate) between ticks."""
-        self.dyn = dyn
 
     def retune(self, cfg: ControllerConfig, limits: LimitsConfig) -> None:
         """Apply new gains between two ticks without a step in the command."""
@@ -250,7 +259,7 @@ class DynamicController:
         return cmd
 
 
-class KinematicController:
+class KinematicController(_Controller):
     """Pure pursuit curvature plus a speed PID per wheel: the baseline to beat."""
 
     _last_err_l = 0.0
@@ -263,25 +272,14 @@ class KinematicController:
         self.limits = limits
         self.period = period_s
         self.heading_gain = cfg.heading_gain
-        wheel = cfg.wheel_pid
-        gains = PidGains(kp=wheel.kp, ki=wheel.ki, kd=wheel.kd, integrator_limit=wheel.integrator_limit)
-        self.pid_l = _Pid(gains)
-        self.pid_r = _Pid(gains)
+        self.pid_l = _Pid(cfg.wheel_pid)
+        self.pid_r = _Pid(cfg.wheel_pid)
+        self._pids = (self.pid_l, self.pid_r)
         self.cmd = Command()
-
-    def reset(self) -> None:
-        self.pid_l.reset()
-        self.pid_r.reset()
-        self.cmd = Command()
-
-    def set_dynamics(self, dyn: Dynamics) -> None:
-        self.dyn = dyn
 
     def retune(self, cfg: ControllerConfig, limits: LimitsConfig) -> None:
-        wheel = cfg.wheel_pid
-        gains = PidGains(kp=wheel.kp, ki=wheel.ki, kd=wheel.kd, integrator_limit=wheel.integrator_limit)
-        self.pid_l.retune(gains, self._last_err_l)
-        self.pid_r.retune(gains, self._last_err_r)
+        self.pid_l.retune(cfg.wheel_pid, self._last_err_l)
+        self.pid_r.retune(cfg.wheel_pid, self._last_err_r)
         self.heading_gain = cfg.heading_gain
         self.limits = limits
 
