@@ -138,7 +138,10 @@ def render(timing: LoopTiming) -> list[str]:
         "The daemon (`ddrt run`) on the simulated robot paced to the wall clock"
         + (", following a path (`--follow`)" if follow else ", idle (this `ddrt run` has no `--follow`)")
         + ". Lateness is wake-up time minus deadline; compute is the tick (the paced plant's catch-up "
-          "is done before it). Statistics are the daemon's own (`--stats-json`).",
+          "is done before it). Statistics are the daemon's own (`--stats-json`). The daemon's compute "
+          "per tick is several times section 2's: there the ticks run back to back, here each one "
+          "starts after the process slept for a period, with the interpreter's code and data out of "
+          "the CPU's caches.",
         "",
         "| rate (Hz) | period (us) | run (s) | ticks | missed | overruns | lateness p50 (us) | lateness p99 (us) "
         "| lateness max (us) | compute p50 (us) | compute p99 (us) | compute max (us) | note |",
