@@ -51,6 +51,7 @@ class LoopRun:
     stats: dict[str, Any] | None
     error: str = ""
     followed: bool = False
+    spin_us: int = 0
 
 
 @dataclass(frozen=True)
@@ -60,12 +61,13 @@ class LoopTiming:
     runs: list[LoopRun]
 
 
-def write_config(directory: FsPath, rate_hz: float) -> FsPath:
+def write_config(directory: FsPath, rate_hz: float, spin_us: int = 0) -> FsPath:
     """A config that extends configs/sim.yaml at `rate_hz`, telemetry and socket in `directory`."""
     data = {
         "extends": str(BASE_CONFIG),
         "controller": {"rate_hz": rate_hz},
-        "daemon": {"telemetry_dir": str(directory / "telemetry"), "socket": str(directory / "ddrt.sock")},
+        "daemon": {"telemetry_dir": str(directory / "telemetry"), "socket": str(directory / "ddrt.sock"),
+                   "spin_us": spin_us},
         "path": str(FOLLOW_PATH),
     }
     path = directory / f"bench_{int(rate_hz)}hz.yaml"
@@ -73,10 +75,10 @@ def write_config(directory: FsPath, rate_hz: float) -> FsPath:
     return path
 
 
-def run_daemon(rate_hz: float, duration_s: float, follow: bool) -> LoopRun:
+def run_daemon(rate_hz: float, duration_s: float, follow: bool, spin_us: int = 0) -> LoopRun:
     with tempfile.TemporaryDirectory(prefix="ddrt-bench-") as tmp:
         d = FsPath(tmp)
-        cfg = write_config(d, rate_hz)
+        cfg = write_config(d, rate_hz, spin_us)
         stats_file = d / "stats.json"
         cmd = [sys.executable, "-m", "ddrt.cli", "run", str(cfg), "--duration", f"{duration_s:g}",
                "--socket", str(d / "ddrt.sock"), "--stats-json", str(stats_file)]
@@ -86,15 +88,15 @@ def run_daemon(rate_hz: float, duration_s: float, follow: bool) -> LoopRun:
             p = subprocess.run(cmd, cwd=REPO, env=child_env(), capture_output=True, text=True,
                                timeout=duration_s + 60.0)
         except subprocess.TimeoutExpired:
-            return LoopRun(rate_hz, duration_s, None, "timed out", follow)
+            return LoopRun(rate_hz, duration_s, None, "timed out", follow, spin_us)
         if not stats_file.exists():
-            return LoopRun(rate_hz, duration_s, None, f"exit {p.returncode}, no stats: {last_error(p.stderr)}", follow)
+            return LoopRun(rate_hz, duration_s, None, f"exit {p.returncode}, no stats: {last_error(p.stderr)}", follow, spin_us)
         try:
             stats = json.loads(stats_file.read_text(encoding="utf-8"))
         except ValueError as exc:
-            return LoopRun(rate_hz, duration_s, None, f"{stats_file.name}: not JSON: {exc}", follow)
+            return LoopRun(rate_hz, duration_s, None, f"{stats_file.name}: not JSON: {exc}", follow, spin_us)
         err = "" if p.returncode == 0 else f"exit {p.returncode}: {last_error(p.stderr)}"
-        return LoopRun(rate_hz, duration_s, stats, err, follow)
+        return LoopRun(rate_hz, duration_s, stats, err, follow, spin_us)
 
 
 def last_error(stderr: str) -> str:
@@ -110,7 +112,11 @@ def measure_loop_timing(rates: Sequence[float] = RATES_HZ, duration_s: float = 3
     if help_text is None:
         return LoopTiming(False, "ddrt run not available", [])
     follow = "--follow" in help_text
-    return LoopTiming(True, "", [run_daemon(r, duration_s, follow) for r in rates])
+    runs = [run_daemon(r, duration_s, follow) for r in rates]
+    # The robot's config polls the last 200 us before each tick (daemon.spin_us): the same
+    # 200 Hz run with it, to show what it buys against its CPU.
+    runs.append(run_daemon(200.0, duration_s, follow, spin_us=200))
+    return LoopTiming(True, "", runs)
 
 
 def ready_s(timing: LoopTiming) -> float | None:
@@ -130,6 +136,14 @@ def _get(stats: dict[str, Any], key: str, sub: str | None = None) -> str:
     return f"{v:.0f}" if isinstance(v, int) or abs(v) >= 100 else f"{v:.1f}"
 
 
+def _cpu(stats: dict[str, Any]) -> str:
+    """CPU time over wall time of the whole daemon process (the simulated robot included)."""
+    cpu, wall = stats.get("cpu_s"), stats.get("wall_s")
+    if not isinstance(cpu, (int, float)) or not isinstance(wall, (int, float)) or wall <= 0:
+        return "n/a"
+    return f"{100.0 * cpu / wall:.1f}"
+
+
 def render(timing: LoopTiming) -> list[str]:
     if not timing.available:
         return [f"not measured: {timing.reason}"]
@@ -141,11 +155,12 @@ def render(timing: LoopTiming) -> list[str]:
           "is done before it). Statistics are the daemon's own (`--stats-json`). The daemon's compute "
           "per tick is several times section 2's: there the ticks run back to back, here each one "
           "starts after the process slept for a period, with the interpreter's code and data out of "
-          "the CPU's caches.",
+          "the CPU's caches. CPU is the whole process, the simulated robot's physics and the "
+          "gyro calibration at start included.",
         "",
         "| rate (Hz) | period (us) | run (s) | ticks | missed | overruns | lateness p50 (us) | lateness p99 (us) "
-        "| lateness max (us) | compute p50 (us) | compute p99 (us) | compute max (us) | note |",
-        "|" + "---|" * 13,
+        "| lateness max (us) | compute p50 (us) | compute p99 (us) | compute max (us) | CPU (% of a core) | note |",
+        "|" + "---|" * 14,
     ]
     for r in timing.runs:
         s = r.stats or {}
@@ -153,6 +168,7 @@ def render(timing: LoopTiming) -> list[str]:
             f"{r.rate_hz:g}", f"{1e6 / r.rate_hz:.0f}", f"{r.duration_s:g}", _get(s, "ticks"), _get(s, "missed"),
             _get(s, "overruns"), _get(s, "lateness_us", "p50"), _get(s, "lateness_us", "p99"),
             _get(s, "lateness_us", "max"), _get(s, "compute_us", "p50"), _get(s, "compute_us", "p99"),
-            _get(s, "compute_us", "max"), r.error or "",
+            _get(s, "compute_us", "max"), _cpu(s),
+            "; ".join(x for x in (f"spin_us {r.spin_us}" if r.spin_us else "", r.error) if x),
         ]) + " |")
     return lines

@@ -59,9 +59,14 @@ class MonotonicClock:
     allocates nothing but its float result.
     """
 
-    __slots__ = ("_nanosleep", "_ts", "_ts_ref")
+    __slots__ = ("_nanosleep", "_ts", "_ts_ref", "spin_s")
 
-    def __init__(self, use_libc: bool = True) -> None:
+    def __init__(self, use_libc: bool = True, spin_s: float = 0.0) -> None:
+        if not (isinstance(spin_s, (int, float)) and 0.0 <= spin_s < 0.01):
+            raise ValueError(f"MonotonicClock.spin_s: expected seconds in [0, 0.01), got {spin_s!r}")
+        # Sleep until `spin_s` before the deadline, then poll the clock: trades that much CPU
+        # per tick for a wake-up that does not depend on the kernel's timer latency.
+        self.spin_s = float(spin_s)
         self._nanosleep = _load_clock_nanosleep() if use_libc else None
         self._ts = _Timespec()
         self._ts_ref = ctypes.byref(self._ts)
@@ -75,6 +80,14 @@ class MonotonicClock:
 
     def sleep_until(self, deadline: float) -> float:
         _check_deadline(deadline)
+        if self.spin_s > 0.0:
+            now = self._sleep(deadline - self.spin_s)
+            while now < deadline:
+                now = time.monotonic()
+            return now
+        return self._sleep(deadline)
+
+    def _sleep(self, deadline: float) -> float:
         now = time.monotonic()
         if now >= deadline:
             return now

@@ -258,12 +258,15 @@ class DaemonConfig:
     cpus: tuple[int, ...] = ()
     lock_memory: bool = False  # mlockall; pins every mapped page, shared libraries too
     timer_slack_ns: int = 1000
+    spin_us: int = 0  # wake this long before each deadline and poll the clock up to it
     watch_config: bool = False
     stop_decel: float = 0.5  # m/s^2 for a controlled stop
 
     def validate(self, where: str) -> None:
         if not 0 <= self.rt_priority <= 99:
             raise ConfigError(f"{where}.rt_priority: must be 0..99, got {self.rt_priority}")
+        if not 0 <= self.spin_us <= 2000:
+            raise ConfigError(f"{where}.spin_us: must be 0..2000, got {self.spin_us}")
         positive(where, telemetry_max_bytes=self.telemetry_max_bytes,
                  telemetry_max_files=self.telemetry_max_files, stop_decel=self.stop_decel)
 

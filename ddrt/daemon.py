@@ -83,9 +83,9 @@ class Daemon:
             # Paced: every read first brings the plant up to the wall clock, so the loop is
             # scheduled (and its lateness measured) on the real monotonic clock.
             self.hal = open_hal(cfg, start=start, paced=True)
-            self.clock = MonotonicClock()
+            self.clock = MonotonicClock(spin_s=cfg.daemon.spin_us * 1e-6)
         else:
-            self.clock = MonotonicClock()
+            self.clock = MonotonicClock(spin_s=cfg.daemon.spin_us * 1e-6)
             self.hal = open_hal(cfg, clock=self.clock)
 
     def _open_telemetry(self) -> None:

@@ -329,3 +329,22 @@ def test_demote_current_thread_leaves_normal_thread_alone() -> None:
     rt.demote_current_thread()
     assert os.sched_getscheduler(0) == before
     assert gc.isenabled()  # nothing here touched the collector of the test process
+
+
+def test_spinning_clock_never_wakes_early_and_rejects_bad_spin():
+    import time as _time
+
+    from ddrt.clock import MonotonicClock as _Clock
+
+    clock = _Clock(spin_s=0.0002)
+    late = []
+    for _ in range(50):
+        deadline = _time.monotonic() + 0.002
+        woke = clock.sleep_until(deadline)
+        assert woke >= deadline
+        late.append(woke - deadline)
+    late.sort()
+    assert late[len(late) // 2] < 0.001  # typically a few microseconds
+    for bad in (-1e-6, 0.02, float("nan")):
+        with pytest.raises(ValueError):
+            _Clock(spin_s=bad)
