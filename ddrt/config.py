@@ -67,10 +67,12 @@ class SimConfig:
     slip: SlipConfig = field(default_factory=SlipConfig)
     gyro: GyroTruth = field(default_factory=GyroTruth)
     sensors_freeze_after_s: float | None = None  # fault injection: no fresh samples after this
+    start_delay_s: float = 2.0  # `ddrt sim`: stand still this long after calibration (bias settles)
 
     def validate(self, where: str) -> None:
         positive(where, step_hz=self.step_hz)
-        non_negative(where, command_latency_s=self.command_latency_s, sensor_latency_s=self.sensor_latency_s)
+        non_negative(where, command_latency_s=self.command_latency_s, sensor_latency_s=self.sensor_latency_s,
+                     start_delay_s=self.start_delay_s)
         if self.command_latency_s > 0.1 or self.sensor_latency_s > 0.1:
             raise ConfigError(f"{where}: latencies above 0.1 s are not a robot this controller can drive")
 
@@ -192,7 +194,7 @@ class ControllerConfig:
 class EstimatorConfig:
     """Kalman filter tuning and sensor supervision."""
 
-    calibration_s: float = 3.0
+    calibration_s: float = 1.0  # the bias keeps being refined afterwards while the robot stands still
     calibration_max_std_dps: float = 0.5
     accel_noise: float = 0.5  # m/s^2 white acceleration the model does not explain
     yaw_accel_noise: float = 5.0  # rad/s^2 likewise for yaw

@@ -74,6 +74,12 @@ def run_sim(cfg: Config, path: Path, *, duration: float | None = None, seed: int
     rows: list[tuple[float, ...]] = []
     wall0 = time.perf_counter()
     loop.calibrate(hal.sleep_until, hal.now)
+    # Stand still a little longer, as a robot does between power-on and its first command:
+    # the estimator keeps refining the gyro bias at rest.
+    t_idle = hal.now()
+    for i in range(int(round(cfg.sim.start_delay_s / loop.period))):
+        hal.sleep_until(t_idle + (i + 1) * loop.period)
+        loop.tick()
     loop.follow(path, pose)
     t0 = hal.now()
     limit = duration if duration is not None else 1.5 * path.duration + 10.0
