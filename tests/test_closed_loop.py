@@ -149,16 +149,28 @@ class _FailingHal:
         self.inner.close()
 
 
-@pytest.mark.parametrize("mode", ["ioerror", "stale", "stuck_gyro"])
-def test_sensor_faults_stop_the_motors(mode):
-    cfg = load_config(ROOT / "configs" / "scenarios" / "figure8_slow.yaml")
+def _following(scenario: str, wrap=None):
+    """A loop calibrated on the simulated robot and following the scenario's path.
+
+    `wrap(cfg, sim)` may return a HAL wrapped around the simulated one (fault injection).
+    """
+    cfg = load_config(ROOT / "configs" / "scenarios" / f"{scenario}.yaml")
     path = resolve_path(cfg)
     sim = open_hal(cfg, start=path.start_pose)
-    calib_reads = int(round(cfg.estimator.calibration_s * cfg.controller.rate_hz)) + 1
-    hal = _FailingHal(sim, fail_after=calib_reads + 400, mode=mode)
+    hal = wrap(cfg, sim) if wrap is not None else sim
     loop = ControlLoop(cfg, hal)
     loop.calibrate(sim.sleep_until, sim.now)
     loop.follow(path, path.start_pose)
+    return cfg, path, sim, hal, loop
+
+
+@pytest.mark.parametrize("mode", ["ioerror", "stale", "stuck_gyro"])
+def test_sensor_faults_stop_the_motors(mode):
+    def wrap(cfg, sim):
+        calib_reads = int(round(cfg.estimator.calibration_s * cfg.controller.rate_hz)) + 1
+        return _FailingHal(sim, fail_after=calib_reads + 400, mode=mode)
+
+    cfg, path, sim, hal, loop = _following("figure8_slow", wrap)
     t = sim.now()
     for _ in range(1000):
         t += loop.period
@@ -177,12 +189,7 @@ def test_sensor_faults_stop_the_motors(mode):
 
 
 def test_non_finite_estimate_faults_and_estop_latches():
-    cfg = load_config(ROOT / "configs" / "scenarios" / "s_curve.yaml")
-    path = resolve_path(cfg)
-    sim = open_hal(cfg, start=path.start_pose)
-    loop = ControlLoop(cfg, sim)
-    loop.calibrate(sim.sleep_until, sim.now)
-    loop.follow(path, path.start_pose)
+    cfg, path, sim, _, loop = _following("s_curve")
     t = sim.now()
     for _ in range(100):
         t += loop.period
@@ -203,12 +210,7 @@ def test_non_finite_estimate_faults_and_estop_latches():
 
 
 def test_controlled_stop_comes_to_rest_on_the_path():
-    cfg = load_config(ROOT / "configs" / "scenarios" / "figure8_slow.yaml")
-    path = resolve_path(cfg)
-    sim = open_hal(cfg, start=path.start_pose)
-    loop = ControlLoop(cfg, sim)
-    loop.calibrate(sim.sleep_until, sim.now)
-    loop.follow(path, path.start_pose)
+    cfg, path, sim, _, loop = _following("figure8_slow")
     t = sim.now()
     for i in range(1400):
         t += loop.period
