@@ -111,10 +111,13 @@ def measure_startup(modules: Sequence[str] = MODULES, repeats: int = 3,
 
 
 def render(st: Startup, ready_s: float | None, daemon_rss_kb: int | None) -> list[str]:
+    from ddrt.config import EstimatorConfig
+
     ready = f"{ready_s:.2f} s" if ready_s is not None else "N/A (no daemon stats)"
     lines = [
         f"- Process start to READY (`ddrt run` on the simulated robot, from its stats; this includes "
-        f"the gyro calibration at rest, estimator.calibration_s = 3 s by default): {ready}",
+        f"the gyro calibration at rest, estimator.calibration_s = {EstimatorConfig().calibration_s:g} s "
+        f"by default): {ready}",
         f"- Peak resident memory of `{st.sim.command}` (child's own rusage): {st.sim.maxrss_kb / 1024:.1f} MiB "
         f"({st.sim.wall_s:.1f} s wall)",
     ]
