@@ -204,11 +204,12 @@ class EstimatorConfig:
     gate_sigma: float = 5.0  # innovations beyond this many sigma are outliers
     max_rejects: int = 10  # after this many outliers in a row, re-sync and report
     stale_ticks: int = 20  # ticks without a fresh sample before the sensors are stale
+    max_gap_s: float = 0.05  # a gap between samples longer than this (and 10 ticks) while moving is a fault
     stuck_gyro_ticks: int = 100  # identical raw gyro readings in a row = stuck sensor
     encoder_stuck_s: float = 0.3  # commanded motion but no encoder counts for this long
 
     def validate(self, where: str) -> None:
-        positive(where, accel_noise=self.accel_noise, yaw_accel_noise=self.yaw_accel_noise,
+        positive(where, max_gap_s=self.max_gap_s, accel_noise=self.accel_noise, yaw_accel_noise=self.yaw_accel_noise,
                  gate_sigma=self.gate_sigma, gyro_scale=self.gyro_scale, gyro_noise_dps=self.gyro_noise_dps,
                  calibration_max_std_dps=self.calibration_max_std_dps, encoder_stuck_s=self.encoder_stuck_s)
         non_negative(where, calibration_s=self.calibration_s, gyro_bias_walk=self.gyro_bias_walk)

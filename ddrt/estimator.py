@@ -69,6 +69,9 @@ class Estimator:
         self.travel = TravelFilter(cfg.accel_noise, q / math.sqrt(12.0))
         self.yaw = YawFilter(cfg.yaw_accel_noise, cfg.gyro_bias_walk, cfg.gyro_noise_dps * DEG)
         self.gate2 = cfg.gate_sigma * cfg.gate_sigma
+        # A gap in the samples while moving is a fault: ten ticks, but never less than
+        # max_gap_s, so a fast loop does not fault on a host's scheduling hiccup.
+        self.max_gap = max(10.0 * period_s, cfg.max_gap_s)
         self.health = EstimatorHealth()
         self.x = self.y = self.theta = 0.0
         self.dt = period_s  # the time step of the last update (what the reference advances by)
@@ -140,7 +143,7 @@ class Estimator:
             health.stale_ticks = 0
             fresh = True
             new_anchor = sample.t
-            if dt > 10.0 * self.period:
+            if dt > self.max_gap:
                 if commanded_still:
                     dt = self.period  # standing still: a pause in the loop endangers nothing
                 else:
