@@ -158,7 +158,6 @@ class DynamicController(_Controller):
                  period_s: float, seed_method: bool = False) -> None:
         self.dyn = dyn
         self.motor = motor
-        self.limits = limits
         self.period = period_s
         self.seed_method = seed_method
         outer = SEED_OUTER if seed_method else cfg.outer
@@ -169,6 +168,11 @@ class DynamicController(_Controller):
         self.pid_w = _Pid(inner, on_error=seed_method)
         self._pids = (self.pid_v, self.pid_w)
         self.cmd = Command()
+        self._set_limits(limits)
+
+    def _set_limits(self, limits: LimitsConfig) -> None:
+        """Limits, and the commanded accelerations they allow (twice the profile's)."""
+        self.limits = limits
         self._nu_max = 2.0 * limits.accel
         self._alpha_max = 2.0 * limits.alpha_max
 
@@ -178,9 +182,7 @@ class DynamicController(_Controller):
             return
         self.outer = cfg.outer
         self.heading_gain = cfg.heading_gain
-        self.limits = limits
-        self._nu_max = 2.0 * limits.accel
-        self._alpha_max = 2.0 * limits.alpha_max
+        self._set_limits(limits)
         self.pid_v.retune(cfg.inner, self._last_err_v)
         self.pid_w.retune(cfg.inner, self._last_err_w)
 

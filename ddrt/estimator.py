@@ -189,16 +189,10 @@ class Estimator:
         else:
             self._count_still_s = 0.0
         z = self._travel_counts * self.metres_per_count
-        y, s = self.travel.innovation(z)
-        if y * y / s > self.gate2 and self._enc_rejects_row < self.cfg.max_rejects:
-            self._enc_rejects_row += 1
+        row = self._gated_update(self.travel, z, self._enc_rejects_row)
+        if row > self._enc_rejects_row:
             health.encoder_rejects += 1
-            return
-        if self._enc_rejects_row >= self.cfg.max_rejects:
-            health.resyncs += 1
-            self.travel.p00 += y * y  # re-sync: trust the sensor again
-        self._enc_rejects_row = 0
-        self.travel.update(z)
+        self._enc_rejects_row = row
 
     def _fuse_gyro(self, raw: int, commanded_still: bool) -> None:
         health = self.health
@@ -214,13 +208,22 @@ class Estimator:
             health.fault = "gyro saturated"
         if commanded_still and self._still_ticks >= 20:  # ~0.1 s without a count: at rest
             self.yaw.update_at_rest(1e-10)
-        y, s = self.yaw.innovation(z)
-        if y * y / s > self.gate2 and self._gyro_rejects_row < self.cfg.max_rejects:
-            self._gyro_rejects_row += 1
+        row = self._gated_update(self.yaw, z, self._gyro_rejects_row)
+        if row > self._gyro_rejects_row:
             health.gyro_rejects += 1
-            return
-        if self._gyro_rejects_row >= self.cfg.max_rejects:
-            health.resyncs += 1
-            self.yaw.p00 += y * y
-        self._gyro_rejects_row = 0
-        self.yaw.update(z)
+        self._gyro_rejects_row = row
+
+    def _gated_update(self, filt: TravelFilter | YawFilter, z: float, row: int) -> int:
+        """Fuse `z` unless it is an outlier; returns how many outliers came in a row.
+
+        After `max_rejects` outliers in a row the sensor is trusted again: the filter's
+        variance is widened by the innovation (a re-sync) and the measurement is fused.
+        """
+        y, s = filt.innovation(z)
+        if y * y / s > self.gate2 and row < self.cfg.max_rejects:
+            return row + 1
+        if row >= self.cfg.max_rejects:
+            self.health.resyncs += 1
+            filt.p00 += y * y
+        filt.update(z)
+        return 0

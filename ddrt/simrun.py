@@ -84,7 +84,6 @@ def run_sim(cfg: Config, path: Path, *, duration: float | None = None, seed: int
     t0 = hal.now()
     limit = duration if duration is not None else 1.5 * path.duration + 10.0
     period = loop.period
-    deadline = t0
     n_ticks = int(math.ceil(limit / period))
     report_every = max(1, int(5.0 / period))
     wall_loop0 = time.perf_counter()
