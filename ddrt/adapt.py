@@ -8,8 +8,11 @@ motor model's friction misses) is linear in theta = (m_k, mbar, I, m_x, c_L, c_R
 
 with s = tanh(wheel speed / w_s) a smoothed sign. Torques come from the motor model at the
 applied duty and the estimated wheel speeds (as the estimator predicts with them). Both sides
-pass through the same first-order low-pass F(s) = a / (s + a): the derivative of the filtered
-speed is then a(v - v_f), exact, and no noise is differentiated. The second row is divided by
+pass through the same second-order low-pass F(s) = a^2 / (s + a)^2, two first-order stages:
+the derivative of the filtered speed is then a (v_1 - v_f), exact, where v_1 is the first
+stage's output, so no noise is differentiated. (With one stage the derivative a (v - v_f)
+passes the speed estimate's noise straight through; noise on a regressor biases least squares
+towards zero, and the masses drifted down by half in 12 s.) The second row is divided by
 the half track so both rows are forces (N) and weigh alike.
 
 Recursive least squares with forgetting, updated only when the filtered accelerations excite
@@ -117,7 +120,8 @@ class DynamicsAdapter:
         self.p = [0.0] * (N * N)
         for i in range(N):
             self.p[i * N + i] = self.p0[i]
-        self.f = [0.0] * 8  # filtered v, w, w^2, v w, s_L, s_R, force, moment/half
+        self.g = [0.0] * 8  # first stage of the filter: v, w, w^2, v w, s_L, s_R, force, moment/half
+        self.f = [0.0] * 8  # second stage: what the regression uses
         self.primed = False
         self.updates = 0
         self.ticks = 0
@@ -145,18 +149,22 @@ class DynamicsAdapter:
         raw = (v, w, w * w, v * w, math.tanh(wl / FRICTION_SIGN_SPEED), math.tanh(wr / FRICTION_SIGN_SPEED),
                ul + ur, (-L * ul + R * ur) / half)
         f = self.f
+        g = self.g
         self.ticks += 1
         if not self.primed:
             f[:] = raw
+            g[:] = raw
             self.primed = True
             return
         b = self.beta
-        dv = self.rate * (raw[0] - f[0])
-        dw = self.rate * (raw[1] - f[1])
+        for i in range(8):
+            g[i] += b * (raw[i] - g[i])
+        dv = self.rate * (g[0] - f[0])
+        dw = self.rate * (g[1] - f[1])
         mid = [0.0] * 8
         for i in range(8):
             old = f[i]
-            new = old + b * (raw[i] - old)
+            new = old + b * (g[i] - old)
             f[i] = new
             mid[i] = 0.5 * (old + new)
         phi1, phi2 = regressor(nom, mid[0], mid[1], mid[2], mid[3], mid[4], mid[5], dv, dw)

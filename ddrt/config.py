@@ -196,11 +196,12 @@ class EstimatorConfig:
 
     calibration_s: float = 1.0  # the bias keeps being refined afterwards while the robot stands still
     calibration_max_std_dps: float = 0.5
-    accel_noise: float = 0.5  # m/s^2 white acceleration the model does not explain
-    yaw_accel_noise: float = 5.0  # rad/s^2 likewise for yaw
+    accel_noise: float = 5.0  # m/s^2 white acceleration the model does not explain
+    yaw_accel_noise: float = 20.0  # rad/s^2 likewise for yaw
     gyro_bias_walk: float = 1e-5  # rad/s per sqrt(s): drift of the zero-rate bias
     gyro_scale: float = 1.0  # believed gyro scale factor (1 + scale error), from calibration
     gyro_noise_dps: float = 0.07  # std of one gyro sample (deg/s) after the MPU's low-pass
+    gyro_delay_s: float | None = None  # lag of the gyro's low-pass to undo; None: what the HAL reports
     gate_sigma: float = 5.0  # innovations beyond this many sigma are outliers
     max_rejects: int = 10  # after this many outliers in a row, re-sync and report
     stale_ticks: int = 20  # ticks without a fresh sample before the sensors are stale
@@ -213,6 +214,8 @@ class EstimatorConfig:
                  gate_sigma=self.gate_sigma, gyro_scale=self.gyro_scale, gyro_noise_dps=self.gyro_noise_dps,
                  calibration_max_std_dps=self.calibration_max_std_dps, encoder_stuck_s=self.encoder_stuck_s)
         non_negative(where, calibration_s=self.calibration_s, gyro_bias_walk=self.gyro_bias_walk)
+        if self.gyro_delay_s is not None and not 0.0 <= self.gyro_delay_s <= 0.05:
+            raise ConfigError(f"{where}.gyro_delay_s: must be null or in [0, 0.05] s, got {self.gyro_delay_s}")
         positive(where, max_rejects=self.max_rejects, stale_ticks=self.stale_ticks,
                  stuck_gyro_ticks=self.stuck_gyro_ticks)
 

@@ -68,6 +68,12 @@ class Estimator:
         q = self.metres_per_count
         self.travel = TravelFilter(cfg.accel_noise, q / math.sqrt(12.0))
         self.yaw = YawFilter(cfg.yaw_accel_noise, cfg.gyro_bias_walk, cfg.gyro_noise_dps * DEG)
+        self._gyro_var = self.yaw.meas_var
+        # The gyro's low-pass makes it lag the encoder; a heading that lags the distance
+        # bends the dead-reckoned path. The lead z + tau dz/dt undoes a lag tau.
+        self.gyro_lead = info.gyro_delay_s if cfg.gyro_delay_s is None else cfg.gyro_delay_s
+        self._last_gyro_z: float | None = None
+        self._last_gyro_t = 0.0
         self.gate2 = cfg.gate_sigma * cfg.gate_sigma
         # A gap in the samples while moving is a fault: ten ticks, but never less than
         # max_gap_s, so a fast loop does not fault on a host's scheduling hiccup.
@@ -98,6 +104,7 @@ class Estimator:
         self.yaw.w = 0.0
         self.yaw.b = bias
         self._last_raw_gyro = sample.gyro_z_raw
+        self._last_gyro_z = None
 
     def set_pose(self, pose: tuple[float, float, float]) -> None:
         self.x, self.y, self.theta = pose
@@ -165,7 +172,7 @@ class Estimator:
 
         if fresh:
             self._fuse_encoder(sample.encoder_count, dt)
-            self._fuse_gyro(sample.gyro_z_raw, commanded_still)
+            self._fuse_gyro(sample.gyro_z_raw, sample.t, commanded_still)
 
         # Dead reckoning of A with the filtered velocities (midpoint heading).
         v = self.travel.v
@@ -194,7 +201,7 @@ class Estimator:
             health.encoder_rejects += 1
         self._enc_rejects_row = row
 
-    def _fuse_gyro(self, raw: int, commanded_still: bool) -> None:
+    def _fuse_gyro(self, raw: int, t: float, commanded_still: bool) -> None:
         health = self.health
         if raw == self._last_raw_gyro:
             self._same_gyro += 1
@@ -208,10 +215,24 @@ class Estimator:
             health.fault = "gyro saturated"
         if commanded_still and self._still_ticks >= 20:  # ~0.1 s without a count: at rest
             self.yaw.update_at_rest(1e-10)
+        z = self._lead(z, t)
         row = self._gated_update(self.yaw, z, self._gyro_rejects_row)
         if row > self._gyro_rejects_row:
             health.gyro_rejects += 1
         self._gyro_rejects_row = row
+
+    def _lead(self, z: float, t: float) -> float:
+        """Undo the gyro's lag: z + tau (z - z_prev) / dt, with the variance that implies."""
+        prev = self._last_gyro_z
+        dt = t - self._last_gyro_t
+        self._last_gyro_z = z
+        self._last_gyro_t = t
+        if prev is None or dt <= 0.0 or self.gyro_lead <= 0.0:
+            self.yaw.meas_var = self._gyro_var
+            return z
+        c = self.gyro_lead / dt
+        self.yaw.meas_var = self._gyro_var * ((1.0 + c) * (1.0 + c) + c * c)
+        return z + c * (z - prev)
 
     def _gated_update(self, filt: TravelFilter | YawFilter, z: float, row: int) -> int:
         """Fuse `z` unless it is an outlier; returns how many outliers came in a row.

@@ -39,6 +39,7 @@ class HalInfo:
     encoder_counts_per_rev: int  # counts per revolution of the front wheel (lines x 4)
     gyro_lsb_per_rad_s: float  # raw gyro z units per rad/s (131 LSB per deg/s at +-250 dps)
     gyro_full_scale_rad_s: float  # magnitude at which the raw reading saturates
+    gyro_delay_s: float = 0.0  # how far the gyro's low-pass lags the encoder (s)
 
 
 @dataclass(slots=True)

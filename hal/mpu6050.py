@@ -17,7 +17,7 @@ from typing import Any, Callable, Protocol
 from hal.base import HalInitError, HalIOError, HalTimeoutError, HalValueError
 
 __all__ = [
-    "DEFAULT_ADDRESS", "GYRO_CONFIG", "GYRO_LSB_PER_DPS", "GYRO_ZOUT_H", "PWR_MGMT_1",
+    "DEFAULT_ADDRESS", "GYRO_CONFIG", "GYRO_DELAY_S", "GYRO_LSB_PER_DPS", "GYRO_ZOUT_H", "PWR_MGMT_1",
     "SMPLRT_DIV", "CONFIG", "WHO_AM_I", "WHO_AM_I_VALUE", "Mpu6050", "SmbusLike",
     "gyro_scale", "open_i2c_bus",
 ]
@@ -39,6 +39,9 @@ FS_SEL_SHIFT = 3
 GYRO_LSB_PER_DPS: dict[int, tuple[int, float]] = {
     250: (0, 131.0), 500: (1, 65.5), 1000: (2, 32.8), 2000: (3, 16.4),
 }
+# Gyro group delay (s) by DLPF_CFG 0..6 (Register Map rev 4.2, register 26): the
+# estimator compensates it so the heading does not lag the encoder's distance.
+GYRO_DELAY_S: tuple[float, ...] = (0.00098, 0.0019, 0.0028, 0.0048, 0.0083, 0.0134, 0.0186)
 _RETRY_ERRNOS = frozenset({errno.EIO, errno.EREMOTEIO, errno.ETIMEDOUT})
 _DEG = math.pi / 180.0
 
@@ -99,6 +102,11 @@ class Mpu6050:
         self.retries = 0  # transfers that failed once and were retried
         self.errors = 0  # transfers that failed after the retry
         self._init_device()
+
+    @property
+    def gyro_delay_s(self) -> float:
+        """The datasheet's group delay of the configured digital low-pass."""
+        return GYRO_DELAY_S[self.dlpf_cfg]
 
     @property
     def sample_rate_hz(self) -> float:

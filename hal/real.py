@@ -34,6 +34,7 @@ class Imu(Protocol):
     """A gyro: raw z reading and its configured range."""
 
     gyro_range_dps: int
+    gyro_delay_s: float  # group delay of its low-pass
 
     def read_gyro_z_raw(self) -> int: ...
 
@@ -72,7 +73,8 @@ class RealHal(Hal):
         self._closed = False
         lsb, full = gyro_scale(imu.gyro_range_dps)
         self.info = HalInfo(encoder_counts_per_rev=int(bridge.counts_per_rev),
-                            gyro_lsb_per_rad_s=lsb, gyro_full_scale_rad_s=full)
+                            gyro_lsb_per_rad_s=lsb, gyro_full_scale_rad_s=full,
+                            gyro_delay_s=float(imu.gyro_delay_s))
         self._count: int | None = None
         self._gyro: int | None = None
         self._enc_missing = 0

@@ -213,6 +213,12 @@ class SimRobot:
         return self._gyro_lsb_per_dps * _DEG_PER_RAD
 
     @property
+    def gyro_delay_s(self) -> float:
+        """Low-frequency group delay of the simulated low-pass: (1 - a) / a plant steps."""
+        a = self._gyro_a
+        return (1.0 - a) / a * self._h
+
+    @property
     def gyro_full_scale_rad_s(self) -> float:
         return sensors.INT16_MAX / self.gyro_lsb_per_rad_s
 

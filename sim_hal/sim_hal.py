@@ -27,6 +27,7 @@ class SimHal(Hal):
             encoder_counts_per_rev=robot.encoder_counts_per_rev,
             gyro_lsb_per_rad_s=robot.gyro_lsb_per_rad_s,
             gyro_full_scale_rad_s=robot.gyro_full_scale_rad_s,
+            gyro_delay_s=robot.gyro_delay_s,
         )
         self._closed = False
         self.freeze_after: float | None = None  # fault injection: sensors stop updating

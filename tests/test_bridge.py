@@ -452,6 +452,7 @@ class FakeEncoder:
 
 class FakeImu:
     gyro_range_dps = 500
+    gyro_delay_s = 0.0019
 
     def read_gyro_z_raw(self) -> int:
         return 42
@@ -461,6 +462,7 @@ def test_realhal_encoder_retry_hold_and_timeout_exactly() -> None:
     enc = FakeEncoder()
     hal = RealHal(FakeImu(), enc, FakeClock(), hold_ticks=2)
     assert hal.info.gyro_full_scale_rad_s == pytest.approx(500 * 3.141592653589793 / 180)
+    assert hal.info.gyro_delay_s == 0.0019  # the IMU's own figure reaches the estimator
     assert hal.read().encoder_count == 10
     enc.script = [HalIOError("x")]
     s = hal.read()

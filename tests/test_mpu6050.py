@@ -165,3 +165,9 @@ def test_open_i2c_bus_sim_is_left_to_caller() -> None:
         open_i2c_bus("sim")
     with pytest.raises(ValueError, match="bus"):
         open_i2c_bus("one")
+
+
+@pytest.mark.parametrize("cfg, delay_ms", [(0, 0.98), (2, 2.8), (6, 18.6)])
+def test_reports_the_datasheet_delay_of_its_low_pass(cfg: int, delay_ms: float) -> None:
+    imu = Mpu6050(MpuEmulator(ConstantGyro()), dlpf_cfg=cfg)
+    assert imu.gyro_delay_s == pytest.approx(delay_ms * 1e-3)

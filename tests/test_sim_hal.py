@@ -153,3 +153,30 @@ def test_wraps_an_existing_robot():
     hal = SimHal(robot)
     assert hal.robot is robot and hal.now() == 0.0
     assert robot.pose == (1.0, 2.0, 0.5)
+
+
+def test_reported_gyro_delay_is_the_measured_lag_of_the_simulated_gyro():
+    """The HAL's gyro_delay_s equals the lag found by matching the reading to the true yaw rate."""
+    hal = make_hal(slip=False, sensor_latency_s=0.0, gyro_noise_dps_rthz=0.0, gyro_bias_dps=0.0,
+                   gyro_range_dps=2000)
+    robot = hal.robot
+    h = robot.step_s
+    truth, gyro = [], []
+    for k in range(1, 1500):
+        d = 0.5 * math.sin(2 * math.pi * 1.5 * k * h)
+        robot.command(-d, d)  # a smooth turn back and forth
+        robot.advance_to(k * h)
+        truth.append(robot.velocity[1])
+        gyro.append(robot.read_gyro_raw() / hal.info.gyro_lsb_per_rad_s)
+
+    def mismatch(lag: float) -> float:
+        # true rate `lag` seconds ago, linearly interpolated between plant steps
+        n = lag / h
+        i, frac = int(n), n - int(n)
+        return sum((gyro[k] - ((1 - frac) * truth[k - i] + frac * truth[k - i - 1])) ** 2
+                   for k in range(200, len(gyro)))
+
+    lags = [j * 1e-4 for j in range(0, 40)]
+    best = min(lags, key=mismatch)
+    assert 0.0005 < hal.info.gyro_delay_s < 0.003
+    assert best == pytest.approx(hal.info.gyro_delay_s, abs=2e-4)
