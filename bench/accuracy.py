@@ -28,6 +28,7 @@ SLOW_TRUE_RMS_TARGET_M = 2e-3
 WORST_CASE_RATIO_TARGET = 1.5
 WORSE_MARGIN = 0.10  # "dynamic is worse" means more than 10 % above kinematic
 R3_PAIR = ("figure8_slow", "figure8_slow_r3_uncalibrated")
+SEED_MAX_PATH_ERROR_M = 1000.0
 
 # Metrics kept from each run (metrics.json keys), in the order the table shows them.
 METRICS = ("rms_cross_track_m", "max_cross_track_m", "rms_tracking_m", "max_tracking_m",
@@ -68,6 +69,9 @@ def _overrides(job: Job) -> dict:
     over: dict = {"controller": {"mode": job.controller}}
     if job.lookahead_m is not None:
         over["pursuit"] = {"lookahead_m": job.lookahead_m}
+    if job.controller == "seed":
+        # The seed's method strays metres from its reference; measure it instead of stopping it.
+        over["limits"] = {"max_path_error_m": SEED_MAX_PATH_ERROR_M}
     return over
 
 

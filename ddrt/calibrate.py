@@ -158,7 +158,7 @@ def identify(cfg: Config, hal: Hal, width: float, height: float, max_s: float = 
 
     def feed(lp: ControlLoop) -> None:
         if lp.state in ("following", "stopping"):
-            adapter.update(lp.estimator.travel.v, lp.estimator.yaw.w, prev[0], prev[1])
+            adapter.update(lp.estimator.v, lp.estimator.yaw.w, prev[0], prev[1])
         prev[0], prev[1] = lp.duty_l, lp.duty_r
 
     loop.on_tick = feed

@@ -196,7 +196,8 @@ class EstimatorConfig:
 
     calibration_s: float = 1.0  # the bias keeps being refined afterwards while the robot stands still
     calibration_max_std_dps: float = 0.5
-    accel_noise: float = 5.0  # m/s^2 white acceleration the model does not explain
+    accel_noise: float = 0.5  # m/s^2 white acceleration the model does not explain (speed for feedback)
+    odometry_accel_noise: float = 5.0  # the same for the speed the pose integrates (trusts the encoder)
     yaw_accel_noise: float = 20.0  # rad/s^2 likewise for yaw
     gyro_bias_walk: float = 1e-5  # rad/s per sqrt(s): drift of the zero-rate bias
     gyro_scale: float = 1.0  # believed gyro scale factor (1 + scale error), from calibration
@@ -210,7 +211,8 @@ class EstimatorConfig:
     encoder_stuck_s: float = 0.3  # commanded motion but no encoder counts for this long
 
     def validate(self, where: str) -> None:
-        positive(where, max_gap_s=self.max_gap_s, accel_noise=self.accel_noise, yaw_accel_noise=self.yaw_accel_noise,
+        positive(where, max_gap_s=self.max_gap_s, accel_noise=self.accel_noise,
+                 odometry_accel_noise=self.odometry_accel_noise, yaw_accel_noise=self.yaw_accel_noise,
                  gate_sigma=self.gate_sigma, gyro_scale=self.gyro_scale, gyro_noise_dps=self.gyro_noise_dps,
                  calibration_max_std_dps=self.calibration_max_std_dps, encoder_stuck_s=self.encoder_stuck_s)
         non_negative(where, calibration_s=self.calibration_s, gyro_bias_walk=self.gyro_bias_walk)
@@ -243,11 +245,12 @@ class LimitsConfig:
     alpha_max: float = 20.0
     duty_max: float = 1.0
     torque_max_nm: float = 1.0
+    max_path_error_m: float = 0.3  # farther than this from the reference: stop following (fault)
 
     def validate(self, where: str) -> None:
         positive(where, v_max=self.v_max, accel=self.accel, lateral_accel=self.lateral_accel,
                  omega_max=self.omega_max, alpha_max=self.alpha_max, duty_max=self.duty_max,
-                 torque_max_nm=self.torque_max_nm)
+                 torque_max_nm=self.torque_max_nm, max_path_error_m=self.max_path_error_m)
         if self.duty_max > 1.0:
             raise ConfigError(f"{where}.duty_max: must be <= 1, got {self.duty_max}")
 

@@ -160,7 +160,10 @@ class Daemon:
             self.exit_code = 1
             return 1
         if path is not None:
-            loop.follow(path)
+            try:
+                loop.follow(path)
+            except ValueError as exc:
+                log.error("not following %s: %s", cfg.path, exc)
         self._fixed_rate_loop()
         return self.exit_code
 
@@ -352,7 +355,10 @@ class Daemon:
                     or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in pose)):
                 return {"ok": False, "error": "follow: pose: expected [x, y, theta]"}
             pose = (float(pose[0]), float(pose[1]), float(pose[2]))
-        loop.follow(path, pose)
+        try:
+            loop.follow(path, pose)
+        except ValueError as exc:
+            return {"ok": False, "error": f"follow: {exc}"}
         return {"ok": True, "state": loop.state, "length_m": path.length, "duration_s": path.duration}
 
     def reload(self) -> tuple[bool, str]:

@@ -19,6 +19,7 @@ from ddrt.model import Dynamics
 from ddrt.motor import Motor
 from hal.base import HalInfo, Sample
 
+NOISE_STEP_S = 0.005  # the step the configured process noises are given for
 _TWO32 = 1 << 32
 _TWO31 = 1 << 31
 DEG = math.pi / 180.0
@@ -66,8 +67,16 @@ class Estimator:
         self.rad_s_per_lsb = 1.0 / (info.gyro_lsb_per_rad_s * cfg.gyro_scale)
         self.gyro_full_scale = info.gyro_full_scale_rad_s / cfg.gyro_scale
         q = self.metres_per_count
-        self.travel = TravelFilter(cfg.accel_noise, q / math.sqrt(12.0))
-        self.yaw = YawFilter(cfg.yaw_accel_noise, cfg.gyro_bias_walk, cfg.gyro_noise_dps * DEG)
+        # The filters' noise is per step; scaled so that their bandwidth, i.e. how much they
+        # trust the model, is the same at every loop rate (the configured values are per 5 ms).
+        k = math.sqrt(NOISE_STEP_S / period_s)
+        # Two filters on the same encoder: `speed` (smooth) is what the controller feeds back,
+        # `travel` (trusting the encoder over the model) is what the pose integrates. One filter
+        # cannot do both: a smooth one lets a wrong model bend the dead-reckoned path, a sharp
+        # one makes the PID chatter on quantisation noise.
+        self.travel = TravelFilter(k * cfg.odometry_accel_noise, q / math.sqrt(12.0))
+        self.speed = TravelFilter(k * cfg.accel_noise, q / math.sqrt(12.0))
+        self.yaw = YawFilter(k * cfg.yaw_accel_noise, cfg.gyro_bias_walk, cfg.gyro_noise_dps * DEG)
         self._gyro_var = self.yaw.meas_var
         # The gyro's low-pass makes it lag the encoder; a heading that lags the distance
         # bends the dead-reckoned path. The lead z + tau dz/dt undoes a lag tau.
@@ -99,8 +108,9 @@ class Estimator:
         self._last_t = sample.t
         self._last_count = sample.encoder_count
         self._travel_counts = 0
-        self.travel.p = 0.0
-        self.travel.v = 0.0
+        for f in (self.travel, self.speed):
+            f.p = 0.0
+            f.v = 0.0
         self.yaw.w = 0.0
         self.yaw.b = bias
         self._last_raw_gyro = sample.gyro_z_raw
@@ -111,7 +121,8 @@ class Estimator:
 
     @property
     def v(self) -> float:
-        return self.travel.v
+        """Forward speed for feedback (the smooth filter)."""
+        return self.speed.v
 
     @property
     def omega(self) -> float:
@@ -160,7 +171,7 @@ class Estimator:
 
         # Predict with the model and the torque the motors give at the applied duty.
         dyn = self.dyn
-        v = self.travel.v
+        v = self.speed.v
         w = self.yaw.w
         wl = (v - dyn.L * w) / dyn.r_L
         wr = (v + dyn.R * w) / dyn.r_R
@@ -168,6 +179,7 @@ class Estimator:
         tau_r = self.motor.electromagnetic_torque(duty_r, wr) - self.motor.friction(wr)
         a, alpha = dyn.forward(v, w, tau_l, tau_r)
         self.travel.predict(dt, a)
+        self.speed.predict(dt, a)
         self.yaw.predict(dt, alpha)
 
         if fresh:
@@ -188,17 +200,23 @@ class Estimator:
         self._travel_counts += delta
         health = self.health
         self._still_ticks = self._still_ticks + 1 if delta == 0 else 0
-        if delta == 0 and abs(self.travel.v) > 0.05:
+        if delta == 0 and abs(self.speed.v) > 0.05:
             self._count_still_s += dt
             if self._count_still_s > self.cfg.encoder_stuck_s:
                 health.fault = (f"encoder stuck: no counts for {self._count_still_s:.2f} s "
-                                f"while moving at {self.travel.v:.2f} m/s")
+                                f"while moving at {self.speed.v:.2f} m/s")
         else:
             self._count_still_s = 0.0
         z = self._travel_counts * self.metres_per_count
+        resyncs = health.resyncs
         row = self._gated_update(self.travel, z, self._enc_rejects_row)
         if row > self._enc_rejects_row:
             health.encoder_rejects += 1
+        elif row == 0:  # fused: the speed filter takes the same measurement
+            if health.resyncs > resyncs:
+                y = z - self.speed.p
+                self.speed.p00 += y * y
+            self.speed.update(z)
         self._enc_rejects_row = row
 
     def _fuse_gyro(self, raw: int, t: float, commanded_still: bool) -> None:

@@ -117,6 +117,14 @@ class ControlLoop:
         cross_track, request_stop): calibration's turn in place is one."""
         if self.state in ("estop", "fault"):
             raise RuntimeError(f"cannot follow a path in state {self.state}: reset first")
+        if path is not None:
+            x, y, _ = pose if pose is not None else self.estimator_pose()
+            start = path.at(0.0)
+            gap = math.hypot(start.x - x, start.y - y)
+            limit = self.cfg.limits.max_path_error_m
+            if gap > limit:
+                raise ValueError(f"the path starts {gap:.3f} m from the robot, farther than "
+                                 f"limits.max_path_error_m = {limit:g} m: move the robot or the path")
         if pose is not None:
             self.estimator.set_pose(pose)
         self.reference = reference
@@ -217,6 +225,10 @@ class ControlLoop:
             elif not (math.isfinite(cmd.duty_l) and math.isfinite(cmd.duty_r)
                       and math.isfinite(est.x) and math.isfinite(est.y) and math.isfinite(est.theta)):
                 self.enter_fault("non-finite value in the controller")
+            elif math.hypot(est.x - sp.x_d, est.y - sp.y_d) > self.cfg.limits.max_path_error_m:
+                # Pushed, stuck, slipping or a wrong model: never chase a path from afar.
+                self.enter_fault(f"{math.hypot(est.x - sp.x_d, est.y - sp.y_d):.3f} m from the path's reference "
+                                 f"point, beyond limits.max_path_error_m = {self.cfg.limits.max_path_error_m:g} m")
             else:
                 try:
                     self.hal.write(cmd.duty_l, cmd.duty_r)
@@ -247,7 +259,7 @@ class ControlLoop:
         """Feed the adapter; every 10th tick move the model in use towards its estimate."""
         ad = self.adapter
         est = self.estimator
-        ad.update(est.travel.v, est.yaw.w, self.duty_l, self.duty_r)  # type: ignore[union-attr]
+        ad.update(est.v, est.yaw.w, self.duty_l, self.duty_r)  # type: ignore[union-attr]
         if self.ticks % 10 == 0:
             active = ad.trusted  # type: ignore[union-attr]
             if active or self._adapt_active:
@@ -266,7 +278,7 @@ class ControlLoop:
         r[1] = e.x
         r[2] = e.y
         r[3] = e.theta
-        r[4] = e.travel.v
+        r[4] = e.v
         r[5] = e.yaw.w
         r[6] = e.yaw.b
         r[7] = sp.x_d

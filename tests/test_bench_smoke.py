@@ -10,7 +10,7 @@ from array import array
 
 import pytest
 
-from bench import accuracy, io_bound, run, tick_cost
+from bench import accuracy, adaptation, io_bound, run, tick_cost
 from ddrt.config import load_config
 from ddrt.loop import ControlLoop
 from ddrt.simrun import resolve_path
@@ -144,6 +144,12 @@ def test_document_has_every_section(tiny_results: run.Results, tmp_path) -> None
     assert "not evaluated" in doc  # the encoder-radius pair was not in this run
     assert f"Kept: **{tiny_results.accuracy.best.lookahead_m:.2f} m**" in doc
     assert "pytest tiny" in doc
+    adapt = tiny_results.adapt
+    assert set(adapt.grid) == {("s_curve", r, on) for r in adaptation.RATES_HZ for on in (False, True)}
+    assert "| s_curve | " in doc and "identify on sim-offset-mass.yaml" in doc
+    odo = adapt.odometry
+    assert abs(odo.r_3_after - odo.r_3_true) < 0.2 * abs(odo.r_3_before - odo.r_3_true)  # calibration helps
+    assert odo.circle["calibrated"].true < 0.2 * odo.circle["uncalibrated"].true
     assert tiny_results.startup.imports[0].module == "yaml" and tiny_results.startup.imports[0].median_ms > 0
     assert tiny_results.startup.sim.maxrss_kb > 10_000  # a Python with numpy is tens of MiB at least
     assert all(f > 1.0 for f in tiny_results.speed["s_curve"])  # faster than real time

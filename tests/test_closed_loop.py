@@ -242,3 +242,39 @@ def test_bad_gyro_delay_names_the_key():
     from ddrt.schema import ConfigError
     with pytest.raises(ConfigError, match="estimator.gyro_delay_s"):
         load_config(ROOT / "configs" / "sim.yaml", {"estimator": {"gyro_delay_s": 0.2}})
+
+
+def test_leaving_the_path_faults_and_zeroes_the_motors():
+    """A robot knocked 0.4 m sideways (beyond limits.max_path_error_m = 0.3) stops, not chases."""
+    cfg, path, sim, _, loop = _following("s_curve")
+    t = sim.now()
+    for _ in range(100):
+        t += loop.period
+        sim.sleep_until(t)
+        loop.tick()
+    assert loop.state == "following"
+    loop.estimator.y += 0.25  # within the limit: keeps following
+    t += loop.period
+    sim.sleep_until(t)
+    loop.tick()
+    assert loop.state == "following"
+    loop.estimator.y += 0.15
+    t += loop.period
+    sim.sleep_until(t)
+    loop.tick()
+    assert loop.state == "fault"
+    assert "limits.max_path_error_m" in loop.fault
+    assert loop.duty_l == 0.0 and loop.duty_r == 0.0
+    sim.sleep_until(t + 0.01)
+    assert sim.robot.applied_duty == (0.0, 0.0)
+
+
+def test_a_path_that_starts_far_away_is_refused():
+    cfg, path, sim, _, loop = _following("s_curve")
+    loop.reset()
+    far = (path.start_pose[0] + 0.5, path.start_pose[1], path.start_pose[2])
+    with pytest.raises(ValueError, match="limits.max_path_error_m"):
+        loop.follow(path, far)
+    assert loop.state == "idle"
+    loop.follow(path, path.start_pose)  # at the start it is accepted
+    assert loop.state == "following"

@@ -637,6 +637,13 @@ def test_follow_inline_points(daemon: DaemonProc) -> None:
     assert s["pose"]["x"] > 0.0 and abs(s["pose"]["y"]) < 0.05  # along the line from the given pose
 
 
+def test_follow_far_from_the_robot_is_refused(daemon: DaemonProc) -> None:
+    reply = daemon.request({"cmd": "follow", "points": [[2.0, 2.0], [2.5, 2.0]], "speed": 0.2})
+    assert reply["ok"] is False and "limits.max_path_error_m" in reply["error"]
+    s = daemon.status()
+    assert s["state"] == "idle" and s["duty"] == {"l": 0.0, "r": 0.0}
+
+
 def test_estop_latches_until_reset(daemon: DaemonProc) -> None:
     reply = daemon.request({"cmd": "follow", "path": str(PATHS / "circle_1m.yaml")})
     assert reply["ok"] is True
