@@ -198,7 +198,7 @@ class EstimatorConfig:
     calibration_max_std_dps: float = 0.5
     accel_noise: float = 0.5  # m/s^2 white acceleration the model does not explain (speed for feedback)
     odometry_accel_noise: float = 5.0  # the same for the speed the pose integrates (trusts the encoder)
-    yaw_accel_noise: float = 20.0  # rad/s^2 likewise for yaw
+    yaw_accel_noise: float = 5.0  # rad/s^2 likewise for yaw
     gyro_bias_walk: float = 1e-5  # rad/s per sqrt(s): drift of the zero-rate bias
     gyro_scale: float = 1.0  # believed gyro scale factor (1 + scale error), from calibration
     gyro_noise_dps: float = 0.07  # std of one gyro sample (deg/s) after the MPU's low-pass
