@@ -197,8 +197,9 @@ class EstimatorConfig:
     calibration_s: float = 1.0  # the bias keeps being refined afterwards while the robot stands still
     calibration_max_std_dps: float = 0.5
     accel_noise: float = 0.5  # m/s^2 white acceleration the model does not explain (speed for feedback)
-    odometry_accel_noise: float = 5.0  # the same for the speed the pose integrates (trusts the encoder)
+    odometry_accel_noise: float = 20.0  # the same for the speed the pose integrates (trusts the encoder)
     yaw_accel_noise: float = 5.0  # rad/s^2 likewise for yaw
+    odometry_yaw_accel_noise: float = 50.0  # the same for the yaw rate the heading integrates
     gyro_bias_walk: float = 1e-5  # rad/s per sqrt(s): drift of the zero-rate bias
     gyro_scale: float = 1.0  # believed gyro scale factor (1 + scale error), from calibration
     gyro_noise_dps: float = 0.07  # std of one gyro sample (deg/s) after the MPU's low-pass
@@ -213,6 +214,7 @@ class EstimatorConfig:
     def validate(self, where: str) -> None:
         positive(where, max_gap_s=self.max_gap_s, accel_noise=self.accel_noise,
                  odometry_accel_noise=self.odometry_accel_noise, yaw_accel_noise=self.yaw_accel_noise,
+                 odometry_yaw_accel_noise=self.odometry_yaw_accel_noise,
                  gate_sigma=self.gate_sigma, gyro_scale=self.gyro_scale, gyro_noise_dps=self.gyro_noise_dps,
                  calibration_max_std_dps=self.calibration_max_std_dps, encoder_stuck_s=self.encoder_stuck_s)
         non_negative(where, calibration_s=self.calibration_s, gyro_bias_walk=self.gyro_bias_walk)

@@ -76,7 +76,9 @@ class Estimator:
         # one makes the PID chatter on quantisation noise.
         self.travel = TravelFilter(k * cfg.odometry_accel_noise, q / math.sqrt(12.0))
         self.speed = TravelFilter(k * cfg.accel_noise, q / math.sqrt(12.0))
+        # Likewise for yaw: `yaw` is fed back, `heading` (trusting the gyro) is integrated.
         self.yaw = YawFilter(k * cfg.yaw_accel_noise, cfg.gyro_bias_walk, cfg.gyro_noise_dps * DEG)
+        self.heading = YawFilter(k * cfg.odometry_yaw_accel_noise, cfg.gyro_bias_walk, cfg.gyro_noise_dps * DEG)
         self._gyro_var = self.yaw.meas_var
         # The gyro's low-pass makes it lag the encoder; a heading that lags the distance
         # bends the dead-reckoned path. The lead z + tau dz/dt undoes a lag tau.
@@ -111,8 +113,9 @@ class Estimator:
         for f in (self.travel, self.speed):
             f.p = 0.0
             f.v = 0.0
-        self.yaw.w = 0.0
-        self.yaw.b = bias
+        for f in (self.yaw, self.heading):
+            f.w = 0.0
+            f.b = bias
         self._last_raw_gyro = sample.gyro_z_raw
         self._last_gyro_z = None
 
@@ -181,14 +184,15 @@ class Estimator:
         self.travel.predict(dt, a)
         self.speed.predict(dt, a)
         self.yaw.predict(dt, alpha)
+        self.heading.predict(dt, alpha)
 
         if fresh:
             self._fuse_encoder(sample.encoder_count, dt)
             self._fuse_gyro(sample.gyro_z_raw, sample.t, commanded_still)
 
-        # Dead reckoning of A with the filtered velocities (midpoint heading).
+        # Dead reckoning of A with the odometry filters' velocities (midpoint heading).
         v = self.travel.v
-        w = self.yaw.w
+        w = self.heading.w
         half = self.theta + 0.5 * w * dt
         self.x += v * dt * math.cos(half)
         self.y += v * dt * math.sin(half)
@@ -208,15 +212,9 @@ class Estimator:
         else:
             self._count_still_s = 0.0
         z = self._travel_counts * self.metres_per_count
-        resyncs = health.resyncs
-        row = self._gated_update(self.travel, z, self._enc_rejects_row)
+        row = self._fuse_pair(self.travel, self.speed, z, self._enc_rejects_row)
         if row > self._enc_rejects_row:
             health.encoder_rejects += 1
-        elif row == 0:  # fused: the speed filter takes the same measurement
-            if health.resyncs > resyncs:
-                y = z - self.speed.p
-                self.speed.p00 += y * y
-            self.speed.update(z)
         self._enc_rejects_row = row
 
     def _fuse_gyro(self, raw: int, t: float, commanded_still: bool) -> None:
@@ -233,8 +231,9 @@ class Estimator:
             health.fault = "gyro saturated"
         if commanded_still and self._still_ticks >= 20:  # ~0.1 s without a count: at rest
             self.yaw.update_at_rest(1e-10)
+            self.heading.update_at_rest(1e-10)
         z = self._lead(z, t)
-        row = self._gated_update(self.yaw, z, self._gyro_rejects_row)
+        row = self._fuse_pair(self.heading, self.yaw, z, self._gyro_rejects_row)
         if row > self._gyro_rejects_row:
             health.gyro_rejects += 1
         self._gyro_rejects_row = row
@@ -246,11 +245,24 @@ class Estimator:
         self._last_gyro_z = z
         self._last_gyro_t = t
         if prev is None or dt <= 0.0 or self.gyro_lead <= 0.0:
-            self.yaw.meas_var = self._gyro_var
+            self.yaw.meas_var = self.heading.meas_var = self._gyro_var
             return z
         c = self.gyro_lead / dt
-        self.yaw.meas_var = self._gyro_var * ((1.0 + c) * (1.0 + c) + c * c)
+        self.yaw.meas_var = self.heading.meas_var = self._gyro_var * ((1.0 + c) * (1.0 + c) + c * c)
         return z + c * (z - prev)
+
+    def _fuse_pair(self, sharp: TravelFilter | YawFilter, smooth: TravelFilter | YawFilter, z: float,
+                   row: int) -> int:
+        """Fuse `z` into the odometry filter (which decides on outliers) and, if it was
+        accepted, into the feedback filter on the same sensor."""
+        resyncs = self.health.resyncs
+        row = self._gated_update(sharp, z, row)
+        if row == 0:
+            if self.health.resyncs > resyncs:
+                y, _ = smooth.innovation(z)
+                smooth.p00 += y * y
+            smooth.update(z)
+        return row
 
     def _gated_update(self, filt: TravelFilter | YawFilter, z: float, row: int) -> int:
         """Fuse `z` unless it is an outlier; returns how many outliers came in a row.

@@ -231,7 +231,7 @@ def test_controlled_stop_comes_to_rest_on_the_path():
 @pytest.mark.parametrize("scenario", ["figure8_fast.yaml", "figure8_fast_offset_mass.yaml"])
 def test_gyro_lag_compensation_straightens_the_dead_reckoned_path(scenario):
     """Undoing the gyro low-pass's lag (estimator.gyro_delay_s from the HAL) cuts the true-pose
-    error: measured 0.68 -> 0.08 mm nominal, 1.79 -> 0.28 mm with the hidden mass (seed 1)."""
+    error: measured 0.45 -> 0.06 mm nominal, 0.47 -> 0.09 mm with the hidden mass (seed 1)."""
     base = ROOT / "configs" / "scenarios" / scenario
     with_lead = _run(base).metrics["rms_cross_track_m"]
     without = _run(base, estimator={"gyro_delay_s": 0.0}).metrics["rms_cross_track_m"]
@@ -278,3 +278,16 @@ def test_a_path_that_starts_far_away_is_refused():
     assert loop.state == "idle"
     loop.follow(path, path.start_pose)  # at the start it is accepted
     assert loop.state == "following"
+
+
+def test_feedback_is_smooth_and_the_pose_ignores_the_model():
+    """The split estimator: the controller's filters keep the motors calm (RMS tick-to-tick duty
+    change measured 1.2%), the odometry filters keep the hidden mass out of the pose (true-pose
+    RMS with the 2 kg mass measured 1.6x the nominal robot's; one filter per sensor: 5.7x)."""
+    scen = ROOT / "configs" / "scenarios"
+    slow = _run(scen / "figure8_slow.yaml")
+    steps = [b - a for col in ("duty_l", "duty_r") for a, b in zip(slow.column(col)[:-1], slow.column(col)[1:])]
+    assert math.sqrt(sum(s * s for s in steps) / len(steps)) < 0.02
+    nominal = _run(scen / "figure8_fast.yaml").metrics["rms_cross_track_m"]
+    hidden = _run(scen / "figure8_fast_offset_mass.yaml").metrics["rms_cross_track_m"]
+    assert hidden < 2.2 * nominal
