@@ -121,8 +121,8 @@ class OuterGains:
 class PidGains:
     """PID on a velocity error. Units follow the loop: kp (1/s), ki (1/s^2), kd (-)."""
 
-    kp: float = 40.0
-    ki: float = 400.0
+    kp: float = 20.0
+    ki: float = 100.0
     kd: float = 0.0
     integrator_limit: float = 0.2
 
