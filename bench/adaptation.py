@@ -95,18 +95,27 @@ def _job(args: tuple[str, float, bool, int]) -> tuple[tuple[str, float, bool], f
     return (name, rate, on), float(m["rms_tracking_m"]), float(m["rms_cross_track_m"])
 
 
+def _pooled(fn, jobs: list, workers: int) -> dict[tuple[str, float, bool], list[tuple[float, ...]]]:
+    """Run `fn` over `jobs` (in `workers` processes) and group its values by key over seeds."""
+    if workers > 1:
+        with multiprocessing.get_context("fork").Pool(workers) as pool:
+            out = pool.map(fn, jobs, chunksize=1)
+    else:
+        out = [fn(j) for j in jobs]
+    acc: dict[tuple[str, float, bool], list[tuple[float, ...]]] = {}
+    for key, *values in out:
+        acc.setdefault(key, []).append(tuple(values))
+    return acc
+
+
+def _medians(rows: list[tuple[float, ...]]) -> list[float]:
+    return [statistics.median(r[i] for r in rows) for i in range(len(rows[0]))]
+
+
 def measure_grid(scenarios: Sequence[str], seeds: Sequence[int], workers: int,
                  rates: Sequence[float] = RATES_HZ) -> dict[tuple[str, float, bool], Cell]:
     jobs = [(s, r, on, seed) for s in scenarios for r in rates for on in (False, True) for seed in seeds]
-    if workers > 1:
-        with multiprocessing.get_context("fork").Pool(workers) as pool:
-            out = pool.map(_job, jobs, chunksize=1)
-    else:
-        out = [_job(j) for j in jobs]
-    acc: dict[tuple[str, float, bool], list[tuple[float, float]]] = {}
-    for key, est, true in out:
-        acc.setdefault(key, []).append((est, true))
-    return {k: Cell(statistics.median(e for e, _ in v), statistics.median(t for _, t in v)) for k, v in acc.items()}
+    return {k: Cell(*_medians(v)) for k, v in _pooled(_job, jobs, workers).items()}
 
 
 def _long_job(args: tuple[str, float, bool, int]) -> tuple[tuple[str, float, bool], float, float, float]:
@@ -128,15 +137,7 @@ def measure_long(seeds: Sequence[int], workers: int,
                  rates: Sequence[float] = RATES_HZ) -> dict[tuple[str, float, bool], LongRun]:
     """Both figure-eights of TARGET_CASE over five laps, adaptation off and on."""
     jobs = [(s, r, on, seed) for s in TARGET_CASE for r in rates for on in (False, True) for seed in seeds]
-    if workers > 1:
-        with multiprocessing.get_context("fork").Pool(workers) as pool:
-            out = pool.map(_long_job, jobs, chunksize=1)
-    else:
-        out = [_long_job(j) for j in jobs]
-    acc: dict[tuple[str, float, bool], list[tuple[float, float, float]]] = {}
-    for key, est, true, later in out:
-        acc.setdefault(key, []).append((est, true, later))
-    return {k: LongRun(*(statistics.median(x[i] for x in v) for i in range(3))) for k, v in acc.items()}
+    return {k: LongRun(*_medians(v)) for k, v in _pooled(_long_job, jobs, workers).items()}
 
 
 def measure_identify() -> list[IdentifyRow]:
