@@ -120,11 +120,9 @@ class ControlLoop:
         if path is not None:
             x, y, _ = pose if pose is not None else self.estimator_pose()
             start = path.at(0.0)
-            gap = math.hypot(start.x - x, start.y - y)
-            limit = self.cfg.limits.max_path_error_m
-            if gap > limit:
-                raise ValueError(f"the path starts {gap:.3f} m from the robot, farther than "
-                                 f"limits.max_path_error_m = {limit:g} m: move the robot or the path")
+            why = self._off_path(x, y, start.x, start.y)
+            if why:
+                raise ValueError(f"the path's start is {why}: move the robot or the path")
         if pose is not None:
             self.estimator.set_pose(pose)
         self.reference = reference
@@ -132,6 +130,12 @@ class ControlLoop:
         self.controller.reset()
         self.state = "following"
         self._starting = True  # the robot stood still until now: a pause before this is no gap
+
+    def _off_path(self, x: float, y: float, px: float, py: float) -> str:
+        """'' while (x, y) is within limits.max_path_error_m of the path point (px, py), else why."""
+        limit = self.cfg.limits.max_path_error_m
+        gap = math.hypot(px - x, py - y)
+        return "" if gap <= limit else f"{gap:.3f} m from the robot, beyond limits.max_path_error_m = {limit:g} m"
 
     def stop(self) -> None:
         """Controlled stop along the path."""
@@ -225,10 +229,9 @@ class ControlLoop:
             elif not (math.isfinite(cmd.duty_l) and math.isfinite(cmd.duty_r)
                       and math.isfinite(est.x) and math.isfinite(est.y) and math.isfinite(est.theta)):
                 self.enter_fault("non-finite value in the controller")
-            elif math.hypot(est.x - sp.x_d, est.y - sp.y_d) > self.cfg.limits.max_path_error_m:
+            elif why := self._off_path(est.x, est.y, sp.x_d, sp.y_d):
                 # Pushed, stuck, slipping or a wrong model: never chase a path from afar.
-                self.enter_fault(f"{math.hypot(est.x - sp.x_d, est.y - sp.y_d):.3f} m from the path's reference "
-                                 f"point, beyond limits.max_path_error_m = {self.cfg.limits.max_path_error_m:g} m")
+                self.enter_fault(f"the path's reference point is {why}")
             else:
                 try:
                     self.hal.write(cmd.duty_l, cmd.duty_r)
