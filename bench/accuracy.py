@@ -18,7 +18,8 @@ from pathlib import Path as FsPath
 from typing import Callable, Iterable, Sequence
 
 from ddrt.config import load_config
-from ddrt.simrun import resolve_path, run_sim
+from ddrt.path.spec import resolve_path
+from ddrt.simrun.runner import run_sim
 
 CONTROLLERS = ("dynamic", "kinematic", "seed")
 LOOKAHEADS_M = (0.02, 0.03, 0.05, 0.08, 0.12)

@@ -21,7 +21,8 @@ from typing import Sequence
 
 from ddrt import calibrate as cal
 from ddrt.config import load_config, with_overrides
-from ddrt.simrun import resolve_path, run_sim
+from ddrt.path.spec import resolve_path
+from ddrt.simrun.runner import run_sim
 from hal.registry import open_hal
 
 REPO = FsPath(__file__).resolve().parents[1]
@@ -121,7 +122,7 @@ def measure_grid(scenarios: Sequence[str], seeds: Sequence[int], workers: int,
 def _long_job(args: tuple[str, float, bool, int]) -> tuple[tuple[str, float, bool], float, float, float]:
     import numpy as np
 
-    from ddrt.metrics import distances_to_polyline, path_polyline
+    from ddrt.simrun.metrics import distances_to_polyline, path_polyline
 
     name, rate, on, seed = args
     cfg = load_config(REPO / "configs" / "scenarios" / f"{name}.yaml",

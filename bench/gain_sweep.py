@@ -21,7 +21,8 @@ from multiprocessing import Pool
 from pathlib import Path as FsPath
 
 from ddrt.config import load_config
-from ddrt.simrun import resolve_path, run_sim
+from ddrt.path.spec import resolve_path
+from ddrt.simrun.runner import run_sim
 
 ROOT = FsPath(__file__).resolve().parents[1]
 SCENARIOS = ("figure8_slow", "figure8_fast", "figure8_fast_offset_mass", "rectangle", "s_curve",

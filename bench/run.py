@@ -24,7 +24,8 @@ import numpy as np
 
 from bench import accuracy, adaptation, io_bound, loop_timing, startup, tick_cost
 from ddrt.config import load_config
-from ddrt.simrun import resolve_path, run_sim
+from ddrt.path.spec import resolve_path
+from ddrt.simrun.runner import run_sim
 
 REPO = loop_timing.REPO
 SCENARIO_DIR = REPO / "configs" / "scenarios"

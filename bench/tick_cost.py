@@ -17,7 +17,7 @@ import numpy as np
 
 from ddrt.config import Config
 from ddrt.loop import ControlLoop
-from ddrt.simrun import resolve_path
+from ddrt.path.spec import resolve_path
 from hal.registry import open_hal
 
 STAGES = ("read", "estimate", "reference", "control", "write", "record")

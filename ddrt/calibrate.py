@@ -15,11 +15,12 @@ from typing import Any
 import numpy as np
 import yaml
 
-from ddrt.adapt import NAMES, DynamicsAdapter
+from ddrt.core.adapt import NAMES, DynamicsAdapter
 from ddrt.config import Config
-from ddrt.control import Setpoint, wrap_angle
+from ddrt.core.types import Setpoint
+from ddrt.core.wrap import wrap_angle
 from ddrt.loop import ControlLoop
-from ddrt.model import Dynamics, RobotParams
+from ddrt.core.model import Dynamics, RobotParams
 from ddrt.path import Path, load_path
 from hal.base import Hal
 
@@ -37,7 +38,7 @@ def _clock(hal: Hal) -> Any:
     """The simulated HAL is its own clock; a real robot runs on the monotonic clock."""
     if hasattr(hal, "sleep_until") and hasattr(hal, "now"):
         return hal
-    from ddrt.clock import MonotonicClock
+    from ddrt.service.clock import MonotonicClock
 
     return MonotonicClock()
 
@@ -136,7 +137,7 @@ def excitation_path(cfg: Config, width: float, height: float, max_s: float = 30.
     if h > 0.5 * w:  # Gerono's lemniscate gets a cusp-like waist when taller than half its width
         h = 0.5 * w
     v = min(cfg.limits.v_max, 0.8) if speed is None else speed
-    from ddrt.simrun import speed_limits
+    from ddrt.path.spec import speed_limits
 
     spec = {"shape": "figure_eight", "width": w, "height": h, "speed": v}
     one = load_path(spec, speed_limits(cfg))
@@ -305,7 +306,7 @@ def odometry_run(cfg: Config, hal: Hal, distance: float = 1.0, turns: float = 1.
     if not distance > 0.0 or not turns > 0.0:
         raise ValueError("odometry: distance and turns must be > 0")
     loop, clock = _start(cfg, hal)
-    from ddrt.simrun import speed_limits
+    from ddrt.path.spec import speed_limits
 
     line = load_path({"shape": "line", "length": distance, "speed": min(0.3, cfg.limits.v_max)}, speed_limits(cfg))
     true0 = _truth(hal)

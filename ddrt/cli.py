@@ -19,7 +19,8 @@ def _pose(text: str) -> tuple[float, float, float]:
 
 def _cmd_sim(args: argparse.Namespace) -> int:
     from ddrt.config import load_config
-    from ddrt.simrun import resolve_path, run_sim, stderr_progress, summary_text, write_outputs
+    from ddrt.path.spec import resolve_path
+    from ddrt.simrun.runner import run_sim, stderr_progress, summary_text, write_outputs
 
     overrides = {"sim": {"seed": args.seed}} if args.seed is not None else None
     cfg = load_config(args.config, overrides)
@@ -30,7 +31,7 @@ def _cmd_sim(args: argparse.Namespace) -> int:
         sys.stderr.write("\n")
     write_outputs(result, args.out)
     if args.plot:
-        from ddrt.plots import write_plots
+        from ddrt.simrun.plots import write_plots
 
         write_plots(result, args.out)
     print(summary_text(result.metrics))
@@ -44,15 +45,15 @@ def _cmd_run(args: argparse.Namespace) -> int:
     # One BLAS thread: the loop does no large linear algebra, and each OpenBLAS thread
     # holds buffers that mlockall would pin (must be set before numpy is imported).
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    from ddrt.daemon import run_daemon
-    from ddrt.telemetry import configure_logging
+    from ddrt.service.daemon import run_daemon
+    from ddrt.service.telemetry import configure_logging
 
     configure_logging(args.log_level)
     return run_daemon(args.config, args.socket, args.duration, args.stats_json, args.follow)
 
 
 def _cmd_ctl(args: argparse.Namespace) -> int:
-    from ddrt.ctlsocket import request
+    from ddrt.service.ctlsocket import request
 
     payload: dict = {"cmd": args.command_name}
     if args.command_name == "follow":

@@ -14,14 +14,15 @@ import math
 from time import perf_counter_ns
 from typing import Callable
 
-from ddrt.adapt import DynamicsAdapter
+from ddrt.core.adapt import DynamicsAdapter
 from ddrt.config import Config
-from ddrt.control import Command, DynamicController, KinematicController, Setpoint, make_controller
-from ddrt.estimator import Estimator, calibrate_gyro
-from ddrt.model import Dynamics
-from ddrt.motor import Motor
+from ddrt.core.control import Command, DynamicController, KinematicController, make_controller
+from ddrt.core.types import Setpoint
+from ddrt.core.estimator import Estimator, calibrate_gyro
+from ddrt.core.model import Dynamics
+from ddrt.core.motor import Motor
 from ddrt.path import Path
-from ddrt.reference import PathReference
+from ddrt.path.reference import PathReference
 from hal.base import Hal, HalError, Sample
 
 log = logging.getLogger("ddrt.loop")

@@ -9,7 +9,11 @@ as a `Hal`. A backend must override `read`, `write`, `stop` and `close`; it may 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
+
+from ddrt.core.types import HalInfo, Sample
+
+__all__ = ["Hal", "HalError", "HalInfo", "HalInitError", "HalIOError", "HalTimeoutError",
+           "HalValueError", "Sample", "check_duty"]
 
 
 class HalError(Exception):
@@ -30,34 +34,6 @@ class HalTimeoutError(HalIOError, TimeoutError):
 
 class HalValueError(HalError, ValueError):
     """A value handed to the HAL is out of range or not finite (a duty of 1.5, a NaN)."""
-
-
-@dataclass(frozen=True, slots=True)
-class HalInfo:
-    """Static facts about the sensors that the estimator needs to turn raw values into SI."""
-
-    encoder_counts_per_rev: int  # counts per revolution of the front wheel (lines x 4)
-    gyro_lsb_per_rad_s: float  # raw gyro z units per rad/s (131 LSB per deg/s at +-250 dps)
-    gyro_full_scale_rad_s: float  # magnitude at which the raw reading saturates
-    gyro_delay_s: float = 0.0  # how far the gyro's low-pass lags the encoder (s)
-
-
-@dataclass(slots=True)
-class Sample:
-    """One reading of every sensor, as the hardware delivers it.
-
-    `t` is on the monotonic clock of the loop (seconds). `encoder_count` is the raw front
-    encoder counter (wraps like a signed 32-bit integer). `gyro_z_raw` is the raw int16 from
-    the gyro at its configured range (bias not removed). `fresh` is False when a backend had
-    no new data and repeated its last value; `faults` is a short text when the backend saw a
-    fault on this read (retried I/O, lost packets), else "".
-    """
-
-    t: float
-    encoder_count: int
-    gyro_z_raw: int
-    fresh: bool = True
-    faults: str = ""
 
 
 class Hal(ABC):

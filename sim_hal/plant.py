@@ -21,8 +21,8 @@ from collections import deque
 from dataclasses import dataclass, fields, replace
 from typing import Any, Mapping
 
-from ddrt.model import Dynamics, RobotParams
-from ddrt.motor import MotorParams
+from ddrt.core.model import Dynamics, RobotParams
+from ddrt.core.motor import MotorParams
 
 from sim_hal import sensors
 

@@ -11,8 +11,8 @@ from __future__ import annotations
 import math
 import time
 
-from ddrt.model import RobotParams
-from ddrt.motor import MotorParams
+from ddrt.core.model import RobotParams
+from ddrt.core.motor import MotorParams
 from hal.base import Hal, HalInfo, HalIOError, HalValueError, Sample, check_duty
 from sim_hal.plant import PlantConfig, SimRobot
 

@@ -1,4 +1,4 @@
-"""ddrt.adapt: the RLS estimate on synthetic motion, its gates, bounds and fallback, and the
+"""ddrt.core.adapt: the RLS estimate on synthetic motion, its gates, bounds and fallback, and the
 closed loop with the 2 kg offset mass the controller is not told about."""
 
 from __future__ import annotations
@@ -10,12 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ddrt.adapt import NAMES, AdaptedDynamics, DynamicsAdapter
+from ddrt.core.adapt import NAMES, AdaptedDynamics, DynamicsAdapter
 from ddrt.config import AdaptationConfig, ConfigError, load_config, with_overrides
 from ddrt.loop import COLUMNS
-from ddrt.model import Dynamics
-from ddrt.motor import Motor, MotorParams
-from ddrt.simrun import resolve_path, run_sim
+from ddrt.core.model import Dynamics
+from ddrt.core.motor import Motor, MotorParams
+from ddrt.path.spec import resolve_path
+from ddrt.simrun.runner import run_sim
 
 ROOT = Path(__file__).resolve().parents[1]
 NOMINAL = Dynamics(m_k=4.3, mbar=0.0, I=0.048, m_x=0.083, L=0.108, R=0.108, r_L=0.05, r_R=0.05)
@@ -169,7 +170,7 @@ def _run(scenario: str, enabled: bool, rate_hz: float = 200.0, **over):
 
 def _laps(result, laps: int = 5) -> list[float]:
     """Estimated-pose RMS cross-track of each lap (by progress along the path)."""
-    from ddrt.metrics import distances_to_polyline, path_polyline
+    from ddrt.simrun.metrics import distances_to_polyline, path_polyline
     d = distances_to_polyline(path_polyline(result.path), np.c_[result.column("x_est"), result.column("y_est")])
     lap = result.path.length / laps
     k = np.minimum((result.column("sigma") / lap).astype(int), laps - 1)

@@ -13,7 +13,7 @@ import pytest
 from bench import accuracy, adaptation, io_bound, run, tick_cost
 from ddrt.config import load_config
 from ddrt.loop import ControlLoop
-from ddrt.simrun import resolve_path
+from ddrt.path.spec import resolve_path
 from hal.protocol import Drive, Packet, encode_frame
 from hal.registry import open_hal
 

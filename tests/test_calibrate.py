@@ -11,9 +11,10 @@ import yaml
 from ddrt import calibrate as cal
 from ddrt.cli import main
 from ddrt.config import load_config
-from ddrt.control import Setpoint
-from ddrt.model import Dynamics
-from ddrt.simrun import resolve_path, run_sim
+from ddrt.core.types import Setpoint
+from ddrt.core.model import Dynamics
+from ddrt.path.spec import resolve_path
+from ddrt.simrun.runner import run_sim
 from hal.registry import open_hal
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -22,9 +22,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ddrt import rt
-from ddrt.clock import ManualClock, MonotonicClock
-from ddrt.timing import RateScheduler, TimingStats, percentile
+from ddrt.service import rt
+from ddrt.service.clock import ManualClock, MonotonicClock
+from ddrt.service.timing import RateScheduler, TimingStats, percentile
 
 SLACK = 0.05  # generous bound on oversleeping on a loaded 2-core CI machine
 
@@ -244,7 +244,7 @@ def _run_isolated(code: str) -> dict:
 def test_apply_realtime_applies_or_warns_per_step() -> None:
     res = _run_isolated("""
         import json, os, gc
-        from ddrt import rt
+        from ddrt.service import rt
         cpu = min(os.sched_getaffinity(0))
         warnings = rt.apply_realtime(10, {cpu}, True, 1, gil_switch_interval_s=0.0005)
         import sys
@@ -314,7 +314,7 @@ def test_apply_realtime_rejects_bad_arguments(kwargs: dict, field: str) -> None:
 def test_freeze_gc_in_subprocess() -> None:
     res = _run_isolated("""
         import json, gc
-        from ddrt import rt
+        from ddrt.service import rt
         junk = [[i] for i in range(10000)]
         rt.freeze_gc()
         print(json.dumps(rt.gc_stats()))
@@ -334,7 +334,7 @@ def test_demote_current_thread_leaves_normal_thread_alone() -> None:
 def test_spinning_clock_never_wakes_early_and_rejects_bad_spin():
     import time as _time
 
-    from ddrt.clock import MonotonicClock as _Clock
+    from ddrt.service.clock import MonotonicClock as _Clock
 
     clock = _Clock(spin_s=0.0002)
     late = []

@@ -10,7 +10,8 @@ import pytest
 from ddrt.cli import main as cli_main
 from ddrt.config import load_config, with_overrides
 from ddrt.loop import ControlLoop
-from ddrt.simrun import resolve_path, run_sim
+from ddrt.path.spec import resolve_path
+from ddrt.simrun.runner import run_sim
 from hal.base import HalIOError
 from hal.registry import open_hal
 
@@ -239,7 +240,7 @@ def test_gyro_lag_compensation_straightens_the_dead_reckoned_path(scenario):
 
 
 def test_bad_gyro_delay_names_the_key():
-    from ddrt.schema import ConfigError
+    from ddrt.config.schema import ConfigError
     with pytest.raises(ConfigError, match="estimator.gyro_delay_s"):
         load_config(ROOT / "configs" / "sim.yaml", {"estimator": {"gyro_delay_s": 0.2}})
 

@@ -15,16 +15,16 @@ from typing import Any, Callable
 import pytest
 import yaml
 
-from ddrt import config as config_mod
+from ddrt.config import load as config_mod
 from ddrt.config import (
     AdaptationConfig, Config, ControllerConfig, DaemonConfig, EstimatorConfig, GyroTruth,
     HalConfig, LimitsConfig, OuterGains, PidGains, PursuitConfig, SensorsConfig, SimConfig,
     SlipConfig, WheelPidGains, changed_keys, config_from_mapping, load_config, needs_restart,
     with_overrides,
 )
-from ddrt.model import RobotParams
-from ddrt.motor import MotorParams
-from ddrt.schema import ConfigError
+from ddrt.core.model import RobotParams
+from ddrt.core.motor import MotorParams
+from ddrt.config.schema import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
 SIM = ROOT / "configs" / "sim.yaml"

@@ -7,9 +7,10 @@ import math
 from pathlib import Path as FsPath
 
 from ddrt.config import load_config
-from ddrt.control import DynamicController, KinematicController, Setpoint, _scale_to_limit
-from ddrt.model import Dynamics
-from ddrt.motor import Motor
+from ddrt.core.control import DynamicController, KinematicController, _scale_to_limit
+from ddrt.core.types import Setpoint
+from ddrt.core.model import Dynamics
+from ddrt.core.motor import Motor
 
 ROOT = FsPath(__file__).resolve().parents[1]
 

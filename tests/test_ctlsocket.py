@@ -15,7 +15,7 @@ from typing import Any
 
 import pytest
 
-from ddrt.ctlsocket import ControlClientError, ControlServer, request
+from ddrt.service.ctlsocket import ControlClientError, ControlServer, request
 
 COMMANDS = {"status", "stop", "estop", "gains", "boom", "bad"}
 

@@ -33,7 +33,7 @@ from typing import Any
 import pytest
 import yaml
 
-from ddrt.ctlsocket import ControlClientError, request
+from ddrt.service.ctlsocket import ControlClientError, request
 from ddrt.loop import COLUMNS, STATE_CODE
 
 REPO = Path(__file__).resolve().parents[1]

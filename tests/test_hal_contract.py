@@ -13,7 +13,8 @@ import pytest
 
 from ddrt.config import load_config
 from ddrt.loop import COLUMNS, ControlLoop
-from ddrt.simrun import resolve_path, run_sim
+from ddrt.path.spec import resolve_path
+from ddrt.simrun.runner import run_sim
 from hal.base import HalValueError, Sample
 from hal.registry import open_hal
 

@@ -5,7 +5,7 @@ import random
 import numpy as np
 from filterpy.kalman import KalmanFilter
 
-from ddrt.kalman import TravelFilter, YawFilter
+from ddrt.core.kalman import TravelFilter, YawFilter
 
 
 def _travel_reference(accel_noise, meas_std, p0, v0):

@@ -9,8 +9,8 @@ import time
 
 import pytest
 
-from ddrt.model import RobotParams, forward_dynamics, wheel_rates
-from ddrt.motor import Motor, MotorParams
+from ddrt.core.model import RobotParams, forward_dynamics, wheel_rates
+from ddrt.core.motor import Motor, MotorParams
 from sim_hal import PlantConfig, SimRobot
 from sim_hal.sensors import encoder_count, gyro_raw, wrap_int32
 

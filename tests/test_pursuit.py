@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from ddrt.path import Path, SpeedLimits, load_path
-from ddrt.pursuit import PurePursuit, Reference, TimedReference
+from ddrt.path.pursuit import PurePursuit, Reference, TimedReference
 
 CONFIGS = FsPath(__file__).resolve().parent.parent / "configs" / "paths"
 LIM = SpeedLimits()

@@ -11,7 +11,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from ddrt.sdnotify import Notifier
+from ddrt.service.sdnotify import Notifier
 
 
 @pytest.fixture()

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from ddrt.telemetry import (
+from ddrt.service.telemetry import (
     JournalFormatter,
     RotatingCsvWriter,
     TelemetryLogger,
@@ -218,7 +218,7 @@ def test_logger_survives_write_errors(tmp_path: Path, caplog: pytest.LogCaptureF
 
     ring = TelemetryRing(COLS, capacity=16)
     w = FailingWriter()
-    with caplog.at_level(logging.WARNING, logger="ddrt.telemetry"):
+    with caplog.at_level(logging.WARNING, logger="ddrt.service.telemetry"):
         logger = TelemetryLogger(ring, w, interval_s=0.01)  # type: ignore[arg-type]
         ring.append((1, 2, 3))
         time.sleep(0.05)

@@ -14,9 +14,9 @@ import math
 from dataclasses import dataclass
 
 from ddrt.config import EstimatorConfig
-from ddrt.kalman import TravelFilter, YawFilter
-from ddrt.model import Dynamics
-from ddrt.motor import Motor
+from ddrt.core.kalman import TravelFilter, YawFilter
+from ddrt.core.model import Dynamics
+from ddrt.core.motor import Motor
 from hal.base import HalInfo, Sample
 
 NOISE_STEP_S = 0.005  # the step the configured process noises are given for

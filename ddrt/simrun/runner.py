@@ -19,10 +19,10 @@ from typing import Any, Callable
 import numpy as np
 
 from ddrt.config import Config
-from ddrt.control import wrap_angle
+from ddrt.core.wrap import wrap_angle
 from ddrt.loop import COLUMNS, ControlLoop
-from ddrt.metrics import tracking_metrics
-from ddrt.path import Path, SpeedLimits, load_path
+from ddrt.simrun.metrics import tracking_metrics
+from ddrt.path import Path
 from hal.registry import open_hal
 
 TRUTH_COLUMNS = ("x", "y", "theta", "v", "omega")
@@ -42,25 +42,6 @@ class SimResult:
     def column(self, name: str) -> np.ndarray:
         i = self.columns.index(name)
         return np.array([r[i] for r in self.rows])
-
-
-def speed_limits(cfg: Config) -> SpeedLimits:
-    lim = cfg.limits
-    return SpeedLimits(v_max=lim.v_max, accel=lim.accel, lateral_accel=lim.lateral_accel,
-                       omega_max=lim.omega_max, alpha_max=lim.alpha_max)
-
-
-def resolve_path(cfg: Config, path_arg: str | None = None) -> Path:
-    """The path named on the command line, else the config's `path:` entry."""
-    limits = speed_limits(cfg)
-    if path_arg is not None:
-        return load_path(path_arg, limits)
-    if cfg.path is None:
-        raise ValueError(f"{cfg.source}: path: missing; give one in the config or with --path")
-    source = cfg.path
-    if isinstance(source, str) and not FsPath(source).is_absolute():
-        source = str(FsPath(cfg.base_dir) / source)
-    return load_path(source, limits, base_dir=cfg.base_dir)
 
 
 def run_sim(cfg: Config, path: Path, *, duration: float | None = None, seed: int | None = None,

@@ -6,8 +6,8 @@ from pathlib import Path as FsPath
 
 import numpy as np
 
-from ddrt.metrics import path_polyline
-from ddrt.simrun import SimResult
+from ddrt.simrun.metrics import path_polyline
+from ddrt.simrun.runner import SimResult
 
 
 def write_plots(result: SimResult, out_dir: str | FsPath) -> list[FsPath]:

@@ -25,7 +25,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from ddrt.path import Path
+from ddrt.core.wrap import wrap_angle
+from ddrt.path.sampled import Path
 
 __all__ = ["Reference", "PurePursuit", "TimedReference"]
 
@@ -51,10 +52,6 @@ class Reference:
     pp_curvature: float  # classic pure pursuit: 2 * y_goal_body / dist^2
     pivot: bool
     done: bool
-
-
-def _wrap(a: float) -> float:
-    return a - TWO_PI * math.floor((a + math.pi) / TWO_PI)
 
 
 def _foot(g0: float, g1: float) -> float:
@@ -134,7 +131,7 @@ class PurePursuit:
             # Turning in place: progress follows how far the robot has turned.
             s0 = sig[i]
             th_ref = p.theta[i] + (s - s0) / (sig[i + 1] - s0) * (p.theta[i + 1] - p.theta[i])
-            turned = p.turn[i] * _wrap(theta - th_ref)
+            turned = p.turn[i] * wrap_angle(theta - th_ref)
             end = p.piece_end[i]
             if turned > 0.0:
                 s = min(s + p.pivot_radius * turned, end, limit)

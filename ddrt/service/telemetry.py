@@ -220,7 +220,7 @@ class TelemetryLogger:
                 log.warning("telemetry write failed, dropping rows: %s: %s", type(exc).__name__, exc)
 
     def _run(self) -> None:
-        from ddrt.rt import demote_current_thread
+        from ddrt.service.rt import demote_current_thread
 
         demote_current_thread()
         while not self._stop.wait(self.interval_s):

@@ -34,8 +34,8 @@ import math
 from dataclasses import dataclass
 
 from ddrt.config import AdaptationConfig
-from ddrt.model import Dynamics
-from ddrt.motor import Motor
+from ddrt.core.model import Dynamics
+from ddrt.core.motor import Motor
 
 NAMES = ("m_k", "mbar", "I", "m_x", "fric_l", "fric_r")
 N = 6

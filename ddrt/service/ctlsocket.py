@@ -212,7 +212,7 @@ class ControlServer:
     # ----- I/O thread ---------------------------------------------------------------------
 
     def _run(self) -> None:
-        from ddrt.rt import demote_current_thread
+        from ddrt.service.rt import demote_current_thread
 
         demote_current_thread()
         tick = min(0.5, self.request_timeout_s / 4, self.idle_timeout_s / 4)

@@ -22,21 +22,21 @@ import time
 from pathlib import Path as FsPath
 from typing import Any
 
-from ddrt import rt
-from ddrt.clock import MonotonicClock
+from ddrt.service import rt
+from ddrt.service.clock import MonotonicClock
 from ddrt.config import RESTART_KEYS, Config, changed_keys, load_config, needs_restart
-from ddrt.ctlsocket import ControlServer
+from ddrt.service.ctlsocket import ControlServer
 from ddrt.loop import COLUMNS, ControlLoop
 from ddrt.path import PathError, load_path
-from ddrt.schema import ConfigError
-from ddrt.sdnotify import Notifier
-from ddrt.simrun import resolve_path, speed_limits
-from ddrt.telemetry import RotatingCsvWriter, TelemetryLogger, TelemetryRing
-from ddrt.timing import RateScheduler, TimingStats
+from ddrt.config.schema import ConfigError
+from ddrt.service.sdnotify import Notifier
+from ddrt.path.spec import resolve_path, speed_limits
+from ddrt.service.telemetry import RotatingCsvWriter, TelemetryLogger, TelemetryRing
+from ddrt.service.timing import RateScheduler, TimingStats
 from hal.base import HalError
 from hal.registry import open_hal
 
-log = logging.getLogger("ddrt.daemon")
+log = logging.getLogger("ddrt.service.daemon")
 
 class _Interrupted(Exception):
     """A stop was requested before the loop started."""
@@ -380,7 +380,7 @@ class Daemon:
             assert loop is not None
             loop.controller.retune(new.controller, new.limits)
             if any(k.startswith("robot") for k in live):
-                from ddrt.model import Dynamics
+                from ddrt.core.model import Dynamics
 
                 loop.controller.set_dynamics(Dynamics.from_params(new.robot))
             self.cfg = _keep_restart_sections(self.cfg, new)

@@ -27,43 +27,14 @@ import math
 from dataclasses import dataclass
 
 from ddrt.config import ControllerConfig, LimitsConfig, OuterGains, PidGains, WheelPidGains
-from ddrt.model import Dynamics
-from ddrt.motor import Motor
+from ddrt.core.model import Dynamics
+from ddrt.core.motor import Motor
+from ddrt.core.types import Setpoint
+from ddrt.core.wrap import wrap_angle
 
 SEED_INNER = PidGains(kp=1.732, ki=0.5, kd=0.5, integrator_limit=100.0)
 SEED_OUTER = OuterGains(k_x=10.0, k_y=64.0, k_theta=16.0)
 HOLD_SPEED = 0.005  # m/s: below this reference speed a heading-hold term fades in
-
-
-def wrap_angle(a: float) -> float:
-    """Angle in (-pi, pi]."""
-    return a - 2.0 * math.pi * math.floor((a + math.pi) / (2.0 * math.pi))
-
-
-@dataclass(slots=True)
-class Setpoint:
-    """What the reference stage hands the controller each tick (SI units).
-
-    q_d = (x_d, y_d, theta_d) is the reference pose; (v_d, omega_d) and (a_d, alpha_d) the
-    reference speeds and their derivatives; `along_err` the path distance by which the
-    schedule leads the robot (path-following mode; 0 when time-indexed); `kappa` the path's
-    curvature at q_d and `pp_curvature` pure pursuit's curvature to its lookahead point.
-    """
-
-    x_d: float = 0.0
-    y_d: float = 0.0
-    theta_d: float = 0.0
-    v_d: float = 0.0
-    omega_d: float = 0.0
-    a_d: float = 0.0
-    alpha_d: float = 0.0
-    along_err: float = 0.0
-    kappa: float = 0.0
-    pp_curvature: float = 0.0
-    pivot: bool = False
-    pivot_radius: float = 0.1
-    path_frame: bool = False  # errors in the path's frame at q_d (path-following mode)
-    active: bool = False  # False: hold still (no path, or finished)
 
 
 @dataclass(slots=True)

@@ -11,9 +11,9 @@ reference is wherever the profile is at time t, whatever the robot does.
 
 from __future__ import annotations
 
-from ddrt.control import Setpoint
-from ddrt.path import Path
-from ddrt.pursuit import PurePursuit
+from ddrt.core.types import Setpoint
+from ddrt.path.sampled import Path
+from ddrt.path.pursuit import PurePursuit
 
 
 class PathReference:

@@ -1,0 +1,224 @@
+"""The config: one path from YAML file to a validated, typed, frozen `Config`.
+
+Load -> merge (`extends:` a base file, then `plant:` over `robot:`) -> validate whole. A bad
+file raises ConfigError with the file name and the dotted key.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from pathlib import Path as FsPath
+from typing import Any, Mapping
+
+import yaml
+
+from ddrt.config.schema import ConfigError, build
+from ddrt.config.sections import (
+    Config, ControllerConfig, DaemonConfig, EstimatorConfig, HalConfig, LimitsConfig, PursuitConfig,
+    SensorsConfig, SimConfig,
+)
+from ddrt.core.model import RobotParams
+from ddrt.core.motor import MotorParams
+
+# libyaml's safe loader when present: six times faster than the pure-Python one, which
+# matters for a reload between two ticks.
+YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+# --------------------------------------------------------------------------- loading
+
+_TOP_KEYS = ("extends", "robot", "plant", "sim", "sensors", "hal", "controller", "estimator",
+             "pursuit", "limits", "daemon", "path", "start", "name", "description")
+
+
+def _section(data: Mapping[str, Any], key: str) -> Any:
+    """A section's mapping; absent or empty (None) is {}, anything else is validated as is."""
+    value = data.get(key)
+    return {} if value is None else value
+
+
+def _merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
+    """Deep merge: mappings merge key by key, anything else in `over` replaces."""
+    out = copy.deepcopy(dict(base))
+    for key, value in over.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def _read_yaml(path: FsPath, chain: tuple[str, ...] = ()) -> dict[str, Any]:
+    if str(path) in chain:
+        raise ConfigError(f"{path}: extends itself through {' -> '.join(chain)}")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    try:
+        data = yaml.load(text, Loader=YAML_LOADER)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        at = f" (line {mark.line + 1}, column {mark.column + 1})" if mark else ""
+        raise ConfigError(f"{path}: not valid YAML{at}: {getattr(exc, 'problem', exc)}") from None
+    if data is None:
+        data = {}
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{path}: the top level must be a mapping of sections")
+    data = dict(data)
+    if isinstance(data.get("path"), str) and not FsPath(data["path"]).is_absolute():
+        # A path file is named relative to the config file that names it, even when that
+        # file is the base of another through extends:.
+        data["path"] = str(path.parent / data["path"])
+    parent = data.get("extends")
+    if parent is not None:
+        if not isinstance(parent, str):
+            raise ConfigError(f"{path}: extends: expected a file name, got {parent!r}")
+        base_path = (path.parent / parent).resolve()
+        if not base_path.is_file():
+            raise ConfigError(f"{path}: extends: no such file {parent!r} (looked for {base_path})")
+        base = _read_yaml(base_path, chain + (str(path),))
+        data = _merge(base, {k: v for k, v in data.items() if k != "extends"})
+    return dict(data)
+
+
+def _params(section: Any, where: str, extras: tuple[str, ...] = ("motor",)) -> tuple[RobotParams, dict[str, Any]]:
+    if not isinstance(section, Mapping):
+        raise ConfigError(f"{where}: expected a mapping of robot parameters")
+    names = set(RobotParams.names())
+    unknown = sorted(str(k) for k in section if k not in names and k not in extras)
+    if unknown:
+        raise ConfigError(f"{where}.{unknown[0]}: unknown key (a robot parameter is one of {', '.join(RobotParams.names())}, or {', '.join(extras)})")
+    missing = [n for n in RobotParams.names() if n not in section]
+    if missing:
+        raise ConfigError(f"{where}.{missing[0]}: missing (required)")
+    for name in RobotParams.names():
+        value = section[name]
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where}.{name}: expected a number, got {value!r}")
+    try:
+        params = RobotParams(**{n: section[n] for n in RobotParams.names()})
+    except ValueError as exc:
+        field_name = str(exc).split(":")[0].removeprefix("RobotParams.")
+        raise ConfigError(f"{where}.{field_name}: {str(exc).split(': ', 1)[-1]}") from None
+    for key in extras:
+        if section.get(key) is not None and not isinstance(section[key], Mapping):
+            raise ConfigError(f"{where}.{key}: expected a mapping of motor constants, got {section[key]!r}")
+    motor = section.get("motor")
+    return params, {} if motor is None else motor
+
+
+def _motor(mapping: Any, where: str) -> MotorParams:
+    return build(MotorParams, mapping, where)
+
+
+def config_from_mapping(data: Mapping[str, Any], source: str = "<memory>", base_dir: str = ".") -> Config:
+    """Validate a whole merged mapping into a Config; errors name `source` and the key."""
+    try:
+        return _config_from_mapping(data, source, base_dir)
+    except ConfigError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
+
+
+def _config_from_mapping(data: Mapping[str, Any], source: str, base_dir: str) -> Config:
+    unknown = sorted(str(k) for k in data if k not in _TOP_KEYS)
+    if unknown:
+        raise ConfigError(f"{unknown[0]}: unknown section (known: {', '.join(_TOP_KEYS)})")
+    if "robot" not in data:
+        raise ConfigError("robot: missing (required): the controller's robot parameters")
+    robot_section = data["robot"]
+    robot, robot_motor_map = _params(robot_section, "robot")
+    robot_motor = _motor(robot_motor_map, "robot.motor")
+
+    plant_over = _section(data, "plant")
+    if not isinstance(plant_over, Mapping):
+        raise ConfigError("plant: expected a mapping of robot parameters")
+    plant_section = _merge(robot_section, plant_over)
+    plant, plant_motor_map = _params(plant_section, "plant", ("motor", "motor_l", "motor_r"))
+    # A plant may give one motor for both wheels (motor:) or each its own (motor_l:, motor_r:).
+    plant_motor_l = _motor(_merge(plant_motor_map, plant_section.get("motor_l") or {}), "plant.motor_l")
+    plant_motor_r = _motor(_merge(plant_motor_map, plant_section.get("motor_r") or {}), "plant.motor_r")
+
+    start = data.get("start")
+    if start is not None:
+        if (not isinstance(start, (list, tuple)) or len(start) != 3
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in start)):
+            raise ConfigError(f"start: expected [x, y, theta] in metres and radians, got {start!r}")
+        start = (float(start[0]), float(start[1]), float(start[2]))
+
+    limits = build(LimitsConfig, _section(data, "limits"), "limits")
+    sensors = build(SensorsConfig, _section(data, "sensors"), "sensors")
+    gyro_limit = 0.8 * math.radians(sensors.gyro_range_dps)
+    if limits.omega_max > gyro_limit:
+        raise ConfigError(
+            f"limits.omega_max: {limits.omega_max} rad/s leaves no margin below the gyro's range "
+            f"(sensors.gyro_range_dps = {sensors.gyro_range_dps} deg/s): at most {gyro_limit:.2f} rad/s, "
+            "or raise the range")
+
+    return Config(
+        robot=robot,
+        robot_motor=robot_motor,
+        plant=plant,
+        plant_motor_l=plant_motor_l,
+        plant_motor_r=plant_motor_r,
+        sim=build(SimConfig, _section(data, "sim"), "sim"),
+        sensors=sensors,
+        hal=build(HalConfig, _section(data, "hal"), "hal"),
+        controller=build(ControllerConfig, _section(data, "controller"), "controller"),
+        estimator=build(EstimatorConfig, _section(data, "estimator"), "estimator"),
+        pursuit=build(PursuitConfig, _section(data, "pursuit"), "pursuit"),
+        limits=limits,
+        daemon=build(DaemonConfig, _section(data, "daemon"), "daemon"),
+        path=data.get("path"),
+        start=start,
+        source=source,
+        base_dir=base_dir,
+        raw=copy.deepcopy(dict(data)),
+    )
+
+
+def load_config(path: str | FsPath, overrides: Mapping[str, Any] | None = None) -> Config:
+    """Read, merge and validate a YAML config file (plus optional in-memory overrides)."""
+    p = FsPath(path)
+    try:
+        data = _read_yaml(p.resolve())
+    except ConfigError as exc:
+        raise ConfigError(str(exc).replace(str(p.resolve()), str(p), 1)) from None
+    if overrides:
+        data = _merge(data, overrides)
+    return config_from_mapping(data, source=str(p), base_dir=str(p.resolve().parent))
+
+
+def with_overrides(cfg: Config, overrides: Mapping[str, Any]) -> Config:
+    """The same config with some keys replaced (for sweeps and benchmarks)."""
+    return config_from_mapping(_merge(cfg.raw, overrides), source=cfg.source, base_dir=cfg.base_dir)
+
+
+# Keys whose change needs a restart of the daemon (devices and the loop's rate).
+RESTART_KEYS = ("hal", "sensors", "controller.rate_hz", "controller.mode", "controller.adaptation", "estimator", "daemon.socket", "daemon.rt_priority",
+                "daemon.cpus", "daemon.lock_memory", "daemon.telemetry_dir", "sim", "plant")
+
+
+def changed_keys(old: Config, new: Config) -> list[str]:
+    """Dotted top-level-or-second-level keys whose values differ between two configs."""
+    out: list[str] = []
+    for section in sorted(set(old.raw) | set(new.raw)):
+        a, b = old.raw.get(section), new.raw.get(section)
+        if a is None and isinstance(b, Mapping):
+            a = {}
+        if b is None and isinstance(a, Mapping):
+            b = {}
+        if a == b:
+            continue
+        if isinstance(a, Mapping) and isinstance(b, Mapping):
+            for key in sorted(set(a) | set(b)):
+                if a.get(key) != b.get(key):
+                    out.append(f"{section}.{key}")
+        else:
+            out.append(section)
+    return out
+
+
+def needs_restart(keys: list[str]) -> list[str]:
+    """The subset of changed `keys` that cannot be applied while the loop runs."""
+    return [k for k in keys if any(k == r or k.startswith(r + ".") for r in RESTART_KEYS)]

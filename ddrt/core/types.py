@@ -1,0 +1,62 @@
+"""The small data types that cross the boundaries between the stages of one tick: what the
+hardware delivers (Sample, with the static facts in HalInfo) and what the reference stage
+hands the controller (Setpoint). They live here, below both the HAL and the controllers, so
+computation never imports a driver and a driver never imports a controller."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True, slots=True)
+class HalInfo:
+    """Static facts about the sensors that the estimator needs to turn raw values into SI."""
+
+    encoder_counts_per_rev: int  # counts per revolution of the front wheel (lines x 4)
+    gyro_lsb_per_rad_s: float  # raw gyro z units per rad/s (131 LSB per deg/s at +-250 dps)
+    gyro_full_scale_rad_s: float  # magnitude at which the raw reading saturates
+    gyro_delay_s: float = 0.0  # how far the gyro's low-pass lags the encoder (s)
+
+
+@dataclass(slots=True)
+class Sample:
+    """One reading of every sensor, as the hardware delivers it.
+
+    `t` is on the monotonic clock of the loop (seconds). `encoder_count` is the raw front
+    encoder counter (wraps like a signed 32-bit integer). `gyro_z_raw` is the raw int16 from
+    the gyro at its configured range (bias not removed). `fresh` is False when a backend had
+    no new data and repeated its last value; `faults` is a short text when the backend saw a
+    fault on this read (retried I/O, lost packets), else "".
+    """
+
+    t: float
+    encoder_count: int
+    gyro_z_raw: int
+    fresh: bool = True
+    faults: str = ""
+
+
+@dataclass(slots=True)
+class Setpoint:
+    """What the reference stage hands the controller each tick (SI units).
+
+    q_d = (x_d, y_d, theta_d) is the reference pose; (v_d, omega_d) and (a_d, alpha_d) the
+    reference speeds and their derivatives; `along_err` the path distance by which the
+    schedule leads the robot (path-following mode; 0 when time-indexed); `kappa` the path's
+    curvature at q_d and `pp_curvature` pure pursuit's curvature to its lookahead point.
+    """
+
+    x_d: float = 0.0
+    y_d: float = 0.0
+    theta_d: float = 0.0
+    v_d: float = 0.0
+    omega_d: float = 0.0
+    a_d: float = 0.0
+    alpha_d: float = 0.0
+    along_err: float = 0.0
+    kappa: float = 0.0
+    pp_curvature: float = 0.0
+    pivot: bool = False
+    pivot_radius: float = 0.1
+    path_frame: bool = False  # errors in the path's frame at q_d (path-following mode)
+    active: bool = False  # False: hold still (no path, or finished)

@@ -1,0 +1,214 @@
+"""Paths the robot follows, sampled densely along a progress coordinate, with a speed profile.
+
+A path is a chain of *pieces*: driving pieces (lines, arcs, smooth curves) and turn-in-place
+*pivots* at sharp corners. Everything is indexed by a generalised progress `sigma` (metres):
+on driving pieces d(sigma) = ds (arc length); in a pivot the robot stands at the corner and
+turns, and d(sigma) = b * |d(theta)| with b = `pivot_radius`, so progress keeps growing while
+the robot turns and one monotone coordinate covers the whole path.
+
+Geometry choices (documented because they shape the motion):
+- Sharp corners (turn > `corner_pivot_deg`, 30 degrees by default) become pivots: the robot
+  stops, turns in place, drives on.
+- Gentle corners become a curvature-continuous blend: a "raised-cosine" curvature bump
+  kappa(s) = (phi / L) (1 - cos(2 pi s / L)), symmetric about the corner's bisector and tangent
+  to both straight segments. Its curvature is zero where it meets the lines, so omega = v kappa
+  has no step and the angular acceleration stays finite (a circular fillet would step kappa).
+  The blend's tangent length is at most `blend_max_m` and at most half of each adjacent segment.
+- Analytic shapes (circle, ellipse, figure-eight, S-curve) are sampled exactly at uniform arc
+  length; ellipse-like curves are re-parametrised by arc length numerically.
+- Samples are `sample_step_m` apart (2 mm by default): linear interpolation between them then
+  leaves less than 2 um of chord error on a 0.3 m radius circle.
+
+Speed profile: the progress rate u = d(sigma)/dt is capped per sample (v_max, per-point caps,
+lateral acceleration, omega_max, and v^2 |d(kappa)/ds| <= alpha_max / 2 on driving pieces;
+b * omega_max in pivots), then limited by forward (accel) and backward (decel) passes, with
+u = 0 at both ends and at both sides of every pivot. Between two samples the progress has a
+constant acceleration (u^2 is linear in sigma), which makes t(sigma), v(t) and at_time exact for
+the profile. On driving pieces the tangential acceleration is also capped at
+alpha_max / (2 |kappa|), so |alpha| = |a kappa + v^2 dkappa/ds| <= alpha_max. In a pivot v = 0,
+omega = turn * u / b (an angular trapezoid limited by omega_max and alpha_max).
+
+Conventions: theta is continuous (unwrapped) along the path and starts in (-pi, pi]; consumers
+should wrap their heading errors. kappa is 0 inside pivots (d theta / ds is undefined there).
+
+Index arrays (read-only Python lists, for the pursuit's hot path; n samples, n - 1 intervals):
+  sigma, x, y, theta, kappa, u, v, omega, t     per sample
+  tx, ty                                        per sample: unit tangent (cos theta, sin theta)
+  acc_u, a, alpha, seg_pivot, turn, piece_end   per interval i (between samples i and i + 1):
+    acc_u      d(u)/dt, constant over the interval
+    a, alpha   dv/dt and d(omega)/dt over the interval (a = 0 and alpha = turn * acc_u / b in pivots)
+    seg_pivot  True if the interval lies in a pivot
+    turn       +1 (left) / -1 (right) for pivot intervals, 0 otherwise
+    piece_end  sigma at which the interval's piece ends
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ddrt.core.wrap import wrap_angle
+from ddrt.path.geometry import _Geometry, _Piece
+from ddrt.path.profile import SpeedLimits, speed_profile
+
+__all__ = ["PathPoint", "Path"]
+
+
+@dataclass(frozen=True, slots=True)
+class PathPoint:
+    """The path and its profile at one progress value (see the module docstring for units)."""
+
+    sigma: float
+    x: float
+    y: float
+    theta: float
+    kappa: float
+    v: float
+    omega: float
+    a: float
+    alpha: float
+    t: float
+    pivot: bool
+
+
+
+class Path:
+    """Dense samples of a path and its speed profile; O(log n) lookups by progress or time."""
+
+    def __init__(self, geo: _Geometry, limits: SpeedLimits, *, v_cap: float, pivot_radius: float,
+                 start_pose: tuple[float, float, float] | None = None) -> None:
+        self.limits = limits
+        self.pivot_radius = pivot_radius
+        self._assemble(geo.pieces)
+        sig = np.asarray(self.sigma)
+        cap = np.full(len(sig), min(v_cap, limits.v_max))
+        if geo.cap_sigma is not None and geo.cap_value is not None:
+            cap = np.minimum(cap, np.interp(sig, geo.cap_sigma, geo.cap_value))
+        self._profile(cap)
+        self.length: float = self.sigma[-1]
+        self.duration: float = self.t[-1]
+        if start_pose is None:
+            start_pose = (self.x[0], self.y[0], self.theta[0])
+        self.start_pose: tuple[float, float, float] = tuple(float(v) for v in start_pose)  # type: ignore[assignment]
+        self._np: dict[str, np.ndarray] | None = None
+
+    # -- construction -------------------------------------------------------------------------
+    def _assemble(self, pieces: list[_Piece]) -> None:
+        cols: dict[str, list[np.ndarray]] = {k: [] for k in ("s", "x", "y", "theta", "kappa")}
+        seg_pivot: list[bool] = []
+        turn: list[float] = []
+        piece_end: list[float] = []
+        base = 0.0
+        for j, pc in enumerate(pieces):
+            sl = slice(0 if j == 0 else 1, None)
+            if j:
+                gap = math.hypot(pc.x[0] - cols["x"][-1][-1], pc.y[0] - cols["y"][-1][-1])
+                if gap > 1e-6:
+                    raise AssertionError(f"pieces do not join ({gap:.3g} m)")
+            cols["s"].append(base + pc.s[sl])
+            for k in ("x", "y", "theta", "kappa"):
+                cols[k].append(getattr(pc, k)[sl])
+            n = len(pc.s) - 1
+            seg_pivot += [pc.pivot] * n
+            turn += [pc.turn] * n
+            base += pc.length
+            piece_end += [base] * n
+        arr = {k: np.concatenate(v) for k, v in cols.items()}
+        # Theta continuous across pieces (each piece is continuous inside).
+        arr["theta"] = np.unwrap(arr["theta"])
+        shift = arr["theta"][0] - wrap_angle(float(arr["theta"][0]))
+        arr["theta"] -= shift
+        self.sigma: list[float] = arr["s"].tolist()
+        self.x: list[float] = arr["x"].tolist()
+        self.y: list[float] = arr["y"].tolist()
+        self.theta: list[float] = arr["theta"].tolist()
+        self.kappa: list[float] = arr["kappa"].tolist()
+        self.tx: list[float] = np.cos(arr["theta"]).tolist()
+        self.ty: list[float] = np.sin(arr["theta"]).tolist()
+        self.seg_pivot: list[bool] = seg_pivot
+        self.turn: list[float] = turn
+        self.piece_end: list[float] = piece_end
+
+    def _profile(self, v_cap: np.ndarray) -> None:
+        p = speed_profile(self.sigma, self.kappa, self.seg_pivot, self.turn, v_cap, self.limits, self.pivot_radius)
+        self.u, self.v, self.omega, self.t = p.u, p.v, p.omega, p.t
+        self.acc_u, self.a, self.alpha = p.acc_u, p.a, p.alpha
+        self.pivot_sample: list[bool] = p.pivot_sample
+
+    # -- lookups ------------------------------------------------------------------------------
+    def index(self, sigma: float) -> int:
+        """Interval i with sigma[i] <= sigma < sigma[i + 1] (clamped to the valid range)."""
+        i = bisect.bisect_right(self.sigma, sigma) - 1
+        last = len(self.sigma) - 2
+        return 0 if i < 0 else (last if i > last else i)
+
+    def geometry(self, i: int, s: float) -> tuple[float, float, float, float]:
+        """(x, y, theta, kappa) at progress s inside interval i, linearly interpolated."""
+        s0 = self.sigma[i]
+        f = (s - s0) / (self.sigma[i + 1] - s0)
+        x, y, th, k = self.x, self.y, self.theta, self.kappa
+        return (x[i] + f * (x[i + 1] - x[i]), y[i] + f * (y[i + 1] - y[i]),
+                th[i] + f * (th[i + 1] - th[i]), k[i] + f * (k[i + 1] - k[i]))
+
+    def dynamics(self, i: int, s: float) -> tuple[float, float, float, float, float]:
+        """(v, omega, a, alpha, t) at progress s inside interval i, exact for the profile."""
+        u0 = self.u[i]
+        acc = self.acc_u[i]
+        ds = s - self.sigma[i]
+        uu = u0 * u0 + 2.0 * acc * ds
+        u = math.sqrt(uu) if uu > 0.0 else 0.0
+        den = u0 + u
+        tau = 2.0 * ds / den if den > 0.0 else 0.0
+        return self._dyn(i, u, tau)
+
+    def _dyn(self, i: int, u: float, tau: float) -> tuple[float, float, float, float, float]:
+        if self.seg_pivot[i]:
+            w = self.turn[i] * u / self.pivot_radius
+            return 0.0, w, 0.0, self.alpha[i], self.t[i] + tau
+        return u, self.omega[i] + self.alpha[i] * tau, self.a[i], self.alpha[i], self.t[i] + tau
+
+    def _point(self, i: int, s: float, dyn: tuple[float, float, float, float, float]) -> PathPoint:
+        x, y, th, k = self.geometry(i, s)
+        v, w, a, al, t = dyn
+        return PathPoint(s, x, y, th, 0.0 if self.seg_pivot[i] else k, v, w, a, al, t, self.seg_pivot[i])
+
+    def at(self, sigma: float) -> PathPoint:
+        """The path at progress sigma (clamped to [0, length])."""
+        s = 0.0 if sigma <= 0.0 else (self.length if sigma >= self.length else float(sigma))
+        i = self.index(s)
+        return self._point(i, s, self.dynamics(i, s))
+
+    def at_time(self, t: float) -> PathPoint:
+        """The path where the profile is at time t (clamped to [0, duration])."""
+        tc = 0.0 if t <= 0.0 else (self.duration if t >= self.duration else float(t))
+        i = bisect.bisect_right(self.t, tc) - 1
+        i = min(max(i, 0), len(self.t) - 2)
+        tau = tc - self.t[i]
+        u0, acc = self.u[i], self.acc_u[i]
+        s = self.sigma[i] + u0 * tau + 0.5 * acc * tau * tau
+        s = min(max(s, self.sigma[i]), self.sigma[i + 1])
+        u = max(u0 + acc * tau, 0.0)
+        return self._point(i, s, self._dyn(i, u, tau))
+
+    # -- offline helpers ----------------------------------------------------------------------
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Numpy copies of the sample arrays (for plots, metrics and tests)."""
+        if self._np is None:
+            names = ("sigma", "x", "y", "theta", "kappa", "u", "v", "omega", "t", "a", "alpha",
+                     "acc_u", "seg_pivot", "turn", "pivot_sample")
+            self._np = {k: np.asarray(getattr(self, k)) for k in names}
+        return self._np
+
+    def distance_to(self, x: float, y: float) -> float:
+        """Geometric distance from (x, y) to the path's polyline (vectorised; not for the hot path)."""
+        arr = self.arrays()
+        ax, ay = arr["x"][:-1], arr["y"][:-1]
+        dx, dy = arr["x"][1:] - ax, arr["y"][1:] - ay
+        l2 = dx * dx + dy * dy
+        with np.errstate(invalid="ignore", divide="ignore"):
+            f = np.where(l2 > 0.0, ((x - ax) * dx + (y - ay) * dy) / l2, 0.0)
+        f = np.clip(f, 0.0, 1.0)
+        return float(np.sqrt(np.min((ax + f * dx - x) ** 2 + (ay + f * dy - y) ** 2)))
