@@ -75,6 +75,34 @@ class ControlLoop:
         self._adapt_active = False
         self.on_tick: Callable[["ControlLoop"], None] | None = None
 
+    def reconfigure(self, cfg: Config) -> None:
+        """Put a config in force between two ticks: every part that holds a copy gets it.
+
+        `cfg` is what ddrt.config.policy.plan_reload returned (its restart-only fields are the
+        running ones, so the rate, the mode and the devices never change here). Everything
+        new is built before anything is swapped, so a part that refuses leaves all as it was.
+        """
+        model_changed = cfg.robot != self.cfg.robot or cfg.robot_motor != self.cfg.robot_motor
+        if model_changed:
+            dyn = Dynamics.from_params(cfg.robot)
+            seed_dyn = Dynamics.from_params(cfg.robot, seed_report=True)
+            motor = Motor(cfg.robot_motor)
+            adapter = (DynamicsAdapter(dyn, motor, cfg.controller.adaptation, self.period)
+                       if self.adapter is not None else None)
+        else:
+            dyn, seed_dyn, motor, adapter = self.dyn, self.seed_dyn, self.motor, self.adapter
+        # Swap (nothing below raises for values that passed validation).
+        self.estimator.reconfigure(cfg.estimator, cfg.robot.r_3,
+                                   self.estimator.dyn if not model_changed else dyn, motor)
+        self.controller.retune(cfg.controller, cfg.limits)
+        if model_changed:
+            self.dyn, self.seed_dyn, self.motor = dyn, seed_dyn, motor
+            self.controller.set_model(seed_dyn if cfg.controller.mode == "seed" else dyn, motor)
+            # A new robot description invalidates what the adapter learnt about the old one.
+            self.adapter = adapter
+            self._adapt_active = False
+        self.cfg = cfg
+
     # ------------------------------------------------------------------ start-up
 
     def calibrate(self, sleep_until: Callable[[float], float], now: Callable[[], float]) -> tuple[float, float]:

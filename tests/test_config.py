@@ -19,8 +19,7 @@ from ddrt.config import load as config_mod
 from ddrt.config import (
     AdaptationConfig, Config, ControllerConfig, DaemonConfig, EstimatorConfig, GyroTruth,
     HalConfig, LimitsConfig, OuterGains, PidGains, PursuitConfig, SensorsConfig, SimConfig,
-    SlipConfig, WheelPidGains, changed_keys, config_from_mapping, load_config, needs_restart,
-    with_overrides,
+    SlipConfig, WheelPidGains, config_from_mapping, load_config, with_overrides,
 )
 from ddrt.core.model import RobotParams
 from ddrt.core.motor import MotorParams
@@ -422,54 +421,3 @@ def test_docs_cover_the_real_backends_keys() -> None:
     assert documented - used == set(), "documented backend keys the backend does not read"
 
 
-# --------------------------------------------------------------------------- live changes
-
-
-def test_gain_change_needs_no_restart() -> None:
-    old = load_config(SIM)
-    new = with_overrides(old, {"controller": {"inner": {"kp": 20.0, "ki": 100.0}}})
-    keys = changed_keys(old, new)
-    assert keys == ["controller.inner"]
-    assert needs_restart(keys) == []
-
-
-def test_rate_change_needs_a_restart() -> None:
-    old = load_config(SIM)
-    new = with_overrides(old, {"controller": {"rate_hz": 100.0, "heading_gain": 4.0}})
-    keys = changed_keys(old, new)
-    assert set(keys) == {"controller.rate_hz", "controller.heading_gain"}
-    assert needs_restart(keys) == ["controller.rate_hz"]
-
-
-def test_backend_change_needs_a_restart() -> None:
-    old = load_config(SIM)
-    new = with_overrides(old, {"hal": {"backend": "real"}})
-    assert changed_keys(old, new) == ["hal.backend"]
-    assert needs_restart(changed_keys(old, new)) == ["hal.backend"]
-
-
-def test_no_change_reports_nothing() -> None:
-    old = load_config(SIM)
-    same = with_overrides(old, {"controller": {"rate_hz": old.controller.rate_hz}})
-    assert changed_keys(old, same) == []
-    assert changed_keys(old, old) == []
-
-
-@pytest.mark.parametrize(("key", "restart"), [
-    ("controller.rate_hz", True), ("controller.inner", False), ("controller.rate_hz_x", False),
-    ("hal", True), ("hal.imu", True), ("sensors.gyro_range_dps", True), ("sim.seed", True),
-    ("plant.m_p", True), ("robot.m_p", False), ("daemon.socket", True), ("daemon.cpus", True),
-    ("daemon.stop_decel", False), ("limits.v_max", False), ("simulation", False), ("path", False),
-])
-def test_needs_restart_by_key(key: str, restart: bool) -> None:
-    assert needs_restart([key]) == ([key] if restart else [])
-
-
-@pytest.mark.parametrize("direction", ["added", "removed"])
-def test_rate_change_in_an_added_or_removed_section_needs_a_restart(direction: str) -> None:
-    without = _minimal()
-    with_rate = _minimal()
-    with_rate["controller"] = {"rate_hz": 100.0}
-    a, b = config_from_mapping(without), config_from_mapping(with_rate)
-    old, new = (a, b) if direction == "added" else (b, a)
-    assert needs_restart(changed_keys(old, new)) != []

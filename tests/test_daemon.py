@@ -665,7 +665,7 @@ def test_estop_latches_until_reset(daemon: DaemonProc) -> None:
 def test_reload_over_socket_on_unchanged_file(daemon: DaemonProc) -> None:
     before = daemon.status()["reloads"]
     reply = daemon.request({"cmd": "reload"})
-    assert reply == {"ok": True, "message": "applied: nothing changed"}
+    assert reply == {"ok": True, "message": "applied: nothing changed", "applied": [], "next_path": [], "restart": []}
     after = daemon.status()["reloads"]
     assert after == {"applied": before["applied"] + 1, "rejected": before["rejected"]}
 

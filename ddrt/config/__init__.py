@@ -1,7 +1,7 @@
 """The config: sections (typed dataclasses), the schema walker, loading and the reload policy."""
 
 from ddrt.config.load import (
-    RESTART_KEYS, changed_keys, config_from_mapping, load_config, needs_restart, with_overrides,
+    config_from_mapping, load_config, with_overrides,
 )
 from ddrt.config.schema import ConfigError
 from ddrt.config.sections import (
@@ -12,7 +12,7 @@ from ddrt.config.sections import (
 
 __all__ = [
     "AdaptationConfig", "Config", "ConfigError", "ControllerConfig", "DaemonConfig", "EstimatorConfig",
-    "GyroTruth", "HalConfig", "LimitsConfig", "OuterGains", "PidGains", "PursuitConfig", "RESTART_KEYS",
-    "SensorsConfig", "SimConfig", "SlipConfig", "WheelPidGains", "changed_keys", "config_from_mapping",
-    "load_config", "needs_restart", "with_overrides",
+    "GyroTruth", "HalConfig", "LimitsConfig", "OuterGains", "PidGains", "PursuitConfig",
+    "SensorsConfig", "SimConfig", "SlipConfig", "WheelPidGains", "config_from_mapping",
+    "load_config", "with_overrides",
 ]

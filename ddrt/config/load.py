@@ -148,14 +148,8 @@ def _config_from_mapping(data: Mapping[str, Any], source: str, base_dir: str) ->
 
     limits = build(LimitsConfig, _section(data, "limits"), "limits")
     sensors = build(SensorsConfig, _section(data, "sensors"), "sensors")
-    gyro_limit = 0.8 * math.radians(sensors.gyro_range_dps)
-    if limits.omega_max > gyro_limit:
-        raise ConfigError(
-            f"limits.omega_max: {limits.omega_max} rad/s leaves no margin below the gyro's range "
-            f"(sensors.gyro_range_dps = {sensors.gyro_range_dps} deg/s): at most {gyro_limit:.2f} rad/s, "
-            "or raise the range")
 
-    return Config(
+    cfg = Config(
         robot=robot,
         robot_motor=robot_motor,
         plant=plant,
@@ -175,6 +169,8 @@ def _config_from_mapping(data: Mapping[str, Any], source: str, base_dir: str) ->
         base_dir=base_dir,
         raw=copy.deepcopy(dict(data)),
     )
+    cfg.validate()
+    return cfg
 
 
 def load_config(path: str | FsPath, overrides: Mapping[str, Any] | None = None) -> Config:
@@ -192,33 +188,3 @@ def load_config(path: str | FsPath, overrides: Mapping[str, Any] | None = None) 
 def with_overrides(cfg: Config, overrides: Mapping[str, Any]) -> Config:
     """The same config with some keys replaced (for sweeps and benchmarks)."""
     return config_from_mapping(_merge(cfg.raw, overrides), source=cfg.source, base_dir=cfg.base_dir)
-
-
-# Keys whose change needs a restart of the daemon (devices and the loop's rate).
-RESTART_KEYS = ("hal", "sensors", "controller.rate_hz", "controller.mode", "controller.adaptation", "estimator", "daemon.socket", "daemon.rt_priority",
-                "daemon.cpus", "daemon.lock_memory", "daemon.telemetry_dir", "sim", "plant")
-
-
-def changed_keys(old: Config, new: Config) -> list[str]:
-    """Dotted top-level-or-second-level keys whose values differ between two configs."""
-    out: list[str] = []
-    for section in sorted(set(old.raw) | set(new.raw)):
-        a, b = old.raw.get(section), new.raw.get(section)
-        if a is None and isinstance(b, Mapping):
-            a = {}
-        if b is None and isinstance(a, Mapping):
-            b = {}
-        if a == b:
-            continue
-        if isinstance(a, Mapping) and isinstance(b, Mapping):
-            for key in sorted(set(a) | set(b)):
-                if a.get(key) != b.get(key):
-                    out.append(f"{section}.{key}")
-        else:
-            out.append(section)
-    return out
-
-
-def needs_restart(keys: list[str]) -> list[str]:
-    """The subset of changed `keys` that cannot be applied while the loop runs."""
-    return [k for k in keys if any(k == r or k.startswith(r + ".") for r in RESTART_KEYS)]

@@ -143,3 +143,43 @@ def non_negative(where: str, **values: float) -> None:
     for key, value in values.items():
         if not value >= 0:
             raise ConfigError(f"{_join(where, key)}: must be >= 0, got {value!r}")
+
+
+# --------------------------------------------------------------------------- reload policy
+# How a changed value takes effect in a running daemon, declared beside the field it is about
+# (ddrt.config.policy derives the reload report and the config in force from these):
+#   live       handed to the running parts between two ticks
+#   next_path  used from the next path the robot is given (the current one keeps its profile)
+#   restart    read when the daemon starts; a change waits for a restart
+LIVE, NEXT_PATH, RESTART = "live", "next_path", "restart"
+APPLY_MODES = (LIVE, NEXT_PATH, RESTART)
+
+
+def applies(mode: str, default: Any = dataclasses.MISSING, *, factory: Any = dataclasses.MISSING,
+            key: str | None = None, **kwargs: Any) -> Any:
+    """A dataclass field whose reload mode is `mode` (and whose YAML key is `key`, when it differs)."""
+    if mode not in APPLY_MODES:
+        raise ValueError(f"applies: unknown mode {mode!r}")
+    metadata = {"apply": mode, **({"key": key} if key else {})}
+    return dataclasses.field(default=default, default_factory=factory, metadata=metadata, **kwargs)
+
+
+def restart(default: Any = dataclasses.MISSING, *, factory: Any = dataclasses.MISSING) -> Any:
+    """A field read only at start-up."""
+    return applies(RESTART, default, factory=factory)
+
+
+def next_path(default: Any = dataclasses.MISSING, *, factory: Any = dataclasses.MISSING) -> Any:
+    """A field that shapes paths: a change applies from the next path."""
+    return applies(NEXT_PATH, default, factory=factory)
+
+
+def validate_tree(obj: Any, where: str = "") -> None:
+    """Run every `validate(where)` in a tree of built dataclasses, innermost first."""
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            validate_tree(value, _join(where, f.name))
+    check = getattr(obj, "validate", None)
+    if callable(check):
+        check(where)

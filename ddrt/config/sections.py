@@ -7,11 +7,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Literal, Mapping
+from typing import Any, ClassVar, Literal, Mapping
 
 from ddrt.core.model import RobotParams
 from ddrt.core.motor import MotorParams
-from ddrt.config.schema import ConfigError, build, non_negative, positive
+from ddrt.config.schema import (
+    LIVE, NEXT_PATH, RESTART, ConfigError, applies, build, next_path, non_negative, positive, restart,
+)
 
 # --------------------------------------------------------------------------- sections
 
@@ -49,6 +51,8 @@ class GyroTruth:
 class SimConfig:
     """The simulated robot's own settings (the plant's truth beyond its parameters)."""
 
+    APPLY: ClassVar[str] = RESTART  # the simulated robot is built once
+
     step_hz: float = 1000.0
     friction: bool = True
     seed: int = 1
@@ -71,6 +75,8 @@ class SimConfig:
 class SensorsConfig:
     """Facts about the sensors both the controller and the simulated robot share."""
 
+    APPLY: ClassVar[str] = RESTART  # the devices are configured when opened
+
     encoder_counts_per_rev: int = 8192
     gyro_range_dps: int = 250
 
@@ -83,6 +89,8 @@ class SensorsConfig:
 @dataclass(frozen=True)
 class HalConfig:
     """Which backend drives the robot; the real backend validates its own sub-sections."""
+
+    APPLY: ClassVar[str] = RESTART  # the devices are opened once
 
     backend: Literal["sim", "real"] = "sim"
     motors: Literal["bridge", "pwm_sysfs"] = "bridge"
@@ -166,13 +174,15 @@ class AdaptationConfig:
 class ControllerConfig:
     """The three-stage controller (or the kinematic baseline, or the seed's own method)."""
 
-    mode: Literal["dynamic", "kinematic", "seed"] = "dynamic"
-    rate_hz: float = 200.0
+    APPLY: ClassVar[str] = LIVE  # gains are retuned between two ticks, bumplessly
+
+    mode: Literal["dynamic", "kinematic", "seed"] = restart("dynamic")
+    rate_hz: float = restart(200.0)
     outer: OuterGains = field(default_factory=OuterGains)
     inner: PidGains = field(default_factory=PidGains)
     wheel_pid: WheelPidGains = field(default_factory=WheelPidGains)
     heading_gain: float = 8.0
-    adaptation: AdaptationConfig = field(default_factory=AdaptationConfig)
+    adaptation: AdaptationConfig = restart(factory=AdaptationConfig)  # the adapter is built at start
 
     def validate(self, where: str) -> None:
         positive(where, rate_hz=self.rate_hz, heading_gain=self.heading_gain)
@@ -184,8 +194,10 @@ class ControllerConfig:
 class EstimatorConfig:
     """Kalman filter tuning and sensor supervision."""
 
-    calibration_s: float = 1.0  # the bias keeps being refined afterwards while the robot stands still
-    calibration_max_std_dps: float = 0.5
+    APPLY: ClassVar[str] = LIVE  # the estimator re-derives its scales and noises between two ticks
+
+    calibration_s: float = restart(1.0)  # used by the start-up calibration; the bias keeps being refined afterwards while the robot stands still
+    calibration_max_std_dps: float = restart(0.5)
     accel_noise: float = 0.5  # m/s^2 white acceleration the model does not explain (speed for feedback)
     odometry_accel_noise: float = 20.0  # the same for the speed the pose integrates (trusts the encoder)
     yaw_accel_noise: float = 5.0  # rad/s^2 likewise for yaw
@@ -218,6 +230,8 @@ class EstimatorConfig:
 class PursuitConfig:
     """How the reference is taken from the path."""
 
+    APPLY: ClassVar[str] = NEXT_PATH  # the reference stage is built for each path
+
     mode: Literal["path", "time"] = "path"
     lookahead_m: float = 0.05
     search_window_m: float = 0.3
@@ -230,14 +244,16 @@ class PursuitConfig:
 class LimitsConfig:
     """Hard limits: the speed profile respects the motion ones, the controller the rest."""
 
+    APPLY: ClassVar[str] = NEXT_PATH  # the speed profile and the controller's acceleration clamps are set per path
+
     v_max: float = 1.0
     accel: float = 1.0
     lateral_accel: float = 1.5
     omega_max: float = 3.0  # well inside the gyro's range (250 deg/s = 4.36 rad/s)
     alpha_max: float = 20.0
-    duty_max: float = 1.0
-    torque_max_nm: float = 1.0
-    max_path_error_m: float = 0.3  # farther than this from the reference: stop following (fault)
+    duty_max: float = applies(LIVE, 1.0)
+    torque_max_nm: float = applies(LIVE, 1.0)
+    max_path_error_m: float = applies(LIVE, 0.3)  # farther than this from the reference: stop following (fault)
 
     def validate(self, where: str) -> None:
         positive(where, v_max=self.v_max, accel=self.accel, lateral_accel=self.lateral_accel,
@@ -251,17 +267,19 @@ class LimitsConfig:
 class DaemonConfig:
     """The long-running service: socket, telemetry files, real-time setup, safety bounds."""
 
-    socket: str = "/run/ddrt/ddrt.sock"
+    APPLY: ClassVar[str] = RESTART  # the process's own set-up
+
+    socket: str | None = "/run/ddrt/ddrt.sock"  # null or "": no control socket; --socket overrides
     telemetry_dir: str = "/var/lib/ddrt/telemetry"
-    telemetry_max_bytes: int = 20_000_000
-    telemetry_max_files: int = 5
+    telemetry_max_bytes: int = applies(LIVE, 20_000_000)
+    telemetry_max_files: int = applies(LIVE, 5)
     rt_priority: int = 0  # SCHED_FIFO priority; 0 leaves the scheduler alone
     cpus: tuple[int, ...] = ()
     lock_memory: bool = False  # mlockall; pins every mapped page, shared libraries too
     timer_slack_ns: int = 1000
-    spin_us: int = 0  # wake this long before each deadline and poll the clock up to it
-    watch_config: bool = False
-    stop_decel: float = 0.5  # m/s^2 for a controlled stop
+    spin_us: int = applies(LIVE, 0)  # wake this long before each deadline and poll the clock up to it
+    watch_config: bool = applies(LIVE, False)  # reload when the file changes
+    stop_decel: float = applies(LIVE, 0.5)  # m/s^2 for a controlled stop
 
     def validate(self, where: str) -> None:
         if not 0 <= self.rt_priority <= 99:
@@ -277,21 +295,34 @@ class Config:
     """Everything ddrt needs, validated. `robot` is what the controller believes, `plant`
     what the simulated robot is (missing plant keys default to robot's)."""
 
-    robot: RobotParams
-    robot_motor: MotorParams
-    plant: RobotParams
-    plant_motor_l: MotorParams
-    plant_motor_r: MotorParams
-    sim: SimConfig
-    sensors: SensorsConfig
-    hal: HalConfig
-    controller: ControllerConfig
-    estimator: EstimatorConfig
-    pursuit: PursuitConfig
-    limits: LimitsConfig
-    daemon: DaemonConfig
-    path: Any = None  # a path mapping or file name, resolved by ddrt.path
-    start: tuple[float, float, float] | None = None
-    source: str = "<memory>"
-    base_dir: str = "."
+    robot: RobotParams = applies(LIVE)  # the model in the controller, estimator and adapter
+    robot_motor: MotorParams = applies(LIVE, key="robot.motor")
+    plant: RobotParams = restart()  # the simulated robot is built once
+    plant_motor_l: MotorParams = applies(RESTART, key="plant.motor_l")
+    plant_motor_r: MotorParams = applies(RESTART, key="plant.motor_r")
+    sim: SimConfig = applies(RESTART)
+    sensors: SensorsConfig = applies(RESTART)
+    hal: HalConfig = applies(RESTART)
+    controller: ControllerConfig = applies(LIVE)
+    estimator: EstimatorConfig = applies(LIVE)
+    pursuit: PursuitConfig = applies(NEXT_PATH)
+    limits: LimitsConfig = applies(NEXT_PATH)
+    daemon: DaemonConfig = applies(RESTART)
+    path: Any = restart(None)  # a path mapping or file name, followed at start (ddrt run --follow, ddrt sim)
+    start: tuple[float, float, float] | None = restart(None)
+    # Where the config came from: not settings, so never reported by a reload.
+    source: str = field(default="<memory>", compare=False)
+    base_dir: str = field(default=".", compare=False)
     raw: Mapping[str, Any] = field(default_factory=dict, repr=False, compare=False)
+
+    def validate(self, where: str = "") -> None:
+        """Rules across sections (each section checked its own when it was built)."""
+        gyro_limit = GYRO_MARGIN * math.radians(self.sensors.gyro_range_dps)
+        if self.limits.omega_max > gyro_limit:
+            raise ConfigError(
+                f"limits.omega_max: {self.limits.omega_max} rad/s leaves no margin below the gyro's range "
+                f"(sensors.gyro_range_dps = {self.sensors.gyro_range_dps} deg/s): at most {gyro_limit:.2f} rad/s, "
+                "or raise the range")
+
+
+GYRO_MARGIN = 0.8  # limits.omega_max stays within this fraction of the gyro's full scale

@@ -121,6 +121,11 @@ class _Controller:
         """Swap the model (the adaptive law's estimate) between ticks."""
         self.dyn = dyn
 
+    def set_model(self, dyn: Dynamics, motor: Motor) -> None:
+        """A new robot description (a reload): the dynamic and the motor model, between ticks."""
+        self.dyn = dyn
+        self.motor = motor
+
 
 class DynamicController(_Controller):
     """Outer Kanayama law, inner PID, computed-torque compensator, inverse motor model."""
@@ -148,12 +153,14 @@ class DynamicController(_Controller):
         self._alpha_max = 2.0 * limits.alpha_max
 
     def retune(self, cfg: ControllerConfig, limits: LimitsConfig) -> None:
-        """Apply new gains between two ticks without a step in the command."""
+        """Apply new gains and limits between two ticks without a step in the command.
+
+        The seed's method keeps the report's fixed gains: only the limits change there."""
+        self._set_limits(limits)
         if self.seed_method:
             return
         self.outer = cfg.outer
         self.heading_gain = cfg.heading_gain
-        self._set_limits(limits)
         self.pid_v.retune(cfg.inner, self._last_err_v)
         self.pid_w.retune(cfg.inner, self._last_err_w)
 

@@ -63,44 +63,86 @@ class Estimator:
         self.motor = motor
         self.cfg = cfg
         self.period = period_s
-        self.metres_per_count = 2.0 * math.pi * r_3 / info.encoder_counts_per_rev
-        self.rad_s_per_lsb = 1.0 / (info.gyro_lsb_per_rad_s * cfg.gyro_scale)
-        self.gyro_full_scale = info.gyro_full_scale_rad_s / cfg.gyro_scale
-        q = self.metres_per_count
-        # The filters' noise is per step; scaled so that their bandwidth, i.e. how much they
-        # trust the model, is the same at every loop rate (the configured values are per 5 ms).
-        k = math.sqrt(NOISE_STEP_S / period_s)
+        self.info = info
+        self.metres_per_count = self.rad_s_per_lsb = 0.0
         # Two filters on the same encoder: `speed` (smooth) is what the controller feeds back,
         # `travel` (trusting the encoder over the model) is what the pose integrates. One filter
         # cannot do both: a smooth one lets a wrong model bend the dead-reckoned path, a sharp
-        # one makes the PID chatter on quantisation noise.
-        self.travel = TravelFilter(k * cfg.odometry_accel_noise, q / math.sqrt(12.0))
-        self.speed = TravelFilter(k * cfg.accel_noise, q / math.sqrt(12.0))
+        # one makes the PID chatter on quantisation noise. Their noises are set by _configure.
+        self.travel = TravelFilter(0.0, 0.0)
+        self.speed = TravelFilter(0.0, 0.0)
         # Likewise for yaw: `yaw` is fed back, `heading` (trusting the gyro) is integrated.
-        self.yaw = YawFilter(k * cfg.yaw_accel_noise, cfg.gyro_bias_walk, cfg.gyro_noise_dps * DEG)
-        self.heading = YawFilter(k * cfg.odometry_yaw_accel_noise, cfg.gyro_bias_walk, cfg.gyro_noise_dps * DEG)
-        self._gyro_var = self.yaw.meas_var
-        # The gyro's low-pass makes it lag the encoder; a heading that lags the distance
-        # bends the dead-reckoned path. The lead z + tau dz/dt undoes a lag tau.
-        self.gyro_lead = info.gyro_delay_s if cfg.gyro_delay_s is None else cfg.gyro_delay_s
+        self.yaw = YawFilter(0.0, 0.0, 0.0)
+        self.heading = YawFilter(0.0, 0.0, 0.0)
+        self._configure(cfg, r_3)
         self._last_gyro_z: float | None = None
         self._last_gyro_t = 0.0
-        self.gate2 = cfg.gate_sigma * cfg.gate_sigma
-        # A gap in the samples while moving is a fault: ten ticks, but never less than
-        # max_gap_s, so a fast loop does not fault on a host's scheduling hiccup.
-        self.max_gap = max(10.0 * period_s, cfg.max_gap_s)
+        self._travel_counts = 0  # unwrapped encoder counts since reset (or the last re-base)
         self.health = EstimatorHealth()
         self.x = self.y = self.theta = 0.0
         self.dt = period_s  # the time step of the last update (what the reference advances by)
         self._last_t: float | None = None
         self._last_count = 0
-        self._travel_counts = 0  # unwrapped encoder counts since reset
         self._enc_rejects_row = 0
         self._gyro_rejects_row = 0
         self._last_raw_gyro: int | None = None
         self._same_gyro = 0
         self._count_still_s = 0.0  # time without counts while the filter says we move
         self._still_ticks = 0  # ticks in a row without a single encoder count
+
+    # ------------------------------------------------------------------ configuration
+
+    def _configure(self, cfg: EstimatorConfig, r_3: float) -> None:
+        """Derive the scales, noises and bounds from `cfg` and the encoder wheel's radius."""
+        info, period_s = self.info, self.period
+        self.cfg = cfg
+        self.metres_per_count = 2.0 * math.pi * r_3 / info.encoder_counts_per_rev
+        self.rad_s_per_lsb = 1.0 / (info.gyro_lsb_per_rad_s * cfg.gyro_scale)
+        self.gyro_full_scale = info.gyro_full_scale_rad_s / cfg.gyro_scale
+        # The filters' noise is per step; scaled so that their bandwidth, i.e. how much they
+        # trust the model, is the same at every loop rate (the configured values are per 5 ms).
+        k = math.sqrt(NOISE_STEP_S / period_s)
+        enc_var = self.metres_per_count * self.metres_per_count / 12.0
+        for filt, noise in ((self.travel, cfg.odometry_accel_noise), (self.speed, cfg.accel_noise)):
+            filt.accel_var = (k * noise) ** 2
+            filt.meas_var = enc_var
+        gyro_var = (cfg.gyro_noise_dps * DEG) ** 2
+        for filt, noise in ((self.yaw, cfg.yaw_accel_noise), (self.heading, cfg.odometry_yaw_accel_noise)):
+            filt.yaw_accel_var = (k * noise) ** 2
+            filt.bias_walk_var = cfg.gyro_bias_walk * cfg.gyro_bias_walk
+            filt.meas_var = gyro_var
+        self._gyro_var = gyro_var
+        # The gyro's low-pass makes it lag the encoder; a heading that lags the distance
+        # bends the dead-reckoned path. The lead z + tau dz/dt undoes a lag tau.
+        self.gyro_lead = info.gyro_delay_s if cfg.gyro_delay_s is None else cfg.gyro_delay_s
+        self.gate2 = cfg.gate_sigma * cfg.gate_sigma
+        # A gap in the samples while moving is a fault: ten ticks, but never less than
+        # max_gap_s, so a fast loop does not fault on a host's scheduling hiccup.
+        self.max_gap = max(10.0 * period_s, cfg.max_gap_s)
+
+    def reconfigure(self, cfg: EstimatorConfig, r_3: float, dyn: Dynamics, motor: Motor) -> None:
+        """Take a new tuning, encoder radius (a calibrated r_3), gyro scale or model between
+        two ticks, without a jump in the estimate.
+
+        The travelled distance is re-based at the new metres per count, so the position
+        measurement stays continuous; the yaw rate and the gyro bias, which are raw readings
+        times the gyro's scale, are rescaled with it.
+        """
+        old_lsb = self.rad_s_per_lsb
+        travelled = self._travel_counts * self.metres_per_count
+        self._configure(cfg, r_3)
+        self.dyn = dyn
+        self.motor = motor
+        for f in (self.travel, self.speed):
+            f.p -= travelled
+        self._travel_counts = 0
+        ratio = self.rad_s_per_lsb / old_lsb
+        if ratio != 1.0:
+            for f in (self.yaw, self.heading):
+                f.w *= ratio
+                f.b *= ratio
+            if self._last_gyro_z is not None:
+                self._last_gyro_z *= ratio
 
     # ------------------------------------------------------------------ set-up
 

@@ -24,7 +24,8 @@ from typing import Any
 
 from ddrt.service import rt
 from ddrt.service.clock import MonotonicClock
-from ddrt.config import RESTART_KEYS, Config, changed_keys, load_config, needs_restart
+from ddrt.config import Config, load_config
+from ddrt.config.policy import ReloadPlan, plan_reload
 from ddrt.service.ctlsocket import ControlServer
 from ddrt.loop import COLUMNS, ControlLoop
 from ddrt.path import PathError, load_path
@@ -53,7 +54,9 @@ class Daemon:
         self.t_start = time.monotonic()
         self.config_path = config_path
         self.cfg: Config = load_config(config_path)
-        self.socket_path = socket_path
+        self._config_stat = _stat(config_path)
+        # --socket wins over daemon.socket; an empty daemon.socket means no control socket.
+        self.socket_path = socket_path if socket_path is not None else (self.cfg.daemon.socket or None)
         self.duration = duration
         self.stats_json = stats_json
         self.follow_at_start = follow
@@ -215,6 +218,9 @@ class Daemon:
             if now >= next_status:
                 notifier.status(self.status_line())
                 next_status = now + 1.0
+                if self.cfg.daemon.watch_config and self._config_changed():
+                    log.info("%s changed on disk (daemon.watch_config)", self.config_path)
+                    self.reload()
             if woke >= end:
                 break
 
@@ -321,8 +327,7 @@ class Daemon:
             loop.reset()
             return {"ok": True, "state": loop.state}
         if cmd == "reload":
-            ok, message = self.reload()
-            return {"ok": ok, "message" if ok else "error": message}
+            return self.reload()
         if cmd == "follow":
             return self._follow(req)
         return {"ok": False, "error": f"unknown command {cmd!r}"}
@@ -361,80 +366,69 @@ class Daemon:
             return {"ok": False, "error": f"follow: {exc}"}
         return {"ok": True, "state": loop.state, "length_m": path.length, "duration_s": path.duration}
 
-    def reload(self) -> tuple[bool, str]:
-        """Re-read the config; swap in a valid one between ticks, bumplessly."""
+    def reload(self) -> dict[str, Any]:
+        """Re-read the config; put a valid one in force between ticks, bumplessly.
+
+        The reply lists exactly what was applied (live, or from the next path) and what waits
+        for a restart (ddrt.config.policy); a file that does not load, or whose mix with the
+        running restart-only values breaks a rule, changes nothing.
+        """
         self.notifier.reloading()
         try:
+            self._config_stat = _stat(self.config_path)
             try:
-                new = load_config(self.config_path)
-            except (ConfigError, OSError) as exc:
-                self.reloads["rejected"] += 1
-                log.error("reload rejected, running gains kept: %s", exc)
-                return False, str(exc)
-            changed = changed_keys(self.cfg, new)
-            restart = needs_restart(changed)
-            live = [k for k in changed if k not in restart]
-            if restart:
-                log.warning("reload: %s changed but need a restart to take effect", ", ".join(restart))
-            loop = self.loop
-            assert loop is not None
-            loop.controller.retune(new.controller, new.limits)
-            if any(k.startswith("robot") for k in live):
-                from ddrt.core.model import Dynamics
-
-                loop.controller.set_dynamics(Dynamics.from_params(new.robot))
-            self.cfg = _keep_restart_sections(self.cfg, new)
-            loop.cfg = self.cfg
+                plan = plan_reload(self.cfg, load_config(self.config_path))
+            except ConfigError as exc:
+                return self._reject(str(exc))
+            except Exception as exc:  # noqa: BLE001 - a reload must never end the loop
+                log.debug("reload failed", exc_info=True)
+                return self._reject(f"{self.config_path}: cannot load: {type(exc).__name__}: {exc}")
+            try:
+                self._apply(plan)
+            except (ValueError, TypeError, ArithmeticError) as exc:
+                return self._reject(f"{self.config_path}: not applied: {exc}")
             self.reloads["applied"] += 1
-            log.info("reload applied: %s", ", ".join(live) or "nothing changed")
-            msg = f"applied: {', '.join(live) or 'nothing changed'}"
-            if restart:
-                msg += f"; need a restart: {', '.join(restart)}"
-            return True, msg
+            if plan.restart:
+                log.warning("reload: %s changed but need a restart to take effect", ", ".join(plan.restart))
+            log.info("reload %s", plan.summary())
+            return {"ok": True, "message": plan.summary(), **plan.report()}
         finally:
             self.notifier.ready()
+
+    def _reject(self, why: str) -> dict[str, Any]:
+        self.reloads["rejected"] += 1
+        log.error("reload rejected, running config kept: %s", why)
+        return {"ok": False, "error": why}
+
+    def _apply(self, plan: ReloadPlan) -> None:
+        """Hand the config in force to every part of the process that holds a copy."""
+        cfg = plan.in_force
+        d = cfg.daemon
+        spin_s = d.spin_us * 1e-6
+        if self.loop is not None:
+            self.loop.reconfigure(cfg)
+        if self.clock is not None and hasattr(self.clock, "spin_s"):
+            self.clock.spin_s = spin_s
+        if self.telemetry is not None:
+            self.telemetry.writer.set_rotation(d.telemetry_max_bytes, d.telemetry_max_files)
+        self.cfg = cfg
+
+    def _config_changed(self) -> bool:
+        """daemon.watch_config: has the file changed since it was last read?"""
+        return _stat(self.config_path) != self._config_stat
+
+
+def _stat(path: str) -> tuple[int, int, int] | None:
+    """What identifies a version of a file cheaply: inode, size, modification time."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_ino, st.st_size, st.st_mtime_ns
 
 
 def vars_of(obj: Any) -> dict[str, Any]:
     return {k: getattr(obj, k) for k in obj.__dataclass_fields__}
-
-
-def _keep_restart_sections(old: Config, new: Config) -> Config:
-    """The new config, except the parts that only a restart may change.
-
-    Its `raw` keeps the old values of those parts too, so a later reload still reports them
-    as needing a restart until the process is restarted.
-    """
-    import copy
-    import dataclasses
-
-    raw = copy.deepcopy(dict(new.raw))
-    for key in RESTART_KEYS:
-        section, _, sub = key.partition(".")
-        old_sec = old.raw.get(section)
-        if not sub:
-            if old_sec is None:
-                raw.pop(section, None)
-            else:
-                raw[section] = copy.deepcopy(old_sec)
-            continue
-        old_val = old_sec.get(sub) if isinstance(old_sec, dict) else None
-        new_sec = raw.get(section)
-        if not isinstance(new_sec, dict):
-            new_sec = {}
-        new_sec = dict(new_sec)
-        if old_val is None:
-            new_sec.pop(sub, None)
-        else:
-            new_sec[sub] = copy.deepcopy(old_val)
-        raw[section] = new_sec
-
-    controller = dataclasses.replace(new.controller, rate_hz=old.controller.rate_hz, mode=old.controller.mode)
-    return dataclasses.replace(new, raw=raw, hal=old.hal, sensors=old.sensors, sim=old.sim, plant=old.plant,
-                               plant_motor_l=old.plant_motor_l, plant_motor_r=old.plant_motor_r,
-                               estimator=old.estimator, controller=controller,
-                               daemon=dataclasses.replace(new.daemon, socket=old.daemon.socket,
-                                                          telemetry_dir=old.daemon.telemetry_dir))
 
 
 def run_daemon(config_path: str, socket_path: str | None, duration: float | None, stats_json: str | None,

@@ -128,6 +128,7 @@ class RotatingCsvWriter:
         self.max_bytes = _positive_int("RotatingCsvWriter.max_bytes", max_bytes)
         self.max_files = _positive_int("RotatingCsvWriter.max_files", max_files)
         self._header = ",".join(self.columns) + "\n"
+        self._pending_rotation: tuple[int, int] | None = None
         self.rows_written = 0
         self.rotations = 0
         current = self.path(0)
@@ -154,8 +155,25 @@ class RotatingCsvWriter:
         self._file.write(self._header)
         self._size = len(self._header)
 
+    def set_rotation(self, max_bytes: int, max_files: int) -> None:
+        """New rotation bounds (a reload). Safe from another thread: the writing thread takes
+        them before its next rows, and then removes files beyond the new count."""
+        self._pending_rotation = (_positive_int("RotatingCsvWriter.max_bytes", max_bytes),
+                                  _positive_int("RotatingCsvWriter.max_files", max_files))
+
+    def _take_rotation(self) -> None:
+        pending, self._pending_rotation = self._pending_rotation, None
+        if pending is None:
+            return
+        old_files = self.max_files
+        self.max_bytes, self.max_files = pending
+        for i in range(self.max_files, old_files):
+            self.path(i).unlink(missing_ok=True)
+
     def write_rows(self, rows: Iterable[Sequence[float]]) -> int:
         """Append rows, rotating as needed; flushed to the OS before returning."""
+        if self._pending_rotation is not None:
+            self._take_rotation()
         n = 0
         width = len(self.columns)
         for row in rows:
