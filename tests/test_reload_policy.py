@@ -174,3 +174,28 @@ def _deep_merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
         else:
             out[k] = v
     return out
+
+
+def _documented_modes() -> dict[str, str]:
+    text = (Path(__file__).resolve().parents[1] / "docs" / "config.md").read_text(encoding="utf-8")
+    section = text[text.index("## Changing a running daemon's config"):]
+    rows: dict[str, str] = {}
+    for line in section.splitlines():
+        parts = [p.strip() for p in line.strip().strip("|").split("|")]
+        if len(parts) == 2 and parts[0].startswith("`"):
+            rows[parts[0].strip("`")] = parts[1].replace(" ", "_")
+    return rows
+
+
+def test_docs_state_the_declared_mode_of_every_setting() -> None:
+    """Every leaf's mode is the one of the most specific documented row (`key` or `prefix.*`)."""
+    rows = _documented_modes()
+    assert set(rows.values()) <= set(APPLY_MODES)
+    used: set[str] = set()
+    for key, mode in leaf_modes(load_config(SIM)):
+        candidates = [k for k in rows if k == key or (k.endswith(".*") and key.startswith(k[:-1]))]
+        assert candidates, f"docs/config.md does not say how {key} applies"
+        best = max(candidates, key=len)
+        used.add(best)
+        assert rows[best] == mode, f"docs/config.md says {best}: {rows[best]}, {key} is declared {mode}"
+    assert used == set(rows), f"rows that match no setting: {set(rows) - used}"
