@@ -342,3 +342,22 @@ def test_motor_params_validation():
         MotorParams(supply_v=math.nan)
     with pytest.raises(ValueError, match="bogus"):
         MotorParams.from_mapping({"bogus": 1.0})
+
+
+@pytest.mark.parametrize(("name", "value"), [("R", 1e20), ("r_L", 2.0), ("m_p", 5000.0), ("I_p", 1e4),
+                                             ("d_xc", -1.0), ("d_yc", 0.5)])
+def test_implausible_robots_are_refused(name: str, value: float) -> None:
+    """A value no wheeled robot of this kind has (a typo, a unit slip) is refused by name."""
+    import dataclasses as _dc
+
+    base = _seed_params_for_bounds()
+    with pytest.raises(ValueError, match=f"RobotParams.{'d_xc' if name.startswith('d_') else name}"):
+        _dc.replace(base, **{name: value})
+
+
+def _seed_params_for_bounds():
+    import yaml as _yaml
+    from pathlib import Path as _P
+
+    raw = _yaml.safe_load((_P(__file__).resolve().parents[1] / "configs" / "sim.yaml").read_text())["robot"]
+    return RobotParams(**{k: v for k, v in raw.items() if k != "motor"})

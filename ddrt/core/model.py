@@ -15,6 +15,8 @@ from dataclasses import dataclass, fields
 from typing import Any, Mapping
 
 # Fields that must be strictly positive; d_xc and d_yc may take any finite value.
+# Magnitudes no wheeled robot of this kind reaches: metres, wheel radii, kilograms, kg m^2.
+_BOUNDS = {"length": 10.0, "r": 1.0, "m": 1000.0, "I": 1000.0}
 _POSITIVE = (
     "H", "L", "R", "r_L", "r_R", "r_3", "m_p", "m_L", "m_R", "m_3",
     "I_p", "I_L", "I_R", "I_3", "I_wL", "I_wR", "I_w3",
@@ -60,7 +62,18 @@ class RobotParams:
                 raise ValueError(f"RobotParams.{f.name}: must be finite, got {value!r}")
             if f.name in _POSITIVE and value <= 0.0:
                 raise ValueError(f"RobotParams.{f.name}: must be > 0, got {value!r}")
+            bound = _BOUNDS[f.name[0] if f.name[0] in "mI" else ("r" if f.name.startswith("r_") else "length")]
+            if abs(value) > bound:
+                raise ValueError(f"RobotParams.{f.name}: {value!r} is beyond any wheeled robot this controller "
+                                 f"is for (at most {bound:g} in SI units)")
             object.__setattr__(self, f.name, float(value))
+        # The platform's centre of mass lies over the robot (generously: within twice its
+        # wheelbase and track), not metres beside it.
+        half_track = max(self.L, self.R)
+        reach = 2.0 * (self.H + half_track)
+        if abs(self.d_yc) > 2.0 * half_track or not -reach <= self.d_xc <= reach:
+            raise ValueError(f"RobotParams.d_xc: the platform's centre of mass ({self.d_xc:g}, {self.d_yc:g}) m "
+                             f"lies outside the robot (H = {self.H:g} m, L = {self.L:g} m, R = {self.R:g} m)")
 
     @classmethod
     def names(cls) -> tuple[str, ...]:
