@@ -15,7 +15,7 @@ from __future__ import annotations
 from typing import Any, Callable, Mapping, Protocol, Sequence
 
 from hal.base import (
-    Hal, HalError, HalInfo, HalIOError, HalTimeoutError, Sample, check_duty,
+    Hal, HalError, HalInfo, HalIOError, HalTimeoutError, Sample,
 )
 from hal.bridge import Bridge, Clock, WallClock
 from hal.mpu6050 import DEFAULT_ADDRESS, Mpu6050, gyro_scale, open_i2c_bus
@@ -70,7 +70,6 @@ class RealHal(Hal):
         self.clock = clock if clock is not None else WallClock()
         self.hold_ticks = hold_ticks
         self._closeables = list(closeables)
-        self._closed = False
         lsb, full = gyro_scale(imu.gyro_range_dps)
         self.info = HalInfo(encoder_counts_per_rev=int(bridge.counts_per_rev),
                             gyro_lsb_per_rad_s=lsb, gyro_full_scale_rad_s=full,
@@ -102,11 +101,9 @@ class RealHal(Hal):
         return Sample(t=t, encoder_count=count, gyro_z_raw=gyro, fresh=fresh,
                       faults=",".join(faults))
 
-    def write(self, duty_l: float, duty_r: float) -> None:
-        dl = check_duty("duty_l", duty_l)
-        dr = check_duty("duty_r", duty_r)
+    def _write(self, duty_l: float, duty_r: float) -> None:
         try:
-            self.motors.drive(dl, dr)
+            self.motors.drive(duty_l, duty_r)
         except HalIOError:
             self._counters["write_errors"] += 1
             raise
@@ -117,10 +114,9 @@ class RealHal(Hal):
         except (HalError, OSError):
             self._counters["stop_errors"] += 1  # the device is gone; its watchdog stops it
 
-    def close(self) -> None:
-        if self._closed:
-            return
-        self._closed = True
+    def _close(self) -> None:
+        if not hasattr(self, "_counters"):
+            return  # the constructor failed before any device was taken over
         self.stop()
         done: list[int] = []
         for obj in (self.motors, self.encoder, self.imu, *self._closeables):

@@ -115,7 +115,7 @@ class EmulatedRealHal(Hal):
     def read(self) -> Sample:
         return self.real.read()
 
-    def write(self, duty_l: float, duty_r: float) -> None:
+    def _write(self, duty_l: float, duty_r: float) -> None:
         self.real.write(duty_l, duty_r)
 
     def stop(self) -> None:
@@ -125,11 +125,14 @@ class EmulatedRealHal(Hal):
     def fault_counters(self) -> dict[str, int]:
         return self.real.fault_counters
 
-    def close(self) -> None:
+    def _close(self) -> None:
+        real, devices = getattr(self, "real", None), getattr(self, "devices", None)
         try:
-            self.real.close()
+            if real is not None:
+                real.close()
         finally:
-            self.devices.close()
+            if devices is not None:
+                devices.close()
 
 
 def open_emulated_real_hal(cfg: Config, start: tuple[float, float, float] = (0.0, 0.0, 0.0),

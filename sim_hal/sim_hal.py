@@ -13,7 +13,7 @@ import time
 
 from ddrt.core.model import RobotParams
 from ddrt.core.motor import MotorParams
-from hal.base import Hal, HalInfo, HalIOError, HalValueError, Sample, check_duty
+from hal.base import Hal, HalInfo, HalIOError, HalValueError, Sample
 from sim_hal.plant import PlantConfig, SimRobot
 
 
@@ -29,7 +29,6 @@ class SimHal(Hal):
             gyro_full_scale_rad_s=robot.gyro_full_scale_rad_s,
             gyro_delay_s=robot.gyro_delay_s,
         )
-        self._closed = False
         self.freeze_after: float | None = None  # fault injection: sensors stop updating
         self._last_sample: Sample | None = None
         self._wall0 = time.monotonic()
@@ -81,18 +80,16 @@ class SimHal(Hal):
         self._last_sample = Sample(t=t, encoder_count=self.robot.read_encoder(), gyro_z_raw=self.robot.read_gyro_raw())
         return self._last_sample
 
-    def write(self, duty_l: float, duty_r: float) -> None:
-        dl = check_duty("duty_l", duty_l)
-        dr = check_duty("duty_r", duty_r)
+    def _write(self, duty_l: float, duty_r: float) -> None:
         if self._closed:
             raise HalIOError("SimHal.write: the HAL is closed")
-        self.robot.command(dl, dr)
+        self.robot.command(duty_l, duty_r)
 
     def stop(self) -> None:
         if not self._closed:
             self.robot.command(0.0, 0.0)
 
-    def close(self) -> None:
-        if not self._closed:
-            self.stop()
-            self._closed = True
+    def _close(self) -> None:
+        robot = getattr(self, "robot", None)
+        if robot is not None:
+            robot.command(0.0, 0.0)

@@ -12,7 +12,7 @@ from ddrt.config import load_config, with_overrides
 from ddrt.loop import ControlLoop
 from ddrt.path.spec import resolve_path
 from ddrt.simrun.runner import run_sim
-from hal.base import HalIOError
+from hal.base import Hal, HalIOError
 from hal.registry import open_hal
 
 ROOT = FsPath(__file__).resolve().parents[1]
@@ -113,7 +113,7 @@ def test_cli_sim_writes_telemetry_and_metrics(tmp_path):
         assert key in m
 
 
-class _FailingHal:
+class _FailingHal(Hal):
     """Wraps a HAL and makes reads fail or freeze after a number of ticks."""
 
     def __init__(self, inner, fail_after: int, mode: str) -> None:
@@ -137,7 +137,7 @@ class _FailingHal:
                 s.gyro_z_raw = 123
         return s
 
-    def write(self, l, r):
+    def _write(self, l, r):
         self.duties.append((l, r))
         self.inner.write(l, r)
 
@@ -146,7 +146,7 @@ class _FailingHal:
         self.duties.append((0.0, 0.0))
         self.inner.stop()
 
-    def close(self):
+    def _close(self):
         self.inner.close()
 
 
