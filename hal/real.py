@@ -14,10 +14,12 @@ from __future__ import annotations
 
 from typing import Any, Callable, Mapping, Protocol, Sequence
 
+from ddrt.core.types import Clock
+from ddrt.service.clock import MonotonicClock
 from hal.base import (
     Hal, HalError, HalInfo, HalIOError, HalTimeoutError, Sample,
 )
-from hal.bridge import Bridge, Clock, WallClock
+from hal.bridge import Bridge
 from hal.mpu6050 import DEFAULT_ADDRESS, Mpu6050, gyro_scale, open_i2c_bus
 
 __all__ = ["EncoderReader", "Imu", "Motors", "RealHal"]
@@ -67,7 +69,7 @@ class RealHal(Hal):
         self.imu = imu
         self.encoder = bridge
         self.motors: Motors = motors if motors is not None else bridge  # type: ignore[assignment]
-        self.clock = clock if clock is not None else WallClock()
+        self.clock = clock if clock is not None else MonotonicClock()
         self.hold_ticks = hold_ticks
         self._closeables = list(closeables)
         lsb, full = gyro_scale(imu.gyro_range_dps)
