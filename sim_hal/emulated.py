@@ -98,6 +98,8 @@ class EmulatedDevices:
 class EmulatedRealHal(Hal):
     """RealHal (the real drivers) over EmulatedDevices; also the clock, like SimHal."""
 
+    owns_time = True
+
     def __init__(self, real: RealHal, devices: EmulatedDevices) -> None:
         self.real = real
         self.devices = devices
@@ -106,6 +108,10 @@ class EmulatedRealHal(Hal):
 
     def now(self) -> float:
         return self.devices.now()
+
+    def advance_to_wall_clock(self) -> None:
+        """Paced: run the plant and the emulated MCU up to the wall clock now."""
+        self.devices.now()
 
     def sleep_until(self, deadline: float) -> float:
         if not math.isfinite(deadline):

@@ -18,7 +18,9 @@ from sim_hal.plant import PlantConfig, SimRobot
 
 
 class SimHal(Hal):
-    """A HAL whose sensors and motors are those of a simulated robot."""
+    """A HAL whose sensors and motors are those of a simulated robot; its own clock."""
+
+    owns_time = True
 
     def __init__(self, robot: SimRobot, paced: bool = False) -> None:
         self.robot = robot
@@ -50,9 +52,13 @@ class SimHal(Hal):
 
     def now(self) -> float:
         """Sim time (s). Paced, the plant is first brought up to the wall clock."""
+        self.advance_to_wall_clock()
+        return self.robot.t
+
+    def advance_to_wall_clock(self) -> None:
+        """Paced: integrate the plant up to the wall clock now (unpaced, sim time waits)."""
         if self.paced:
             self.robot.advance_to(self._wall_sim_time())
-        return self.robot.t
 
     def sleep_until(self, deadline: float) -> float:
         """Advance the plant to `deadline` (and, paced, wait for the wall clock); return now."""

@@ -491,6 +491,7 @@ def test_realhal_first_read_never_invents_a_value() -> None:
 def test_realhal_write_stop_close() -> None:
     enc = FakeEncoder()
     hal = RealHal(FakeImu(), enc, FakeClock())
+    assert not hal.owns_time  # hardware: the loop keeps the wall clock
     hal.write(0.5, -0.5)
     with pytest.raises(HalValueError, match="duty_r"):
         hal.write(0.1, 2.0)

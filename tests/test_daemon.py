@@ -807,6 +807,39 @@ def test_stale_sensors_zero_the_motors_and_exit_1() -> None:
         d.close()
 
 
+EMULATED_REAL = {"backend": "real", "imu": {"bus": "sim"}, "bridge": {"url": "ddrtsim://robot"}}
+
+
+def test_run_on_the_real_drivers_over_emulated_devices_follows_and_exits_zero() -> None:
+    """`hal.backend: real` on emulated devices: the daemon paces their simulated time too."""
+    duration_s = 3.0
+    d = start_daemon("--follow", "--duration", str(duration_s), notify=True, hal=EMULATED_REAL)
+    try:
+        try:
+            rc = d.proc.wait(timeout=START_TIMEOUT_S + duration_s)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"the daemon on emulated devices did not stop after --duration:\n{d.stderr()}")
+        assert rc == 0, d.stderr()
+        assert d.notify is not None and d.notify.first("READY=1") is not None
+        stats = json.loads(d.stats_json.read_text())
+        assert stats["exit_code"] == 0 and stats["final_state"] == "stopped"
+        assert stats["final_duty"] == [0.0, 0.0]
+        rows = d.telemetry()
+        following = [r for r in rows if r["state"] == FOLLOWING]
+        assert len(following) > 0.8 * duration_s * RATE_HZ  # it followed for (nearly) the whole run
+        assert max(r["sigma"] for r in rows) > 0.5  # and got along the path (0.3 m/s)
+        # As on the sim backend: the start from rest swings out ~18 mm, then it settles.
+        assert max(abs(r["cross_track_est"]) for r in following) < 0.03
+        settled = [r for r in following if r["t"] > following[0]["t"] + 1.5]
+        assert settled and max(abs(r["cross_track_est"]) for r in settled) < 0.002
+        assert all(r["fresh"] == 1.0 for r in following[10:])
+        last = rows[-1]
+        assert last["duty_l"] == 0.0 and last["duty_r"] == 0.0
+        assert "no STATE" not in d.stderr()
+    finally:
+        d.close()
+
+
 LONG_PATH = {"shape": "circle", "radius": 0.5, "laps": 40, "speed": 0.3}  # 126 m: a long patrol
 
 
