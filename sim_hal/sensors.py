@@ -10,12 +10,8 @@ import math
 
 from ddrt.core.wrap import wrap_i32
 
-# MPU-6050 gyro sensitivity by full-scale range (datasheet, FS_SEL 0..3).
-GYRO_LSB_PER_DPS: dict[int, float] = {250: 131.0, 500: 65.5, 1000: 32.8, 2000: 16.4}
-
 INT16_MIN = -32768
 INT16_MAX = 32767
-_DEG_PER_RAD = 180.0 / math.pi
 
 
 def encoder_count(angle_rad: float, counts_per_rev: int, offset: int = 0) -> int:
@@ -31,16 +27,6 @@ def gyro_raw(rate_dps: float, lsb_per_dps: float) -> int:
     if raw < INT16_MIN:
         return INT16_MIN
     return raw
-
-
-def gyro_lsb_per_rad_s(range_dps: int) -> float:
-    """Raw units per rad/s at a full-scale range; raises ValueError for a range the part lacks."""
-    try:
-        return GYRO_LSB_PER_DPS[range_dps] * _DEG_PER_RAD
-    except KeyError:
-        raise ValueError(
-            f"gyro_range_dps: {range_dps!r} is not one of {sorted(GYRO_LSB_PER_DPS)}"
-        ) from None
 
 
 def lowpass_coefficient(cutoff_hz: float, sample_hz: float) -> float:
