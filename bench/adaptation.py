@@ -122,7 +122,8 @@ def measure_grid(scenarios: Sequence[str], seeds: Sequence[int], workers: int,
 def _long_job(args: tuple[str, float, bool, int]) -> tuple[tuple[str, float, bool], float, float, float]:
     import numpy as np
 
-    from ddrt.simrun.metrics import distances_to_polyline, path_polyline
+    from ddrt.path.sampled import distances_to_polyline
+    from ddrt.simrun.metrics import path_polyline
 
     name, rate, on, seed = args
     cfg = load_config(REPO / "configs" / "scenarios" / f"{name}.yaml",

@@ -170,7 +170,8 @@ def _run(scenario: str, enabled: bool, rate_hz: float = 200.0, **over):
 
 def _laps(result, laps: int = 5) -> list[float]:
     """Estimated-pose RMS cross-track of each lap (by progress along the path)."""
-    from ddrt.simrun.metrics import distances_to_polyline, path_polyline
+    from ddrt.path.sampled import distances_to_polyline
+    from ddrt.simrun.metrics import path_polyline
     d = distances_to_polyline(path_polyline(result.path), np.c_[result.column("x_est"), result.column("y_est")])
     lap = result.path.length / laps
     k = np.minimum((result.column("sigma") / lap).astype(int), laps - 1)
