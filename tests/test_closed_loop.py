@@ -16,7 +16,10 @@ from hal.base import Hal, HalIOError
 from hal.registry import open_hal
 
 ROOT = FsPath(__file__).resolve().parents[1]
-SCENARIOS = sorted((ROOT / "configs" / "scenarios").glob("*.yaml"))
+# The seed's scenarios last 80-180 s of simulated time each: the `slow` lane (pytest -m slow).
+SLOW_SCENARIOS = {"seed_circle", "seed_circle_offset_mass", "seed_ellipse", "seed_line45", "seed_square"}
+SCENARIO_FILES = sorted((ROOT / "configs" / "scenarios").glob("*.yaml"))
+SCENARIOS = [pytest.param(p, marks=pytest.mark.slow) if p.stem in SLOW_SCENARIOS else p for p in SCENARIO_FILES]
 
 # Regression bounds (mm), generous against the measured values in docs/BENCHMARKS.md.
 # (estimated-pose RMS, true-pose RMS). The seed ellipse and square start 100 and 50 mm off
@@ -50,7 +53,7 @@ def test_scenario_completes_within_bounds(scenario):
 
 def test_one_config_serves_every_path():
     """No per-path tuning: every scenario runs the same controller, estimator and limits."""
-    cfgs = [load_config(p) for p in SCENARIOS]
+    cfgs = [load_config(p) for p in SCENARIO_FILES]
     first = cfgs[0]
     assert len(cfgs) >= 12
     for cfg in cfgs[1:]:
