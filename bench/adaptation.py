@@ -1,4 +1,4 @@
-"""Adaptive dynamics and calibration (issue 7): the rows and verdicts of BENCHMARKS.md section 7.
+"""Adaptive dynamics and calibration: the rows and verdicts of BENCHMARKS.md section 7.
 
 Three measurements on the simulated robot:
 - every scenario with `controller.adaptation` off and on, at the default 200 Hz and at 1 kHz,
@@ -272,6 +272,6 @@ def render(r: AdaptationResult) -> list[str]:
               "| robot: r_3 | est RMS (mm) | true RMS (mm) |", "|---|---|---|"]
     for k, c in o.circle.items():
         lines.append(f"| {k} | {c.est * 1e3:.4f} | {c.true * 1e3:.3f} |")
-    lines += ["", "Verdicts against issue 7's targets:", ""]
+    lines += ["", "Verdicts against the targets of adaptation.md (\"Against the targets\"):", ""]
     lines += [f"- {v}" for v in r.verdict]
     return lines

@@ -1,6 +1,6 @@
 """The simulated robot: the truth the controller is tested against in CI.
 
-The reduced model of ddrt/model.py (ERRATA.md) plus pose kinematics is integrated with RK4
+The reduced model of ddrt/core/model.py (docs/model.md) plus pose kinematics is integrated with RK4
 at the plant's own fixed step, independent of the controller's rate. Torques come from each
 wheel's DC motor model (ddrt/motor.py), with the seed's random slip torque on top; duty
 commands and sensor readings are delayed like a real driver and bus delay them; the sensors
