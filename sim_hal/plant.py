@@ -2,7 +2,7 @@
 
 The reduced model of ddrt/core/model.py (docs/model.md) plus pose kinematics is integrated with RK4
 at the plant's own fixed step, independent of the controller's rate. Torques come from each
-wheel's DC motor model (ddrt/motor.py), with the seed's random slip torque on top; duty
+wheel's DC motor model (ddrt/core/motor.py), with the seed's random slip torque on top; duty
 commands and sensor readings are delayed like a real driver and bus delay them; the sensors
 report raw integers (a wrapping 32-bit encoder count, a saturating int16 gyro with bias,
 white noise and the MPU-6050's low-pass filter).
