@@ -1,20 +1,17 @@
 """`SimHal`: the `Hal` backend over a `SimRobot`, and the control loop's clock.
 
-Unpaced (the default, for CI) the loop's computation takes no sim time and `sleep_until`
-just integrates the plant to the deadline, so a run goes as fast as the CPU allows. Paced,
-sim time follows the wall clock (time.monotonic since start, plus the sim time at start), so
+Its time is sim_hal.simtime's: unpaced (the default, for CI) the loop's computation takes no
+sim time and a run goes as fast as the CPU allows; paced, sim time follows the wall clock, so
 the daemon can run against the simulator in real time.
 """
 
 from __future__ import annotations
 
-import math
-import time
-
 from ddrt.core.model import RobotParams
 from ddrt.core.motor import MotorParams
-from hal.base import Hal, HalInfo, HalIOError, HalValueError, Sample
+from hal.base import Hal, HalInfo, HalIOError, Sample
 from sim_hal.plant import PlantConfig, SimRobot
+from sim_hal.simtime import SimTime
 
 
 class SimHal(Hal):
@@ -24,7 +21,7 @@ class SimHal(Hal):
 
     def __init__(self, robot: SimRobot, paced: bool = False) -> None:
         self.robot = robot
-        self.paced = paced
+        self.time = SimTime(lambda: robot.t, robot.advance_to, paced)
         self.info = HalInfo(
             encoder_counts_per_rev=robot.encoder_counts_per_rev,
             gyro_lsb_per_rad_s=robot.gyro_lsb_per_rad_s,
@@ -33,8 +30,6 @@ class SimHal(Hal):
         )
         self.freeze_after: float | None = None  # fault injection: sensors stop updating
         self._last_sample: Sample | None = None
-        self._wall0 = time.monotonic()
-        self._sim0 = robot.t
 
     @classmethod
     def from_params(cls, params: RobotParams, motor_l: MotorParams | None = None,
@@ -45,40 +40,30 @@ class SimHal(Hal):
         robot = SimRobot(params, motor_l or MotorParams(), motor_r or MotorParams(), cfg, start)
         return cls(robot, paced=paced)
 
-    # --- clock ------------------------------------------------------------------------------
+    # --- clock (sim_hal.simtime) ------------------------------------------------------------
 
-    def _wall_sim_time(self) -> float:
-        return time.monotonic() - self._wall0 + self._sim0
+    @property
+    def paced(self) -> bool:
+        return self.time.paced
 
     def now(self) -> float:
         """Sim time (s). Paced, the plant is first brought up to the wall clock."""
-        self.advance_to_wall_clock()
-        return self.robot.t
+        return self.time.now()
 
     def advance_to_wall_clock(self) -> None:
         """Paced: integrate the plant up to the wall clock now (unpaced, sim time waits)."""
-        if self.paced:
-            self.robot.advance_to(self._wall_sim_time())
+        self.time.catch_up()
 
     def sleep_until(self, deadline: float) -> float:
         """Advance the plant to `deadline` (and, paced, wait for the wall clock); return now."""
-        if not math.isfinite(deadline):
-            raise HalValueError(f"deadline={deadline!r} is not finite")
-        if self.paced:
-            remaining = deadline - self._wall_sim_time()
-            if remaining > 0.0:
-                time.sleep(remaining)
-            self.robot.advance_to(max(deadline, self._wall_sim_time()))
-        else:
-            self.robot.advance_to(deadline)
-        return self.robot.t
+        return self.time.sleep_until(deadline)
 
     # --- Hal ------------------------------------------------------------------------------
 
     def read(self) -> Sample:
         if self._closed:
             raise HalIOError("SimHal.read: the HAL is closed")
-        t = self.now()
+        t = self.time.now()
         last = self._last_sample
         if self.freeze_after is not None and t >= self.freeze_after and last is not None:
             return Sample(t=last.t, encoder_count=last.encoder_count, gyro_z_raw=last.gyro_z_raw,
