@@ -1,4 +1,4 @@
-"""Adaptive dynamics and calibration (issue 7): the rows and verdicts of BENCHMARKS.md section 7.
+"""Adaptive dynamics and calibration: the rows and verdicts of BENCHMARKS.md section 7.
 
 Three measurements on the simulated robot:
 - every scenario with `controller.adaptation` off and on, at the default 200 Hz and at 1 kHz,
@@ -122,7 +122,8 @@ def measure_grid(scenarios: Sequence[str], seeds: Sequence[int], workers: int,
 def _long_job(args: tuple[str, float, bool, int]) -> tuple[tuple[str, float, bool], float, float, float]:
     import numpy as np
 
-    from ddrt.simrun.metrics import distances_to_polyline, path_polyline
+    from ddrt.path.sampled import distances_to_polyline
+    from ddrt.simrun.metrics import path_polyline
 
     name, rate, on, seed = args
     cfg = load_config(REPO / "configs" / "scenarios" / f"{name}.yaml",
@@ -271,6 +272,6 @@ def render(r: AdaptationResult) -> list[str]:
               "| robot: r_3 | est RMS (mm) | true RMS (mm) |", "|---|---|---|"]
     for k, c in o.circle.items():
         lines.append(f"| {k} | {c.est * 1e3:.4f} | {c.true * 1e3:.3f} |")
-    lines += ["", "Verdicts against issue 7's targets:", ""]
+    lines += ["", "Verdicts against the targets of adaptation.md (\"Against the targets\"):", ""]
     lines += [f"- {v}" for v in r.verdict]
     return lines

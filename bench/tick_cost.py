@@ -1,7 +1,8 @@
 """What each stage of one control tick costs, on the simulated backend.
 
-`timed_tick` runs the real `ControlLoop.tick`, which records `time.perf_counter_ns` after
-each stage when handed a list (`tick(stamps)`), for a loop that is following a path.
+`timed_tick` runs the real `ControlLoop.tick` with a stamp (`tick(stamp)`: called at the start
+and after each stage; a no-op outside benchmarks) that records `time.perf_counter_ns`, for a
+loop that is following a path.
 The simulated plant's integration (`hal.sleep_until`) runs between ticks, outside the timed
 region, and is reported on its own: on the robot that time is the motors' and the world's.
 """
@@ -54,7 +55,7 @@ class TickCost:
     tick: Percentiles
     compute: Percentiles  # the tick minus its read and write stages: what faster buses cannot remove
     plant: Percentiles  # the simulated robot's integration between ticks, not part of the tick
-    timer_overhead_ns: float  # one perf_counter_ns() call, paid once per stage
+    timer_overhead_ns: float  # one stage stamp, paid once per stage
     restarts: int  # how often the path was restarted so every tick was "following"
     over_1ms: int  # ticks longer than 1 ms: on a shared machine, mostly the process being preempted
 
@@ -62,7 +63,23 @@ class TickCost:
         return us * 1e-6 / self.period_s
 
 
-def timed_tick(loop: ControlLoop, out: list[array], i: int, stamps: list[int] | None = None) -> None:
+class StageStamps:
+    """The tick's `stamp`: each call appends `time.perf_counter_ns()` to `ns`."""
+
+    __slots__ = ("ns", "_append")
+
+    def __init__(self) -> None:
+        self.ns: list[int] = []
+        self._append = self.ns.append
+
+    def __call__(self) -> None:
+        self._append(time.perf_counter_ns())
+
+    def clear(self) -> None:
+        self.ns.clear()
+
+
+def timed_tick(loop: ControlLoop, out: list[array], i: int, stamps: StageStamps | None = None) -> None:
     """One real `ControlLoop.tick()` of a following loop; each stage's duration into out[k][i] (ns).
 
     The tick stamps itself (`tick(stamps)`): the done/finite checks between control and write
@@ -70,26 +87,25 @@ def timed_tick(loop: ControlLoop, out: list[array], i: int, stamps: list[int] | 
     (a HAL error, a fault, the path's end) raises TickBenchError.
     """
     if stamps is None:
-        stamps = []
+        stamps = StageStamps()
     else:
         stamps.clear()
     state = loop.state
     loop.tick(stamps)
-    if len(stamps) != len(STAGES) + 1 or loop.state == "fault" or state not in ("following", "stopping"):
+    ns = stamps.ns
+    if len(ns) != len(STAGES) + 1 or loop.state == "fault" or state not in ("following", "stopping"):
         raise TickBenchError(f"loop not following (state {loop.state}, fault {loop.fault!r})")
     for k in range(len(STAGES)):
-        out[k][i] = stamps[k + 1] - stamps[k]
+        out[k][i] = ns[k + 1] - ns[k]
 
 
 def timer_overhead_ns(n: int = 20000) -> float:
-    """Median cost of one perf_counter_ns() call, to read the smallest stage timings against."""
-    ns = time.perf_counter_ns
-    samples = array("q", bytes(8 * n))
-    for i in range(n):
-        a = ns()
-        b = ns()
-        samples[i] = b - a
-    return float(np.median(np.asarray(samples)))
+    """Median cost of one stage stamp (a call that reads perf_counter_ns), to read the
+    smallest stage timings against."""
+    stamps = StageStamps()
+    for _ in range(n):
+        stamps()
+    return float(np.median(np.diff(np.asarray(stamps.ns))))
 
 
 def measure_tick_cost(cfg: Config, ticks: int = 100_000, seed: int | None = None) -> TickCost:
@@ -143,7 +159,7 @@ def render(tc: TickCost) -> list[str]:
         "write includes the done/finite checks before it. Ticks run back to back (the CPU's caches stay "
         "warm); section 3 shows the same tick in the paced daemon. The simulated robot's own integration "
         "(`hal.sleep_until`, between ticks) is excluded from the tick and shown on its own line. "
-        f"One timer read costs about {tc.timer_overhead_ns:.0f} ns. The garbage collector is left on.",
+        f"One stage stamp costs about {tc.timer_overhead_ns:.0f} ns. The garbage collector is left on.",
         "",
         "| stage | p50 (us) | p99 (us) | max (us) | p50 / period | p99 / period |",
         "|---|---|---|---|---|---|",

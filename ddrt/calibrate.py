@@ -35,8 +35,9 @@ class CalibrationRunError(RuntimeError):
 
 
 def _clock(hal: Hal) -> Any:
-    """The simulated HAL is its own clock; a real robot runs on the monotonic clock."""
-    if hasattr(hal, "sleep_until") and hasattr(hal, "now"):
+    """A HAL whose robot runs in simulated time is its own clock; hardware runs on the
+    monotonic clock."""
+    if hal.owns_time:
         return hal
     from ddrt.service.clock import MonotonicClock
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import logging
 import math
-from time import perf_counter_ns
 from typing import Callable
 
 from ddrt.core.adapt import DynamicsAdapter
@@ -37,6 +36,10 @@ COLUMNS = (
     "ad_m_k", "ad_mbar", "ad_I", "ad_m_x", "ad_fric_l", "ad_fric_r", "ad_active",
 )
 STATE_CODE = {name: float(i) for i, name in enumerate(STATES)}
+
+
+def _no_stamp() -> None:
+    """The tick's stage stamp outside benchmarks: nothing."""
 
 
 class ControlLoop:
@@ -211,23 +214,21 @@ class ControlLoop:
 
     # ------------------------------------------------------------------ the tick
 
-    def tick(self, stamps: list[int] | None = None) -> None:
+    def tick(self, stamp: Callable[[], None] = _no_stamp) -> None:
         """read -> estimate -> reference -> control -> write -> record.
 
-        `stamps` (benchmarks only): perf_counter_ns() is appended at the start and after
-        each stage that ran, so the cost of each stage can be measured on the real tick.
+        `stamp` (benchmarks only; a no-op by default) is called at the start and after each
+        stage that ran, so the cost of each stage can be measured on the real tick.
         """
         self.ticks += 1
-        if stamps is not None:
-            stamps.append(perf_counter_ns())
+        stamp()
         try:
             sample = self.hal.read()
         except HalError as exc:
             self.enter_fault(f"sensor read failed: {exc}")
             self._record(self.sample.t + self.period if self.sample else 0.0)
             return
-        if stamps is not None:
-            stamps.append(perf_counter_ns())
+        stamp()
         self.sample = sample
         if sample.faults:
             self.hal_fault_ticks += 1
@@ -244,14 +245,11 @@ class ControlLoop:
         if state in ("following", "stopping"):
             ref = self.reference
             sp = self.setpoint
-            if stamps is not None:
-                stamps.append(perf_counter_ns())
+            stamp()
             ref.update(est.x, est.y, est.theta, sp, est.dt)  # type: ignore[union-attr]
-            if stamps is not None:
-                stamps.append(perf_counter_ns())
+            stamp()
             cmd = self.controller.update(est.x, est.y, est.theta, est.v, est.omega, sp)
-            if stamps is not None:
-                stamps.append(perf_counter_ns())
+            stamp()
             if ref.done and abs(est.v) < 2e-3 and abs(est.omega) < 5e-3:  # type: ignore[union-attr]
                 self.state = "stopped"
                 self._zero_motors()
@@ -279,11 +277,9 @@ class ControlLoop:
                 self.hal.write(0.0, 0.0)
             except HalError as exc:
                 self.enter_fault(f"motor write failed: {exc}")
-        if stamps is not None:
-            stamps.append(perf_counter_ns())
+        stamp()
         self._record(sample.t)
-        if stamps is not None:
-            stamps.append(perf_counter_ns())
+        stamp()
         if self.on_tick is not None:
             self.on_tick(self)
 

@@ -2,8 +2,7 @@
 
 The controller only ever sees this module: a backend (the simulated robot, or the real
 drivers on a bus and a serial port) is chosen by name in the config and handed to the loop
-as a `Hal`. A backend must override `read`, `write`, `stop` and `close`; it may override
-`__enter__`/`__exit__` (the default closes, which stops the motors first).
+as a `Hal`. What a backend must and may override is in `Hal`'s docstring.
 """
 
 from __future__ import annotations
@@ -37,28 +36,63 @@ class HalValueError(HalError, ValueError):
 
 
 class Hal(ABC):
-    """A robot as the controller sees it: sensors to read, two motors to drive."""
+    """A robot as the controller sees it: sensors to read, two motors to drive.
+
+    The public calls are template methods: `write` checks both duties and then calls the
+    backend's `_write`; `close` runs the backend's `_close` once, however often it is called.
+    A backend MUST override `read`, `_write`, `stop` and `_close` (and set `info`). It MAY
+    override `__enter__`/`__exit__` (the default closes) and, when its robot lives in
+    simulated time, `owns_time` and `advance_to_wall_clock` (see there).
+    """
 
     info: HalInfo
+
+    #: True for a backend whose robot runs in simulated time (the simulator, the real drivers
+    #: on emulated devices). Such a backend is also a clock (`now()`, `sleep_until()`, see
+    #: ddrt.core.types.Clock) in that time, and a caller that schedules on the wall clock must
+    #: open it paced and call `advance_to_wall_clock()` before each tick. Hardware: False.
+    owns_time: bool = False
+
+    _closed: bool = False  # class default, so close() is safe on a half-built object
 
     @abstractmethod
     def read(self) -> Sample:
         """Read every sensor once. Raises HalIOError/HalTimeoutError, never returns junk."""
 
-    @abstractmethod
     def write(self, duty_l: float, duty_r: float) -> None:
         """Command both motors, duty in [-1, 1] (1 = full supply voltage forward).
 
         Raises HalValueError for a value out of range or not finite, without moving anything.
         """
+        dl = check_duty("duty_l", duty_l)
+        dr = check_duty("duty_r", duty_r)
+        self._write(dl, dr)
+
+    @abstractmethod
+    def _write(self, duty_l: float, duty_r: float) -> None:
+        """Command both motors; both duties are already checked floats in [-1, 1]."""
 
     @abstractmethod
     def stop(self) -> None:
         """Set both motors to zero now. Must not raise for a device that is already gone."""
 
-    @abstractmethod
     def close(self) -> None:
-        """Stop the motors and release every device. Safe to call twice or half-built."""
+        """Stop the motors and release every device (the backend's `_close`, run once).
+
+        Safe to call twice, and on an object whose constructor failed part-way."""
+        if self._closed:
+            return
+        self._closed = True
+        self._close()
+
+    @abstractmethod
+    def _close(self) -> None:
+        """Stop the motors and release every device; called at most once, by `close`. It must
+        cope with a half-built object (attributes the constructor never set)."""
+
+    def advance_to_wall_clock(self) -> None:
+        """Bring a paced simulated robot up to the wall clock (backends that own time); the
+        caller does it before a tick so the tick's own cost excludes the physics. No-op here."""
 
     def __enter__(self) -> "Hal":
         return self

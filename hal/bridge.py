@@ -11,10 +11,12 @@ zeroes the motors when DRIVEs stop, so a dead host cannot leave the robot runnin
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any
 
+from ddrt.core.types import Clock
+from ddrt.core.wrap import wrap_i32
+from ddrt.service.clock import MonotonicClock
 from hal.base import HalError, HalInitError, HalIOError, HalTimeoutError, check_duty
 from hal.protocol import (
     DELIMITER, DUTY_FULL_SCALE, FLAG_BAD_FRAME, FLAG_WATCHDOG, PROTOCOL_VERSION,
@@ -22,35 +24,10 @@ from hal.protocol import (
     State, Stop, encode_frame, seq_gap,
 )
 
-__all__ = ["Bridge", "BridgeState", "Clock", "WallClock", "wrap_i32"]
+__all__ = ["Bridge", "BridgeState"]
 
 _READ_CHUNK = 4096
 _MAX_READS_PER_POLL = 16  # bounds the time one poll can take when the MCU floods the line
-
-
-class Clock(Protocol):
-    """The two clock calls the HAL needs (same shape as ddrt's Clock)."""
-
-    def now(self) -> float: ...
-    def sleep_until(self, deadline: float) -> float: ...
-
-
-class WallClock:
-    """Monotonic wall clock, the default when no simulated clock is injected."""
-
-    def now(self) -> float:
-        return time.monotonic()
-
-    def sleep_until(self, deadline: float) -> float:
-        delay = deadline - time.monotonic()
-        if delay > 0:
-            time.sleep(delay)
-        return time.monotonic()
-
-
-def wrap_i32(x: int) -> int:
-    """Reduce `x` to a signed 32-bit integer, the way the MCU's counter wraps."""
-    return ((x + 0x80000000) & 0xFFFFFFFF) - 0x80000000
 
 
 @dataclass(frozen=True, slots=True)
@@ -109,7 +86,7 @@ class Bridge:
         self.hello_timeout_s = float(hello_timeout_s)
         self.hello_resend_s = float(hello_resend_s)
         self.max_wheel_rev_s = float(max_wheel_rev_s)
-        self.clock: Clock = clock if clock is not None else WallClock()
+        self.clock: Clock = clock if clock is not None else MonotonicClock()
         self.protocol_version: int | None = None
         self.counts_per_rev = 0
         self.state_rate_hz = 0

@@ -14,10 +14,11 @@ import math
 import time
 from typing import Any, Callable, Protocol
 
+from ddrt.core.sensors import GYRO_RANGES_DPS, gyro_lsb_per_rad_s
 from hal.base import HalInitError, HalIOError, HalTimeoutError, HalValueError
 
 __all__ = [
-    "DEFAULT_ADDRESS", "GYRO_CONFIG", "GYRO_DELAY_S", "GYRO_LSB_PER_DPS", "GYRO_ZOUT_H", "PWR_MGMT_1",
+    "DEFAULT_ADDRESS", "GYRO_CONFIG", "GYRO_DELAY_S", "GYRO_FS_SEL", "GYRO_ZOUT_H", "PWR_MGMT_1",
     "SMPLRT_DIV", "CONFIG", "WHO_AM_I", "WHO_AM_I_VALUE", "Mpu6050", "SmbusLike",
     "gyro_scale", "open_i2c_bus",
 ]
@@ -35,10 +36,9 @@ WHO_AM_I_VALUE = 0x68
 PWR_SLEEP = 0x40
 PWR_CLKSEL_PLL_XGYRO = 0x01  # steadier than the internal 8 MHz oscillator
 FS_SEL_SHIFT = 3
-# Full-scale range (deg/s) -> (FS_SEL, LSB per deg/s)
-GYRO_LSB_PER_DPS: dict[int, tuple[int, float]] = {
-    250: (0, 131.0), 500: (1, 65.5), 1000: (2, 32.8), 2000: (3, 16.4),
-}
+# Full-scale range (deg/s) -> FS_SEL: the ranges of ddrt.core.sensors in ascending order are
+# FS_SEL 0..3 (register 27); their sensitivities are that module's table.
+GYRO_FS_SEL: dict[int, int] = {rng: fs_sel for fs_sel, rng in enumerate(GYRO_RANGES_DPS)}
 # Gyro group delay (s) by DLPF_CFG 0..6 (Register Map rev 4.2, register 26): the
 # estimator compensates it so the heading does not lag the encoder's distance.
 GYRO_DELAY_S: tuple[float, ...] = (0.00098, 0.0019, 0.0028, 0.0048, 0.0083, 0.0134, 0.0186)
@@ -56,11 +56,7 @@ class SmbusLike(Protocol):
 
 def gyro_scale(gyro_range_dps: int) -> tuple[float, float]:
     """(LSB per rad/s, full scale in rad/s) for a range; ValueError naming gyro_range_dps."""
-    entry = GYRO_LSB_PER_DPS.get(gyro_range_dps) if not isinstance(gyro_range_dps, bool) else None
-    if entry is None:
-        raise ValueError(f"gyro_range_dps: expected one of {sorted(GYRO_LSB_PER_DPS)}, "
-                         f"got {gyro_range_dps!r}")
-    return entry[1] / _DEG, gyro_range_dps * _DEG
+    return gyro_lsb_per_rad_s(gyro_range_dps), gyro_range_dps * _DEG
 
 
 def open_i2c_bus(spec: int | str) -> Any:
@@ -121,7 +117,7 @@ class Mpu6050:
             if who != WHO_AM_I_VALUE:
                 raise HalInitError(f"{where}: WHO_AM_I (0x{WHO_AM_I:02x}) read 0x{who:02x}, "
                                    f"expected 0x{WHO_AM_I_VALUE:02x} (wrong part or address?)")
-            fs_sel = GYRO_LSB_PER_DPS[self.gyro_range_dps][0]
+            fs_sel = GYRO_FS_SEL[self.gyro_range_dps]
             for reg, value in ((PWR_MGMT_1, PWR_CLKSEL_PLL_XGYRO),  # SLEEP cleared
                                (SMPLRT_DIV, self.sample_rate_div),
                                (CONFIG, self.dlpf_cfg),

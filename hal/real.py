@@ -14,10 +14,12 @@ from __future__ import annotations
 
 from typing import Any, Callable, Mapping, Protocol, Sequence
 
+from ddrt.core.types import Clock
+from ddrt.service.clock import MonotonicClock
 from hal.base import (
-    Hal, HalError, HalInfo, HalIOError, HalTimeoutError, Sample, check_duty,
+    Hal, HalError, HalInfo, HalIOError, HalTimeoutError, Sample,
 )
-from hal.bridge import Bridge, Clock, WallClock
+from hal.bridge import Bridge
 from hal.mpu6050 import DEFAULT_ADDRESS, Mpu6050, gyro_scale, open_i2c_bus
 
 __all__ = ["EncoderReader", "Imu", "Motors", "RealHal"]
@@ -67,10 +69,9 @@ class RealHal(Hal):
         self.imu = imu
         self.encoder = bridge
         self.motors: Motors = motors if motors is not None else bridge  # type: ignore[assignment]
-        self.clock = clock if clock is not None else WallClock()
+        self.clock = clock if clock is not None else MonotonicClock()
         self.hold_ticks = hold_ticks
         self._closeables = list(closeables)
-        self._closed = False
         lsb, full = gyro_scale(imu.gyro_range_dps)
         self.info = HalInfo(encoder_counts_per_rev=int(bridge.counts_per_rev),
                             gyro_lsb_per_rad_s=lsb, gyro_full_scale_rad_s=full,
@@ -102,11 +103,9 @@ class RealHal(Hal):
         return Sample(t=t, encoder_count=count, gyro_z_raw=gyro, fresh=fresh,
                       faults=",".join(faults))
 
-    def write(self, duty_l: float, duty_r: float) -> None:
-        dl = check_duty("duty_l", duty_l)
-        dr = check_duty("duty_r", duty_r)
+    def _write(self, duty_l: float, duty_r: float) -> None:
         try:
-            self.motors.drive(dl, dr)
+            self.motors.drive(duty_l, duty_r)
         except HalIOError:
             self._counters["write_errors"] += 1
             raise
@@ -117,10 +116,9 @@ class RealHal(Hal):
         except (HalError, OSError):
             self._counters["stop_errors"] += 1  # the device is gone; its watchdog stops it
 
-    def close(self) -> None:
-        if self._closed:
-            return
-        self._closed = True
+    def _close(self) -> None:
+        if not hasattr(self, "_counters"):
+            return  # the constructor failed before any device was taken over
         self.stop()
         done: list[int] = []
         for obj in (self.motors, self.encoder, self.imu, *self._closeables):

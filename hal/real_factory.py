@@ -1,8 +1,7 @@
-"""`hal.backend: real`: the drivers on the robot's buses, or on emulated devices.
+"""`hal.backend: real`: the drivers on the robot's buses (I2C gyro, serial microcontroller).
 
-With `hal.imu.bus: sim` the drivers talk to emulated devices backed by the simulated robot
-(sim_hal.emulated), byte for byte as they would to the hardware; that module is imported
-only then, so the robot never loads the simulator.
+The same drivers on emulated devices (`hal.imu.bus: sim`) are another backend, registered in
+hal/registry.py and built by sim_hal, so nothing here loads the simulator.
 """
 
 from __future__ import annotations
@@ -10,13 +9,11 @@ from __future__ import annotations
 from typing import Any
 
 from ddrt.config import Config
+from ddrt.core.types import Clock
 from hal.base import Hal
 from hal.real import RealHal
 
 
-def open_real_hal(cfg: Config, clock: Any = None, **options: Any) -> Hal:
-    if cfg.hal.imu.get("bus") == "sim":
-        from sim_hal.emulated import open_emulated_real_hal
-
-        return open_emulated_real_hal(cfg, **options)
+def open_real_hal(cfg: Config, clock: Clock | None = None, **_: Any) -> Hal:
+    """RealHal from the config's `hal:` section; devices timed on `clock` (default: the wall clock)."""
     return RealHal.from_config(cfg.raw, clock=clock)

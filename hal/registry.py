@@ -1,7 +1,11 @@
-"""Backends by name: the config says `hal.backend: sim | real`; nothing else imports a driver.
+"""Backends by name: the config chooses one; nothing else imports a driver or the simulator.
 
-Each backend module is imported only when chosen, so the simulated robot needs no I2C or
-serial library and the robot needs no simulator.
+The config's choice resolves to a name in `BACKENDS` (`backend_name`): `hal.backend: sim` is
+the simulated robot, `hal.backend: real` the drivers on the robot's buses, and `real` with
+`hal.imu.bus: sim` the same drivers on emulated devices, whose entry lives in sim_hal. Each
+backend module is imported only when chosen (by its "module:function" string, never by an
+import statement here), so the simulated robot needs no I2C or serial library, the robot
+never loads the simulator, and hal/ imports nothing from sim_hal/.
 """
 
 from __future__ import annotations
@@ -14,17 +18,28 @@ from hal.base import Hal, HalInitError
 if TYPE_CHECKING:
     from ddrt.config import Config
 
-# name -> "module:function"; the function takes (cfg, **options) and returns a Hal that is
-# also a clock (now(), sleep_until()) or is paired with one by the caller.
+# name -> "module:function". The function takes (cfg, **options) and returns a Hal; it uses
+# the options it knows and ignores the rest. The daemon passes all of: `start` (pose where a
+# simulated robot starts), `paced` (simulated time follows the wall clock), `seed` (noise)
+# and `clock` (the Clock that times hardware devices).
 BACKENDS = {
     "sim": "sim_hal.factory:open_sim_hal",
     "real": "hal.real_factory:open_real_hal",
+    "emulated": "sim_hal.emulated:open_emulated_real_hal",
 }
 
 
-def open_hal(cfg: "Config", **options: Any) -> Hal:
-    """Open the backend named by `cfg.hal.backend`."""
+def backend_name(cfg: "Config") -> str:
+    """The BACKENDS entry the config's `hal:` section chooses."""
     name = cfg.hal.backend
+    if name == "real" and cfg.hal.imu.get("bus") == "sim":
+        return "emulated"  # the real drivers, byte for byte, on devices backed by the simulator
+    return name
+
+
+def open_hal(cfg: "Config", **options: Any) -> Hal:
+    """Open the backend the config chooses (see `backend_name`)."""
+    name = backend_name(cfg)
     try:
         target = BACKENDS[name]
     except KeyError:

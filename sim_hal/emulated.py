@@ -10,8 +10,6 @@ watchdog) up to it. Paced, it follows the wall clock instead.
 from __future__ import annotations
 
 import itertools
-import math
-import time
 from typing import Any
 
 from ddrt.config import Config
@@ -22,6 +20,7 @@ from sim_hal.factory import plant_config
 from sim_hal.mcu_emulator import McuEmulator
 from sim_hal.mpu_emulator import MpuEmulator
 from sim_hal.plant import SimRobot
+from sim_hal.simtime import SimTime
 
 _names = itertools.count()
 
@@ -50,7 +49,7 @@ class _PlantGyro:
 
 
 class EmulatedDevices:
-    """The simulated robot, its two emulated devices, and the clock that drives them."""
+    """The simulated robot, its two emulated devices, and the clock that drives them (`time`)."""
 
     def __init__(self, cfg: Config, start: tuple[float, float, float], seed: int | None = None,
                  paced: bool = False, state_rate_hz: int | None = None) -> None:
@@ -63,24 +62,9 @@ class EmulatedDevices:
         self.url = f"ddrtsim://{self.name}"
         self.link = protocol_ddrtsim.register(self.name, self.mcu, self.robot.t)
         self.i2c = MpuEmulator(_PlantGyro(self.robot))
-        self.paced = paced
-        self._wall0 = time.monotonic()
-        self._sim0 = self.robot.t
-        self.link.pump(self.robot.t)
-
-    def now(self) -> float:
-        if self.paced:
-            self._advance(time.monotonic() - self._wall0 + self._sim0)
-        return self.robot.t
-
-    def sleep_until(self, deadline: float) -> float:
-        if self.paced:
-            remaining = deadline - (time.monotonic() - self._wall0 + self._sim0)
-            if remaining > 0:
-                time.sleep(remaining)
-            deadline = max(deadline, time.monotonic() - self._wall0 + self._sim0)
-        self._advance(deadline)
-        return self.robot.t
+        robot = self.robot
+        self.time = SimTime(lambda: robot.t, self._advance, paced)  # the real drivers' Clock
+        self.link.pump(robot.t)
 
     def _advance(self, t: float) -> None:
         """Integrate in plant steps, letting the MCU run at each, so STATE frames carry the
@@ -98,6 +82,8 @@ class EmulatedDevices:
 class EmulatedRealHal(Hal):
     """RealHal (the real drivers) over EmulatedDevices; also the clock, like SimHal."""
 
+    owns_time = True
+
     def __init__(self, real: RealHal, devices: EmulatedDevices) -> None:
         self.real = real
         self.devices = devices
@@ -105,17 +91,19 @@ class EmulatedRealHal(Hal):
         self.info = real.info
 
     def now(self) -> float:
-        return self.devices.now()
+        return self.devices.time.now()
+
+    def advance_to_wall_clock(self) -> None:
+        """Paced: run the plant and the emulated MCU up to the wall clock now."""
+        self.devices.time.catch_up()
 
     def sleep_until(self, deadline: float) -> float:
-        if not math.isfinite(deadline):
-            raise ValueError(f"deadline={deadline!r} is not finite")
-        return self.devices.sleep_until(deadline)
+        return self.devices.time.sleep_until(deadline)
 
     def read(self) -> Sample:
         return self.real.read()
 
-    def write(self, duty_l: float, duty_r: float) -> None:
+    def _write(self, duty_l: float, duty_r: float) -> None:
         self.real.write(duty_l, duty_r)
 
     def stop(self) -> None:
@@ -125,11 +113,14 @@ class EmulatedRealHal(Hal):
     def fault_counters(self) -> dict[str, int]:
         return self.real.fault_counters
 
-    def close(self) -> None:
+    def _close(self) -> None:
+        real, devices = getattr(self, "real", None), getattr(self, "devices", None)
         try:
-            self.real.close()
+            if real is not None:
+                real.close()
         finally:
-            self.devices.close()
+            if devices is not None:
+                devices.close()
 
 
 def open_emulated_real_hal(cfg: Config, start: tuple[float, float, float] = (0.0, 0.0, 0.0),
@@ -140,7 +131,7 @@ def open_emulated_real_hal(cfg: Config, start: tuple[float, float, float] = (0.0
     bridge["url"] = devices.url
     hal_section["bridge"] = bridge
     try:
-        real = RealHal.from_config({"hal": hal_section}, clock=devices, i2c_bus=devices.i2c)
+        real = RealHal.from_config({"hal": hal_section}, clock=devices.time, i2c_bus=devices.i2c)
     except BaseException:
         devices.close()
         raise

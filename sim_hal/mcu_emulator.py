@@ -21,6 +21,7 @@ import time
 import tty
 from typing import Callable, Protocol
 
+from ddrt.core.wrap import wrap_i32
 from hal.protocol import (
     DUTY_FULL_SCALE, FLAG_BAD_FRAME, FLAG_OUTPUTS_ON, FLAG_WATCHDOG, PROTOCOL_VERSION, Drive,
     FrameDecoder, Hello, HelloReply, Message, Packet, State, Stop, encode_frame,
@@ -75,10 +76,6 @@ class DutyIntegratingEncoder:
     def add_counts(self, n: int) -> None:
         """Move the wheel by hand (tests)."""
         self._pos += n
-
-
-def _wrap_i32(x: int) -> int:
-    return ((x + 0x80000000) & 0xFFFFFFFF) - 0x80000000
 
 
 class McuEmulator:
@@ -200,7 +197,7 @@ class McuEmulator:
 
     def _state(self, now: float) -> State:
         t_us = (round((now - self._boot_t) * 1e6) + self.t_us_offset) & 0xFFFFFFFF
-        count = _wrap_i32(self.plant.encoder_count() - self._count_base)
+        count = wrap_i32(self.plant.encoder_count() - self._count_base)
         flags = self._flags | (FLAG_OUTPUTS_ON if (self.duty_l or self.duty_r) else 0)
         self._flags = 0
         self.states_sent += 1

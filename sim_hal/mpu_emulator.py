@@ -13,15 +13,16 @@ import math
 from collections import Counter
 from typing import Callable, Protocol
 
+from ddrt.core.sensors import GYRO_LSB_PER_DPS
 from hal.mpu6050 import (
-    GYRO_CONFIG, GYRO_LSB_PER_DPS, GYRO_ZOUT_H, PWR_MGMT_1, PWR_SLEEP, WHO_AM_I, WHO_AM_I_VALUE,
+    GYRO_CONFIG, GYRO_FS_SEL, GYRO_ZOUT_H, PWR_MGMT_1, PWR_SLEEP, WHO_AM_I, WHO_AM_I_VALUE,
 )
 
 __all__ = ["ConstantGyro", "GyroSource", "MpuEmulator", "SineGyro"]
 
 _DEVICE_RESET = 0x80
 _DPS_PER_RAD_S = 180.0 / math.pi
-_FS_LSB = {fs: lsb for fs, lsb in GYRO_LSB_PER_DPS.values()}
+_FS_LSB = {GYRO_FS_SEL[rng]: lsb for rng, lsb in GYRO_LSB_PER_DPS.items()}  # FS_SEL -> LSB per deg/s
 
 
 class GyroSource(Protocol):

@@ -1,8 +1,8 @@
 """The simulated robot: the truth the controller is tested against in CI.
 
-The reduced model of ddrt/model.py (ERRATA.md) plus pose kinematics is integrated with RK4
+The reduced model of ddrt/core/model.py (docs/model.md) plus pose kinematics is integrated with RK4
 at the plant's own fixed step, independent of the controller's rate. Torques come from each
-wheel's DC motor model (ddrt/motor.py), with the seed's random slip torque on top; duty
+wheel's DC motor model (ddrt/core/motor.py), with the seed's random slip torque on top; duty
 commands and sensor readings are delayed like a real driver and bus delay them; the sensors
 report raw integers (a wrapping 32-bit encoder count, a saturating int16 gyro with bias,
 white noise and the MPU-6050's low-pass filter).
@@ -23,6 +23,7 @@ from typing import Any, Mapping
 
 from ddrt.core.model import Dynamics, RobotParams
 from ddrt.core.motor import MotorParams
+from ddrt.core.sensors import GYRO_LSB_PER_DPS, gyro_lsb_per_rad_s
 
 from sim_hal import sensors
 
@@ -82,7 +83,7 @@ class PlantConfig:
             )
         if self.gyro_scale_error <= -1.0:
             raise ValueError(f"PlantConfig.gyro_scale_error: must be > -1, got {self.gyro_scale_error!r}")
-        sensors.gyro_lsb_per_rad_s(self.gyro_range_dps)  # raises for a range the part lacks
+        gyro_lsb_per_rad_s(self.gyro_range_dps)  # raises for a range the part lacks
 
     @classmethod
     def from_mapping(cls, mapping: Mapping[str, Any]) -> "PlantConfig":
@@ -145,7 +146,7 @@ class SimRobot:
         self._gyro_rng = random.Random(None if seed is None else f"{seed}/gyro")
 
         # Gyro: state in deg/s after the low-pass, started where it would have settled.
-        self._gyro_lsb_per_dps = sensors.GYRO_LSB_PER_DPS[cfg.gyro_range_dps]
+        self._gyro_lsb_per_dps = GYRO_LSB_PER_DPS[cfg.gyro_range_dps]
         self._gyro_a = sensors.lowpass_coefficient(cfg.gyro_dlpf_hz, cfg.step_hz)
         self._gyro_sigma = cfg.gyro_noise_dps_rthz * math.sqrt(cfg.step_hz / 2.0)
         self._gyro_f = cfg.gyro_bias_dps

@@ -8,24 +8,15 @@ from __future__ import annotations
 
 import math
 
-# MPU-6050 gyro sensitivity by full-scale range (datasheet, FS_SEL 0..3).
-GYRO_LSB_PER_DPS: dict[int, float] = {250: 131.0, 500: 65.5, 1000: 32.8, 2000: 16.4}
+from ddrt.core.wrap import wrap_i32
 
 INT16_MIN = -32768
 INT16_MAX = 32767
-_TWO_32 = 1 << 32
-_TWO_31 = 1 << 31
-_DEG_PER_RAD = 180.0 / math.pi
-
-
-def wrap_int32(count: int) -> int:
-    """Wrap an unbounded integer the way a signed 32-bit hardware counter overflows."""
-    return ((count + _TWO_31) % _TWO_32) - _TWO_31
 
 
 def encoder_count(angle_rad: float, counts_per_rev: int, offset: int = 0) -> int:
     """Raw counter value for a wheel turned `angle_rad` from where the count was `offset`."""
-    return wrap_int32(math.floor(angle_rad * counts_per_rev / (2.0 * math.pi)) + offset)
+    return wrap_i32(math.floor(angle_rad * counts_per_rev / (2.0 * math.pi)) + offset)
 
 
 def gyro_raw(rate_dps: float, lsb_per_dps: float) -> int:
@@ -36,16 +27,6 @@ def gyro_raw(rate_dps: float, lsb_per_dps: float) -> int:
     if raw < INT16_MIN:
         return INT16_MIN
     return raw
-
-
-def gyro_lsb_per_rad_s(range_dps: int) -> float:
-    """Raw units per rad/s at a full-scale range; raises ValueError for a range the part lacks."""
-    try:
-        return GYRO_LSB_PER_DPS[range_dps] * _DEG_PER_RAD
-    except KeyError:
-        raise ValueError(
-            f"gyro_range_dps: {range_dps!r} is not one of {sorted(GYRO_LSB_PER_DPS)}"
-        ) from None
 
 
 def lowpass_coefficient(cutoff_hz: float, sample_hz: float) -> float:

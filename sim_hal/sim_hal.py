@@ -1,39 +1,35 @@
 """`SimHal`: the `Hal` backend over a `SimRobot`, and the control loop's clock.
 
-Unpaced (the default, for CI) the loop's computation takes no sim time and `sleep_until`
-just integrates the plant to the deadline, so a run goes as fast as the CPU allows. Paced,
-sim time follows the wall clock (time.monotonic since start, plus the sim time at start), so
+Its time is sim_hal.simtime's: unpaced (the default, for CI) the loop's computation takes no
+sim time and a run goes as fast as the CPU allows; paced, sim time follows the wall clock, so
 the daemon can run against the simulator in real time.
 """
 
 from __future__ import annotations
 
-import math
-import time
-
 from ddrt.core.model import RobotParams
 from ddrt.core.motor import MotorParams
-from hal.base import Hal, HalInfo, HalIOError, HalValueError, Sample, check_duty
+from hal.base import Hal, HalInfo, HalIOError, Sample
 from sim_hal.plant import PlantConfig, SimRobot
+from sim_hal.simtime import SimTime
 
 
 class SimHal(Hal):
-    """A HAL whose sensors and motors are those of a simulated robot."""
+    """A HAL whose sensors and motors are those of a simulated robot; its own clock."""
+
+    owns_time = True
 
     def __init__(self, robot: SimRobot, paced: bool = False) -> None:
         self.robot = robot
-        self.paced = paced
+        self.time = SimTime(lambda: robot.t, robot.advance_to, paced)
         self.info = HalInfo(
             encoder_counts_per_rev=robot.encoder_counts_per_rev,
             gyro_lsb_per_rad_s=robot.gyro_lsb_per_rad_s,
             gyro_full_scale_rad_s=robot.gyro_full_scale_rad_s,
             gyro_delay_s=robot.gyro_delay_s,
         )
-        self._closed = False
         self.freeze_after: float | None = None  # fault injection: sensors stop updating
         self._last_sample: Sample | None = None
-        self._wall0 = time.monotonic()
-        self._sim0 = robot.t
 
     @classmethod
     def from_params(cls, params: RobotParams, motor_l: MotorParams | None = None,
@@ -44,36 +40,30 @@ class SimHal(Hal):
         robot = SimRobot(params, motor_l or MotorParams(), motor_r or MotorParams(), cfg, start)
         return cls(robot, paced=paced)
 
-    # --- clock ------------------------------------------------------------------------------
+    # --- clock (sim_hal.simtime) ------------------------------------------------------------
 
-    def _wall_sim_time(self) -> float:
-        return time.monotonic() - self._wall0 + self._sim0
+    @property
+    def paced(self) -> bool:
+        return self.time.paced
 
     def now(self) -> float:
         """Sim time (s). Paced, the plant is first brought up to the wall clock."""
-        if self.paced:
-            self.robot.advance_to(self._wall_sim_time())
-        return self.robot.t
+        return self.time.now()
+
+    def advance_to_wall_clock(self) -> None:
+        """Paced: integrate the plant up to the wall clock now (unpaced, sim time waits)."""
+        self.time.catch_up()
 
     def sleep_until(self, deadline: float) -> float:
         """Advance the plant to `deadline` (and, paced, wait for the wall clock); return now."""
-        if not math.isfinite(deadline):
-            raise HalValueError(f"deadline={deadline!r} is not finite")
-        if self.paced:
-            remaining = deadline - self._wall_sim_time()
-            if remaining > 0.0:
-                time.sleep(remaining)
-            self.robot.advance_to(max(deadline, self._wall_sim_time()))
-        else:
-            self.robot.advance_to(deadline)
-        return self.robot.t
+        return self.time.sleep_until(deadline)
 
     # --- Hal ------------------------------------------------------------------------------
 
     def read(self) -> Sample:
         if self._closed:
             raise HalIOError("SimHal.read: the HAL is closed")
-        t = self.now()
+        t = self.time.now()
         last = self._last_sample
         if self.freeze_after is not None and t >= self.freeze_after and last is not None:
             return Sample(t=last.t, encoder_count=last.encoder_count, gyro_z_raw=last.gyro_z_raw,
@@ -81,18 +71,16 @@ class SimHal(Hal):
         self._last_sample = Sample(t=t, encoder_count=self.robot.read_encoder(), gyro_z_raw=self.robot.read_gyro_raw())
         return self._last_sample
 
-    def write(self, duty_l: float, duty_r: float) -> None:
-        dl = check_duty("duty_l", duty_l)
-        dr = check_duty("duty_r", duty_r)
+    def _write(self, duty_l: float, duty_r: float) -> None:
         if self._closed:
             raise HalIOError("SimHal.write: the HAL is closed")
-        self.robot.command(dl, dr)
+        self.robot.command(duty_l, duty_r)
 
     def stop(self) -> None:
         if not self._closed:
             self.robot.command(0.0, 0.0)
 
-    def close(self) -> None:
-        if not self._closed:
-            self.stop()
-            self._closed = True
+    def _close(self) -> None:
+        robot = getattr(self, "robot", None)
+        if robot is not None:
+            robot.command(0.0, 0.0)

@@ -100,6 +100,7 @@ def tiny_results() -> run.Results:
     return run.measure_all(TINY, "pytest tiny", say=lambda _t: None, progress=None)
 
 
+@pytest.mark.slow
 def test_short_scenario_both_controllers_complete(tiny_results: run.Results) -> None:
     row = tiny_results.accuracy.table["s_curve"]
     for name in ("dynamic", "kinematic"):
@@ -111,6 +112,7 @@ def test_short_scenario_both_controllers_complete(tiny_results: run.Results) -> 
     assert row["seed"].runs == 1
 
 
+@pytest.mark.slow
 def test_sweep_keeps_the_lookahead_with_the_best_worst_case(tiny_results: run.Results) -> None:
     acc = tiny_results.accuracy
     worst = {r.lookahead_m: r.worst_m for r in acc.sweep}
@@ -135,6 +137,7 @@ def test_a_lookahead_that_faults_early_does_not_win() -> None:
     assert rows[0].incomplete == ("a",)
 
 
+@pytest.mark.slow
 def test_document_has_every_section(tiny_results: run.Results, tmp_path) -> None:
     doc = run.render_document(tiny_results)
     for title in run.SECTIONS:

@@ -13,8 +13,9 @@ from typing import Iterator
 
 import pytest
 
+from ddrt.service.clock import MonotonicClock
 from hal.base import HalInitError, HalIOError, HalTimeoutError, HalValueError
-from hal.bridge import Bridge, WallClock
+from hal.bridge import Bridge
 from hal.mpu6050 import Mpu6050
 from hal.protocol import (
     FLAG_BAD_FRAME, FLAG_WATCHDOG, Drive, HelloReply, Packet, State, Stop, encode_frame,
@@ -271,7 +272,7 @@ def test_emulator_that_never_answers_is_init_error_in_bound() -> None:
         assert wait_until(lambda: mcu.hellos >= 2)  # it did ask again
 
 
-class PumpingClock(WallClock):
+class PumpingClock(MonotonicClock):
     """The closed-loop wiring: no thread; the clock services the emulator while it waits."""
 
     def __init__(self, link: PtyLink) -> None:
@@ -490,6 +491,7 @@ def test_realhal_first_read_never_invents_a_value() -> None:
 def test_realhal_write_stop_close() -> None:
     enc = FakeEncoder()
     hal = RealHal(FakeImu(), enc, FakeClock())
+    assert not hal.owns_time  # hardware: the loop keeps the wall clock
     hal.write(0.5, -0.5)
     with pytest.raises(HalValueError, match="duty_r"):
         hal.write(0.1, 2.0)
@@ -509,7 +511,7 @@ def test_from_config_sim_bus_and_pty_url() -> None:
         link.start()
         cfg = {"hal": {"imu": {"bus": "sim", "gyro_range_dps": 1000},
                        "bridge": {"url": link.url, "drive_timeout_ms": 200}}}
-        hal = RealHal.from_config(cfg, WallClock(),
+        hal = RealHal.from_config(cfg, MonotonicClock(),
                                   i2c_bus=MpuEmulator(ConstantGyro(1.0)))
         try:
             hal.write(0.1, 0.1)
@@ -553,7 +555,7 @@ def test_from_config_pwm_sysfs_motors(tmp_path: Path) -> None:
                        "motors": "pwm_sysfs",
                        "pwm_sysfs": {"chip": 0, "channels": [0, 1], "period_ns": 40000,
                                      "direction_gpios": [5, 6], "root": str(tmp_path)}}}
-        hal = RealHal.from_config(cfg, WallClock(), i2c_bus=MpuEmulator(ConstantGyro()))
+        hal = RealHal.from_config(cfg, MonotonicClock(), i2c_bus=MpuEmulator(ConstantGyro()))
         pwm0 = tmp_path / "class/pwm/pwmchip0/pwm0"
         try:
             hal.write(0.5, -0.25)

@@ -119,6 +119,7 @@ def test_odometry_correction_refuses_implausible_measurements() -> None:
         cal.odometry_correction(cfg, run, 0.0, 2 * math.pi)
 
 
+@pytest.mark.slow
 def test_cli_odometry_then_circle_true_error_drops(tmp_path: Path) -> None:
     """The whole user story: calibrate by the CLI, merge the fragment, run the seed circle."""
     out = tmp_path / "odo.yaml"

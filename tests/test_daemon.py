@@ -368,6 +368,7 @@ def texts(rec: Recording) -> list[str]:
     return [m for _, m in rec.messages]
 
 
+@pytest.mark.slow
 def test_ready_comes_first_and_only_after_calibration(recording: Recording) -> None:
     rec = recording
     assert texts(rec)[0] == "READY=1"  # no watchdog ping or status before the loop runs
@@ -377,6 +378,7 @@ def test_ready_comes_first_and_only_after_calibration(recording: Recording) -> N
     assert rec.t_ready - rec.t_start < START_TIMEOUT_S
 
 
+@pytest.mark.slow
 def test_watchdog_pings_faster_than_watchdog_usec(recording: Recording) -> None:
     rec = recording
     pings = [t for t, m in rec.messages if m == "WATCHDOG=1" and rec.t_ready <= t <= rec.t_term]
@@ -388,6 +390,7 @@ def test_watchdog_pings_faster_than_watchdog_usec(recording: Recording) -> None:
     assert max(gaps) < 0.2, f"a watchdog gap of {max(gaps):.3f} s would have let systemd kill the service"
 
 
+@pytest.mark.slow
 def test_status_lines_describe_the_loop(recording: Recording) -> None:
     status = [m for _, m in recording.messages if m.startswith("STATUS=")]
     assert len(status) >= 3  # one a second
@@ -395,6 +398,7 @@ def test_status_lines_describe_the_loop(recording: Recording) -> None:
     assert any(m.startswith("STATUS=following; tick p99 ") and "missed" in m for m in status), status[:3]
 
 
+@pytest.mark.slow
 def test_sighup_reload_is_bracketed_by_reloading_and_ready(recording: Recording) -> None:
     rec = recording
     after = [(t, m) for t, m in rec.messages if t >= rec.t_hup]
@@ -418,6 +422,7 @@ def test_sighup_reload_is_bracketed_by_reloading_and_ready(recording: Recording)
     assert kinds == ["READY"] + ["RELOADING", "READY"] * n
 
 
+@pytest.mark.slow
 def test_sigterm_sends_stopping(recording: Recording) -> None:
     rec = recording
     stopping = [t for t, m in rec.messages if m == "STOPPING=1"]
@@ -425,6 +430,7 @@ def test_sigterm_sends_stopping(recording: Recording) -> None:
     assert texts(rec)[-1] == "STOPPING=1"
 
 
+@pytest.mark.slow
 def test_sighup_applies_new_gains_live(recording: Recording) -> None:
     rec = recording
     assert rec.gains_before["ok"] and rec.gains_before["inner"]["kp"] == 40.0
@@ -435,6 +441,7 @@ def test_sighup_applies_new_gains_live(recording: Recording) -> None:
     assert "reload applied: controller.inner" in rec.stderr
 
 
+@pytest.mark.slow
 def test_bad_reload_is_rejected_and_following_goes_on(recording: Recording) -> None:
     rec = recording
     assert rec.bad_reply["ok"] is False
@@ -449,6 +456,7 @@ def test_bad_reload_is_rejected_and_following_goes_on(recording: Recording) -> N
     assert rec.status_final["timing"]["count"] > after + 100
 
 
+@pytest.mark.slow
 def test_restart_only_key_is_reported_not_applied(recording: Recording) -> None:
     rec = recording
     reply = rec.restart_reply
@@ -463,6 +471,7 @@ def test_restart_only_key_is_reported_not_applied(recording: Recording) -> None:
     assert all(r["ok"] is True for r in rec.noop_replies)
 
 
+@pytest.mark.slow
 def test_pending_restart_key_is_still_reported_on_the_next_reload(recording: Recording) -> None:
     reply = recording.noop_replies[0]  # same file as the restart-key reload: rate_hz 100, running 200
     assert "controller.rate_hz" in reply["message"], reply
@@ -497,6 +506,7 @@ def _steady_steps(rec: Recording) -> list[float]:
     return out
 
 
+@pytest.mark.slow
 def test_reload_windows_are_in_the_telemetry(recording: Recording) -> None:
     rec = recording
     rows = rec.rows
@@ -509,6 +519,7 @@ def test_reload_windows_are_in_the_telemetry(recording: Recording) -> None:
 
 # Not strict: whether a reload makes a tick late depends on the machine's speed and load
 # (here about 4 runs in 5 show it); strict would turn the lucky runs red.
+@pytest.mark.slow
 def test_reload_does_not_step_the_motor_command(recording: Recording) -> None:
     """Around every reload: the loop does not stall (a generous bound: this machine is shared)
     and no tick-to-tick duty change is larger than the largest in steady following (or 0.05)."""
@@ -524,6 +535,7 @@ def test_reload_does_not_step_the_motor_command(recording: Recording) -> None:
         assert step <= max(step_steady, 0.05), ("duty step", lo, hi, step, step_steady)
 
 
+@pytest.mark.slow
 def test_sigterm_exits_zero_within_one_second(recording: Recording) -> None:
     rec = recording
     assert rec.returncode == 0, rec.stderr
@@ -533,6 +545,7 @@ def test_sigterm_exits_zero_within_one_second(recording: Recording) -> None:
     assert not rec.socket_left  # the control socket file is removed on the way out
 
 
+@pytest.mark.slow
 def test_sigterm_telemetry_is_complete(recording: Recording) -> None:
     rec = recording
     # Every tick reached the CSV (the ring is drained at close), all of them while following.
@@ -547,6 +560,7 @@ def test_sigterm_telemetry_is_complete(recording: Recording) -> None:
     assert span == pytest.approx((len(ts) - 1) / RATE_HZ, rel=0.05)
 
 
+@pytest.mark.slow
 def test_sigterm_leaves_a_record_of_zeroed_motors(recording: Recording) -> None:
     last = recording.rows[-1]
     assert last["duty_l"] == 0.0 and last["duty_r"] == 0.0
@@ -772,6 +786,7 @@ def test_ctl_without_a_daemon_exits_1() -> None:
 # ------------------------------------------------------------- faults and start-up errors
 
 
+@pytest.mark.slow
 def test_stale_sensors_zero_the_motors_and_exit_1() -> None:
     freeze_s = 4.0
     d = start_daemon("--follow", sim={"sensors_freeze_after_s": freeze_s})
@@ -803,6 +818,40 @@ def test_stale_sensors_zero_the_motors_and_exit_1() -> None:
         assert fault_row is rows[-2]  # the loop stops on the fault tick itself (then the shutdown row)
         # And the process is gone soon after: 4 s of following after a bounded start-up.
         assert t_exit - d.t_start < START_TIMEOUT_S + freeze_s
+    finally:
+        d.close()
+
+
+EMULATED_REAL = {"backend": "real", "imu": {"bus": "sim"}, "bridge": {"url": "ddrtsim://robot"}}
+
+
+@pytest.mark.slow
+def test_run_on_the_real_drivers_over_emulated_devices_follows_and_exits_zero() -> None:
+    """`hal.backend: real` on emulated devices: the daemon paces their simulated time too."""
+    duration_s = 3.0
+    d = start_daemon("--follow", "--duration", str(duration_s), notify=True, hal=EMULATED_REAL)
+    try:
+        try:
+            rc = d.proc.wait(timeout=START_TIMEOUT_S + duration_s)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"the daemon on emulated devices did not stop after --duration:\n{d.stderr()}")
+        assert rc == 0, d.stderr()
+        assert d.notify is not None and d.notify.first("READY=1") is not None
+        stats = json.loads(d.stats_json.read_text())
+        assert stats["exit_code"] == 0 and stats["final_state"] == "stopped"
+        assert stats["final_duty"] == [0.0, 0.0]
+        rows = d.telemetry()
+        following = [r for r in rows if r["state"] == FOLLOWING]
+        assert len(following) > 0.8 * duration_s * RATE_HZ  # it followed for (nearly) the whole run
+        assert max(r["sigma"] for r in rows) > 0.5  # and got along the path (0.3 m/s)
+        # As on the sim backend: the start from rest swings out ~18 mm, then it settles.
+        assert max(abs(r["cross_track_est"]) for r in following) < 0.03
+        settled = [r for r in following if r["t"] > following[0]["t"] + 1.5]
+        assert settled and max(abs(r["cross_track_est"]) for r in settled) < 0.002
+        assert all(r["fresh"] == 1.0 for r in following[10:])
+        last = rows[-1]
+        assert last["duty_l"] == 0.0 and last["duty_r"] == 0.0
+        assert "no STATE" not in d.stderr()
     finally:
         d.close()
 

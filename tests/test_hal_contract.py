@@ -7,6 +7,7 @@ robot, wired in process through pyserial's URL mechanism (ddrtsim://).
 
 from __future__ import annotations
 
+import time
 from pathlib import Path as FsPath
 
 import pytest
@@ -99,6 +100,23 @@ def test_close_is_idempotent_and_stops(backend):
     assert hal.robot.applied_duty == (0.0, 0.0) or hal.robot.applied_duty == (0.4, 0.4)
     hal.robot.advance_to(hal.robot.t + 0.01)
     assert hal.robot.applied_duty == (0.0, 0.0)
+
+
+def test_simulated_backends_own_time_and_follow_the_wall_clock_when_paced(backend):
+    name, cfg, hal = backend
+    assert hal.owns_time
+    t0 = hal.robot.t
+    hal.advance_to_wall_clock()  # unpaced: sim time waits for sleep_until
+    assert hal.robot.t == t0
+    paced = open_hal(cfg, start=(0.0, 0.0, 0.0), paced=True)
+    try:
+        t0 = paced.robot.t
+        time.sleep(0.05)
+        paced.advance_to_wall_clock()
+        assert paced.robot.t - t0 >= 0.05
+        assert paced.now() >= paced.robot.t - 1e-9
+    finally:
+        paced.close()
 
 
 def test_closed_loop_through_real_drivers_matches_sim_backend():

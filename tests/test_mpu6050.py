@@ -171,3 +171,23 @@ def test_open_i2c_bus_sim_is_left_to_caller() -> None:
 def test_reports_the_datasheet_delay_of_its_low_pass(cfg: int, delay_ms: float) -> None:
     imu = Mpu6050(MpuEmulator(ConstantGyro()), dlpf_cfg=cfg)
     assert imu.gyro_delay_s == pytest.approx(delay_ms * 1e-3)
+
+
+def test_one_range_table_for_driver_simulator_and_config() -> None:
+    from pathlib import Path
+
+    from ddrt.config import load_config
+    from ddrt.config.schema import ConfigError
+    from ddrt.core.sensors import GYRO_LSB_PER_DPS, GYRO_RANGES_DPS
+    from hal.mpu6050 import GYRO_FS_SEL
+    from sim_hal.plant import PlantConfig
+
+    assert GYRO_RANGES_DPS == (250, 500, 1000, 2000)
+    assert GYRO_FS_SEL == {250: 0, 500: 1, 1000: 2, 2000: 3}  # register 27, FS_SEL 0..3
+    sim_yaml = Path(__file__).resolve().parents[1] / "configs" / "sim.yaml"
+    for rng in GYRO_RANGES_DPS:
+        assert gyro_scale(rng)[0] * DEG == pytest.approx(GYRO_LSB_PER_DPS[rng])
+        PlantConfig(gyro_range_dps=rng)
+        assert load_config(sim_yaml, {"sensors": {"gyro_range_dps": rng}}).sensors.gyro_range_dps == rng
+    with pytest.raises(ConfigError, match="gyro_range_dps"):
+        load_config(sim_yaml, {"sensors": {"gyro_range_dps": 300}})

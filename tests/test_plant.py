@@ -11,8 +11,9 @@ import pytest
 
 from ddrt.core.model import RobotParams, forward_dynamics, wheel_rates
 from ddrt.core.motor import Motor, MotorParams
+from ddrt.core.wrap import wrap_i32
 from sim_hal import PlantConfig, SimRobot
-from sim_hal.sensors import encoder_count, gyro_raw, wrap_int32
+from sim_hal.sensors import encoder_count, gyro_raw
 
 TABLE_5_1 = dict(
     H=0.115, L=0.108, R=0.108, r_L=0.049, r_R=0.051, r_3=0.052, d_xc=0.026, d_yc=0.0,
@@ -310,9 +311,9 @@ def test_encoder_count_is_floored_front_wheel_angle():
 
 
 def test_encoder_wraps_like_int32():
-    assert wrap_int32(2**31 - 1) == 2**31 - 1
-    assert wrap_int32(2**31) == -(2**31)
-    assert wrap_int32(-(2**31) - 1) == 2**31 - 1
+    assert wrap_i32(2**31 - 1) == 2**31 - 1
+    assert wrap_i32(2**31) == -(2**31)
+    assert wrap_i32(-(2**31) - 1) == 2**31 - 1
     assert encoder_count(2 * math.pi, 8192, offset=2**31 - 8192) == -(2**31)
     bot = robot(encoder_offset_counts=2**31 - 100, **QUIET)
     assert bot.read_encoder() == 2**31 - 100
@@ -321,7 +322,7 @@ def test_encoder_wraps_like_int32():
     count = bot.read_encoder()
     assert count < 0
     # The difference modulo 2^32 still gives the distance, as a decoder would compute it.
-    travelled = wrap_int32(count - (2**31 - 100))
+    travelled = wrap_i32(count - (2**31 - 100))
     assert travelled == pytest.approx(bot.wheel_angles[2] * 8192 / (2 * math.pi), abs=40)
 
 

@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 
 from ddrt.path import Path, SpeedLimits, load_path
-from ddrt.path.pursuit import PurePursuit, Reference, TimedReference
+from ddrt.core.types import Setpoint
+from ddrt.path.pursuit import PurePursuit, Reference
+from ddrt.path.reference import PathReference
 
 CONFIGS = FsPath(__file__).resolve().parent.parent / "configs" / "paths"
 LIM = SpeedLimits()
@@ -86,7 +88,10 @@ def test_cross_track_on_a_circle() -> None:
             assert ref.sigma == pytest.approx(r * phi, abs=1e-6)
             assert ref.kappa == pytest.approx(1 / r)
             assert ref.omega_d == pytest.approx(ref.v_d / r, rel=1e-9)
-            timed = TimedReference(path).update(path.at(r * phi).t, x, y, phi)
+            timed = PathReference(path, 0.05, 0.3, 0.005, time_indexed=True)
+            timed.pursuit.reset(r * phi - 0.02)
+            timed.t_sched = path.at(r * phi).t - 0.005
+            timed.update(x, y, phi, Setpoint(), 0.005)
             assert timed.cross_track == pytest.approx(d, abs=2e-6)
 
 
@@ -164,18 +169,38 @@ def test_a_simple_robot_completes_the_path(name: str) -> None:
 
 
 def test_timed_reference_is_the_profile_at_time_t() -> None:
+    """PathReference's time-indexed mode (the seed's): q_d = path.at_time(t), whatever the robot does."""
     path = _load("seed_circle.yaml")
-    tr = TimedReference(path)
-    for t in (0.0, 10.0, 40.0, 79.0):
-        q = path.at_time(t)
-        ref = tr.update(t, q.x, q.y, q.theta)
-        assert (ref.sigma, ref.x_d, ref.y_d, ref.v_d, ref.omega_d, ref.a_d) == (q.sigma, q.x, q.y, q.v, q.omega, q.a)
-        assert abs(ref.cross_track) < 1e-5 and not ref.done
-    q = path.at_time(40.0)
-    # A robot 20 mm outside a clockwise circle is on its left: positive cross-track.
+    dt = 0.005
+    tr = PathReference(path, 0.05, 0.3, dt, time_indexed=True)
+    sp = Setpoint()
+    t = 0.0
+    for t_check in (10.0, 40.0, 79.0):
+        while t < t_check - 1e-9:  # a robot exactly on the schedule
+            q = path.at_time(tr.t_sched)
+            tr.update(q.x, q.y, q.theta, sp, dt)
+            t += dt
+        assert tr.t_sched == pytest.approx(t_check, abs=1e-9)
+        q = path.at_time(tr.t_sched)
+        assert (sp.x_d, sp.y_d, sp.theta_d, sp.v_d, sp.omega_d, sp.a_d, sp.alpha_d) == (
+            q.x, q.y, q.theta, q.v, q.omega, q.a, q.alpha)
+        assert sp.along_err == 0.0 and not sp.path_frame and sp.kappa == q.kappa
+        # The robot's progress: it stood one tick behind the schedule (0.16 mm at 31 mm/s),
+        # and within the last mm before the stop the projection snaps to the end.
+        expected = path.length if path.length - q.sigma <= 1e-3 else q.sigma
+        assert tr.sigma == pytest.approx(expected, abs=2e-4)
+        assert abs(tr.cross_track) < 1e-5 and not tr.done
+    # A robot 20 mm outside a clockwise circle is on its left: positive cross-track, and the
+    # reference does not wait for it.
+    q = path.at_time(tr.t_sched)
     rx, ry = q.x * (0.32 / 0.3), -0.3 + (q.y + 0.3) * (0.32 / 0.3)
-    assert tr.update(40.0, rx, ry, q.theta).cross_track == pytest.approx(0.02, abs=1e-5)
-    assert tr.update(80.5, 0.0, 0.0, 0.0).done
+    tr.update(rx, ry, q.theta, sp, dt)
+    assert tr.cross_track == pytest.approx(0.02, abs=1e-5)
+    assert (sp.x_d, sp.y_d) == (path.at_time(tr.t_sched).x, path.at_time(tr.t_sched).y)
+    end = path.at(path.length)
+    while tr.t_sched < 80.5:
+        tr.update(end.x, end.y, end.theta, sp, dt)
+    assert tr.done
 
 
 def test_pursuit_is_fast() -> None:

@@ -1,6 +1,6 @@
 """Online estimation of the lumped dynamic parameters the compensator and the estimator use.
 
-The reduced model (ERRATA.md) with an extra Coulomb friction c_L, c_R at each wheel (what the
+The reduced model (docs/model.md) with an extra Coulomb friction c_L, c_R at each wheel (what the
 motor model's friction misses) is linear in theta = (m_k, mbar, I, m_x, c_L, c_R):
 
     m_k v' + mbar w' - m_x w^2     + c_L s_L / r_L + c_R s_R / r_R =  tau_L/r_L + tau_R/r_R

@@ -1,6 +1,6 @@
 """The controllers: the seed's three-stage design, a kinematic baseline, and the seed's own.
 
-Dynamic (default), the seed's Chapter 4 with ERRATA.md's model:
+Dynamic (default), the seed's Chapter 4 with the corrected model of docs/model.md:
   1. outer: Kanayama's law (eq. 4.3) turns the pose error into commanded speeds eta_c;
   2. inner: PID on e = eta_c - eta, with the reference's acceleration fed forward,
      integrator clamping and conditional integration (anti-windup), derivative on the

@@ -17,11 +17,10 @@ from ddrt.config import EstimatorConfig
 from ddrt.core.kalman import TravelFilter, YawFilter
 from ddrt.core.model import Dynamics
 from ddrt.core.motor import Motor
-from hal.base import HalInfo, Sample
+from ddrt.core.types import HalInfo, Sample
+from ddrt.core.wrap import wrap_i32
 
 NOISE_STEP_S = 0.005  # the step the configured process noises are given for
-_TWO32 = 1 << 32
-_TWO31 = 1 << 31
 DEG = math.pi / 180.0
 
 
@@ -241,7 +240,7 @@ class Estimator:
         self.theta += w * dt
 
     def _fuse_encoder(self, count: int, dt: float) -> None:
-        delta = (count - self._last_count + _TWO31) % _TWO32 - _TWO31
+        delta = wrap_i32(count - self._last_count)
         self._last_count = count
         self._travel_counts += delta
         health = self.health

@@ -1,4 +1,4 @@
-"""The robot's reduced dynamic model (ERRATA.md), in plain floats for the hot path.
+"""The robot's reduced dynamic model (docs/model.md), in plain floats for the hot path.
 
     H * d(eta)/dt + h(eta) = Bbar * tau,   eta = (v, omega),   tau = (tau_L, tau_R)
 
@@ -115,7 +115,7 @@ class Dynamics:
 
     @classmethod
     def from_params(cls, p: RobotParams, seed_report: bool = False) -> "Dynamics":
-        """Lump `p` into the model's coefficients (ERRATA.md); `seed_report` keeps its errors."""
+        """Lump `p` into the model's coefficients (docs/model.md); `seed_report` keeps its errors."""
         k = p.I_wL / p.r_L**2 + p.I_wR / p.r_R**2 + p.I_w3 / p.r_3**2
         m = p.m_p + p.m_L + p.m_R + p.m_3
         mbar = -p.m_p * p.d_yc - p.m_L * p.L + p.m_R * p.R - p.L * p.I_wL / p.r_L**2 + p.R * p.I_wR / p.r_R**2
@@ -157,7 +157,7 @@ class Dynamics:
 
 
 def forward_dynamics(params: RobotParams, eta: tuple[float, float], tau: tuple[float, float]) -> tuple[float, float]:
-    """(dv/dt, domega/dt) of the true model (ERRATA.md) for state eta and wheel torques tau."""
+    """(dv/dt, domega/dt) of the true model (docs/model.md) for state eta and wheel torques tau."""
     return Dynamics.from_params(params).forward(eta[0], eta[1], tau[0], tau[1])
 
 

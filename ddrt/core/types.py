@@ -1,11 +1,25 @@
-"""The small data types that cross the boundaries between the stages of one tick: what the
-hardware delivers (Sample, with the static facts in HalInfo) and what the reference stage
-hands the controller (Setpoint). They live here, below both the HAL and the controllers, so
-computation never imports a driver and a driver never imports a controller."""
+"""The small types that cross the boundaries between the stages of one tick: what the
+hardware delivers (Sample, with the static facts in HalInfo), what the reference stage hands
+the controller (Setpoint), and the Clock that paces the loop and times the drivers. They live
+here, below both the HAL and the controllers, so computation never imports a driver and a
+driver never imports a controller."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol
+
+
+class Clock(Protocol):
+    """What the loop and the drivers need from a clock: seconds on a monotonic time base, and a
+    sleep to an ABSOLUTE deadline that returns the time it woke (never before the deadline).
+
+    ddrt.service.clock.MonotonicClock is the wall clock; a backend whose robot runs in
+    simulated time is its own clock (hal.base.Hal.owns_time)."""
+
+    def now(self) -> float: ...
+
+    def sleep_until(self, deadline: float) -> float: ...
 
 
 @dataclass(frozen=True, slots=True)

@@ -16,8 +16,9 @@ end): a robot at rest gets a small nonzero v_d (or omega_d), and the kick merges
 profile as it speeds up. Decelerating to a stop needs no help (the profile reaches 0 in
 finite time), and the last `arrive_tol_m` before a stop is snapped.
 
-`TimedReference` is the seed's own mode: the reference is the point the profile reaches at
-time t, whatever the robot does.
+The seed's own time-indexed mode (the reference is where the profile is at time t, whatever
+the robot does) is PathReference's, in ddrt/path/reference.py; it uses this class's
+projection for the robot's progress and cross-track.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from dataclasses import dataclass
 from ddrt.core.wrap import wrap_angle
 from ddrt.path.sampled import Path
 
-__all__ = ["Reference", "PurePursuit", "TimedReference"]
+__all__ = ["Reference", "PurePursuit"]
 
 TWO_PI = 2.0 * math.pi
 
@@ -185,42 +186,3 @@ class PurePursuit:
         gx, gy, ppk = _goal(p, s + self.lookahead_m, x, y, theta)
         done = p.length - s <= self.arrive_tol_m
         return Reference(s, xd, yd, thd, v, w, a, al, 0.0 if pivot else k, ct, gx, gy, ppk, pivot, done)
-
-
-class TimedReference:
-    """Time-indexed reference (the seed's mode): q_d = path.at_time(t)."""
-
-    def __init__(self, path: Path, lookahead_m: float = 0.05, search_steps: int = 400) -> None:
-        self.path = path
-        self.lookahead_m = float(lookahead_m)
-        self.search_steps = int(search_steps)
-
-    def cross_track(self, i: int, x: float, y: float, theta_d: float, xd: float, yd: float) -> float:
-        """Signed lateral offset from the path near interval i (local projection, left positive)."""
-        p = self.path
-        xs, ys, piv, last = p.x, p.y, p.seg_pivot, len(p.sigma) - 2
-        if piv[i]:
-            return -math.sin(theta_d) * (x - xd) + math.cos(theta_d) * (y - yd)
-        tx, ty = p.tx, p.ty
-        for _ in range(self.search_steps):
-            g0 = (x - xs[i]) * tx[i] + (y - ys[i]) * ty[i]
-            g1 = (x - xs[i + 1]) * tx[i + 1] + (y - ys[i + 1]) * ty[i + 1]
-            if g0 < 0.0 and i > 0 and not piv[i - 1]:
-                i -= 1
-            elif g1 > 0.0 and i < last and not piv[i + 1]:
-                i += 1
-            else:
-                break
-        f = _foot(g0, g1)
-        fx, fy = xs[i] + f * (xs[i + 1] - xs[i]), ys[i] + f * (ys[i + 1] - ys[i])
-        cx, cy = tx[i] + f * (tx[i + 1] - tx[i]), ty[i] + f * (ty[i + 1] - ty[i])
-        return (cx * (y - fy) - cy * (x - fx)) / math.sqrt(cx * cx + cy * cy)
-
-    def update(self, t: float, x: float, y: float, theta: float) -> Reference:
-        p = self.path
-        q = p.at_time(t)
-        i = p.index(q.sigma)
-        ct = self.cross_track(i, x, y, q.theta, q.x, q.y)
-        gx, gy, ppk = _goal(p, q.sigma + self.lookahead_m, x, y, theta)
-        return Reference(q.sigma, q.x, q.y, q.theta, q.v, q.omega, q.a, q.alpha, q.kappa, ct, gx, gy, ppk,
-                         q.pivot, t >= p.duration)

@@ -54,7 +54,7 @@ from ddrt.core.wrap import wrap_angle
 from ddrt.path.geometry import _Geometry, _Piece
 from ddrt.path.profile import SpeedLimits, speed_profile
 
-__all__ = ["PathPoint", "Path"]
+__all__ = ["PathPoint", "Path", "distances_to_polyline"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -205,10 +205,39 @@ class Path:
     def distance_to(self, x: float, y: float) -> float:
         """Geometric distance from (x, y) to the path's polyline (vectorised; not for the hot path)."""
         arr = self.arrays()
-        ax, ay = arr["x"][:-1], arr["y"][:-1]
-        dx, dy = arr["x"][1:] - ax, arr["y"][1:] - ay
-        l2 = dx * dx + dy * dy
-        with np.errstate(invalid="ignore", divide="ignore"):
-            f = np.where(l2 > 0.0, ((x - ax) * dx + (y - ay) * dy) / l2, 0.0)
-        f = np.clip(f, 0.0, 1.0)
-        return float(np.sqrt(np.min((ax + f * dx - x) ** 2 + (ay + f * dy - y) ** 2)))
+        return float(distances_to_polyline(np.c_[arr["x"], arr["y"]], np.array([[x, y]], dtype=float))[0])
+
+
+def distances_to_polyline(poly: np.ndarray, xy: np.ndarray, near_index: np.ndarray | None = None,
+                          window: int = 400, chunk: int = 1024) -> np.ndarray:
+    """Euclidean distance of each point in `xy` (M, 2) to the polyline `poly` (N, 2).
+
+    With `near_index` (a polyline index near each point's closest point, e.g. from the
+    run's progress), only `window` segments either side are searched: the same answer for a
+    robot within that many samples of its progress, and linear instead of quadratic time.
+    """
+    a = poly[:-1]
+    ab = poly[1:] - a
+    len2 = np.einsum("ij,ij->i", ab, ab)
+    len2 = np.where(len2 > 0.0, len2, 1.0)
+    nseg = len(a)
+    out = np.empty(len(xy))
+    if near_index is None:
+        offsets = None
+    else:
+        w = min(window, nseg)
+        offsets = np.arange(-w, w + 1)
+    for start in range(0, len(xy), chunk):
+        p = xy[start:start + chunk]
+        if offsets is None:
+            idx = np.broadcast_to(np.arange(nseg), (len(p), nseg))
+        else:
+            idx = np.clip(near_index[start:start + chunk, None] + offsets[None, :], 0, nseg - 1)
+        sa = a[idx]
+        sab = ab[idx]
+        ap = p[:, None, :] - sa
+        t = np.clip(np.einsum("mij,mij->mi", ap, sab) / len2[idx], 0.0, 1.0)
+        diff = ap - t[:, :, None] * sab
+        d2 = np.einsum("mij,mij->mi", diff, diff)
+        out[start:start + chunk] = np.sqrt(d2.min(axis=1))
+    return out

@@ -1,6 +1,7 @@
 """Clocks for the control loop: monotonic time and sleeping to an absolute deadline.
 
-The loop asks the clock for `now()` and sleeps with `sleep_until(deadline)`. Sleeping to an
+The loop asks the clock (the `Clock` protocol of ddrt.core.types) for `now()` and sleeps with
+`sleep_until(deadline)`. Sleeping to an
 ABSOLUTE deadline (not "sleep 5 ms") is what keeps a fixed-rate loop from drifting: the time
 spent computing a tick does not push every later tick back. The simulated HAL implements the
 same two methods and is its own clock.
@@ -12,18 +13,12 @@ import ctypes
 import errno
 import math
 import time
-from typing import Protocol
+from ddrt.core.types import Clock
+
+__all__ = ["Clock", "ManualClock", "MonotonicClock"]
 
 CLOCK_MONOTONIC = time.CLOCK_MONOTONIC  # 1 on Linux; time.monotonic() reads this clock
 TIMER_ABSTIME = 1  # flags value for clock_nanosleep (same on every Linux architecture)
-
-
-class Clock(Protocol):
-    """What the loop needs from a clock (monotonic seconds)."""
-
-    def now(self) -> float: ...
-
-    def sleep_until(self, deadline: float) -> float: ...
 
 
 class _Timespec(ctypes.Structure):

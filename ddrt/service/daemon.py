@@ -79,17 +79,15 @@ class Daemon:
 
     def _open_hal(self) -> None:
         cfg = self.cfg
-        if cfg.hal.backend == "sim":
-            start = cfg.start or (0.0, 0.0, 0.0)
-            if cfg.start is None and cfg.path is not None:
-                start = resolve_path(cfg).start_pose
-            # Paced: every read first brings the plant up to the wall clock, so the loop is
-            # scheduled (and its lateness measured) on the real monotonic clock.
-            self.hal = open_hal(cfg, start=start, paced=True)
-            self.clock = MonotonicClock(spin_s=cfg.daemon.spin_us * 1e-6)
-        else:
-            self.clock = MonotonicClock(spin_s=cfg.daemon.spin_us * 1e-6)
-            self.hal = open_hal(cfg, clock=self.clock)
+        self.clock = MonotonicClock(spin_s=cfg.daemon.spin_us * 1e-6)
+        start = cfg.start or (0.0, 0.0, 0.0)
+        if cfg.start is None and cfg.path is not None:
+            start = resolve_path(cfg).start_pose
+        # Every backend takes the options it needs. One whose robot runs in simulated time
+        # (Hal.owns_time) starts it at `start` and, paced, brings it up to the wall clock on
+        # every read, so the loop is scheduled (and its lateness measured) on the real
+        # monotonic clock; hardware times its devices on that clock.
+        self.hal = open_hal(cfg, start=start, paced=True, clock=self.clock)
 
     def _open_telemetry(self) -> None:
         d = self.cfg.daemon
@@ -183,9 +181,9 @@ class Daemon:
         next_watchdog = 0.0
         next_status = 0.0
         end = sched.next_deadline() + self.duration if self.duration is not None else math.inf
-        # The simulated robot integrates its physics when asked for the time: do that before
+        # A simulated robot integrates its physics when asked for the time: do that before
         # the timed part, so a tick's compute time is the controller's alone.
-        advance_plant = getattr(self.hal, "now", None) if self.cfg.hal.backend == "sim" else None
+        advance_plant = self.hal.advance_to_wall_clock if self.hal.owns_time else None
         while not self.stop_requested:
             deadline = sched.next_deadline()
             woke = clock.sleep_until(deadline)

@@ -7,6 +7,9 @@ import math
 import numpy as np
 
 from ddrt.path import Path
+from ddrt.path.sampled import distances_to_polyline
+
+__all__ = ["distances_to_polyline", "path_polyline", "tracking_metrics"]
 
 
 def path_polyline(path: Path, step: float = 0.001) -> np.ndarray:
@@ -18,41 +21,6 @@ def path_polyline(path: Path, step: float = 0.001) -> np.ndarray:
         pts[i, 0] = p.x
         pts[i, 1] = p.y
     return pts
-
-
-def distances_to_polyline(poly: np.ndarray, xy: np.ndarray, near_index: np.ndarray | None = None,
-                          window: int = 400, chunk: int = 1024) -> np.ndarray:
-    """Euclidean distance of each point in `xy` (M, 2) to the polyline `poly` (N, 2).
-
-    With `near_index` (a polyline index near each point's closest point, e.g. from the
-    run's progress), only `window` segments either side are searched: the same answer for a
-    robot within that many samples of its progress, and linear instead of quadratic time.
-    """
-    a = poly[:-1]
-    ab = poly[1:] - a
-    len2 = np.einsum("ij,ij->i", ab, ab)
-    len2 = np.where(len2 > 0.0, len2, 1.0)
-    nseg = len(a)
-    out = np.empty(len(xy))
-    if near_index is None:
-        offsets = None
-    else:
-        w = min(window, nseg)
-        offsets = np.arange(-w, w + 1)
-    for start in range(0, len(xy), chunk):
-        p = xy[start:start + chunk]
-        if offsets is None:
-            idx = np.broadcast_to(np.arange(nseg), (len(p), nseg))
-        else:
-            idx = np.clip(near_index[start:start + chunk, None] + offsets[None, :], 0, nseg - 1)
-        sa = a[idx]
-        sab = ab[idx]
-        ap = p[:, None, :] - sa
-        t = np.clip(np.einsum("mij,mij->mi", ap, sab) / len2[idx], 0.0, 1.0)
-        diff = ap - t[:, :, None] * sab
-        d2 = np.einsum("mij,mij->mi", diff, diff)
-        out[start:start + chunk] = np.sqrt(d2.min(axis=1))
-    return out
 
 
 def tracking_metrics(path: Path, true_xy: np.ndarray, est_xy: np.ndarray, heading_err: np.ndarray,
