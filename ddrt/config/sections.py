@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar, Literal, Mapping
 
 from ddrt.core.model import RobotParams
+from ddrt.core.sensors import GYRO_RANGES_DPS
 from ddrt.core.motor import MotorParams
 from ddrt.config.schema import (
     LIVE, NEXT_PATH, RESTART, ConfigError, applies, build, next_path, non_negative, positive, restart,
@@ -82,8 +83,9 @@ class SensorsConfig:
 
     def validate(self, where: str) -> None:
         positive(where, encoder_counts_per_rev=self.encoder_counts_per_rev)
-        if self.gyro_range_dps not in (250, 500, 1000, 2000):
-            raise ConfigError(f"{where}.gyro_range_dps: must be 250, 500, 1000 or 2000, got {self.gyro_range_dps}")
+        if self.gyro_range_dps not in GYRO_RANGES_DPS:
+            raise ConfigError(f"{where}.gyro_range_dps: must be one of {', '.join(map(str, GYRO_RANGES_DPS))}, "
+                              f"got {self.gyro_range_dps}")
 
 
 @dataclass(frozen=True)
