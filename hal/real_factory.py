@@ -15,8 +15,8 @@ from hal.real import RealHal
 
 
 def open_real_hal(cfg: Config, clock: Any = None, **options: Any) -> Hal:
-    if cfg.hal.imu.get("bus") == "sim":
+    if cfg.hal.imu.bus == "sim":
         from sim_hal.emulated import open_emulated_real_hal
 
         return open_emulated_real_hal(cfg, **options)
-    return RealHal.from_config(cfg.raw, clock=clock)
+    return RealHal.from_config(cfg, clock=clock)
