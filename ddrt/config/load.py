@@ -116,6 +116,9 @@ def _config_from_mapping(data: Mapping[str, Any], source: str, base_dir: str) ->
         except ConfigError as exc:
             raise ConfigError(f"{exc} (expected [x, y, theta] in metres and radians)") from None
     paths = build(PathsConfig, _section(data, "paths"), "paths")
+    path = data.get("path")
+    if path is not None and not isinstance(path, (str, Mapping)):
+        raise ConfigError(f"path: expected a path file name or a path mapping, got {shorten(path)}")
     if start is not None:
         paths.check_pose(start, "start")
 
@@ -143,7 +146,7 @@ def _config_from_mapping(data: Mapping[str, Any], source: str, base_dir: str) ->
         limits=limits,
         daemon=build(DaemonConfig, _section(data, "daemon"), "daemon"),
         paths=paths,
-        path=data.get("path"),
+        path=path,
         start=start,
         source=source,
         base_dir=base_dir,

@@ -53,7 +53,11 @@ _MERGE = "tag:yaml.org,2002:merge"
 def shorten(value: Any, limit: int = 60) -> str:
     """A bounded repr for error messages: long text, deep or aliased data, huge integers."""
     if isinstance(value, int) and not isinstance(value, bool) and value.bit_length() > 128:
-        return f"a {int(value.bit_length() * 0.30103) + 1}-digit integer"
+        try:
+            digits = str(len(str(abs(value))))
+        except ValueError:  # beyond Python's 4300-digit limit on int -> str
+            digits = f"{int(value.bit_length() * 0.30103)}-odd"
+        return f"a {digits}-digit integer"
     import reprlib
 
     r = reprlib.Repr()

@@ -94,6 +94,8 @@ class Path:
             start_pose = (self.x[0], self.y[0], self.theta[0])
         self.start_pose: tuple[float, float, float] = tuple(float(v) for v in start_pose)  # type: ignore[assignment]
         self._np: dict[str, np.ndarray] | None = None
+        # What the loader changed on the way, for the user (e.g. a path limit clamped to the config's).
+        self.warnings: list[str] = []
 
     # -- construction -------------------------------------------------------------------------
     def _assemble(self, pieces: list[_Piece]) -> None:
