@@ -50,7 +50,7 @@ def _sim(argv: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]) ->
     ("a: &a [1, 1, 1, 1, 1, 1, 1, 1, 1, 1]\nb: &b [*a, *a, *a, *a, *a, *a, *a, *a, *a, *a]\n"
      "c: &c [*b, *b, *b, *b, *b, *b, *b, *b, *b, *b]\nd: &d [*c, *c, *c, *c, *c, *c, *c, *c, *c, *c]\n"
      "e: &e [*d, *d, *d, *d, *d, *d, *d, *d, *d, *d]\nf: [*e, *e, *e, *e, *e, *e, *e, *e, *e, *e, *e]\n",
-     "more than 1000000 values"),
+     "more than 200000 values"),
     ("a: " + "7" * 5000 + "\n", "f.yaml: line 1: a: a number of 5000 digits"),
     ("a: [1,\n", "f.yaml: line 2, column 1: invalid YAML"),
     ("a: b\x01\n", "f.yaml: line 1: invalid YAML: control characters are not allowed"),
@@ -93,6 +93,8 @@ def test_exponent_floats_are_numbers_in_a_config(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize(("text", "needle"), [
     ("limits: {v_max: 1e400}\n", "limits.v_max: must be finite"),
+    ("robot: {r_L: 1e300}\n", "robot.r_L: out of range, got 1e+300"),
+    ("estimator: {gyro_bias_walk: 1e-13}\n", "estimator.gyro_bias_walk: out of range, got 1e-13"),
     ("robot: {m_p: " + "9" * 400 + "}\n", "robot.m_p: too large for a number, got a 400-digit integer"),
     ("sim: {seed: " + "9" * 30 + "}\n", "sim.seed: out of range"),
     ("sensors: []\n", "sensors: expected a mapping, got []"),
@@ -121,7 +123,8 @@ def _cases(tmp_path: Path) -> dict[str, list[str]]:
         "tiny.yaml": "shape: circle\nradius: 1e-300\n",
         "laps.yaml": "shape: circle\nradius: 0.5\nlaps: 1e12\n",
         "rect.yaml": "shape: rectangle\nwidth: 1\nheight: 1\nlaps: 1e12\n",
-        "huge_rect.yaml": "shape: rectangle\nwidth: 1e300\nheight: 1e300\n",
+        "huge_rect.yaml": "shape: rectangle\nwidth: 1e6\nheight: 1e6\n",
+        "small.yaml": "shape: circle\nradius: 1e-6\n",
         "slow.yaml": "shape: line\nlength: 1\nspeed: 1e-9\n",
     }
     for name, text in files.items():
@@ -133,7 +136,8 @@ def _cases(tmp_path: Path) -> dict[str, list[str]]:
         "radius 1e-300": [str(SIM), "--path", str(tmp_path / "tiny.yaml")],
         "laps 1e12": [str(SIM), "--path", str(tmp_path / "laps.yaml")],
         "rectangle laps 1e12": [str(SIM), "--path", str(tmp_path / "rect.yaml")],
-        "rectangle 1e300 wide": [str(SIM), "--path", str(tmp_path / "huge_rect.yaml")],
+        "rectangle 1e6 wide": [str(SIM), "--path", str(tmp_path / "huge_rect.yaml")],
+        "radius 1e-6": [str(SIM), "--path", str(tmp_path / "small.yaml")],
         "speed 1e-9": [str(SIM), "--path", str(tmp_path / "slow.yaml")],
     }
 
@@ -141,11 +145,13 @@ def _cases(tmp_path: Path) -> dict[str, list[str]]:
 EXPECTED = {
     "path: 5": "p5.yaml: path: expected a path file name",
     "400-digit robot.m_p": "big.yaml: robot.m_p: too large",
-    "coordinates of 1e308": "coords.yaml: key 'points[1]': (1e+308, 0) is beyond paths.max_extent_m",
-    "radius 1e-300": "tiny.yaml: key 'radius': must be at least 0.001 m",
+    "coordinates of 1e308": "coords.yaml: key 'points[1][0]': out of range, got 1e+308 (a number is 0 or "
+                            "between 1e-12 and 1e+12 in magnitude)",
+    "radius 1e-300": "tiny.yaml: key 'radius': out of range, got 1e-300",
+    "radius 1e-6": "small.yaml: key 'radius': must be at least 0.001 m, got 1e-06",
     "laps 1e12": "laps.yaml: key 'laps': the path would have about 1.57e+15 samples",
     "rectangle laps 1e12": "rect.yaml: key 'laps': 1e+12 laps make 4e+12 corners, more than paths.max_points",
-    "rectangle 1e300 wide": "huge_rect.yaml: key 'width': the path would have about",
+    "rectangle 1e6 wide": "huge_rect.yaml: key 'width': the path would have about 2e+09 samples",
     "speed 1e-9": "slow.yaml: the path takes 1e+09 s at its limits, longer than paths.max_duration_s",
 }
 

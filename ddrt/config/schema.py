@@ -20,6 +20,11 @@ T = TypeVar("T")
 # The largest whole number a key takes: beyond it a value is a typo, and arithmetic on it
 # would overflow a float or a C long somewhere downstream.
 INT_LIMIT = 2**63 - 1
+# Every number a key takes is 0 or within [FLOAT_MIN, FLOAT_MAX] in magnitude: no robot, gain,
+# time or distance needs more, and squares, products and inverses of such numbers stay far
+# from the float range (1e308) where arithmetic overflows to inf or underflows to 0.
+FLOAT_MIN = 1e-12
+FLOAT_MAX = 1e12
 
 
 class ConfigError(ValueError):
@@ -80,6 +85,9 @@ def _convert(tp: Any, value: Any, where: str) -> Any:
             raise ConfigError(f"{where}: too large for a number, got {shorten(value)}") from None
         if not math.isfinite(number):
             raise ConfigError(f"{where}: must be finite, got {shorten(value)}")
+        if number != 0.0 and not FLOAT_MIN <= abs(number) <= FLOAT_MAX:
+            raise ConfigError(f"{where}: out of range, got {number:g} (a number is 0 or between "
+                              f"{FLOAT_MIN:g} and {FLOAT_MAX:g} in magnitude)")
         return number
     if tp is str:
         if not isinstance(value, str):

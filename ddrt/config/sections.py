@@ -63,6 +63,11 @@ class SimConfig:
         positive(where, step_hz=self.step_hz)
         non_negative(where, command_latency_s=self.command_latency_s, sensor_latency_s=self.sensor_latency_s,
                      start_delay_s=self.start_delay_s)
+        # Bounds on the work of a run: plant steps per simulated second, seconds of standing still.
+        if not 10.0 <= self.step_hz <= 100_000.0:
+            raise ConfigError(f"{where}.step_hz: must be in [10, 100000] Hz, got {self.step_hz}")
+        if self.start_delay_s > 60.0:
+            raise ConfigError(f"{where}.start_delay_s: at most 60 s, got {self.start_delay_s}")
         if self.command_latency_s > 0.1 or self.sensor_latency_s > 0.1:
             raise ConfigError(f"{where}: latencies above 0.1 s are not a robot this controller can drive")
 
@@ -254,6 +259,8 @@ class ControllerConfig:
         positive(where, rate_hz=self.rate_hz, heading_gain=self.heading_gain)
         if self.rate_hz > 2000:
             raise ConfigError(f"{where}.rate_hz: above 2000 Hz is not supported, got {self.rate_hz}")
+        if self.rate_hz < 1.0:
+            raise ConfigError(f"{where}.rate_hz: below 1 Hz is not supported, got {self.rate_hz}")
 
 
 @dataclass(frozen=True)
@@ -284,6 +291,8 @@ class EstimatorConfig:
                  gate_sigma=self.gate_sigma, gyro_scale=self.gyro_scale, gyro_noise_dps=self.gyro_noise_dps,
                  calibration_max_std_dps=self.calibration_max_std_dps, encoder_stuck_s=self.encoder_stuck_s)
         non_negative(where, calibration_s=self.calibration_s, gyro_bias_walk=self.gyro_bias_walk)
+        if self.calibration_s > 60.0:  # the robot stands still this long at every start
+            raise ConfigError(f"{where}.calibration_s: at most 60 s, got {self.calibration_s}")
         if self.gyro_delay_s is not None and not 0.0 <= self.gyro_delay_s <= 0.05:
             raise ConfigError(f"{where}.gyro_delay_s: must be null or in [0, 0.05] s, got {self.gyro_delay_s}")
         positive(where, max_rejects=self.max_rejects, stale_ticks=self.stale_ticks,

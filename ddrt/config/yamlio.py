@@ -27,10 +27,11 @@ from typing import Any, Callable
 import yaml
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
-__all__ = ["MAX_DEPTH", "MAX_NODES", "load_yaml_text", "read_yaml", "shorten"]
+__all__ = ["MAX_BYTES", "MAX_DEPTH", "MAX_NODES", "load_yaml_text", "read_text", "read_yaml", "shorten"]
 
 MAX_DEPTH = 64
-MAX_NODES = 1_000_000
+MAX_NODES = 200_000
+MAX_BYTES = 512 * 1024  # parsing is the slow part: ~1 s for a dense 300 KB file of numbers
 
 _BASE = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml's parser when present
 
@@ -81,27 +82,31 @@ def _key_text(node: ScalarNode) -> str:
 def _check_tree(root: Node, fail: Callable[[str, Node | None], Exception]) -> None:
     """Depth, size, duplicate keys, key types, self-containing aliases; iteratively, so a
     deep file cannot exhaust the stack. Sizes count aliased nodes once per use."""
-    size: dict[int, int] = {}  # id(node) -> expanded size, once finished
-    active: set[int] = set()  # nodes on the current descent (a cycle returns to one)
-    # stack items: (node, dotted key, depth, children pushed?)
+    size: dict[int, int] = {}  # id(collection node) -> expanded size, once finished
+    active: set[int] = set()  # collections on the current descent (a cycle returns to one)
+    # stack items: (collection node, dotted key, depth, children pushed?)
     stack: list[tuple[Node, str, int, bool]] = [(root, "", 0, False)]
+    if isinstance(root, ScalarNode):
+        _check_scalar(root, "", fail)
+        return
     while stack:
         node, where, depth, expanded = stack.pop()
         nid = id(node)
         if expanded:
             active.discard(nid)
             total = 1
-            for child in _children(node):
-                total += size[id(child)] + (isinstance(node, MappingNode))  # + 1 for a key
-                if total > MAX_NODES:
-                    raise fail(f"{where or 'document'}: more than {MAX_NODES} values (aliases expanded)", node)
+            pairs = node.value if isinstance(node, MappingNode) else ((None, v) for v in node.value)
+            for key, child in pairs:
+                total += (key is not None) + (1 if isinstance(child, ScalarNode) else size[id(child)])
+            if total > MAX_NODES:
+                raise fail(f"{where or 'document'}: more than {MAX_NODES} values (aliases expanded)", node)
             size[nid] = total
             continue
         if nid in size:
             continue
         if nid in active:
             raise fail(f"{where or 'document'}: an alias that contains itself", node)
-        if depth > MAX_DEPTH:
+        if depth >= MAX_DEPTH:
             raise fail(f"{where or 'document'}: nested deeper than {MAX_DEPTH} levels", node)
         active.add(nid)
         stack.append((node, where, depth, True))
@@ -109,37 +114,38 @@ def _check_tree(root: Node, fail: Callable[[str, Node | None], Exception]) -> No
             seen: dict[str, int] = {}
             for key, value in node.value:
                 if key.tag == _MERGE:  # `<<: *base`: merged keys may be overridden
-                    stack.append((value, where, depth + 1, False))
-                    continue
-                if not isinstance(key, ScalarNode) or key.tag != _STR:
-                    shown = shorten(key.value) if isinstance(key, ScalarNode) else f"a {key.id}"
-                    raise fail(f"{_clip(where) + ': ' if where else ''}key {shown} is not text "
-                               "(quote it if it is meant as one)", key)
-                dotted = f"{where}.{_key_text(key)}" if where else _key_text(key)
-                dotted = _clip(dotted)
-                if key.value in seen:
-                    raise fail(f"{dotted}: duplicate key (first given on line {seen[key.value]})", key)
-                seen[key.value] = key.start_mark.line + 1
-                stack.append((value, dotted, depth + 1, False))
-        elif isinstance(node, SequenceNode):
+                    dotted = where
+                else:
+                    if not isinstance(key, ScalarNode) or key.tag != _STR:
+                        shown = shorten(key.value) if isinstance(key, ScalarNode) else f"a {key.id}"
+                        raise fail(f"{_clip(where) + ': ' if where else ''}key {shown} is not text "
+                                   "(quote it if it is meant as one)", key)
+                    dotted = _clip(f"{where}.{_key_text(key)}" if where else _key_text(key))
+                    if key.value in seen:
+                        raise fail(f"{dotted}: duplicate key (first given on line {seen[key.value]})", key)
+                    seen[key.value] = key.start_mark.line + 1
+                if isinstance(value, ScalarNode):
+                    _check_scalar(value, dotted, fail)
+                else:
+                    stack.append((value, dotted, depth + 1, False))
+        else:
             for i, item in enumerate(node.value):
-                stack.append((item, _clip(f"{where}[{i}]"), depth + 1, False))
-        elif node.tag == _INT and len(node.value) > _MAX_DIGITS:
-            # Python refuses to convert such a number (and no key takes one): say where it is.
-            raise fail(f"{where or 'document'}: a number of {len(node.value)} digits", node)
+                if isinstance(item, ScalarNode):
+                    _check_scalar(item, where, fail, i)
+                else:
+                    stack.append((item, _clip(f"{where}[{i}]"), depth + 1, False))
+
+
+def _check_scalar(node: ScalarNode, where: str, fail: Callable[[str, Node | None], Exception],
+                  index: int | None = None) -> None:
+    if node.tag == _INT and len(node.value) > _MAX_DIGITS:
+        # Python refuses to convert such a number (and no key takes one): say where it is.
+        at = _clip(f"{where}[{index}]") if index is not None else where
+        raise fail(f"{at or 'document'}: a number of {len(node.value)} digits", node)
 
 
 def _clip(where: str) -> str:
     return where if len(where) <= 120 else "..." + where[-117:]
-
-
-def _children(node: Node) -> list[Node]:
-    """The nodes below `node` whose sizes add up to its own (a mapping's values)."""
-    if isinstance(node, MappingNode):
-        return [value for _, value in node.value]
-    if isinstance(node, SequenceNode):
-        return list(node.value)
-    return []
 
 
 def load_yaml_text(text: str, name: str, error: type[Exception]) -> Any:
@@ -179,12 +185,16 @@ def load_yaml_text(text: str, name: str, error: type[Exception]) -> Any:
         loader.dispose()
 
 
-def read_text(path: str | FsPath, error: type[Exception]) -> str:
-    """A file's text; it must be UTF-8 (a leading byte-order mark is allowed)."""
+def read_text(path: str | FsPath, error: type[Exception], limit: int = MAX_BYTES) -> str:
+    """A file's text; it must be UTF-8 (a leading byte-order mark is allowed) and at most
+    `limit` bytes long."""
     try:
-        data = FsPath(path).read_bytes()
+        with open(path, "rb") as fh:
+            data = fh.read(limit + 1)
     except OSError as exc:
         raise error(f"{path}: cannot read: {exc.strerror or exc}") from None
+    if len(data) > limit:
+        raise error(f"{path}: larger than {limit} bytes: not a file ddrt reads")
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:

@@ -81,7 +81,8 @@ def _merge_points(rows: list[tuple[float, float, float]]) -> list[tuple[float, f
 
 def _read_csv(filename: str, paths: PathsConfig) -> tuple[list[tuple[float, float, float]], bool]:
     """Waypoints (x, y, v cap or inf) from a CSV with header x,y or x,y,v; second item: has v."""
-    text = read_text(filename, PathError)
+    # At most ~128 bytes a waypoint: the file cannot be larger than its waypoints need.
+    text = read_text(filename, PathError, limit=128 * paths.max_points + 65536)
     rows: list[tuple[float, float, float]] = []
     header: list[str] | None = None
     lineno = 0
