@@ -71,6 +71,8 @@ def _read_yaml(path: FsPath, chain: tuple[str, ...] = ()) -> dict[str, Any]:
 def _params(section: Any, where: str, extras: tuple[str, ...] = ("motor",)) -> tuple[RobotParams, dict[str, Any]]:
     """robot: or plant: as RobotParams (the walker checks every parameter) and its motor mapping."""
     params = build(RobotParams, section, where, ignore=extras)
+    # The motor keys are merged (plant.motor_l over plant.motor over robot.motor) before the
+    # walker builds them, so here they need only be mappings.
     for key in extras:
         if section.get(key) is not None and not isinstance(section[key], Mapping):
             raise ConfigError(f"{where}.{key}: expected a mapping of motor constants, got {shorten(section[key])}")
@@ -91,6 +93,8 @@ def config_from_mapping(data: Mapping[str, Any], source: str = "<memory>", base_
 
 
 def _config_from_mapping(data: Mapping[str, Any], source: str, base_dir: str) -> Config:
+    # The top level is not one dataclass (plant: merges over robot:, extends: and name: are
+    # the file's own), so its keys are checked here; every section below goes to the walker.
     unknown = sorted(k if isinstance(k, str) else shorten(k) for k in data if k not in _TOP_KEYS)
     if unknown:
         raise ConfigError(f"{unknown[0]}: unknown section (known: {', '.join(_TOP_KEYS)})")

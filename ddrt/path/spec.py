@@ -1,6 +1,11 @@
 """Loading a path: a CSV of waypoints, a YAML spec (an analytic shape, inline points or a CSV
 file), or the same spec as a mapping (from a config or the control socket). Errors name the
 file, line or key.
+
+A spec is built by the config's walker (one dataclass per kind, ddrt/path/shapes.py) from
+the same YAML reader as a config. Its own limits can only lower the config's: a larger value
+is clamped and reported in `path.warnings`. The config's paths: section sets the sampling
+and bounds the work (samples, waypoints, extent, duration), checked before allocating.
 """
 
 from __future__ import annotations
