@@ -10,7 +10,7 @@ constant acceleration (u^2 is linear in sigma), which makes t(sigma), v(t) and a
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from typing import Sequence
 
 import numpy as np
@@ -85,6 +85,7 @@ class Profile:
     a: list[float]
     alpha: list[float]
     pivot_sample: list[bool]
+    arrays: dict[str, np.ndarray] = field(default_factory=dict)  # the same as numpy arrays
 
 
 def speed_profile(sigma: Sequence[float], kappa: Sequence[float], seg_pivot: Sequence[bool],
@@ -147,4 +148,6 @@ def speed_profile(sigma: Sequence[float], kappa: Sequence[float], seg_pivot: Seq
     u, v, omega, t = u_arr.tolist(), v_arr.tolist(), omega_arr.tolist(), t_arr.tolist()
     acc_u, a, alpha = acc_arr.tolist(), a_arr.tolist(), alpha_arr.tolist()
     in_pivl = in_piv.tolist()
-    return Profile(u, v, omega, t, acc_u, a, alpha, in_pivl)
+    arrays = {"u": u_arr, "v": v_arr, "omega": omega_arr, "t": t_arr, "acc_u": acc_arr, "a": a_arr,
+              "alpha": alpha_arr, "pivot_sample": in_piv}
+    return Profile(u, v, omega, t, acc_u, a, alpha, in_pivl, arrays)
