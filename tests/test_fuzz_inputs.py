@@ -12,6 +12,8 @@ from __future__ import annotations
 import collections
 from pathlib import Path
 
+import pytest
+
 from fuzz_inputs import Mutator, copy_configs, run_case, seed_files
 
 SEED = 1
@@ -19,6 +21,7 @@ N_CASES = 1200
 TIME_LIMIT_S = 5.0
 
 
+@pytest.mark.slow
 def test_mutated_inputs_never_escape_the_clean_error_path(tmp_path: Path) -> None:
     root = copy_configs(tmp_path)
     bad: list[str] = []
