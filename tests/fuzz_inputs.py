@@ -122,14 +122,19 @@ class Mutator:
         rng = random.Random(self.seed * 1_000_003 + i)
         kind = rng.choices(self.kinds, self.weights)[0]
         origin = rng.choice(self.files[kind])
-        data = self._text[origin]
-        ops: list[str] = []
-        table = _CSV_OPS if kind == "csv" else _YAML_OPS
-        for _ in range(min(self.max_ops, 1 + int(rng.expovariate(1.5)))):
-            name, op, _w = rng.choices(table, [w for _, _, w in table])[0]
-            data, what = op(rng, data)
-            ops.append(f"{name}: {what}" if what else name)
+        data, ops = mutate(rng, self._text[origin], csv=kind == "csv", max_ops=self.max_ops)
         return Case(i, origin, kind, data, ops)
+
+
+def mutate(rng: random.Random, data: bytes, csv: bool = False, max_ops: int = 3) -> tuple[bytes, list[str]]:
+    """One to `max_ops` seeded mutations of a YAML (or CSV) file; returns it and what was done."""
+    ops: list[str] = []
+    table = _CSV_OPS if csv else _YAML_OPS
+    for _ in range(min(max_ops, 1 + int(rng.expovariate(1.5)))):
+        name, op, _w = rng.choices(table, [w for _, _, w in table])[0]
+        data, what = op(rng, data)
+        ops.append(f"{name}: {what}" if what else name)
+    return data, ops
 
 
 # --------------------------------------------------------------------------- operators

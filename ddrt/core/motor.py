@@ -26,6 +26,12 @@ from dataclasses import dataclass, fields
 from typing import Any, Mapping
 
 
+# Magnitudes no gearmotor of a wheeled robot reaches (SI units, at the wheel): they catch a
+# typo or a unit slip before the model feeds it forward.
+_BOUNDS = {"supply_v": 1000.0, "resistance_ohm": 1000.0, "k_nm_per_a": 100.0, "viscous_nms": 10.0,
+           "coulomb_nm": 100.0, "coulomb_smoothing_rad_s": 100.0}
+
+
 @dataclass(frozen=True)
 class MotorParams:
     """One gearmotor and its driver, referred to the wheel shaft (SI units)."""
@@ -46,6 +52,9 @@ class MotorParams:
                 raise ValueError(f"MotorParams.{f.name}: must be > 0, got {value!r}")
             if value < 0:
                 raise ValueError(f"MotorParams.{f.name}: must be >= 0, got {value!r}")
+            if value > _BOUNDS[f.name]:
+                raise ValueError(f"MotorParams.{f.name}: {value!r} is beyond any gearmotor this controller is "
+                                 f"for (at most {_BOUNDS[f.name]:g})")
             object.__setattr__(self, f.name, float(value))
 
     @classmethod
