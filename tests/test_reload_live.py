@@ -17,7 +17,7 @@ from typing import Any, Callable
 import pytest
 import yaml
 
-from ddrt.config.policy import leaf_modes
+from ddrt.config.policy import leaf_modes, value_at
 from ddrt.config.schema import LIVE, NEXT_PATH, RESTART
 from ddrt.core.model import Dynamics
 from ddrt.loop import ControlLoop
@@ -87,21 +87,6 @@ def _nested(key: str, value: Any) -> dict[str, Any]:
     return out
 
 
-def _value_at(cfg: Any, key: str) -> Any:
-    node = cfg
-    parts = key.split(".")
-    while parts:
-        fields = {f.metadata.get("key", f.name): f for f in dataclasses.fields(node)}
-        for n in range(len(parts), 0, -1):
-            if ".".join(parts[:n]) in fields:
-                node = getattr(node, fields[".".join(parts[:n])].name)
-                parts = parts[n:]
-                break
-        else:
-            raise KeyError(key)
-    return node
-
-
 def _changed(key: str, value: Any) -> Any:
     """A valid value different from `value` for the setting `key`."""
     if isinstance(value, bool):
@@ -169,7 +154,7 @@ def _expected_probe(rig: Rig, key: str, cfg: Any) -> Any:
         return cfg.controller.rate_hz
     if key == "daemon.socket":
         return cfg.daemon.socket or None
-    return _value_at(cfg, key)
+    return value_at(cfg, key)
 
 
 @pytest.fixture(scope="module")
@@ -183,7 +168,7 @@ def _cases() -> list[tuple[str, str]]:
     from ddrt.config import load_config
 
     cfg = load_config(SIM)
-    return [(k, m) for k, m in leaf_modes(cfg) if _changed(k, _value_at(cfg, k)) is not None
+    return [(k, m) for k, m in leaf_modes(cfg) if _changed(k, value_at(cfg, k)) is not None
             and not k.startswith(("plant.motor_l", "plant.motor_r"))]
 
 
@@ -200,7 +185,7 @@ def test_the_cases_cover_every_kind_and_most_keys() -> None:
 def test_reload_one_key(rig: Rig, key: str, mode: str) -> None:
     d = rig.d
     before_cfg = d.cfg
-    old = _value_at(before_cfg, key)
+    old = value_at(before_cfg, key)
     new = _changed(key, old)
     probe_before = _probe(rig, key)
     reference_before = d.loop.reference
@@ -216,9 +201,9 @@ def test_reload_one_key(rig: Rig, key: str, mode: str) -> None:
         assert [k for k in lists[mode] if k not in inherited] == [key], reply
         others = [k for m, keys in lists.items() for k in keys if k != key]
         assert all(k in inherited for k in others), reply
-        in_force = _value_at(d.cfg, key)
+        in_force = value_at(d.cfg, key)
         assert in_force == (old if mode == RESTART else new)
-        assert _value_at(d.loop.cfg, key) == in_force
+        assert value_at(d.loop.cfg, key) == in_force
         probe = _probe(rig, key)
         if probe is not None:
             assert probe == _expected_probe(rig, key, d.cfg), f"{key}: the running part does not show it"
@@ -237,7 +222,7 @@ def test_reload_one_key(rig: Rig, key: str, mode: str) -> None:
         back = rig.reload({})
         assert back["ok"], back
         rig.ticks(2)
-    assert _value_at(d.cfg, key) == old
+    assert value_at(d.cfg, key) == old
 
 
 def _inherited_by_plant(key: str) -> set[str]:

@@ -4,7 +4,6 @@ the config it puts in force, what it reports as waiting for a restart is not."""
 from __future__ import annotations
 
 import copy
-import dataclasses
 from pathlib import Path
 from typing import Any
 
@@ -12,27 +11,10 @@ import pytest
 import yaml
 
 from ddrt.config import ConfigError, config_from_mapping, load_config, with_overrides
-from ddrt.config.policy import leaf_modes, plan_reload
+from ddrt.config.policy import leaf_modes, value_at, plan_reload
 from ddrt.config.schema import APPLY_MODES, LIVE, NEXT_PATH, RESTART
 
 SIM = Path(__file__).resolve().parents[1] / "configs" / "sim.yaml"
-
-
-def _get(cfg: Any, dotted: str) -> Any:
-    """The value at a dotted YAML key, following the fields' `key` declarations."""
-    node = cfg
-    parts = dotted.split(".")
-    while parts:
-        fields = {f.metadata.get("key", f.name): f for f in dataclasses.fields(node)}
-        for n in range(len(parts), 0, -1):
-            name = ".".join(parts[:n])
-            if name in fields:
-                node = getattr(node, fields[name].name)
-                parts = parts[n:]
-                break
-        else:
-            raise KeyError(dotted)
-    return node
 
 
 def test_gain_change_is_live() -> None:
@@ -87,7 +69,7 @@ def test_every_leaf_has_one_known_mode_and_a_key_that_reads_back() -> None:
     assert len(keys) == len(set(keys)) > 100
     for key, mode in leaves:
         assert mode in APPLY_MODES, key
-        _get(cfg, key)  # every reported key names a real field
+        value_at(cfg, key)  # every reported key names a real field
     assert not any(k.startswith(("source", "base_dir", "raw")) for k in keys)
 
 
@@ -120,7 +102,7 @@ def test_every_changed_leaf_is_reported_once_and_put_in_force_by_its_mode() -> N
     overrides: dict[str, Any] = {}
     changed: list[str] = []
     for key, _mode in leaf_modes(old):
-        value = _get(old, key)
+        value = value_at(old, key)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             continue
         if key in ("limits.omega_max", "controller.rate_hz", "sim.step_hz"):
@@ -159,11 +141,11 @@ def test_every_changed_leaf_is_reported_once_and_put_in_force_by_its_mode() -> N
         assert key in reported, key
         lists = {LIVE: plan.live, NEXT_PATH: plan.next_path, RESTART: plan.restart}
         assert key in lists[modes[key]], key
-        shown = _get(plan.in_force, key)
+        shown = value_at(plan.in_force, key)
         if modes[key] == RESTART:
-            assert shown == _get(old, key), key
+            assert shown == value_at(old, key), key
         else:
-            assert shown == _get(new, key), key
+            assert shown == value_at(new, key), key
 
 
 def _deep_merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:

@@ -69,6 +69,21 @@ def _is_section(value: Any) -> bool:
     return dataclasses.is_dataclass(value) and not isinstance(value, type)
 
 
+def value_at(cfg: Any, key: str) -> Any:
+    """The value of the setting at dotted `key` (as leaf_modes and the reload report name it)."""
+    node, parts = cfg, key.split(".")
+    while parts:
+        by_key = {_key("", f): f for f in dataclasses.fields(node)}
+        for n in range(len(parts), 0, -1):
+            f = by_key.get(".".join(parts[:n]))
+            if f is not None:
+                node, parts = getattr(node, f.name), parts[n:]
+                break
+        else:
+            raise KeyError(key)
+    return node
+
+
 def leaf_modes(cfg: Config) -> Iterator[tuple[str, str]]:
     """(dotted key, mode) of every leaf setting in `cfg`: the policy as data (docs, tests)."""
     yield from _leaves(cfg, "", ROOT_MODE)
