@@ -203,7 +203,7 @@ def test_offset_mass_figure8_fast_is_identified_and_tracks_as_the_nominal_robot(
     assert on.metrics["rms_tracking_m"] < 0.5 * off.metrics["rms_tracking_m"]
     assert max(_laps(on)[1:]) < 1.2 * max(_laps(nominal)[1:])
     # The true pose is mostly the odometry's business. Measured +15% (0.27 -> 0.31 mm) although
-    # the estimated pose tracks 5x tighter: issue 7's 10% is not met here (BENCHMARKS.md
+    # the estimated pose tracks 5x tighter: the 10% target of docs/adaptation.md is not met here (BENCHMARKS.md
     # section 7); this bound only guards against it getting worse.
     assert on.metrics["rms_cross_track_m"] < 1.3 * off.metrics["rms_cross_track_m"]
 
@@ -218,7 +218,7 @@ def test_offset_mass_at_200_hz_still_gains() -> None:
 
 @pytest.mark.parametrize("rate_hz, bound", [pytest.param(1000.0, 1.1, marks=pytest.mark.slow), (200.0, 1.3)])
 def test_no_harm_on_the_nominal_slow_figure8(rate_hz: float, bound: float) -> None:
-    """0.3 m/s, nominal robot. At 1 kHz: within issue 7's 10% on both poses. At 200 Hz
+    """0.3 m/s, nominal robot. At 1 kHz: within the 10% target of docs/adaptation.md on both poses. At 200 Hz
     adaptation is not proven harmless (measured +11% est, +8% true; why it stays off by
     default); the looser bound only guards against that getting worse."""
     _, off = _run("figure8_slow.yaml", False, rate_hz)
