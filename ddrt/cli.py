@@ -25,8 +25,10 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     overrides = {"sim": {"seed": args.seed}} if args.seed is not None else None
     cfg = load_config(args.config, overrides)
     path = resolve_path(cfg, args.path)
+    # The rows go to telemetry.csv as the run makes them (the figures read them back from it).
     result = run_sim(cfg, path, duration=args.duration, seed=args.seed, start=args.start,
-                     progress=None if args.quiet else stderr_progress)
+                     progress=None if args.quiet else stderr_progress,
+                     telemetry=Path(args.out) / "telemetry.csv")
     if not args.quiet:
         sys.stderr.write("\n")
     write_outputs(result, args.out)
