@@ -39,6 +39,7 @@ STEP_M = 0.001  # polyline spacing (m)
 WINDOW = 400  # segments searched either side of the run's progress
 BLOCK = 4  # segments per fine block of the local search
 GROUP = 8  # fine blocks per coarse block
+_BATCH = 1024  # points per vectorised batch of the local searches (bounds their memory)
 _FALLBACK_CHUNK = 64  # points per vectorised batch of the whole-window search (bounds its memory)
 
 
@@ -127,7 +128,8 @@ class PolylineDistance:
         keep[0] = True
         self._compressed = not keep.all()
         self._map = np.cumsum(keep) - 1
-        a, b, ab, len2 = a[keep], b[keep], ab[keep], len2[keep]
+        if self._compressed:
+            a, b, ab, len2 = a[keep], b[keep], ab[keep], len2[keep]
         self._a, self._ab = a, ab
         self._len2 = np.where(len2 > 0.0, len2, 1.0)
         self._n = len(a)
@@ -165,8 +167,12 @@ class PolylineDistance:
         """Distance of each point of `xy` (M, 2) to the segments within `window` of `near` (M,)."""
         xy = np.asarray(xy, dtype=float).reshape(-1, 2)
         near = np.clip(np.asarray(near, dtype=np.int64).reshape(-1), 0, self.nseg - 1)
-        if len(xy) == 0:
-            return np.empty(0)
+        out = np.empty(len(xy))
+        for i in range(0, len(xy), _BATCH):  # batches bound the temporaries' memory
+            out[i:i + _BATCH] = self._batch(xy[i:i + _BATCH], near[i:i + _BATCH])
+        return out
+
+    def _batch(self, xy: np.ndarray, near: np.ndarray) -> np.ndarray:
         m = self._map
         kc = m[near]
         lo = hi = None
