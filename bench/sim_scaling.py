@@ -114,8 +114,8 @@ def render(results: list[CaseResult], repo: FsPath) -> str:
              "| case | simulated | ticks | loop (realtime_factor) | command | peak RSS | child wall |",
              "|---|---|---|---|---|---|---|"]
     for r in results:
-        lines.append(f"| {r.name} | {r.sim_s:.1f} s | {r.ticks} | {r.loop_x:.0f}x "
-                     f"({_each(r, 'loop_x')}) | {r.command_x:.0f}x ({_each(r, 'command_x')}) | {r.maxrss_mib:.1f} MiB | "
+        lines.append(f"| {r.name} | {r.sim_s:.1f} s | {r.ticks} | {r.loop_x:.0f}x ({_each(r, 'loop_x')}) | "
+                     f"{r.command_x:.0f}x ({_each(r, 'command_x')}) | {r.maxrss_mib:.1f} MiB | "
                      f"{r.child_wall_s:.2f} s |")
     return "\n".join(lines)
 

@@ -50,8 +50,7 @@ def path_polyline(path: Path, step: float = STEP_M) -> np.ndarray:
     n = max(2, int(math.ceil(path.length / step)) + 1)
     s = np.linspace(0.0, path.length, n)
     s = np.clip(s, 0.0, path.length)
-    arr = path.arrays()
-    sig, xs, ys = arr["sigma"], arr["x"], arr["y"]
+    sig, xs, ys = np.asarray(path.sigma), np.asarray(path.x), np.asarray(path.y)  # not path.arrays(): it caches 15
     i = np.clip(np.searchsorted(sig, s, side="right") - 1, 0, len(sig) - 2)
     s0 = sig[i]
     f = (s - s0) / (sig[i + 1] - s0)
@@ -228,8 +227,8 @@ class TrackingAccumulator:
         self.n += m
         self._sq_true += float(np.dot(d_true, d_true))
         self._sq_est += float(np.dot(d_est, d_est))
-        self._max_true = max(self._max_true, float(d_true.max()))
-        self._max_est = max(self._max_est, float(d_est.max()))
+        self._max_true = float(np.maximum(self._max_true, d_true.max()))  # NaN propagates, as in d.max()
+        self._max_est = float(np.maximum(self._max_est, d_est.max()))
         h = np.asarray(heading_err, dtype=float)
         self._sq_head += float(np.dot(h, h))
         self._sat += float(np.sum(saturated))

@@ -172,52 +172,54 @@ def run_sim(cfg: Config, path: Path, *, duration: float | None = None, seed: int
     keep = telemetry is None if keep_rows is None else bool(keep_rows)
     pose = start or cfg.start or path.start_pose
     hal = open_hal(cfg, start=pose, seed=seed)
-    robot = hal.robot  # the truth, for telemetry only
-    loop = ControlLoop(cfg, hal)
-    wall0 = time.perf_counter()
-    stream = TelemetryStream(path, telemetry, keep, chunk_rows)
-    n = 0  # rows in the buffer, counted here (the hot loop) and handed to the stream
     try:
-        loop.calibrate(hal.sleep_until, hal.now)
-        # Stand still a little longer, as a robot does between power-on and its first command:
-        # the estimator keeps refining the gyro bias at rest.
-        t_idle = hal.now()
-        for i in range(int(round(cfg.sim.start_delay_s / loop.period))):
-            hal.sleep_until(t_idle + (i + 1) * loop.period)
-            loop.tick()
-        loop.follow(path, pose)
-        t0 = hal.now()
-        limit = duration if duration is not None else 1.5 * path.duration + 10.0
-        period = loop.period
-        n_ticks = int(math.ceil(limit / period))
-        report_every = max(1, int(5.0 / period))
-        buf = stream.buf
-        size = len(buf)
-        sleep_until, tick, r = hal.sleep_until, loop.tick, loop.row
-        wall_loop0 = time.perf_counter()
-        for i in range(n_ticks):
-            sleep_until(t0 + (i + 1) * period)
-            tick()
-            row = buf[n]
-            row[0] = r[0] - t0
-            row[1:4] = robot.pose
-            row[4:6] = robot.velocity
-            row[6:] = r[1:]
-            n += 1
-            if n == size:
-                stream.n, n = n, 0
-                stream.flush()
-            if loop.state in ("stopped", "fault"):
-                break
-            if progress is not None and i % report_every == 0:
-                progress(hal.now() - t0, limit)
-        stream.n, n = n, 0
-        stream.close()
-        wall_loop = time.perf_counter() - wall_loop0
-    finally:
-        if n:  # an exception: the rows buffered so far still reach the file
+        robot = hal.robot  # the truth, for telemetry only
+        loop = ControlLoop(cfg, hal)
+        wall0 = time.perf_counter()
+        stream = TelemetryStream(path, telemetry, keep, chunk_rows)
+        n = 0  # rows in the buffer, counted here (the hot loop) and handed to the stream
+        try:
+            loop.calibrate(hal.sleep_until, hal.now)
+            # Stand still a little longer, as a robot does between power-on and its first
+            # command: the estimator keeps refining the gyro bias at rest.
+            t_idle = hal.now()
+            for i in range(int(round(cfg.sim.start_delay_s / loop.period))):
+                hal.sleep_until(t_idle + (i + 1) * loop.period)
+                loop.tick()
+            loop.follow(path, pose)
+            t0 = hal.now()
+            limit = duration if duration is not None else 1.5 * path.duration + 10.0
+            period = loop.period
+            n_ticks = int(math.ceil(limit / period))
+            report_every = max(1, int(5.0 / period))
+            buf = stream.buf
+            size = len(buf)
+            sleep_until, tick, r = hal.sleep_until, loop.tick, loop.row
+            wall_loop0 = time.perf_counter()
+            for i in range(n_ticks):
+                sleep_until(t0 + (i + 1) * period)
+                tick()
+                row = buf[n]
+                row[0] = r[0] - t0
+                row[1:4] = robot.pose
+                row[4:6] = robot.velocity
+                row[6:] = r[1:]
+                n += 1
+                if n == size:
+                    stream.n, n = n, 0
+                    stream.flush()
+                if loop.state in ("stopped", "fault"):
+                    break
+                if progress is not None and i % report_every == 0:
+                    progress(hal.now() - t0, limit)
             stream.n, n = n, 0
-        stream.close()
+            stream.close()
+            wall_loop = time.perf_counter() - wall_loop0
+        finally:
+            if n:  # an exception: the rows buffered so far still reach the file
+                stream.n, n = n, 0
+            stream.close()
+    finally:
         hal.close()
     metrics = stream.metrics(path, loop)
     metrics["wall_s"] = time.perf_counter() - wall0
