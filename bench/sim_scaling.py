@@ -7,7 +7,8 @@ Per case, the median over `--repeats` runs of:
 - loop: the metrics' `realtime_factor` (simulated s per wall s of the control loop; since the
   telemetry is streamed, it includes writing telemetry.csv and the metrics),
 - command: simulated s per wall s of the whole command after start-up (config, path,
-  calibration, the run, the files),
+  calibration, the run, the files), and per CPU s of it (process_time: less disturbed by
+  other processes on the machine),
 - peak RSS of the child (MiB), and its wall time.
 
 `--repo DIR` runs another checkout's ddrt (e.g. the commit before a change) with this same
@@ -41,10 +42,10 @@ _CHILD = r"""
 import json, resource, sys, time
 from ddrt.cli import main
 argv = json.loads(sys.argv[1])
-t = time.perf_counter()
+t, c = time.perf_counter(), time.process_time()
 code = main(argv)
-wall = time.perf_counter() - t
-print(json.dumps({"code": code, "wall_s": wall,
+wall, cpu = time.perf_counter() - t, time.process_time() - c
+print(json.dumps({"code": code, "wall_s": wall, "cpu_s": cpu,
                   "maxrss_kb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}))
 """
 
@@ -56,6 +57,7 @@ class CaseResult:
     ticks: int
     loop_x: float  # median realtime_factor
     command_x: float  # median simulated s / command wall s
+    command_cpu_x: float  # median simulated s / command CPU s (less sensitive to other load)
     maxrss_mib: float  # median peak RSS of the child
     child_wall_s: float  # median wall of the child process (start-up included)
     samples: tuple[dict, ...]
@@ -85,7 +87,8 @@ def run_case(repo: FsPath, config: str, laps: int | None, duration: float | None
         info = json.loads(p.stdout.strip().splitlines()[-1])
         m = json.loads((out / "metrics.json").read_text())
     return {"sim_s": m["sim_duration_s"], "ticks": m["ticks"], "loop_x": m["realtime_factor"],
-            "command_x": m["sim_duration_s"] / info["wall_s"], "maxrss_mib": info["maxrss_kb"] / 1024.0,
+            "command_x": m["sim_duration_s"] / info["wall_s"], "command_cpu_x": m["sim_duration_s"] / info["cpu_s"],
+            "maxrss_mib": info["maxrss_kb"] / 1024.0,
             "child_wall_s": child_wall}
 
 
@@ -99,9 +102,10 @@ def measure(repo: FsPath = REPO, repeats: int = 3,
     out = []
     for name, *_ in cases:
         s = runs[name]
-        med = {k: statistics.median(r[k] for r in s) for k in ("loop_x", "command_x", "maxrss_mib", "child_wall_s")}
+        med = {k: statistics.median(r[k] for r in s)
+               for k in ("loop_x", "command_x", "command_cpu_x", "maxrss_mib", "child_wall_s")}
         out.append(CaseResult(name, s[0]["sim_s"], s[0]["ticks"], med["loop_x"], med["command_x"],
-                              med["maxrss_mib"], med["child_wall_s"], tuple(s)))
+                              med["command_cpu_x"], med["maxrss_mib"], med["child_wall_s"], tuple(s)))
     return out
 
 
@@ -111,12 +115,13 @@ def _each(r: CaseResult, key: str) -> str:
 
 def render(results: list[CaseResult], repo: FsPath) -> str:
     lines = [f"`ddrt sim` scaling ({repo}), median of {len(results[0].samples)} runs per case:", "",
-             "| case | simulated | ticks | loop (realtime_factor) | command | peak RSS | child wall |",
-             "|---|---|---|---|---|---|---|"]
+             "| case | simulated | ticks | loop (realtime_factor) | command (wall) | command (CPU) | peak RSS "
+             "| child wall |",
+             "|---|---|---|---|---|---|---|---|"]
     for r in results:
         lines.append(f"| {r.name} | {r.sim_s:.1f} s | {r.ticks} | {r.loop_x:.0f}x ({_each(r, 'loop_x')}) | "
-                     f"{r.command_x:.0f}x ({_each(r, 'command_x')}) | {r.maxrss_mib:.1f} MiB | "
-                     f"{r.child_wall_s:.2f} s |")
+                     f"{r.command_x:.0f}x ({_each(r, 'command_x')}) | {r.command_cpu_x:.0f}x "
+                     f"({_each(r, 'command_cpu_x')}) | {r.maxrss_mib:.1f} MiB | {r.child_wall_s:.2f} s |")
     return "\n".join(lines)
 
 
