@@ -35,8 +35,10 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     path = resolve_path(cfg, args.path)
     for note in path.warnings:
         print(f"ddrt: warning: {note}", file=sys.stderr)
+    # The rows go to telemetry.csv as the run makes them (the figures read them back from it).
     result = run_sim(cfg, path, duration=args.duration, seed=args.seed, start=args.start,
-                     progress=None if args.quiet else stderr_progress)
+                     progress=None if args.quiet else stderr_progress,
+                     telemetry=Path(args.out) / "telemetry.csv")
     if not args.quiet:
         sys.stderr.write("\n")
     write_outputs(result, args.out)

@@ -3,13 +3,19 @@
 The same `ControlLoop.tick` as on the robot; the simulated HAL is also the clock, so
 sleeping until the next deadline just advances the plant. Writes telemetry.csv (one row per
 controller tick, true state beside the estimate and the reference) and metrics.json.
+
+The rows go into a buffer of CHUNK_ROWS rows; each full buffer is appended to telemetry.csv
+and folded into the metrics (running sums and maxima, ddrt/simrun/metrics.py) during the
+run, so a run's memory does not grow with its length and its cost is linear in ticks. The
+rows are kept in memory only when asked (`keep_rows`), or when no file is written.
 """
 
 from __future__ import annotations
 
-import csv
 import json
 import math
+import os
+import shutil
 import sys
 import time
 from dataclasses import dataclass, field
@@ -19,110 +25,236 @@ from typing import Any, Callable
 import numpy as np
 
 from ddrt.config import Config
-from ddrt.core.wrap import wrap_angle
 from ddrt.loop import COLUMNS, ControlLoop
-from ddrt.simrun.metrics import tracking_metrics
+from ddrt.simrun.metrics import TrackingAccumulator, wrap_angles
 from ddrt.path import Path
 from hal.registry import open_hal
 
 TRUTH_COLUMNS = ("x", "y", "theta", "v", "omega")
 SIM_COLUMNS = ("t",) + TRUTH_COLUMNS + COLUMNS[1:]
+CHUNK_ROWS = 4096  # rows per telemetry chunk: written, folded into the metrics, then reused
+_COL = {name: i for i, name in enumerate(SIM_COLUMNS)}
+
+
+def format_rows(arr: np.ndarray) -> str:
+    """CSV lines of a (n, ncols) array: each value as f"{v:.9g}", comma-separated, CRLF-ended.
+
+    The same text csv.writer wrote row by row, in one formatting call per chunk; a column
+    that holds one value (bit for bit) over the chunk is formatted once."""
+    if len(arr) == 0:
+        return ""
+    bits = arr.view(np.int64)
+    same = (bits == bits[0]).all(axis=0)
+    parts = [("%.9g" % arr[0, j]) if same[j] else "%.9g" for j in range(arr.shape[1])]
+    line = ",".join(parts) + "\r\n"
+    var = np.flatnonzero(~same)
+    return (line * len(arr)) % tuple(arr[:, var].ravel().tolist())
+
+
+class TelemetryStream:
+    """A run's rows in a preallocated buffer of `chunk` rows. A full buffer (and the last,
+    partial one) is appended to the CSV, folded into the run's metrics and, with `keep`,
+    copied into memory; then the buffer is reused, so without `keep` memory does not grow
+    with the run's length."""
+
+    def __init__(self, path: Path, csv_path: str | FsPath | None = None, keep: bool = False,
+                 chunk: int = CHUNK_ROWS, columns: tuple[str, ...] = SIM_COLUMNS) -> None:
+        self.columns = columns
+        self.buf = np.empty((max(1, int(chunk)), len(columns)))
+        self.n = 0  # rows in the buffer
+        self.tracking = TrackingAccumulator(path)
+        self.ticks = 0
+        self.last_t = 0.0
+        self._sq_v = 0.0
+        self.kept: list[np.ndarray] | None = [] if keep else None
+        self.csv_path = FsPath(csv_path) if csv_path is not None else None
+        self._fh = None
+        if self.csv_path is not None:
+            self.csv_path.parent.mkdir(parents=True, exist_ok=True)
+            self._fh = open(self.csv_path, "w", newline="")
+            self._fh.write(",".join(columns) + "\r\n")
+
+    def flush(self) -> None:
+        """Write, measure and (keep) store the buffered rows; empty the buffer."""
+        n, self.n = self.n, 0
+        if n == 0:
+            return
+        arr = self.buf[:n]
+        if self._fh is not None:
+            self._fh.write(format_rows(arr))
+        c = _COL
+        self.tracking.add(arr[:, [c["x"], c["y"]]], arr[:, [c["x_est"], c["y_est"]]],
+                          wrap_angles(arr[:, c["theta_ref"]] - arr[:, c["theta"]]), arr[:, c["saturated"]],
+                          arr[:, c["sigma"]])
+        dv = arr[:, c["v_ref"]] - arr[:, c["v"]]
+        self._sq_v += float(np.dot(dv, dv))
+        self.ticks += n
+        self.last_t = float(arr[-1, 0])
+        if self.kept is not None:
+            self.kept.append(arr.copy())
+
+    def close(self) -> None:
+        """Flush what is buffered and close the CSV."""
+        try:
+            self.flush()
+        finally:
+            if self._fh is not None:
+                self._fh.close()
+                self._fh = None
+
+    def table(self) -> np.ndarray | None:
+        """The kept rows as one (ticks, ncols) array (None unless kept)."""
+        if self.kept is None:
+            return None
+        if not self.kept:
+            return np.zeros((0, len(self.columns)))
+        return np.concatenate(self.kept) if len(self.kept) > 1 else self.kept[0]
+
+    def metrics(self, path: Path, loop: ControlLoop) -> dict[str, Any]:
+        """metrics.json's content from what has been flushed."""
+        m: dict[str, Any] = self.tracking.result()
+        m.update({
+            "completed": loop.state == "stopped",
+            "state": loop.state,
+            "fault": loop.fault,
+            "ticks": self.ticks,
+            "sim_duration_s": self.last_t if self.ticks else 0.0,
+            "path_length_m": path.length,
+            "path_duration_s": path.duration,
+            "rms_velocity_err_mps": math.sqrt(self._sq_v / self.ticks) if self.ticks else 0.0,
+            "estimator": {"gyro_rejects": loop.estimator.health.gyro_rejects,
+                          "encoder_rejects": loop.estimator.health.encoder_rejects},
+        })
+        return m
 
 
 @dataclass
 class SimResult:
-    """What a run produced: per-tick rows (SIM_COLUMNS), metrics, and the path followed."""
+    """What a run produced: metrics, the path followed, and the per-tick rows (SIM_COLUMNS).
 
-    rows: list[tuple[float, ...]]
+    The rows are in memory when the run kept them (`table`), else read back on demand from
+    the telemetry CSV the run streamed (9 significant digits, as written)."""
+
     metrics: dict[str, Any]
     path: Path
     columns: tuple[str, ...] = SIM_COLUMNS
     extra: dict[str, Any] = field(default_factory=dict)
+    telemetry_csv: FsPath | None = None
+    table: np.ndarray | None = field(default=None, repr=False)
+
+    def rows_array(self) -> np.ndarray:
+        """All rows, (ticks, len(columns)): the kept array, else the CSV loaded (once)."""
+        if self.table is None:
+            if self.telemetry_csv is None:
+                raise ValueError("SimResult: the run kept no rows and wrote no telemetry "
+                                 "(run_sim(..., keep_rows=True) or telemetry=FILE)")
+            self.table = np.loadtxt(self.telemetry_csv, delimiter=",", skiprows=1,
+                                    ndmin=2).reshape(-1, len(self.columns))
+        return self.table
+
+    @property
+    def rows(self) -> np.ndarray:
+        return self.rows_array()
 
     def column(self, name: str) -> np.ndarray:
-        i = self.columns.index(name)
-        return np.array([r[i] for r in self.rows])
+        return self.rows_array()[:, self.columns.index(name)].copy()
 
 
 def run_sim(cfg: Config, path: Path, *, duration: float | None = None, seed: int | None = None,
             start: tuple[float, float, float] | None = None,
-            progress: Callable[[float, float], None] | None = None) -> SimResult:
-    """Calibrate at rest, follow `path` to its end (or `duration` s), return rows and metrics."""
+            progress: Callable[[float, float], None] | None = None,
+            telemetry: str | FsPath | None = None, keep_rows: bool | None = None,
+            chunk_rows: int = CHUNK_ROWS) -> SimResult:
+    """Calibrate at rest, follow `path` to its end (or `duration` s), return the metrics.
+
+    `telemetry`: a CSV file the rows are streamed to, a chunk at a time, during the run.
+    `keep_rows`: keep the rows in memory too (default: only when no file is written)."""
+    keep = telemetry is None if keep_rows is None else bool(keep_rows)
     pose = start or cfg.start or path.start_pose
     hal = open_hal(cfg, start=pose, seed=seed)
-    robot = hal.robot  # the truth, for telemetry only
-    loop = ControlLoop(cfg, hal)
-    rows: list[tuple[float, ...]] = []
-    wall0 = time.perf_counter()
-    loop.calibrate(hal.sleep_until, hal.now)
-    # Stand still a little longer, as a robot does between power-on and its first command:
-    # the estimator keeps refining the gyro bias at rest.
-    t_idle = hal.now()
-    for i in range(int(round(cfg.sim.start_delay_s / loop.period))):
-        hal.sleep_until(t_idle + (i + 1) * loop.period)
-        loop.tick()
-    if loop.state not in ("estop", "fault"):  # a fault at rest: one tick records it, below
-        loop.follow(path, pose)
-    t0 = hal.now()
-    limit = duration if duration is not None else 1.5 * path.duration + 10.0
-    period = loop.period
-    n_ticks = int(math.ceil(limit / period))
-    report_every = max(1, int(5.0 / period))
-    wall_loop0 = time.perf_counter()
-    for i in range(n_ticks):
-        deadline = t0 + (i + 1) * period
-        hal.sleep_until(deadline)
-        loop.tick()
-        x, y, th = robot.pose
-        v, w = robot.velocity
-        r = loop.row
-        rows.append((r[0] - t0, x, y, th, v, w) + tuple(r[1:]))
-        if loop.state in ("stopped", "fault"):
-            break
-        if progress is not None and i % report_every == 0:
-            progress(hal.now() - t0, limit)
-    wall_loop = time.perf_counter() - wall_loop0
-    hal.close()
-    metrics = summarise(rows, path, loop)
+    try:
+        robot = hal.robot  # the truth, for telemetry only
+        loop = ControlLoop(cfg, hal)
+        wall0 = time.perf_counter()
+        stream = TelemetryStream(path, telemetry, keep, chunk_rows)
+        n = 0  # rows in the buffer, counted here (the hot loop) and handed to the stream
+        try:
+            loop.calibrate(hal.sleep_until, hal.now)
+            # Stand still a little longer, as a robot does between power-on and its first
+            # command: the estimator keeps refining the gyro bias at rest.
+            t_idle = hal.now()
+            for i in range(int(round(cfg.sim.start_delay_s / loop.period))):
+                hal.sleep_until(t_idle + (i + 1) * loop.period)
+                loop.tick()
+            if loop.state not in ("estop", "fault"):  # a fault at rest: one tick records it, below
+                loop.follow(path, pose)
+            t0 = hal.now()
+            limit = duration if duration is not None else 1.5 * path.duration + 10.0
+            period = loop.period
+            n_ticks = int(math.ceil(limit / period))
+            report_every = max(1, int(5.0 / period))
+            buf = stream.buf
+            size = len(buf)
+            sleep_until, tick, r = hal.sleep_until, loop.tick, loop.row
+            wall_loop0 = time.perf_counter()
+            for i in range(n_ticks):
+                sleep_until(t0 + (i + 1) * period)
+                tick()
+                row = buf[n]
+                row[0] = r[0] - t0
+                row[1:4] = robot.pose
+                row[4:6] = robot.velocity
+                row[6:] = r[1:]
+                n += 1
+                if n == size:
+                    stream.n, n = n, 0
+                    stream.flush()
+                if loop.state in ("stopped", "fault"):
+                    break
+                if progress is not None and i % report_every == 0:
+                    progress(hal.now() - t0, limit)
+            stream.n, n = n, 0
+            stream.close()
+            wall_loop = time.perf_counter() - wall_loop0
+        finally:
+            if n:  # an exception: the rows buffered so far still reach the file
+                stream.n, n = n, 0
+            stream.close()
+    finally:
+        hal.close()
+    metrics = stream.metrics(path, loop)
     metrics["wall_s"] = time.perf_counter() - wall0
     metrics["realtime_factor"] = metrics["sim_duration_s"] / wall_loop if wall_loop > 0 else float("inf")
     metrics["controller"] = cfg.controller.mode
-    return SimResult(rows=rows, metrics=metrics, path=path)
+    extra = {"metrics_fallback_points": stream.tracking.distance.fallbacks}
+    return SimResult(metrics=metrics, path=path, extra=extra, telemetry_csv=stream.csv_path, table=stream.table())
 
 
-def summarise(rows: list[tuple[float, ...]], path: Path, loop: ControlLoop) -> dict[str, Any]:
-    """metrics.json's content from the per-tick rows."""
-    idx = {name: i for i, name in enumerate(SIM_COLUMNS)}
-    arr = np.array(rows) if rows else np.zeros((0, len(SIM_COLUMNS)))
-    true_xy = arr[:, [idx["x"], idx["y"]]]
-    est_xy = arr[:, [idx["x_est"], idx["y_est"]]]
-    heading = np.array([wrap_angle(a - b) for a, b in zip(arr[:, idx["theta_ref"]], arr[:, idx["theta"]])])
-    m: dict[str, Any] = tracking_metrics(path, true_xy, est_xy, heading, arr[:, idx["saturated"]],
-                                                 arr[:, idx["sigma"]])
-    m.update({
-        "completed": loop.state == "stopped",
-        "state": loop.state,
-        "fault": loop.fault,
-        "ticks": len(rows),
-        "sim_duration_s": float(arr[-1, 0]) if len(arr) else 0.0,
-        "path_length_m": path.length,
-        "path_duration_s": path.duration,
-        "rms_velocity_err_mps": float(np.sqrt(np.mean((arr[:, idx["v_ref"]] - arr[:, idx["v"]]) ** 2))) if len(arr) else 0.0,
-        "estimator": {"gyro_rejects": loop.estimator.health.gyro_rejects,
-                      "encoder_rejects": loop.estimator.health.encoder_rejects},
-    })
-    return m
+def summarise(rows: Any, path: Path, loop: ControlLoop) -> dict[str, Any]:
+    """metrics.json's content from per-tick rows (SIM_COLUMNS) held in memory."""
+    arr = np.asarray(rows, dtype=float).reshape(-1, len(SIM_COLUMNS))
+    stream = TelemetryStream(path, chunk=max(1, len(arr)))
+    stream.buf[:len(arr)] = arr
+    stream.n = len(arr)
+    stream.close()
+    return stream.metrics(path, loop)
 
 
 def write_outputs(result: SimResult, out_dir: str | FsPath) -> None:
-    """telemetry.csv and metrics.json into `out_dir`."""
+    """telemetry.csv (unless the run streamed it there) and metrics.json into `out_dir`."""
     out = FsPath(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    with open(out / "telemetry.csv", "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(result.columns)
-        for r in result.rows:
-            w.writerow([f"{v:.9g}" for v in r])
+    dest = out / "telemetry.csv"
+    src = result.telemetry_csv
+    if src is not None and src.exists():
+        if not dest.exists() or not os.path.samefile(src, dest):
+            shutil.copyfile(src, dest)
+    else:
+        table = result.rows_array()
+        with open(dest, "w", newline="") as fh:
+            fh.write(",".join(result.columns) + "\r\n")
+            for i in range(0, len(table), CHUNK_ROWS):
+                fh.write(format_rows(table[i:i + CHUNK_ROWS]))
     with open(out / "metrics.json", "w") as fh:
         json.dump(result.metrics, fh, indent=2, sort_keys=True)
         fh.write("\n")
