@@ -150,7 +150,7 @@ class _Conn:
     last_command: float  # the last request handed to the loop (or the connect), for the idle rule
     tokens: float  # the rate limit's bucket
     tokens_t: float
-    round: int  # the accept() call that took it
+    round: int  # the I/O thread's round that accepted it
     buf: bytearray = field(default_factory=bytearray)
     out: bytearray = field(default_factory=bytearray)
     line_started: float | None = None  # first byte of the unfinished line
@@ -401,6 +401,7 @@ class ControlServer:
         tick = min(0.5, self.request_timeout_s / 4, self.idle_timeout_s / 4)
         try:
             while not self._stopping:
+                self._accept_round += 1  # connections accepted in this round cannot be evicted in it
                 timeout = tick
                 if self._accept_paused_until is not None:
                     timeout = max(0.0, min(tick, self._accept_paused_until - time.monotonic()))
@@ -437,8 +438,7 @@ class ControlServer:
 
     def _accept(self) -> None:
         """Accept what is waiting (up to 16). A connection accepted here is never evicted in
-        the same call: the next round reads whatever it has sent before it can be pushed out."""
-        self._accept_round += 1
+        the same round: the next one reads whatever it has sent before it can be pushed out."""
         for _ in range(16):
             try:
                 sock, _addr = self._listener.accept()
