@@ -22,7 +22,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from bench import accuracy, adaptation, io_bound, loop_timing, startup, tick_cost
+from bench import accuracy, adaptation, ctl_flood, io_bound, loop_timing, startup, tick_cost
 from ddrt.config import load_config
 from ddrt.path.spec import resolve_path
 from ddrt.simrun.runner import run_sim
@@ -40,6 +40,7 @@ SECTIONS = (
     "5. Start-up and memory",
     "6. The physical bound",
     "7. Adaptive dynamics and calibration",
+    "8. The control socket under abuse",
 )
 
 
@@ -58,6 +59,8 @@ class BenchOptions:
     import_modules: tuple[str, ...] = startup.MODULES
     import_repeats: int = 3
     sim_rss_duration_s: float | None = None
+    ctl_counts: tuple[int, ...] = ctl_flood.COUNTS
+    ctl_estops: int = ctl_flood.ESTOPS
 
 
 FULL = BenchOptions()
@@ -76,6 +79,7 @@ class Results:
     startup: startup.Startup
     bound: io_bound.IoBound
     adapt: adaptation.AdaptationResult
+    ctl: list[ctl_flood.FloodRow] = field(default_factory=list)
     wall_s: dict[str, float] = field(default_factory=dict)
 
 
@@ -143,6 +147,7 @@ def measure_all(opts: BenchOptions, command: str, say: Callable[[str], None] = _
 
     ticks = timed("tick cost", lambda: tick_cost.measure_tick_cost(load_config(TICK_CONFIG), opts.ticks))
     loop = timed("loop timing", lambda: loop_timing.measure_loop_timing(opts.loop_rates, opts.loop_duration_s))
+    ctl = timed("control socket", lambda: ctl_flood.measure_ctl_flood(opts.ctl_counts, opts.ctl_estops))
     speed = timed("simulation speed", lambda: measure_speed(opts.speed_scenarios, opts.seeds))
     st = timed("start-up", lambda: startup.measure_startup(opts.import_modules, opts.import_repeats,
                                                            opts.sim_rss_duration_s))
@@ -154,7 +159,7 @@ def measure_all(opts: BenchOptions, command: str, say: Callable[[str], None] = _
                                           "and the loop timing)")
     return Results(options=opts, command=command, machine=machine, accuracy=acc,  # type: ignore[arg-type]
                    ticks=ticks, loop=loop, speed=speed, startup=st, bound=io_bound.io_bound(),  # type: ignore[arg-type]
-                   adapt=adapt, wall_s=walls)  # type: ignore[arg-type]
+                   adapt=adapt, ctl=ctl, wall_s=walls)  # type: ignore[arg-type]
 
 
 # --------------------------------------------------------------------------- the document
@@ -229,6 +234,8 @@ def render_document(r: Results) -> str:
     lines += io_bound.render(r.bound, r.ticks.compute.p50_us, r.ticks.compute.p99_us, r.ticks.period_s)
     lines += ["", _header(7), ""]
     lines += adaptation.render(r.adapt)
+    lines += ["", _header(8), ""]
+    lines += ctl_flood.render(r.ctl)
     return "\n".join(lines) + "\n"
 
 

@@ -263,16 +263,32 @@ def test_client_that_never_reads_replies(sockdir: str) -> None:
 
 
 def test_client_limit(sockdir: str) -> None:
+    """At the cap a newcomer is still served: the longest-idle client is told and closed.
+
+    (This test used to require that the newcomer be refused with "too many clients": that is
+    how 32 idle connections locked out an estop. The message now goes to the evicted one.)
+    """
     with ControlServer(os.path.join(sockdir, "m.sock"), commands={"status"}, max_clients=3) as srv:
-        held = [raw(srv) for _ in range(3)]
-        deadline = time.monotonic() + 2
-        while srv.clients < 3 and time.monotonic() < deadline:
-            time.sleep(0.005)
-        with raw(srv) as extra:
-            reply = read_line(extra)
-        assert reply["ok"] is False and "too many clients" in reply["error"]
-        for h in held:
-            h.close()
+        lp = Loop(srv)
+        try:
+            held = []
+            for _ in range(3):
+                held.append(raw(srv))
+                time.sleep(0.02)  # held[0] is the longest idle
+            deadline = time.monotonic() + 2
+            while srv.clients < 3 and time.monotonic() < deadline:
+                time.sleep(0.005)
+            with raw(srv) as extra:
+                reply = read_line(held[0])
+                assert reply["ok"] is False and "too many clients (max 3)" in reply["error"]
+                assert held[0].recv(10) == b""
+                extra.sendall(b'{"cmd": "status", "id": "new"}\n')
+                assert read_line(extra) == {"ok": True, "cmd": "status", "arg": None, "id": "new"}
+                assert srv.clients == 3 and srv.evicted == 1
+            for h in held:
+                h.close()
+        finally:
+            lp.stop()
 
 
 # ----- the loop side -----------------------------------------------------------------------
@@ -373,3 +389,341 @@ def test_rejects_bad_config(sockdir: str, kwargs: dict, field: str) -> None:
 def test_request_rejects_bad_payload(sockdir: str) -> None:
     with pytest.raises(ValueError, match="cmd"):
         request(os.path.join(sockdir, "x.sock"), {"command": "status"})
+
+
+# ----- nobody locks a command out ----------------------------------------------------------
+
+DAEMON_LIKE = dict(priority={"estop": ("follow", "reset"), "stop": ("follow",)}, never_refused=("estop",))
+SAFETY_COMMANDS = {"status", "stop", "estop", "reset", "follow"}
+
+
+def strict(data: bytes) -> Any:
+    def no_constants(token: str) -> Any:
+        raise ValueError(f"{token} in a reply: not JSON")
+    return json.loads(data, parse_constant=no_constants)
+
+
+def connect(path: str, timeout: float = 5.0) -> socket.socket:
+    """A client socket, connected within `timeout` (a full listen backlog is EAGAIN at once
+    for AF_UNIX with a timeout set: retry until the deadline)."""
+    deadline = time.monotonic() + timeout
+    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    s.settimeout(timeout)
+    while True:
+        try:
+            s.connect(path)
+            return s
+        except BlockingIOError:
+            if time.monotonic() > deadline:
+                s.close()
+                pytest.fail(f"could not connect to {path} within {timeout:g} s: the backlog stayed full")
+            time.sleep(0.002)
+
+
+def _room_for(n: int) -> None:
+    """n client sockets in this process need descriptors: raise the soft limit, or skip."""
+    import resource
+
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    need = n + 200
+    if soft != resource.RLIM_INFINITY and soft < need:
+        if hard != resource.RLIM_INFINITY and hard < need:
+            pytest.skip(f"RLIMIT_NOFILE hard limit {hard} < {need}")
+        resource.setrlimit(resource.RLIMIT_NOFILE, (need, hard))
+
+
+class Dribbler:
+    """Keeps sending what is not a command (blank lines, whitespace, a malformed line) on
+    every socket it holds, as an attacker keeping connections alive would."""
+
+    CHAFF = (b"\n", b"   \n", b"\t \r\n", b'{"cmd"\n')
+
+    def __init__(self, socks: list[socket.socket], period_s: float, drain: bool = True) -> None:
+        self.socks = socks
+        self.period_s = period_s
+        self.drain = drain
+        for s in socks:
+            s.setblocking(False)  # with a timeout, Python waits for readiness even with MSG_DONTWAIT
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        i = 0
+        while not self._stop.is_set():
+            for s in self.socks:
+                try:
+                    s.send(self.CHAFF[i % len(self.CHAFF)])
+                    if self.drain:
+                        s.recv(65536)  # its error replies
+                except OSError:
+                    pass
+            i += 1
+            self._stop.wait(self.period_s)
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+
+
+@pytest.mark.parametrize("n", [32, 100, 1000])
+@pytest.mark.parametrize("kind", ["idle", "dribbling"])
+def test_estop_is_answered_whatever_other_connections_do(sockdir: str, n: int, kind: str) -> None:
+    _room_for(n)
+    srv = ControlServer(os.path.join(sockdir, "e.sock"), commands=SAFETY_COMMANDS, **DAEMON_LIKE)
+    lp = Loop(srv)
+    held: list[socket.socket] = []
+    dribbler = None
+    try:
+        for _ in range(n):
+            held.append(connect(srv.path))
+        if kind == "dribbling":
+            dribbler = Dribbler(held, 0.02)
+        deadline = time.monotonic() + 5
+        while srv.clients < min(n, srv.max_clients) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.1)
+        for attempt in range(3):
+            t0 = time.monotonic()
+            reply = request(srv.path, {"cmd": "estop", "id": attempt}, timeout=5.0)
+            elapsed = time.monotonic() - t0
+            assert reply == {"ok": True, "cmd": "estop", "arg": None, "id": attempt}
+            assert elapsed < 1.0, f"estop took {elapsed:.3f} s with {n} {kind} connections"
+        assert srv.clients <= srv.max_clients
+        assert srv.evicted >= n + 1 - srv.max_clients
+    finally:
+        if dribbler is not None:
+            dribbler.stop()
+        for s in held:
+            s.close()
+        lp.stop()
+        srv.close()
+
+
+def test_only_commands_keep_a_connection_open(sockdir: str) -> None:
+    """Blank lines, whitespace and malformed lines are no activity: the idle timeout still
+    closes the connection (it used to stay open for as long as the blank lines came)."""
+    srv = ControlServer(os.path.join(sockdir, "i.sock"), commands={"status"}, idle_timeout_s=0.6,
+                        request_timeout_s=0.4)
+    lp = Loop(srv)
+    try:
+        chaff = raw(srv)
+        active = raw(srv)
+        dribbler = Dribbler([chaff], 0.05, drain=False)
+        t0 = time.monotonic()
+        try:
+            while time.monotonic() - t0 < 1.5:
+                active.sendall(b'{"cmd": "status"}\n')
+                assert read_line(active)["ok"] is True
+                time.sleep(0.1)
+        finally:
+            dribbler.stop()
+        # The dribbler's socket: its error replies to '{"cmd"', then the closing notice, then EOF.
+        chaff.settimeout(2.0)
+        data = b""
+        while True:
+            chunk = chaff.recv(65536)
+            if not chunk:
+                break
+            data += chunk
+        lines = [strict(x) for x in data.splitlines()]
+        assert lines and "no command for 0.6 s" in lines[-1]["error"]
+        assert all(r["ok"] is False for r in lines)
+        active.sendall(b'{"cmd": "status"}\n')
+        assert read_line(active)["ok"] is True  # a client that sends commands stays
+        assert srv.idle_closed == 1
+        chaff.close()
+        active.close()
+    finally:
+        lp.stop()
+        srv.close()
+
+
+def test_rate_limit_answers_at_once_and_spares_estop(sockdir: str) -> None:
+    srv = ControlServer(os.path.join(sockdir, "r.sock"), commands=SAFETY_COMMANDS, rate_per_s=2.0, rate_burst=3,
+                        **DAEMON_LIKE)
+    try:
+        with raw(srv) as s:
+            s.sendall(b"".join(b'{"cmd": "status", "id": %d}\n' % i for i in range(6)))
+            refused = read_lines(s, 3)  # nobody polls: only the refusals come back, at once
+            assert [r["id"] for r in refused] == [3, 4, 5]
+            assert all(r["ok"] is False and "rate limit" in r["error"] and "2 requests/s" in r["error"]
+                       for r in refused)
+            assert srv.queued == 3  # the burst, not the refused ones
+            s.sendall(b"".join(b'{"cmd": "estop", "id": %d}\n' % i for i in range(10, 15)))
+            deadline = time.monotonic() + 2
+            while srv.queued < 8 and time.monotonic() < deadline:
+                time.sleep(0.005)
+            assert srv.queued == 8  # estop is never rate limited
+            handled: list[Any] = []
+            while srv.poll(lambda r: handled.append(r["id"]) or {}):
+                pass
+            assert handled == [0, 1, 2, 10, 11, 12, 13, 14]  # one connection's requests stay in order
+            replies = read_lines(s, 8)
+            assert [r["id"] for r in replies] == handled and all(r["ok"] for r in replies)
+        assert srv.rate_limited == 3
+    finally:
+        srv.close()
+
+
+def _wait_queued(srv: ControlServer, n: int) -> None:
+    deadline = time.monotonic() + 3
+    while srv.queued < n and time.monotonic() < deadline:
+        time.sleep(0.005)
+    assert srv.queued == n
+
+
+def test_a_burst_from_one_client_does_not_starve_another(sockdir: str) -> None:
+    with ControlServer(os.path.join(sockdir, "f.sock"), commands=SAFETY_COMMANDS, **DAEMON_LIKE) as srv:
+        with raw(srv) as hog, raw(srv) as other, raw(srv) as operator:
+            hog.sendall(b"".join(b'{"cmd": "status", "id": "hog%d"}\n' % i for i in range(8)))
+            _wait_queued(srv, 8)
+            other.sendall(b'{"cmd": "status", "id": "other"}\n')
+            _wait_queued(srv, 9)
+            operator.sendall(b'{"cmd": "estop", "id": "op"}\n')
+            _wait_queued(srv, 10)
+            handled: list[str] = []
+
+            def handler(r: dict[str, Any]) -> dict[str, Any]:
+                handled.append(r["id"])
+                return {}
+            assert srv.poll(handler, max_requests=1) == 2
+            assert handled == ["op", "hog0"]  # estop first, though it came last
+            assert srv.poll(handler, max_requests=1) == 1
+            assert handled[-1] == "other"  # then in turn: not behind the hog's whole burst
+            while srv.poll(handler, max_requests=1):
+                pass
+            assert handled[3:] == [f"hog{i}" for i in range(1, 8)]
+            assert read_line(operator) == {"ok": True, "id": "op"}
+            assert read_line(other) == {"ok": True, "id": "other"}
+
+
+def test_estop_supersedes_a_reset_sent_before_it(sockdir: str) -> None:
+    """Served first, an estop must not be undone by a reset (or a follow) queued ahead of it."""
+    with ControlServer(os.path.join(sockdir, "s.sock"), commands=SAFETY_COMMANDS, **DAEMON_LIKE) as srv:
+        with raw(srv) as a, raw(srv) as b:
+            a.sendall(b'{"cmd": "status", "id": 1}\n{"cmd": "reset", "id": 2}\n{"cmd": "follow", "id": 3}\n')
+            _wait_queued(srv, 3)
+            b.sendall(b'{"cmd": "estop", "id": 4}\n')
+            _wait_queued(srv, 4)
+            handled: list[str] = []
+            while srv.poll(lambda r: handled.append(r["cmd"]) or {}):
+                pass
+            assert handled == ["estop", "status"]
+            replies = read_lines(a, 3)
+            assert replies[0] == {"ok": True, "id": 1}
+            for r, cmd in zip(replies[1:], ("reset", "follow")):
+                assert r["ok"] is False and r["error"].startswith(f"{cmd} not run: the estop sent after it")
+            assert read_line(b) == {"ok": True, "id": 4}
+            a.sendall(b'{"cmd": "reset", "id": 5}\n')  # sent after the estop: it runs
+            _wait_queued(srv, 1)
+            assert srv.poll(lambda r: handled.append(r["cmd"]) or {}) == 1
+            assert handled[-1] == "reset" and read_line(a) == {"ok": True, "id": 5}
+
+
+# ----- strict JSON -------------------------------------------------------------------------
+
+@pytest.mark.parametrize("line, where, token, rid", [
+    (b'{"cmd": "status", "id": NaN}', "id", "NaN", None),
+    (b'{"cmd": "status", "id": 1, "arg": Infinity}', "arg", "Infinity", 1),
+    (b'{"cmd": "status", "id": "x", "arg": {"pose": [0, -Infinity, 0]}}', "arg.pose[1]", "-Infinity", "x"),
+    (b'{"cmd": "status", "id": 2, "arg": 1e999}', "arg", "1e999", 2),
+    (b'{"cmd": NaN}', "cmd", "NaN", None),
+])
+def test_non_finite_numbers_are_refused_in_strict_json(server: ControlServer, loop: Loop, line: bytes,
+                                                       where: str, token: str, rid: Any) -> None:
+    with raw(server) as s:
+        s.sendall(line + b"\n")
+        buf = b""
+        while not buf.endswith(b"\n"):
+            buf += s.recv(4096)
+    reply = strict(buf)  # the reply itself is strict JSON (an id of NaN used to come back as NaN)
+    assert reply["ok"] is False and reply.get("id") == rid
+    assert f"{where} is {token}" in reply["error"] and "NaN or Infinity" in reply["error"]
+    assert loop.seen == []
+
+
+def test_non_finite_reply_goes_out_as_null_and_says_so(sockdir: str) -> None:
+    with ControlServer(os.path.join(sockdir, "n.sock"), commands={"status"}) as srv:
+        with raw(srv) as s:
+            s.sendall(b'{"cmd": "status", "id": 1}\n')
+            _wait_queued(srv, 1)
+            srv.poll(lambda r: {"pose": {"x": float("nan"), "y": 1.0}, "v": [float("inf")]})
+            buf = b""
+            while not buf.endswith(b"\n"):
+                buf += s.recv(4096)
+    assert strict(buf) == {"ok": True, "pose": {"x": None, "y": 1.0}, "v": [None], "id": 1,
+                           "non_finite": ["pose.x", "v[0]"]}
+
+
+def test_client_refuses_to_send_nan(sockdir: str) -> None:
+    with pytest.raises(ValueError, match="strict JSON"):
+        request(os.path.join(sockdir, "x.sock"), {"cmd": "follow", "pose": [0.0, float("nan"), 0.0]})
+
+
+# ----- out of file descriptors -------------------------------------------------------------
+
+_EMFILE_CHILD = r"""
+import os, resource, sys, threading, time
+from ddrt.service.ctlsocket import ControlServer
+srv = ControlServer(sys.argv[1], commands={"status", "estop"}, max_clients=10000)
+stop = threading.Event()
+def loop():
+    while not stop.is_set():
+        srv.poll(lambda r: {"cmd": r["cmd"]})
+        time.sleep(0.001)
+threading.Thread(target=loop, daemon=True).start()
+# As good as no descriptor left: the soft limit just above what is open now.
+n_open = len(os.listdir("/proc/self/fd"))
+resource.setrlimit(resource.RLIMIT_NOFILE, (n_open + 8, resource.getrlimit(resource.RLIMIT_NOFILE)[1]))
+filler = []
+try:
+    while True:
+        filler.append(os.open(os.devnull, os.O_RDONLY))
+except OSError:
+    pass
+for fd in filler[:4]:  # room for a handful of clients, no more
+    os.close(fd)
+print("ready", flush=True)
+sys.stdin.readline()
+print(srv.evicted, srv.clients, flush=True)
+"""
+
+
+def _cpu_s(pid: int) -> float:
+    fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def test_out_of_descriptors_still_serves_a_newcomer_without_spinning(sockdir: str) -> None:
+    import subprocess
+    import sys
+
+    path = os.path.join(sockdir, "fd.sock")
+    repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = dict(os.environ, PYTHONPATH=repo)
+    child = subprocess.Popen([sys.executable, "-c", _EMFILE_CHILD, path], stdin=subprocess.PIPE,
+                             stdout=subprocess.PIPE, env=env, cwd=repo)
+    held: list[socket.socket] = []
+    try:
+        assert child.stdout is not None and child.stdin is not None
+        assert child.stdout.readline().strip() == b"ready"
+        for _ in range(100):  # far more than the few descriptors it has left
+            held.append(connect(path))
+        time.sleep(0.3)
+        t0 = time.monotonic()
+        assert request(path, {"cmd": "estop", "id": 1}, timeout=5.0) == {"ok": True, "cmd": "estop", "id": 1}
+        assert time.monotonic() - t0 < 1.0
+        cpu0 = _cpu_s(child.pid)
+        time.sleep(1.0)
+        cpu = _cpu_s(child.pid) - cpu0
+        assert cpu < 0.3, f"the server used {cpu:.2f} s of CPU in 1 s while out of descriptors"
+        child.stdin.write(b"\n")
+        child.stdin.flush()
+        evicted, clients = map(int, child.stdout.readline().split())
+        assert evicted >= 90 and clients < 10
+    finally:
+        for s in held:
+            s.close()
+        child.kill()
+        child.wait(timeout=10)

@@ -895,3 +895,204 @@ def test_bad_config_at_start_exits_2_naming_the_key() -> None:
         assert not os.path.exists(d.socket)  # nothing was opened
     finally:
         d.close()
+
+
+# ------------------------------------- the daemon stays in control: abuse, signals, exits
+
+
+def strict_json(data: bytes) -> Any:
+    def no_constants(token: str) -> Any:
+        raise ValueError(f"{token}: not JSON")
+    return json.loads(data, parse_constant=no_constants)
+
+
+def test_sigusr1_is_an_estop_latched_until_reset(daemon: DaemonProc) -> None:
+    reply = daemon.request({"cmd": "follow", "path": str(PATHS / "circle_1m.yaml")})
+    assert reply["ok"] is True
+    wait_for(lambda: daemon.status()["duty"] != {"l": 0.0, "r": 0.0}, 3.0, "motors driven")
+    daemon.proc.send_signal(signal.SIGUSR1)
+    s = wait_for(lambda: (s := daemon.status())["state"] == "estop" and s, 2.0, "estop after SIGUSR1")
+    assert "SIGUSR1" in s["fault"] and s["duty"] == {"l": 0.0, "r": 0.0}
+    assert daemon.proc.poll() is None  # a signal, not a kill
+    refused = daemon.request({"cmd": "follow", "path": str(PATHS / "circle_1m.yaml")})
+    assert refused["ok"] is False and "reset" in refused["error"]
+    assert daemon.request({"cmd": "reset"}) == {"ok": True, "state": "idle"}
+    assert "estop: SIGUSR1 received" in daemon.stderr()
+
+
+def test_follow_while_stopping_says_to_wait_not_to_send_stop(daemon: DaemonProc) -> None:
+    path = str(PATHS / "circle_1m.yaml")
+    assert daemon.request({"cmd": "follow", "path": path})["ok"] is True
+    wait_for(lambda: daemon.status()["progress"]["sigma_m"] > 0.05, 5.0, "progress along the circle")
+    assert daemon.request({"cmd": "stop"}) == {"ok": True, "state": "stopping"}
+    again = daemon.request({"cmd": "follow", "path": path})
+    assert again["ok"] is False
+    assert "send stop first" not in again["error"]  # it was stopping already: wrong advice
+    assert "still stopping" in again["error"] and "'stopped'" in again["error"]
+    wait_for(lambda: daemon.status()["state"] == "stopped", 6.0, "state stopped")
+    after = daemon.request({"cmd": "follow", "path": path})
+    assert after["ok"] is True, after  # what the message said to do works
+    assert daemon.request({"cmd": "estop"})["state"] == "estop"
+
+
+@pytest.mark.parametrize("line, needle", [
+    (b'{"cmd": "status", "id": NaN}\n', "id is NaN"),
+    (b'{"cmd": "follow", "id": 3, "points": [[0, 0], [1, Infinity]]}\n', "points[1][1] is Infinity"),
+    (b'{"cmd": "follow", "id": 4, "shape": "circle", "radius": 1e999}\n', "radius is 1e999"),
+])
+def test_replies_are_strict_json_and_refuse_nan(daemon: DaemonProc, line: bytes, needle: str) -> None:
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
+        s.settimeout(3.0)
+        s.connect(daemon.socket)
+        s.sendall(line)
+        buf = b""
+        while b"\n" not in buf:
+            chunk = s.recv(65536)
+            assert chunk, buf
+            buf += chunk
+    reply = strict_json(buf[: buf.index(b"\n")])  # a NaN id used to come back as NaN
+    assert reply["ok"] is False and needle in reply["error"], reply
+    assert daemon.status()["state"] == "idle"
+
+
+def test_estop_reaches_the_daemon_through_100_dribbling_connections(daemon: DaemonProc) -> None:
+    held = []
+    try:
+        for _ in range(100):
+            s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            s.settimeout(5.0)
+            deadline = time.monotonic() + 5.0
+            while True:  # a full listen backlog is EAGAIN at once: retry, bounded
+                try:
+                    s.connect(daemon.socket)
+                    break
+                except BlockingIOError:
+                    assert time.monotonic() < deadline, "the daemon's listen backlog stayed full"
+                    time.sleep(0.002)
+            s.setblocking(False)
+            held.append(s)
+        for _ in range(3):  # blank lines: no command, so no claim on a place
+            for s in held:
+                try:
+                    s.send(b"\n")
+                except OSError:
+                    pass
+            time.sleep(0.05)
+        t0 = time.monotonic()
+        reply = daemon.request({"cmd": "estop"}, timeout=5.0)
+        elapsed = time.monotonic() - t0
+        assert reply == {"ok": True, "state": "estop"}
+        assert elapsed < 1.0, f"estop took {elapsed:.3f} s"
+        counters = daemon.status()["control_socket"]
+        assert counters["clients"] <= 33 and counters["evicted"] >= 100 - 32
+    finally:
+        for s in held:
+            s.close()
+
+
+def test_second_daemon_on_the_same_socket_exits_1_and_touches_nothing() -> None:
+    first = start_daemon()
+    second = None
+    try:
+        first.wait_ready()
+        before = first.status()
+        second = start_daemon("--socket", first.socket)  # argparse: the last --socket wins
+        try:
+            rc = second.proc.wait(timeout=START_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"the second daemon did not exit:\n{second.stderr()}")
+        assert rc == 1
+        lines = [ln for ln in second.stderr().splitlines() if ln.strip()]
+        assert len(lines) == 1, lines  # one clear line, no traceback
+        assert "another ddrt daemon" in lines[0] and f"pid {first.proc.pid}" in lines[0]
+        assert f"{first.socket}.lock" in lines[0]
+        assert not second.telemetry_dir.exists()  # it opened nothing
+        stats = json.loads(second.stats_json.read_text())
+        assert stats["exit_code"] == 1 and "another ddrt daemon" in stats["error"]
+        # The first daemon's socket file is still there and it still runs, undisturbed.
+        assert os.path.exists(first.socket)
+        after = first.status()
+        assert after["state"] == before["state"] and after["timing"]["count"] > before["timing"]["count"]
+    finally:
+        if second is not None:
+            second.close()
+        first.close()
+
+
+def test_second_daemon_never_opens_a_device(monkeypatch: pytest.MonkeyPatch) -> None:
+    """In process: the lock is checked before open_hal is even called."""
+    from ddrt.service import daemon as daemon_mod
+
+    first = start_daemon()
+    saved = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP, signal.SIGUSR1)}
+    try:
+        first.wait_ready()
+        opened: list[Any] = []
+
+        def no_hal(*args: Any, **kwargs: Any) -> Any:
+            opened.append(args)
+            raise AssertionError("open_hal called")
+        monkeypatch.setattr(daemon_mod, "open_hal", no_hal)
+        d = daemon_mod.Daemon(str(first.config), socket_path=first.socket)
+        assert d.run() == 1
+        assert opened == [] and d.hal is None and d.server is None
+        assert os.path.exists(first.socket) and first.status()["state"] == "idle"
+    finally:
+        for s, h in saved.items():
+            signal.signal(s, h)
+        first.close()
+
+
+def _exit_and_stats(d: DaemonProc, timeout: float = START_TIMEOUT_S) -> tuple[int, dict[str, Any]]:
+    try:
+        rc = d.proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"the daemon did not exit:\n{d.stderr()}")
+    assert d.stats_json.exists(), f"no --stats-json after exit {rc}:\n{d.stderr()}"
+    return rc, json.loads(d.stats_json.read_text())
+
+
+def test_stats_json_on_a_bad_config_says_exit_2() -> None:
+    d = start_daemon(controller={"inner": {"kp": "abc"}})
+    try:
+        rc, stats = _exit_and_stats(d)
+        assert rc == 2 and stats["exit_code"] == 2
+        assert "controller.inner.kp" in stats["error"]
+    finally:
+        d.close()
+
+
+def test_stats_json_on_a_missing_path_file_says_exit_2() -> None:
+    # This one used to write exit_code 0 for a process that exited 2.
+    d = start_daemon("--follow", start=[0.0, 0.0, 0.0], path="/nonexistent/ddrt/path.yaml")
+    try:
+        rc, stats = _exit_and_stats(d)
+        assert rc == 2 and stats["exit_code"] == 2, d.stderr()
+        assert "/nonexistent/ddrt/path.yaml" in stats["error"]
+        assert "Traceback" not in d.stderr()
+    finally:
+        d.close()
+
+
+def test_stats_json_when_the_robot_cannot_be_opened_says_exit_1() -> None:
+    d = start_daemon(hal={"backend": "real", "imu": {"bus": 99}, "bridge": {"url": "/nonexistent/ddrt-tty"}})
+    try:
+        rc, stats = _exit_and_stats(d)
+        assert rc == 1 and stats["exit_code"] == 1
+        assert "cannot open the robot" in stats["error"] and "cannot open the robot" in d.stderr()
+        assert not os.path.exists(d.socket)  # the socket it had opened is gone again
+    finally:
+        d.close()
+
+
+def test_sigterm_during_calibration_exits_0_with_stats() -> None:
+    d = start_daemon(estimator={"calibration_s": 5.0})
+    try:
+        wait_for(lambda: d.check_alive() or os.path.exists(d.socket), START_TIMEOUT_S, "the control socket")
+        time.sleep(0.3)
+        d.proc.send_signal(signal.SIGTERM)
+        rc, stats = _exit_and_stats(d, 10.0)
+        assert rc == 0 and stats["exit_code"] == 0 and stats["error"] is None, d.stderr()
+        assert "stopped during start-up calibration" in d.stderr()
+    finally:
+        d.close()

@@ -1,12 +1,18 @@
 """`ddrt run`: the long-running service around one ControlLoop.
 
-Start-up: config -> HAL -> control socket and telemetry thread -> real-time set-up -> gyro
-calibration at rest -> fixed-rate loop (READY=1 after the first good tick). Each period:
-sleep to an absolute deadline, tick, record timing, then (outside the timed part) serve
-the control socket, ping the watchdog, apply a pending reload. Signals only set flags.
+Start-up: config -> the one-daemon-per-robot lock (ddrt/service/instance.py) -> control
+socket -> HAL -> telemetry thread -> real-time set-up -> gyro calibration at rest ->
+fixed-rate loop (READY=1 after the first good tick). Nothing touches a device before the
+lock and the socket are ours, so a second daemon on the same robot sends it nothing. Each
+period: sleep to an absolute deadline, latch a SIGUSR1 estop, tick, record timing, then
+(outside the timed part) serve the control socket, ping the watchdog, apply a pending
+reload. Signals only set flags.
 
-Exit codes: 0 after a requested stop (SIGTERM, SIGINT, --duration), 1 after a fault (so
-systemd restarts the service), 2 for a bad config at start-up.
+Exit codes: 0 after a requested stop (SIGTERM, SIGINT, --duration, also during the start-up
+calibration), 1 after a fault or when the robot cannot be run (another daemon holds the lock,
+the socket or a device cannot be opened, calibration failed: systemd restarts the service),
+2 for a bad config or path file at start-up. `--stats-json` is written on every one of these
+paths, after the exit code is known, and carries it.
 """
 
 from __future__ import annotations
@@ -26,7 +32,8 @@ from ddrt.service import rt
 from ddrt.service.clock import MonotonicClock
 from ddrt.config import Config, load_config
 from ddrt.config.policy import ReloadPlan, plan_reload
-from ddrt.service.ctlsocket import ControlServer
+from ddrt.service.ctlsocket import ControlServer, finite_or_null
+from ddrt.service.instance import AlreadyRunning, InstanceLock, lock_path_for
 from ddrt.loop import COLUMNS, ControlLoop
 from ddrt.path import PathError, load_path
 from ddrt.config.schema import ConfigError
@@ -44,6 +51,10 @@ class _Interrupted(Exception):
 
 
 COMMANDS = ("status", "follow", "stop", "estop", "reset", "gains", "reload")
+# Served before other clients' requests; each supersedes the listed commands sent before it
+# and still waiting (so an estop cannot be undone by a reset that was queued ahead of it).
+PRIORITY = {"estop": ("follow", "reset"), "stop": ("follow",)}
+NEVER_REFUSED = ("estop",)  # no rate limit, no shared queue bound
 
 
 class Daemon:
@@ -63,7 +74,10 @@ class Daemon:
         self.notifier = Notifier()
         self.stop_requested = False
         self.reload_requested = False
+        self.estop_signalled = False  # SIGUSR1: latched by the loop on its next tick
         self.exit_code = 0
+        self.error: str | None = None  # why the daemon could not run or stopped on a fault
+        self.lock: InstanceLock | None = None
         self.ready_s: float | None = None
         self.period = 1.0 / self.cfg.controller.rate_hz
         self.stats = TimingStats(self.period)
@@ -108,33 +122,81 @@ class Daemon:
         def on_hup(_signum: int, _frame: object) -> None:
             self.reload_requested = True
 
+        def on_usr1(_signum: int, _frame: object) -> None:
+            self.estop_signalled = True
+
         signal.signal(signal.SIGTERM, on_stop)
         signal.signal(signal.SIGINT, on_stop)
         signal.signal(signal.SIGHUP, on_hup)
+        signal.signal(signal.SIGUSR1, on_usr1)  # estop from a shell: kill -USR1 / systemctl kill -s USR1
 
     # ------------------------------------------------------------------ main
 
     def run(self) -> int:
-        self._signals()
+        """The whole life of the daemon; returns the exit code (and writes --stats-json)."""
+        code = 1
         try:
-            self._open_hal()
-        except (HalError, OSError, ValueError) as exc:
-            log.error("cannot open the robot (hal.backend=%s): %s", self.cfg.hal.backend, exc)
-            return 1
-        try:
-            return self._run_opened()
+            code = self._run()
+        except (ConfigError, PathError) as exc:
+            self._fail(f"{exc}")
+            code = 2
+        except Exception as exc:  # a bug: logged with its trace, motors stopped, exit 1
+            log.exception("daemon failed: %s: %s", type(exc).__name__, exc)
+            self.error = self.error or f"{type(exc).__name__}: {exc}"
+            code = 1
         finally:
-            self._shutdown()
+            self.exit_code = code
+            try:
+                self._shutdown()
+            finally:
+                self._write_stats()
+                if self.lock is not None:
+                    self.lock.release()
+        return code
 
-    def _run_opened(self) -> int:
-        cfg = self.cfg
+    def _fail(self, message: str) -> None:
+        """One clear line in the log; the reason in --stats-json."""
+        log.error("%s", message)
+        self.error = message
+
+    def _run(self) -> int:
+        self._signals()
+        # The lock first: a second daemon on this robot must stop before it opens anything.
+        d = self.cfg.daemon
+        lock = InstanceLock(lock_path_for(self.socket_path,
+                                          os.environ.get("LOGS_DIRECTORY") or d.telemetry_dir))
+        try:
+            lock.acquire()
+        except AlreadyRunning as exc:
+            self._fail(exc.strerror)
+            return 1
+        except OSError as exc:
+            self._fail(f"cannot take the one-daemon-per-robot lock {lock.path}: {exc.strerror or exc}")
+            return 1
+        self.lock = lock
         # Helper threads (socket, telemetry) need little stack; with mlockall every byte of
         # the default 8 MiB per thread would be resident.
         threading.stack_size(512 * 1024)
-        self.loop = loop = ControlLoop(cfg, self.hal)
         if self.socket_path:
-            FsPath(self.socket_path).parent.mkdir(parents=True, exist_ok=True)
-            self.server = ControlServer(self.socket_path, commands=COMMANDS)
+            try:
+                FsPath(self.socket_path).parent.mkdir(parents=True, exist_ok=True)
+                self.server = ControlServer(self.socket_path, commands=COMMANDS, priority=PRIORITY,
+                                            never_refused=NEVER_REFUSED)
+            except OSError as exc:
+                self._fail(f"cannot open the control socket: {exc.strerror or exc}")
+                return 1
+        try:
+            self._open_hal()
+        except (ConfigError, PathError):
+            raise
+        except (HalError, OSError, ValueError) as exc:
+            self._fail(f"cannot open the robot (hal.backend={self.cfg.hal.backend}): {exc}")
+            return 1
+        return self._run_opened()
+
+    def _run_opened(self) -> int:
+        cfg = self.cfg
+        self.loop = loop = ControlLoop(cfg, self.hal)
         self._open_telemetry()
         d = cfg.daemon
         for warning in rt.apply_realtime(d.rt_priority or None, set(d.cpus) or None, d.lock_memory,
@@ -143,15 +205,10 @@ class Daemon:
         clock = self.clock
         # Everything slow happens before the calibration: once it has started, the loop's
         # samples must keep coming at the rate.
-        path = None
-        if self.follow_at_start and cfg.path is not None:
-            try:
-                path = resolve_path(cfg)
-            except PathError as exc:
-                log.error("not following: %s", exc)
-            else:
-                for note in path.warnings:
-                    log.warning("path: %s", note)
+        # A path that does not load is a bad start-up input like a bad config (exit 2).
+        path = resolve_path(cfg) if self.follow_at_start and cfg.path is not None else None
+        for note in path.warnings if path is not None else ():
+            log.warning("path: %s", note)
 
         def sleep_unless_stopped(deadline: float) -> float:
             if self.stop_requested:
@@ -165,7 +222,7 @@ class Daemon:
             log.info("stopped during start-up calibration")
             return 0
         except (HalError, ValueError) as exc:
-            log.error("start-up calibration failed: %s", exc)
+            self._fail(f"start-up calibration failed: {exc}")
             self.exit_code = 1
             return 1
         if path is not None:
@@ -196,6 +253,11 @@ class Daemon:
             deadline = sched.next_deadline()
             woke = clock.sleep_until(deadline)
             skipped = sched.account(woke)
+            if self.estop_signalled:  # SIGUSR1 (any time since the last tick, or before start)
+                self.estop_signalled = False
+                if loop.state != "estop":
+                    log.warning("estop: SIGUSR1 received; motors zeroed, latched until reset")
+                    loop.estop("estop: SIGUSR1")
             if advance_plant is not None:
                 advance_plant()
             t0 = perf()
@@ -205,7 +267,7 @@ class Daemon:
             compute = perf() - t0
             stats.record(compute, woke - deadline, skipped)
             if loop.state == "fault":
-                log.error("stopping after fault: %s", loop.fault)
+                self._fail(f"stopping after fault: {loop.fault}")
                 self.exit_code = 1
                 break
             if self.ready_s is None:
@@ -250,9 +312,11 @@ class Daemon:
             self.server.close()
         if self.telemetry is not None:
             self.telemetry.close()
-        if self.stats_json:
-            FsPath(self.stats_json).write_text(json.dumps(self.stats_report(), indent=2) + "\n")
         self.notifier.close()
+
+    def _write_stats(self) -> None:
+        if self.stats_json:
+            write_stats(self.stats_json, self.stats_report())
 
     # ------------------------------------------------------------------ reporting
 
@@ -278,6 +342,7 @@ class Daemon:
             "cpu_s": usage.ru_utime + usage.ru_stime,
             "wall_s": time.monotonic() - self.t_start,
             "exit_code": self.exit_code,
+            "error": self.error,
             "final_duty": [self.loop.duty_l, self.loop.duty_r] if self.loop is not None else None,
             "final_state": self.loop.state if self.loop is not None else None,
             "reloads": dict(self.reloads),
@@ -308,6 +373,7 @@ class Daemon:
             "config": self.cfg.source,
             "reloads": dict(self.reloads),
             "adaptation": loop.adapter.status() if loop.adapter is not None else None,
+            "control_socket": self.server.counters() if self.server is not None else None,
         }
 
     # ------------------------------------------------------------------ commands
@@ -335,6 +401,10 @@ class Daemon:
         if cmd == "reload":
             return self.reload()
         if cmd == "follow":
+            if loop.state == "stopping":
+                return {"ok": False, "error": "follow: not started: the robot is still stopping on its last path; "
+                                              "send follow again once status says 'stopped' "
+                                              "(estop stops it at once)"}
             return self._follow(req)
         return {"ok": False, "error": f"unknown command {cmd!r}"}
 
@@ -444,11 +514,28 @@ def vars_of(obj: Any) -> dict[str, Any]:
     return {k: getattr(obj, k) for k in obj.__dataclass_fields__}
 
 
+def write_stats(path: str, report: dict[str, Any]) -> None:
+    """--stats-json, written whole then renamed; a failure is logged, never raised."""
+    try:
+        target = FsPath(path)
+        tmp = target.with_name(target.name + ".tmp")
+        tmp.write_text(json.dumps(finite_or_null(report), indent=2, allow_nan=False) + "\n")
+        os.replace(tmp, target)
+    except (OSError, ValueError) as exc:
+        log.error("cannot write --stats-json %s: %s", path, exc)
+
+
 def run_daemon(config_path: str, socket_path: str | None, duration: float | None, stats_json: str | None,
                follow: bool) -> int:
     try:
         daemon = Daemon(config_path, socket_path, duration, stats_json, follow)
     except (ConfigError, PathError) as exc:
         log.error("%s", exc)
+        if stats_json:  # nothing ran: the same keys, empty, and why
+            write_stats(stats_json, {"rate_hz": None, "ticks": 0, "missed": 0, "overruns": 0,
+                                     "compute_us": None, "lateness_us": None, "ready_s": None,
+                                     "maxrss_kb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
+                                     "cpu_s": None, "wall_s": None, "exit_code": 2, "error": str(exc),
+                                     "final_duty": None, "final_state": None, "reloads": None})
         return 2
     return daemon.run()
