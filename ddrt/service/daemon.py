@@ -177,6 +177,7 @@ class Daemon:
         notifier = self.notifier
         sched = RateScheduler(self.period, clock.now())
         perf = time.perf_counter
+        cpu = time.thread_time
         wd_interval = notifier.watchdog_interval() or 1.0
         next_watchdog = 0.0
         next_status = 0.0
@@ -187,15 +188,26 @@ class Daemon:
         while not self.stop_requested:
             deadline = sched.next_deadline()
             woke = clock.sleep_until(deadline)
-            skipped = sched.account(woke)
+            # Lateness is how late the tick really starts (takes its sample), not when the
+            # sleep returned: the thread can lose the CPU or the GIL after waking (a busy
+            # host, a helper thread), and such a stall delays the sample as much as a late
+            # wake-up does. A simulated robot's physics, run here, costs CPU time that does
+            # not exist on the robot, so only its wall time beyond its own CPU time counts.
             if advance_plant is not None:
+                cpu0 = cpu()
                 advance_plant()
+                started = clock.now() - (cpu() - cpu0)
+            else:
+                started = clock.now()
+            if started < woke:
+                started = woke
+            skipped = sched.account(started)
             t0 = perf()
             loop.tick()
             if ring is not None:
                 ring.append(loop.row)
             compute = perf() - t0
-            stats.record(compute, woke - deadline, skipped)
+            stats.record(compute, started - deadline, skipped)
             if loop.state == "fault":
                 log.error("stopping after fault: %s", loop.fault)
                 self.exit_code = 1
