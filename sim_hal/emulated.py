@@ -132,6 +132,7 @@ def open_emulated_real_hal(cfg: Config, start: tuple[float, float, float] = (0.0
     hal_section["bridge"] = bridge
     try:
         real = RealHal.from_config({"hal": hal_section}, clock=devices.time, i2c_bus=devices.i2c)
+        real.hold_ticks = cfg.hal.hold_ticks  # None unless set: hold within hal.bridge.state_stale_s
     except BaseException:
         devices.close()
         raise

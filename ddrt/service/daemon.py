@@ -265,7 +265,20 @@ class Daemon:
         s = self.stats.summary()
         state = loop.state if loop else "starting"
         p99 = s.get("compute_p99_us")
-        return f"{state}; tick p99 {p99:.0f} us; missed {s['missed_ticks']}" if p99 is not None else state
+        if p99 is None:
+            return state
+        line = f"{state}; tick p99 {p99:.0f} us; missed {s['missed_ticks']}"
+        if loop is not None and loop.recovery.holds:
+            line += f"; holds {loop.recovery.holds}, resumed {loop.recovery.resumes}"
+        return line
+
+    def recovery_report(self) -> dict[str, Any] | None:
+        """Sensor gaps, holds and resumes so far (status and --stats-json)."""
+        loop = self.loop
+        if loop is None:
+            return None
+        h = loop.estimator.health
+        return {"gaps": h.gaps, "longest_gap_ms": h.longest_gap_s * 1000.0, **loop.recovery.as_dict()}
 
     def stats_report(self) -> dict[str, Any]:
         s = self.stats.summary()
@@ -285,6 +298,7 @@ class Daemon:
             "final_duty": [self.loop.duty_l, self.loop.duty_r] if self.loop is not None else None,
             "final_state": self.loop.state if self.loop is not None else None,
             "reloads": dict(self.reloads),
+            "recovery": self.recovery_report(),
         }
 
     def status(self) -> dict[str, Any]:
@@ -306,13 +320,19 @@ class Daemon:
             "duty": {"l": loop.duty_l, "r": loop.duty_r},
             "progress": progress,
             "timing": self.stats.summary(),
-            "faults": {"gyro_rejects": est.health.gyro_rejects, "encoder_rejects": est.health.encoder_rejects,
-                       "resyncs": est.health.resyncs, "stale_ticks": est.health.stale_ticks,
-                       **getattr(self.hal, "fault_counters", lambda: {})()},
+            "faults": {**est.health.counters(), **self._hal_counters()},
+            "recovery": self.recovery_report(),
             "config": self.cfg.source,
             "reloads": dict(self.reloads),
             "adaptation": loop.adapter.status() if loop.adapter is not None else None,
         }
+
+    def _hal_counters(self) -> dict[str, Any]:
+        # RealHal's is a property (a dict); a backend without one has none.
+        counters = getattr(self.hal, "fault_counters", None)
+        if callable(counters):
+            counters = counters()
+        return dict(counters) if isinstance(counters, dict) else {}
 
     # ------------------------------------------------------------------ commands
 
