@@ -55,6 +55,7 @@ class RecoveryCounters:
     """What the loop did about transient faults (status, stats, telemetry)."""
 
     holds: int = 0  # controlled stops on a sensor gap / stale samples / a read timeout
+    stalls: int = 0  # of them, gaps because the loop itself did not run (a busy or stopped host)
     zeroed: int = 0  # holds in which the motors went to zero at once (blind beyond the watchdog)
     resumes: int = 0  # holds that ended by resuming the path
     waits: int = 0  # holds that ended stopped (daemon.on_recover: wait, or a stop was asked)
@@ -63,7 +64,7 @@ class RecoveryCounters:
     last_cause: str = ""
 
     def as_dict(self) -> dict[str, float | int | str]:
-        return {"holds": self.holds, "zeroed": self.zeroed, "resumes": self.resumes, "waits": self.waits,
+        return {"holds": self.holds, "stalls": self.stalls, "zeroed": self.zeroed, "resumes": self.resumes, "waits": self.waits,
                 "latched": self.latched, "longest_hold_s": self.longest_hold_s, "last_cause": self.last_cause}
 
 
@@ -340,7 +341,7 @@ class ControlLoop:
                 self.recovery.latched += 1
                 self.enter_fault(why)
             elif state in MOVING and (why := self._transient()):
-                self._enter_hold(why, sample.t)
+                self._enter_hold(why, sample.t, stall=est.stall_s > 0.0)
             state = self.state
         if state == "holding":
             self._tick_holding(sample, stamp)
@@ -404,7 +405,8 @@ class ControlLoop:
         if self._read_error:
             return f"sensor read timed out: {self._read_error}"
         if est.gap_s > est.max_gap:
-            return f"sensor gap of {est.gap_s * 1000:.1f} ms"
+            stalled = " (the loop did not run)" if est.stall_s > 0.0 else ""
+            return f"sensor gap of {est.gap_s * 1000:.1f} ms{stalled}"
         h = est.health
         if est.blind_s > est.max_gap or h.stale_ticks >= self.cfg.estimator.stale_ticks:
             return f"sensors stale for {h.stale_ticks} ticks ({est.blind_s * 1000:.0f} ms without a fresh sample)"
@@ -420,20 +422,29 @@ class ControlLoop:
             return f"{what}: {est.blind_s:.3f} s without a fresh sample (estimator.fault_latch_s = {e.fault_latch_s:g} s)"
         return ""
 
-    def _enter_hold(self, cause: str, t: float) -> None:
-        """Stop in a controlled way (or zero the motors at once) and wait for the sensors."""
+    def _enter_hold(self, cause: str, t: float, stall: bool = False) -> None:
+        """Stop in a controlled way (or zero the motors at once) and wait for the sensors.
+
+        Holds on the sensors' account (stale samples, read timeouts) count towards
+        estimator.max_holds: sensors that keep failing latch, and the restart that follows
+        re-opens the devices. A stall of the loop itself does not: it is over when the loop
+        runs again, each one is held safely, and a restart cannot cure a busy host (it would
+        only lose the path)."""
         e = self.cfg.estimator
-        times = self._hold_times
-        times.append(t)
-        while times and times[0] < t - e.hold_window_s:
-            times.popleft()
         rec = self.recovery
         rec.last_cause = cause
-        if len(times) > e.max_holds:
-            rec.latched += 1
-            self.enter_fault(f"{cause}: {len(times)} holds within {e.hold_window_s:g} s "
-                             f"(estimator.max_holds = {e.max_holds})")
-            return
+        if not stall:
+            times = self._hold_times
+            times.append(t)
+            while times and times[0] < t - e.hold_window_s:
+                times.popleft()
+            if len(times) > e.max_holds:
+                rec.latched += 1
+                self.enter_fault(f"{cause}: {len(times)} holds within {e.hold_window_s:g} s "
+                                 f"(estimator.max_holds = {e.max_holds})")
+                return
+        else:
+            rec.stalls += 1
         rec.holds += 1
         self._hold = _Hold(cause=cause, resume_to=self.state)
         self.state = "holding"

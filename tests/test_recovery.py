@@ -313,17 +313,35 @@ def test_on_recover_wait_stops_and_resume_continues_the_path() -> None:
         run.close()
 
 
-def test_too_many_holds_in_the_window_latch() -> None:
+def test_sensors_that_keep_failing_latch_after_max_holds() -> None:
     run = _Run(estimator={"max_holds": 2, "hold_window_s": 60.0})
     try:
         for k in range(3):
-            run.run_until(2.0 + 2.0 * k)
-            run.stall(0.159)
+            run.hal.freeze(run.t0 + 2.0 + 2.0 * k, 0.150)
         run.finish()
         loop = run.loop
         assert loop.state == "fault" and "estimator.max_holds = 2" in loop.fault
-        assert loop.recovery.holds == 2 and loop.recovery.latched == 1
+        assert loop.recovery.holds == 2 and loop.recovery.resumes == 2 and loop.recovery.latched == 1
         assert (loop.duty_l, loop.duty_r) == (0.0, 0.0)
+        assert run.rows[-1]["t"] == pytest.approx(6.0 + 0.055, abs=0.011)  # at the third hold
+    finally:
+        run.close()
+
+
+def test_a_host_that_keeps_stalling_is_held_every_time_but_never_latches() -> None:
+    """Loop stalls are not the sensors' fault: each is held (safely: beyond 100 ms the
+    driver's watchdog has already stopped the motors), none counts towards max_holds."""
+    run = _Run()
+    try:
+        n = run.cfg.estimator.max_holds + 3
+        for k in range(n):
+            run.run_until(1.0 + 1.5 * k)
+            run.stall(0.159)
+        run.finish(60.0)
+        loop = run.loop
+        assert _completed(run), (loop.state, loop.fault)
+        rec = loop.recovery
+        assert rec.holds == n and rec.stalls == n and rec.resumes == n and rec.latched == 0, rec
     finally:
         run.close()
 

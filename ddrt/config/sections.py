@@ -221,7 +221,7 @@ class EstimatorConfig:
     stale_ticks: int = 20  # ticks without a fresh sample while moving: hold (controlled stop)
     max_gap_s: float = 0.05  # longer than this (and 10 ticks) without a fresh sample while moving: hold
     fault_latch_s: float = 0.5  # without a fresh sample this long: the fault latches (run ends)
-    max_holds: int = 5  # more holds than this within hold_window_s: the fault latches
+    max_holds: int = 5  # more sensor holds (not loop stalls) than this within hold_window_s: the fault latches
     hold_window_s: float = 60.0
     zero_motors_after_s: float | None = None  # blind this long in a hold: motors to zero; None: the HAL's DRIVE watchdog
     stuck_gyro_ticks: int = 100  # identical raw gyro readings in a row = stuck sensor

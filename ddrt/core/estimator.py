@@ -115,6 +115,7 @@ class Estimator:
         self._ahead_of_anchor = 0.0  # time dead-reckoned past the anchor (repeated timestamps)
         self.blind_s = 0.0
         self.gap_s = 0.0
+        self.stall_s = 0.0  # of that gap, the last interval between two updates (the loop did not run)
 
     # ------------------------------------------------------------------ configuration
 
@@ -223,7 +224,7 @@ class Estimator:
         if last_t is None:
             raise RuntimeError("Estimator.update before reset")
         dt = sample.t - last_t
-        self.gap_s = 0.0
+        self.gap_s = self.stall_s = 0.0
         if not sample.fresh or dt <= 0.0:
             # No new measurement: a repeated value with the time of the read (dead-reckon
             # through the time that passed), or a repeated sample with its own timestamp
@@ -336,6 +337,7 @@ class Estimator:
         self._blind_travel = 0.0
         self.dt = self.period
         self.gap_s = gap
+        self.stall_s = dt if dt > self.max_gap else 0.0
         moving = not commanded_still or self._blind_moving
         self._blind_moving = False
         if moving:  # a pause while standing still endangers nothing: not counted
