@@ -391,6 +391,12 @@ def test_a_stopped_daemon_holds_resumes_and_finishes_its_path_exiting_0() -> Non
         time.sleep(stop_s)
         os.kill(d.proc.pid, signal.SIGCONT)
         stopped_for = time.monotonic() - t_stop
+        # The control socket shows the hold and the resume while the daemon runs on.
+        status = wait_for(lambda: (lambda st: st if st["recovery"]["resumes"] >= 1 else None)(d.status()),
+                          10.0, "the resume in status()")
+        assert status["recovery"]["holds"] >= 1 and status["recovery"]["gaps"] >= 1
+        assert status["faults"]["gaps"] >= 1 and status["faults"]["watchdog_trips"] >= 1
+        assert status["timing"]["missed_ticks"] >= int(stop_s * RATE_HZ) - 1
         try:
             rc = d.proc.wait(timeout=START_TIMEOUT_S + 14)
         except subprocess.TimeoutExpired:
@@ -515,3 +521,35 @@ def test_the_declared_reload_modes_of_the_new_keys() -> None:
         assert modes[key] == LIVE, key
     for key in ("sim.sensors_freeze_for_s", "hal.hold_ticks"):
         assert modes[key] == RESTART, key
+
+
+def test_a_configured_freeze_lasts_sensors_freeze_for_s() -> None:
+    cfg = load_config(SIM_YAML, {"sim": {"sensors_freeze_after_s": 0.5, "sensors_freeze_for_s": 0.2}})
+    hal = open_hal(cfg)
+    try:
+        fresh = []
+        t = hal.now()
+        for _ in range(200):
+            t += 0.005
+            hal.sleep_until(t)
+            fresh.append((round(t, 3), hal.read().fresh))
+        stale = [tt for tt, f in fresh if not f]
+        assert stale and min(stale) == pytest.approx(0.5, abs=0.006) and max(stale) == pytest.approx(0.695, abs=0.006)
+        assert all(f for tt, f in fresh if tt >= 0.7)
+    finally:
+        hal.close()
+
+
+def test_the_simulated_driver_has_the_microcontrollers_watchdog() -> None:
+    cfg = load_config(SIM_YAML)
+    hal = open_hal(cfg)
+    try:
+        assert hal.info.drive_timeout_s == WATCHDOG_S
+        hal.write(0.3, 0.3)
+        t = hal.now()
+        hal.sleep_until(t + 0.09)
+        assert hal.robot.applied_duty == (0.3, 0.3)
+        hal.sleep_until(t + WATCHDOG_S + cfg.sim.command_latency_s + 0.002)
+        assert hal.robot.applied_duty == (0.0, 0.0) and hal.watchdog_trips == 1
+    finally:
+        hal.close()
