@@ -136,6 +136,7 @@ class ControlLoop:
     def _set_bounds(self, cfg: Config) -> None:
         """The hold's bounds from the config and the HAL."""
         e = cfg.estimator
+        self._latch_s = e.fault_latch_s
         watchdog = getattr(self.hal.info, "drive_timeout_s", None)
         self.zero_after = (e.zero_motors_after_s if e.zero_motors_after_s is not None
                            else watchdog if watchdog is not None else DEFAULT_ZERO_AFTER_S)
@@ -334,13 +335,13 @@ class ControlLoop:
         self._starting = False
         if self.adapter is not None and state in MOVING:
             self._adapt()
-        if state not in ("fault", "estop"):
+        if state != "fault" and state != "estop":
             if est.health.fault:
                 self.enter_fault(est.health.fault)
-            elif why := self._persistent():
+            elif est.blind_s >= self._latch_s:
                 self.recovery.latched += 1
-                self.enter_fault(why)
-            elif state in MOVING and (why := self._transient()):
+                self.enter_fault(self._persistent())
+            elif (est.blind_s or est.gap_s or self._read_error) and state in MOVING and (why := self._transient()):
                 self._enter_hold(why, sample.t, stall=est.stall_s > 0.0)
             state = self.state
         if state == "holding":
@@ -413,14 +414,11 @@ class ControlLoop:
         return ""
 
     def _persistent(self) -> str:
-        """A transient fault that has lasted too long (it latches), or ''."""
+        """Why a transient fault that has lasted estimator.fault_latch_s latches."""
         est = self.estimator
-        e = self.cfg.estimator
-        if est.blind_s >= e.fault_latch_s:
-            what = (f"sensor read timed out ({self._read_error})" if self._read_error
-                    else f"sensors stale for {est.health.stale_ticks} ticks")
-            return f"{what}: {est.blind_s:.3f} s without a fresh sample (estimator.fault_latch_s = {e.fault_latch_s:g} s)"
-        return ""
+        what = (f"sensor read timed out ({self._read_error})" if self._read_error
+                else f"sensors stale for {est.health.stale_ticks} ticks")
+        return f"{what}: {est.blind_s:.3f} s without a fresh sample (estimator.fault_latch_s = {self._latch_s:g} s)"
 
     def _enter_hold(self, cause: str, t: float, stall: bool = False) -> None:
         """Stop in a controlled way (or zero the motors at once) and wait for the sensors.

@@ -280,10 +280,11 @@ class Estimator:
         self.theta += w * dt
         if fresh:
             self._last_fresh_t = sample.t
-            self._ahead_of_anchor = 0.0
-            self._blind_ticks = 0
-            self._blind_travel = 0.0
-            self._blind_moving = False
+            if self._blind_ticks:
+                self._ahead_of_anchor = 0.0
+                self._blind_ticks = 0
+                self._blind_travel = 0.0
+                self._blind_moving = False
         else:
             self._blind_travel += v * dt
 
