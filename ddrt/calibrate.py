@@ -147,12 +147,12 @@ def excitation_path(cfg: Config, width: float, height: float, max_s: float = 30.
     from ddrt.path.spec import speed_limits
 
     spec = {"shape": "figure_eight", "width": w, "height": h, "speed": v}
-    one = load_path(spec, speed_limits(cfg))
+    one = load_path(spec, speed_limits(cfg), paths=cfg.paths)
     laps = max(1, int(max_s // one.duration))
     if laps == 1 and one.duration > max_s:
         raise ValueError(f"one lap takes {one.duration:.1f} s, more than {max_s:.0f} s: give a smaller area "
                          f"or a higher speed")
-    return load_path(dict(spec, laps=float(laps)), speed_limits(cfg))
+    return load_path(dict(spec, laps=float(laps)), speed_limits(cfg), paths=cfg.paths)
 
 
 def identify(cfg: Config, hal: Hal, width: float, height: float, max_s: float = 30.0,
@@ -315,7 +315,8 @@ def odometry_run(cfg: Config, hal: Hal, distance: float = 1.0, turns: float = 1.
     loop, clock = _start(cfg, hal)
     from ddrt.path.spec import speed_limits
 
-    line = load_path({"shape": "line", "length": distance, "speed": min(0.3, cfg.limits.v_max)}, speed_limits(cfg))
+    line = load_path({"shape": "line", "length": distance, "speed": min(0.3, cfg.limits.v_max)}, speed_limits(cfg),
+                     paths=cfg.paths)
     true0 = _truth(hal)
     loop.follow(line, (0.0, 0.0, 0.0))
     _drive(loop, clock, line.duration + 15.0)

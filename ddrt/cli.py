@@ -22,9 +22,19 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     from ddrt.path.spec import resolve_path
     from ddrt.simrun.runner import run_sim, stderr_progress, summary_text, write_outputs
 
+    if args.plot:
+        import importlib.util
+
+        if importlib.util.find_spec("matplotlib") is None:
+            raise ValueError("--plot needs matplotlib, which is not installed: pip install 'ddrt[plot]'")
     overrides = {"sim": {"seed": args.seed}} if args.seed is not None else None
     cfg = load_config(args.config, overrides)
+    if cfg.hal.backend == "real" and cfg.hal.imu.bus != "sim":
+        raise ValueError(f"{args.config}: hal.backend: real with hal.imu.bus: {cfg.hal.imu.bus} drives the "
+                         "robot itself; `ddrt sim` needs hal.backend: sim (or hal.imu.bus: sim, the emulated devices)")
     path = resolve_path(cfg, args.path)
+    for note in path.warnings:
+        print(f"ddrt: warning: {note}", file=sys.stderr)
     result = run_sim(cfg, path, duration=args.duration, seed=args.seed, start=args.start,
                      progress=None if args.quiet else stderr_progress)
     if not args.quiet:
@@ -173,10 +183,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return args.func(args)
     except ValueError as exc:  # config, path and argument errors: one clear line, no trace
-        print(f"ddrt: error: {exc}", file=sys.stderr)
+        print(f"ddrt: error: {_one_line(exc)}", file=sys.stderr)
         return 2
+    except OSError as exc:  # a device that cannot be opened, an output that cannot be written
+        print(f"ddrt: error: {_one_line(exc)}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         return 130
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())
 
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ Fault reactions (the same for the emulated devices, which is how they are tested
 
 from __future__ import annotations
 
-from typing import Any, Callable, Mapping, Protocol, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Protocol, Sequence
 
 from ddrt.core.types import Clock
 from ddrt.service.clock import MonotonicClock
@@ -24,7 +24,10 @@ from hal.base import (
     Hal, HalError, HalInfo, HalIOError, HalTimeoutError, Sample,
 )
 from hal.bridge import Bridge
-from hal.mpu6050 import DEFAULT_ADDRESS, Mpu6050, gyro_scale, open_i2c_bus
+from hal.mpu6050 import Mpu6050, gyro_scale, open_i2c_bus
+
+if TYPE_CHECKING:
+    from ddrt.config import Config
 
 __all__ = ["EncoderReader", "Imu", "Motors", "RealHal"]
 
@@ -245,65 +248,39 @@ class RealHal(Hal):
     # -- construction from config ----------------------------------------------------------
 
     @classmethod
-    def from_config(cls, cfg: Mapping[str, Any], clock: Clock | None = None, *,
+    def from_config(cls, cfg: "Config", clock: Clock | None = None, *,
                     i2c_bus: Any = None) -> "RealHal":
-        """Build from the `hal` section of a config (nested mappings, or flat dotted keys).
+        """Build from a validated config: its `hal` section and `sensors.gyro_range_dps`.
 
-        `hal.imu.bus: sim` needs the emulated bus passed as `i2c_bus`. Every value is
-        validated before any device is opened; errors name the key.
+        The walker (ddrt.config) has checked every value and range; what is left here is
+        what only opening needs: `hal.imu.bus: sim` needs the emulated bus passed as `i2c_bus`.
         """
-        g = _ConfigReader(cfg)
-        bus_spec = g.get("hal.imu.bus")
-        if isinstance(bus_spec, bool) or not (
-                (isinstance(bus_spec, int) and bus_spec >= 0) or bus_spec == "sim"):
-            raise ValueError(f"hal.imu.bus: expected a bus number or 'sim', got {bus_spec!r}")
-        if bus_spec == "sim" and i2c_bus is None:
+        hal = cfg.hal
+        hal.check_real("hal")  # a config loaded for the sim backend may lack the devices
+        imu_cfg, link, pwm_cfg = hal.imu, hal.bridge, hal.pwm_sysfs
+        if imu_cfg.bus == "sim" and i2c_bus is None:
             raise ValueError("hal.imu.bus: 'sim' needs the emulated bus passed as i2c_bus=")
-        address = g.integer("hal.imu.address", DEFAULT_ADDRESS, 0x03, 0x77)
-        rng = g.get("hal.imu.gyro_range_dps", 250)
-        try:
-            gyro_scale(rng)
-        except ValueError as e:
-            raise ValueError(f"hal.imu.{e}") from None
-        dlpf = g.integer("hal.imu.dlpf_cfg", 2, 0, 6)
-        div = g.integer("hal.imu.sample_rate_div", 4, 0, 255)
-        url = g.get("hal.bridge.url")
-        if not isinstance(url, str) or not url:
-            raise ValueError(f"hal.bridge.url: expected a serial port or URL string, got {url!r}")
-        baud = g.integer("hal.bridge.baudrate", 115200, 1, 10_000_000)
-        drive_ms = g.integer("hal.bridge.drive_timeout_ms", 100, 1, 1000)
-        stale = g.pos_float("hal.bridge.state_stale_s", 0.05)
-        hold = g.integer("hal.hold_ticks", 3, 0, 1000)
-        motors_kind = g.get("hal.motors", "bridge")
-        if motors_kind not in ("bridge", "pwm_sysfs"):
-            raise ValueError(f"hal.motors: expected 'bridge' or 'pwm_sysfs', got {motors_kind!r}")
-        pwm: dict[str, Any] = {}
-        if motors_kind == "pwm_sysfs":
-            pwm["chip"] = g.integer("hal.pwm_sysfs.chip", 0, 0, 1 << 16)
-            pwm["channels"] = g.int_pair("hal.pwm_sysfs.channels", (0, 1))
-            pwm["period_ns"] = g.integer("hal.pwm_sysfs.period_ns", 50_000, 1, 1_000_000_000)
-            pwm["direction_gpios"] = g.int_pair("hal.pwm_sysfs.direction_gpios")
-            root = g.get("hal.pwm_sysfs.root", "/sys")
-            if not isinstance(root, str) or not root:
-                raise ValueError(f"hal.pwm_sysfs.root: expected a directory path, got {root!r}")
-            pwm["root"] = root
-
+        if link.url is None:
+            raise ValueError("hal.bridge.url: missing (only the emulated devices provide their own)")
         opened: list[Any] = []
         try:
-            bus = i2c_bus if i2c_bus is not None else open_i2c_bus(bus_spec)
+            bus = i2c_bus if i2c_bus is not None else open_i2c_bus(imu_cfg.bus)
             if i2c_bus is None:
                 opened.append(bus)
-            imu = Mpu6050(bus, address, rng, dlpf, div)
-            bridge = Bridge(url, baud, drive_ms, stale, clock=clock)
+            imu = Mpu6050(bus, imu_cfg.address, cfg.sensors.gyro_range_dps, imu_cfg.dlpf_cfg,
+                          imu_cfg.sample_rate_div)
+            bridge = Bridge(link.url, link.baudrate, link.drive_timeout_ms, link.state_stale_s, clock=clock)
             opened.append(bridge)
             motors = None
-            if motors_kind == "pwm_sysfs":
+            if hal.motors == "pwm_sysfs":
                 from hal.pwm_sysfs import PwmSysfsMotors
 
-                motors = PwmSysfsMotors(**pwm)
+                motors = PwmSysfsMotors(chip=pwm_cfg.chip, channels=pwm_cfg.channels,
+                                        period_ns=pwm_cfg.period_ns,
+                                        direction_gpios=pwm_cfg.direction_gpios, root=pwm_cfg.root)
                 opened.append(motors)
             owned = [bus] if i2c_bus is None else []
-            return cls(imu, bridge, clock, motors=motors, hold_ticks=hold, closeables=owned)
+            return cls(imu, bridge, clock, motors=motors, hold_ticks=hal.hold_ticks, closeables=owned)
         except BaseException:
             for obj in reversed(opened):
                 try:
@@ -328,43 +305,3 @@ def drive_timeout_s(motors: Any) -> float | None:
     if isinstance(ms, (int, float)) and not isinstance(ms, bool) and ms > 0:
         return ms / 1000.0
     return None
-
-
-class _ConfigReader:
-    """Looks up dotted keys in nested mappings (or flat dotted keys) and validates them."""
-
-    def __init__(self, cfg: Mapping[str, Any]) -> None:
-        if not isinstance(cfg, Mapping):
-            raise ValueError(f"config: expected a mapping, got {type(cfg).__name__}")
-        self.cfg = cfg
-
-    def get(self, key: str, default: Any = _MISSING) -> Any:
-        if key in self.cfg:
-            return self.cfg[key]
-        node: Any = self.cfg
-        for part in key.split("."):
-            if not isinstance(node, Mapping) or part not in node:
-                if default is _MISSING:
-                    raise ValueError(f"{key}: missing")
-                return default
-            node = node[part]
-        return node
-
-    def integer(self, key: str, default: Any, lo: int, hi: int) -> int:
-        v = self.get(key, default)
-        if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
-            raise ValueError(f"{key}: expected an int in {lo}..{hi}, got {v!r}")
-        return v
-
-    def pos_float(self, key: str, default: Any) -> float:
-        v = self.get(key, default)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < float("inf"):
-            raise ValueError(f"{key}: expected a positive number, got {v!r}")
-        return float(v)
-
-    def int_pair(self, key: str, default: Any = _MISSING) -> tuple[int, int]:
-        v = self.get(key, default)
-        if (not isinstance(v, (list, tuple)) or len(v) != 2
-                or not all(isinstance(x, int) and not isinstance(x, bool) and x >= 0 for x in v)):
-            raise ValueError(f"{key}: expected two non-negative ints, got {v!r}")
-        return int(v[0]), int(v[1])

@@ -16,6 +16,4 @@ from hal.real import RealHal
 
 def open_real_hal(cfg: Config, clock: Clock | None = None, **_: Any) -> Hal:
     """RealHal from the config's `hal:` section; devices timed on `clock` (default: the wall clock)."""
-    hal = RealHal.from_config(cfg.raw, clock=clock)
-    hal.hold_ticks = cfg.hal.hold_ticks  # None unless set: hold within hal.bridge.state_stale_s
-    return hal
+    return RealHal.from_config(cfg, clock=clock)

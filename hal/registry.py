@@ -32,7 +32,7 @@ BACKENDS = {
 def backend_name(cfg: "Config") -> str:
     """The BACKENDS entry the config's `hal:` section chooses."""
     name = cfg.hal.backend
-    if name == "real" and cfg.hal.imu.get("bus") == "sim":
+    if name == "real" and cfg.hal.imu.bus == "sim":
         return "emulated"  # the real drivers, byte for byte, on devices backed by the simulator
     return name
 

@@ -10,6 +10,7 @@ watchdog) up to it. Paced, it follows the wall clock instead.
 from __future__ import annotations
 
 import itertools
+from dataclasses import replace
 from typing import Any
 
 from ddrt.config import Config
@@ -57,7 +58,7 @@ class EmulatedDevices:
         rate = state_rate_hz or int(round(cfg.controller.rate_hz))
         self.mcu = McuEmulator(_PlantMotorsAndEncoder(self.robot), now=self.robot.t,
                                counts_per_rev=cfg.sensors.encoder_counts_per_rev, state_rate_hz=rate)
-        url = cfg.hal.bridge.get("url", "ddrtsim://robot")
+        url = cfg.hal.bridge.url or "ddrtsim://robot"
         self.name = f"{url.split('://', 1)[-1].strip('/') or 'robot'}-{next(_names)}"
         self.url = f"ddrtsim://{self.name}"
         self.link = protocol_ddrtsim.register(self.name, self.mcu, self.robot.t)
@@ -126,13 +127,10 @@ class EmulatedRealHal(Hal):
 def open_emulated_real_hal(cfg: Config, start: tuple[float, float, float] = (0.0, 0.0, 0.0),
                            seed: int | None = None, paced: bool = False, **_: Any) -> EmulatedRealHal:
     devices = EmulatedDevices(cfg, start, seed, paced)
-    hal_section = dict(cfg.raw.get("hal") or {})
-    bridge = dict(hal_section.get("bridge") or {})
-    bridge["url"] = devices.url
-    hal_section["bridge"] = bridge
+    # The same config, its bridge on the emulated microcontroller's registered link.
+    hal = replace(cfg.hal, bridge=replace(cfg.hal.bridge, url=devices.url))
     try:
-        real = RealHal.from_config({"hal": hal_section}, clock=devices.time, i2c_bus=devices.i2c)
-        real.hold_ticks = cfg.hal.hold_ticks  # None unless set: hold within hal.bridge.state_stale_s
+        real = RealHal.from_config(replace(cfg, hal=hal), clock=devices.time, i2c_bus=devices.i2c)
     except BaseException:
         devices.close()
         raise

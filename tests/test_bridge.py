@@ -14,6 +14,7 @@ from typing import Iterator
 import pytest
 
 from ddrt.service.clock import MonotonicClock
+from ddrt.config import Config, config_from_mapping
 from hal.base import HalInitError, HalIOError, HalTimeoutError, HalValueError
 from hal.bridge import Bridge
 from hal.mpu6050 import Mpu6050
@@ -26,6 +27,15 @@ from sim_hal.mcu_emulator import DutyIntegratingEncoder, McuEmulator, PtyLink, T
 from sim_hal.mpu_emulator import ConstantGyro, MpuEmulator
 
 HELLO_REPLY = HelloReply(1, 8192, 200)
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def real_config(hal: dict, **sections: dict) -> Config:
+    """A validated config with `hal.backend: real` and the given hal section (the seed robot)."""
+    import yaml
+
+    robot = yaml.safe_load((ROOT / "configs" / "sim.yaml").read_text(encoding="utf-8"))["robot"]
+    return config_from_mapping({"robot": robot, "hal": {"backend": "real", **hal}, **sections})
 
 
 def wait_until(cond, timeout_s: float = 2.0, step_s: float = 0.001) -> bool:
@@ -509,8 +519,8 @@ def test_from_config_sim_bus_and_pty_url() -> None:
                       state_rate_hz=500)
     with PtyLink(mcu) as link:
         link.start()
-        cfg = {"hal": {"imu": {"bus": "sim", "gyro_range_dps": 1000},
-                       "bridge": {"url": link.url, "drive_timeout_ms": 200}}}
+        cfg = real_config({"imu": {"bus": "sim"}, "bridge": {"url": link.url, "drive_timeout_ms": 200}},
+                          sensors={"gyro_range_dps": 1000})  # the driver's range comes from sensors:
         hal = RealHal.from_config(cfg, MonotonicClock(),
                                   i2c_bus=MpuEmulator(ConstantGyro(1.0)))
         try:
@@ -524,23 +534,49 @@ def test_from_config_sim_bus_and_pty_url() -> None:
         assert wait_until(lambda: mcu.stops >= 1) and mcu.outputs == (0.0, 0.0)
 
 
-@pytest.mark.parametrize("cfg, key", [
-    ({"hal": {"imu": {"bus": 1}}}, "hal.bridge.url"),
-    ({"hal": {"imu": {"bus": "two"}, "bridge": {"url": "loop://"}}}, "hal.imu.bus"),
-    ({"hal": {"imu": {"bus": "sim"}, "bridge": {"url": "loop://"}}}, "hal.imu.bus"),
-    ({"hal.imu.bus": 1, "hal.imu.gyro_range_dps": 300, "hal.bridge.url": "loop://"},
-     "hal.imu.gyro_range_dps"),
-    ({"hal": {"imu": {"bus": 1, "dlpf_cfg": 9}, "bridge": {"url": "loop://"}}},
-     "hal.imu.dlpf_cfg"),
-    ({"hal": {"imu": {"bus": 1}, "bridge": {"url": "loop://", "state_stale_s": 0}}},
-     "hal.bridge.state_stale_s"),
-    ({"hal": {"imu": {"bus": 1}, "bridge": {"url": "loop://"}, "motors": "can"}}, "hal.motors"),
-    ({"hal": {"imu": {"bus": 1}, "bridge": {"url": "loop://"}, "motors": "pwm_sysfs",
-              "pwm_sysfs": {"channels": [0]}}}, "hal.pwm_sysfs.channels"),
+@pytest.mark.parametrize("hal, sections, key", [
+    ({"imu": {"bus": 1}}, {}, "hal.bridge.url"),
+    ({"bridge": {"url": "loop://"}}, {}, "hal.imu.bus"),
+    ({"imu": {"bus": "two"}, "bridge": {"url": "loop://"}}, {}, "hal.imu.bus"),
+    ({"imu": {"bus": -1}, "bridge": {"url": "loop://"}}, {}, "hal.imu.bus"),
+    ({"imu": {"bus": "sim"}, "bridge": {"url": "loop://"}}, {}, "hal.imu.bus"),
+    ({"imu": {"bus": 1}, "bridge": {"url": "loop://"}}, {"sensors": {"gyro_range_dps": 300}},
+     "sensors.gyro_range_dps"),
+    ({"imu": {"bus": 1, "address": 0x78}, "bridge": {"url": "loop://"}}, {}, "hal.imu.address"),
+    ({"imu": {"bus": 1, "dlpf_cfg": 9}, "bridge": {"url": "loop://"}}, {}, "hal.imu.dlpf_cfg"),
+    ({"imu": {"bus": 1, "sample_rate_div": 256}, "bridge": {"url": "loop://"}}, {}, "hal.imu.sample_rate_div"),
+    ({"imu": {"bus": 1}, "bridge": {"url": "loop://", "state_stale_s": 0}}, {}, "hal.bridge.state_stale_s"),
+    ({"imu": {"bus": 1}, "bridge": {"url": "loop://", "drive_timeout_ms": 0}}, {}, "hal.bridge.drive_timeout_ms"),
+    ({"imu": {"bus": 1}, "bridge": {"url": "loop://", "baudrate": 0}}, {}, "hal.bridge.baudrate"),
+    ({"imu": {"bus": 1}, "bridge": {"url": ""}}, {}, "hal.bridge.url"),
+    ({"imu": {"bus": 1}, "bridge": {"url": "loop://"}, "motors": "can"}, {}, "hal.motors"),
+    ({"imu": {"bus": 1}, "bridge": {"url": "loop://"}, "hold_ticks": 1001}, {}, "hal.hold_ticks"),
+    ({"imu": {"bus": 1}, "bridge": {"url": "loop://"}, "motors": "pwm_sysfs",
+      "pwm_sysfs": {"channels": [0]}}, {}, "hal.pwm_sysfs.channels"),
+    ({"imu": {"bus": 1}, "bridge": {"url": "loop://"}, "motors": "pwm_sysfs"}, {},
+     "hal.pwm_sysfs.direction_gpios"),
+    ({"imu": {"bus": 1}, "bridge": {"url": "loop://"}, "pwm_sysfs": {"root": 5}}, {}, "hal.pwm_sysfs.root"),
 ])
-def test_from_config_errors_name_the_key(cfg: dict, key: str) -> None:
-    with pytest.raises(ValueError, match=key.replace(".", r"\.")):
-        RealHal.from_config(cfg, FakeClock())
+def test_real_backend_config_errors_name_the_key(hal: dict, sections: dict, key: str) -> None:
+    """The walker checks the real backend's keys when the file loads; from_config what only
+    opening needs (the emulated bus)."""
+    with pytest.raises(ValueError, match=r"(^|\s)" + key.replace(".", r"\.") + ":"):
+        RealHal.from_config(real_config(hal, **sections), FakeClock())
+
+
+def test_imu_gyro_range_key_is_gone_and_says_where_it_went() -> None:
+    with pytest.raises(ValueError, match=r"hal\.imu\.gyro_range_dps: .*sensors\.gyro_range_dps"):
+        real_config({"imu": {"bus": 1, "gyro_range_dps": 250}, "bridge": {"url": "loop://"}})
+
+
+def test_from_config_refuses_a_config_without_the_real_devices() -> None:
+    """A config loaded for the sim backend has no bus or URL: opening it for real says so."""
+    from dataclasses import replace
+
+    cfg = real_config({"imu": {"bus": 1}, "bridge": {"url": "loop://"}})
+    sim_cfg = replace(cfg, hal=replace(cfg.hal, backend="sim", imu=replace(cfg.hal.imu, bus=None)))
+    with pytest.raises(ValueError, match=r"hal\.imu\.bus: missing"):
+        RealHal.from_config(sim_cfg, FakeClock())
 
 
 def test_from_config_pwm_sysfs_motors(tmp_path: Path) -> None:
@@ -551,10 +587,10 @@ def test_from_config_pwm_sysfs_motors(tmp_path: Path) -> None:
                       state_rate_hz=500)
     with TcpLink(mcu) as link:
         link.start()
-        cfg = {"hal": {"imu": {"bus": "sim"}, "bridge": {"url": link.url},
-                       "motors": "pwm_sysfs",
-                       "pwm_sysfs": {"chip": 0, "channels": [0, 1], "period_ns": 40000,
-                                     "direction_gpios": [5, 6], "root": str(tmp_path)}}}
+        cfg = real_config({"imu": {"bus": "sim"}, "bridge": {"url": link.url},
+                           "motors": "pwm_sysfs",
+                           "pwm_sysfs": {"chip": 0, "channels": [0, 1], "period_ns": 40000,
+                                         "direction_gpios": [5, 6], "root": str(tmp_path)}})
         hal = RealHal.from_config(cfg, MonotonicClock(), i2c_bus=MpuEmulator(ConstantGyro()))
         pwm0 = tmp_path / "class/pwm/pwmchip0/pwm0"
         try:

@@ -206,7 +206,7 @@ def test_a_host_that_stops_talking_is_stopped_by_the_mcu_watchdog():
     t_dead = hal.now()  # the host process dies: no more DRIVE, no STOP
     while hal.robot.applied_duty != (0.0, 0.0) and hal.now() < t_dead + 1.0:
         hal.sleep_until(hal.now() + 0.001)
-    timeout = cfg.hal.bridge["drive_timeout_ms"] / 1000.0
+    timeout = cfg.hal.bridge.drive_timeout_ms / 1000.0
     assert hal.robot.applied_duty == (0.0, 0.0)
     assert hal.now() - t_dead <= timeout + cfg.sim.command_latency_s + 0.006
     hal.devices.close()
@@ -230,8 +230,8 @@ def test_microcontroller_reset_is_reported_and_the_count_stays_continuous():
 def test_robot_config_validates_and_names_real_devices():
     cfg = load_config(ROOT / "configs" / "robot.yaml")
     assert cfg.hal.backend == "real"
-    assert cfg.hal.imu["bus"] == 1 and cfg.hal.imu["address"] == 0x68
-    assert cfg.hal.bridge["url"].startswith("/dev/")
+    assert cfg.hal.imu.bus == 1 and cfg.hal.imu.address == 0x68
+    assert cfg.hal.bridge.url.startswith("/dev/")
     assert cfg.path is None  # the robot waits for `ddrt ctl follow`
     # Opening it here must fail cleanly (no I2C bus on this machine), never half-open.
     from hal.base import HalError

@@ -313,7 +313,7 @@ BAD_YAML = [
     ("unknown_key.yaml", "shape: circle\nradius: 0.3\nradiuss: 2\n", "key 'radiuss'", "unknown key"),
     ("not_mapping.yaml", "- 1\n- 2\n", "top level", "mapping"),
     ("syntax.yaml", "shape: circle\nradius: [0.3\n", "line", "invalid YAML"),
-    ("bad_point.yaml", "points: [[0, 0], [1, x]]\n", "key 'points[1]'", "not a number"),
+    ("bad_point.yaml", "points: [[0, 0], [1, x]]\n", "key 'points[1][1]'", "expected a number"),
     ("bad_start.yaml", "shape: circle\nradius: 0.3\nstart: [1, 2]\n", "key 'start'", "theta"),
     ("no_kind.yaml", "speed: 0.3\n", "exactly one of", "shape"),
     ("missing_file.yaml", "file: nowhere.csv\n", "nowhere.csv", "cannot read"),

@@ -199,3 +199,12 @@ def test_docs_state_the_declared_mode_of_every_setting() -> None:
         used.add(best)
         assert rows[best] == mode, f"docs/config.md says {best}: {rows[best]}, {key} is declared {mode}"
     assert used == set(rows), f"rows that match no setting: {set(rows) - used}"
+
+
+def test_backend_change_waits_for_a_restart() -> None:
+    old = load_config(SIM)
+    # The real backend needs its devices named (hal.imu.bus, hal.bridge.url) to validate.
+    new = with_overrides(old, {"hal": {"backend": "real", "imu": {"bus": 1}, "bridge": {"url": "/dev/ttyACM0"}}})
+    plan = plan_reload(old, new)
+    assert plan.restart == ("hal.backend", "hal.imu.bus", "hal.bridge.url")
+    assert plan.in_force.hal == old.hal

@@ -5,14 +5,15 @@ from ddrt.config.load import (
 )
 from ddrt.config.schema import ConfigError
 from ddrt.config.sections import (
-    AdaptationConfig, Config, ControllerConfig, DaemonConfig, EstimatorConfig, GyroTruth, HalConfig,
-    LimitsConfig, OuterGains, PidGains, PursuitConfig, SensorsConfig, SimConfig, SlipConfig,
-    WheelPidGains,
+    AdaptationConfig, BridgeConfig, Config, ControllerConfig, DaemonConfig, EstimatorConfig, GyroTruth,
+    HalConfig, ImuConfig, LimitsConfig, OuterGains, PathsConfig, PidGains, PursuitConfig, PwmSysfsConfig,
+    SensorsConfig, SimConfig, SlipConfig, WheelPidGains,
 )
 
 __all__ = [
-    "AdaptationConfig", "Config", "ConfigError", "ControllerConfig", "DaemonConfig", "EstimatorConfig",
-    "GyroTruth", "HalConfig", "LimitsConfig", "OuterGains", "PidGains", "PursuitConfig",
-    "SensorsConfig", "SimConfig", "SlipConfig", "WheelPidGains", "config_from_mapping",
+    "AdaptationConfig", "BridgeConfig", "Config", "ConfigError", "ControllerConfig", "DaemonConfig",
+    "EstimatorConfig", "GyroTruth", "HalConfig", "ImuConfig", "LimitsConfig", "OuterGains", "PathsConfig",
+    "PidGains", "PursuitConfig", "PwmSysfsConfig", "SensorsConfig", "SimConfig",
+    "SlipConfig", "WheelPidGains", "config_from_mapping",
     "load_config", "with_overrides",
 ]

@@ -11,24 +11,19 @@ import math
 from pathlib import Path as FsPath
 from typing import Any, Mapping
 
-import yaml
-
-from ddrt.config.schema import ConfigError, build
+from ddrt.config.schema import ConfigError, build, convert
 from ddrt.config.sections import (
-    Config, ControllerConfig, DaemonConfig, EstimatorConfig, HalConfig, LimitsConfig, PursuitConfig,
-    SensorsConfig, SimConfig,
+    Config, ControllerConfig, DaemonConfig, EstimatorConfig, HalConfig, LimitsConfig, PathsConfig,
+    PursuitConfig, SensorsConfig, SimConfig,
 )
+from ddrt.config.yamlio import read_yaml, shorten
 from ddrt.core.model import RobotParams
 from ddrt.core.motor import MotorParams
-
-# libyaml's safe loader when present: six times faster than the pure-Python one, which
-# matters for a reload between two ticks.
-YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 # --------------------------------------------------------------------------- loading
 
 _TOP_KEYS = ("extends", "robot", "plant", "sim", "sensors", "hal", "controller", "estimator",
-             "pursuit", "limits", "daemon", "path", "start", "name", "description")
+             "pursuit", "limits", "daemon", "paths", "path", "start", "name", "description")
 
 
 def _section(data: Mapping[str, Any], key: str) -> Any:
@@ -51,16 +46,7 @@ def _merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
 def _read_yaml(path: FsPath, chain: tuple[str, ...] = ()) -> dict[str, Any]:
     if str(path) in chain:
         raise ConfigError(f"{path}: extends itself through {' -> '.join(chain)}")
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read: {exc.strerror or exc}") from None
-    try:
-        data = yaml.load(text, Loader=YAML_LOADER)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        at = f" (line {mark.line + 1}, column {mark.column + 1})" if mark else ""
-        raise ConfigError(f"{path}: not valid YAML{at}: {getattr(exc, 'problem', exc)}") from None
+    data = read_yaml(path, ConfigError)
     if data is None:
         data = {}
     if not isinstance(data, Mapping):
@@ -73,37 +59,23 @@ def _read_yaml(path: FsPath, chain: tuple[str, ...] = ()) -> dict[str, Any]:
     parent = data.get("extends")
     if parent is not None:
         if not isinstance(parent, str):
-            raise ConfigError(f"{path}: extends: expected a file name, got {parent!r}")
+            raise ConfigError(f"{path}: extends: expected a file name, got {shorten(parent)}")
         base_path = (path.parent / parent).resolve()
         if not base_path.is_file():
-            raise ConfigError(f"{path}: extends: no such file {parent!r} (looked for {base_path})")
+            raise ConfigError(f"{path}: extends: no such file {shorten(parent)} (looked for {base_path})")
         base = _read_yaml(base_path, chain + (str(path),))
         data = _merge(base, {k: v for k, v in data.items() if k != "extends"})
     return dict(data)
 
 
 def _params(section: Any, where: str, extras: tuple[str, ...] = ("motor",)) -> tuple[RobotParams, dict[str, Any]]:
-    if not isinstance(section, Mapping):
-        raise ConfigError(f"{where}: expected a mapping of robot parameters")
-    names = set(RobotParams.names())
-    unknown = sorted(str(k) for k in section if k not in names and k not in extras)
-    if unknown:
-        raise ConfigError(f"{where}.{unknown[0]}: unknown key (a robot parameter is one of {', '.join(RobotParams.names())}, or {', '.join(extras)})")
-    missing = [n for n in RobotParams.names() if n not in section]
-    if missing:
-        raise ConfigError(f"{where}.{missing[0]}: missing (required)")
-    for name in RobotParams.names():
-        value = section[name]
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{where}.{name}: expected a number, got {value!r}")
-    try:
-        params = RobotParams(**{n: section[n] for n in RobotParams.names()})
-    except ValueError as exc:
-        field_name = str(exc).split(":")[0].removeprefix("RobotParams.")
-        raise ConfigError(f"{where}.{field_name}: {str(exc).split(': ', 1)[-1]}") from None
+    """robot: or plant: as RobotParams (the walker checks every parameter) and its motor mapping."""
+    params = build(RobotParams, section, where, ignore=extras)
+    # The motor keys are merged (plant.motor_l over plant.motor over robot.motor) before the
+    # walker builds them, so here they need only be mappings.
     for key in extras:
         if section.get(key) is not None and not isinstance(section[key], Mapping):
-            raise ConfigError(f"{where}.{key}: expected a mapping of motor constants, got {section[key]!r}")
+            raise ConfigError(f"{where}.{key}: expected a mapping of motor constants, got {shorten(section[key])}")
     motor = section.get("motor")
     return params, {} if motor is None else motor
 
@@ -121,7 +93,9 @@ def config_from_mapping(data: Mapping[str, Any], source: str = "<memory>", base_
 
 
 def _config_from_mapping(data: Mapping[str, Any], source: str, base_dir: str) -> Config:
-    unknown = sorted(str(k) for k in data if k not in _TOP_KEYS)
+    # The top level is not one dataclass (plant: merges over robot:, extends: and name: are
+    # the file's own), so its keys are checked here; every section below goes to the walker.
+    unknown = sorted(k if isinstance(k, str) else shorten(k) for k in data if k not in _TOP_KEYS)
     if unknown:
         raise ConfigError(f"{unknown[0]}: unknown section (known: {', '.join(_TOP_KEYS)})")
     if "robot" not in data:
@@ -141,10 +115,16 @@ def _config_from_mapping(data: Mapping[str, Any], source: str, base_dir: str) ->
 
     start = data.get("start")
     if start is not None:
-        if (not isinstance(start, (list, tuple)) or len(start) != 3
-                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in start)):
-            raise ConfigError(f"start: expected [x, y, theta] in metres and radians, got {start!r}")
-        start = (float(start[0]), float(start[1]), float(start[2]))
+        try:
+            start = convert(tuple[float, float, float], start, "start")
+        except ConfigError as exc:
+            raise ConfigError(f"{exc} (expected [x, y, theta] in metres and radians)") from None
+    paths = build(PathsConfig, _section(data, "paths"), "paths")
+    path = data.get("path")
+    if path is not None and not isinstance(path, (str, Mapping)):
+        raise ConfigError(f"path: expected a path file name or a path mapping, got {shorten(path)}")
+    if start is not None:
+        paths.check_pose(start, "start")
 
     limits = build(LimitsConfig, _section(data, "limits"), "limits")
     sensors = build(SensorsConfig, _section(data, "sensors"), "sensors")
@@ -163,7 +143,8 @@ def _config_from_mapping(data: Mapping[str, Any], source: str, base_dir: str) ->
         pursuit=build(PursuitConfig, _section(data, "pursuit"), "pursuit"),
         limits=limits,
         daemon=build(DaemonConfig, _section(data, "daemon"), "daemon"),
-        path=data.get("path"),
+        paths=paths,
+        path=path,
         start=start,
         source=source,
         base_dir=base_dir,

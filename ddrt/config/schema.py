@@ -11,9 +11,20 @@ import dataclasses
 import math
 import types
 import typing
-from typing import Any, Literal, Mapping, TypeVar, get_args, get_origin, get_type_hints
+from typing import Any, Collection, Literal, Mapping, TypeVar, get_args, get_origin, get_type_hints
+
+from ddrt.config.yamlio import shorten
 
 T = TypeVar("T")
+
+# The largest whole number a key takes: beyond it a value is a typo, and arithmetic on it
+# would overflow a float or a C long somewhere downstream.
+INT_LIMIT = 2**63 - 1
+# Every number a key takes is 0 or within [FLOAT_MIN, FLOAT_MAX] in magnitude: no robot, gain,
+# time or distance needs more, and squares, products and inverses of such numbers stay far
+# from the float range (1e308) where arithmetic overflows to inf or underflows to 0.
+FLOAT_MIN = 1e-12
+FLOAT_MAX = 1e12
 
 
 class ConfigError(ValueError):
@@ -28,9 +39,14 @@ def _is_optional(tp: Any) -> tuple[bool, Any]:
     origin = get_origin(tp)
     if origin in (typing.Union, types.UnionType):
         args = [a for a in get_args(tp) if a is not type(None)]
-        if len(args) == 1 and len(get_args(tp)) == 2:
-            return True, args[0]
+        if len(args) < len(get_args(tp)):
+            return True, args[0] if len(args) == 1 else typing.Union[tuple(args)]
     return False, tp
+
+
+def convert(tp: Any, value: Any, where: str) -> Any:
+    """`value` as type `tp` (a field type the walker knows), or ConfigError naming `where`."""
+    return _convert(tp, value, where)
 
 
 def _convert(tp: Any, value: Any, where: str) -> Any:
@@ -47,31 +63,40 @@ def _convert(tp: Any, value: Any, where: str) -> Any:
         return value
     if origin is Literal:
         choices = get_args(tp)
-        if value not in choices:
-            raise ConfigError(f"{where}: must be one of {', '.join(map(repr, choices))}, got {value!r}")
+        if not isinstance(value, (str, int, float, bool)) or value not in choices:
+            raise ConfigError(f"{where}: must be one of {', '.join(map(repr, choices))}, got {shorten(value)}")
         return value
     if tp is bool:
         if not isinstance(value, bool):
-            raise ConfigError(f"{where}: expected true or false, got {value!r}")
+            raise ConfigError(f"{where}: expected true or false, got {shorten(value)}")
         return value
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{where}: expected a whole number, got {value!r}")
+            raise ConfigError(f"{where}: expected a whole number, got {shorten(value)}")
+        if abs(value) > INT_LIMIT:
+            raise ConfigError(f"{where}: out of range, got {shorten(value)}")
         return value
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{where}: expected a number, got {value!r}")
-        if not math.isfinite(value):
-            raise ConfigError(f"{where}: must be finite, got {value!r}")
-        return float(value)
+            raise ConfigError(f"{where}: expected a number, got {shorten(value)}")
+        try:
+            number = float(value)
+        except OverflowError:  # an integer beyond the float range
+            raise ConfigError(f"{where}: too large for a number, got {shorten(value)}") from None
+        if not math.isfinite(number):
+            raise ConfigError(f"{where}: must be finite, got {shorten(value)}")
+        if number != 0.0 and not FLOAT_MIN <= abs(number) <= FLOAT_MAX:
+            raise ConfigError(f"{where}: out of range, got {number:g} (a number is 0 or between "
+                              f"{FLOAT_MIN:g} and {FLOAT_MAX:g} in magnitude)")
+        return number
     if tp is str:
         if not isinstance(value, str):
-            raise ConfigError(f"{where}: expected text, got {value!r}")
+            raise ConfigError(f"{where}: expected text, got {shorten(value)}")
         return value
     if origin is tuple:
         args = get_args(tp)
         if not isinstance(value, (list, tuple)):
-            raise ConfigError(f"{where}: expected a list, got {value!r}")
+            raise ConfigError(f"{where}: expected a list, got {shorten(value)}")
         if len(args) == 2 and args[1] is Ellipsis:
             return tuple(_convert(args[0], v, f"{where}[{i}]") for i, v in enumerate(value))
         if len(value) != len(args):
@@ -79,7 +104,7 @@ def _convert(tp: Any, value: Any, where: str) -> Any:
         return tuple(_convert(a, v, f"{where}[{i}]") for i, (a, v) in enumerate(zip(args, value)))
     if origin is dict or tp is dict:
         if not isinstance(value, Mapping):
-            raise ConfigError(f"{where}: expected a mapping, got {value!r}")
+            raise ConfigError(f"{where}: expected a mapping, got {shorten(value)}")
         return dict(value)
     if origin in (typing.Union, types.UnionType):
         errors = []
@@ -92,19 +117,28 @@ def _convert(tp: Any, value: Any, where: str) -> Any:
     raise TypeError(f"schema: unsupported type {tp!r} at {where}")
 
 
-def build(cls: type[T], mapping: Any, where: str = "") -> T:
+def build(cls: type[T], mapping: Any, where: str = "", *, ignore: Collection[str] = ()) -> T:
     """Build dataclass `cls` from `mapping`, rejecting unknown keys and bad values.
 
     Missing keys take the field's default; a field without default is required. After the
     fields are set, a `validate(where)` method on the class (if any) checks cross-field rules.
+    Keys in `ignore` are allowed in `mapping` and left to the caller (e.g. robot.motor). A
+    class may name keys it no longer takes in `MOVED: ClassVar[dict[str, str]]`, key -> what
+    to write instead; such a key is an error that says so.
     """
     if not isinstance(mapping, Mapping):
-        raise ConfigError(f"{where or 'config'}: expected a mapping, got {mapping!r}")
+        raise ConfigError(f"{where or 'config'}: expected a mapping, got {shorten(mapping)}")
     hints = get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls) if f.init}
-    unknown = sorted(str(k) for k in mapping if k not in names)
+    moved: Mapping[str, str] = getattr(cls, "MOVED", {})
+    for key in mapping:
+        if key in moved:
+            raise ConfigError(f"{_join(where, key)}: no longer a key: {moved[key]}")
+    unknown = sorted(k if isinstance(k, str) and len(k) <= 60 else shorten(k) for k in mapping
+                     if k not in names and k not in ignore)
     if unknown:
-        raise ConfigError(f"{_join(where, unknown[0])}: unknown key (known: {', '.join(sorted(names))})")
+        known = ", ".join(sorted(names | set(ignore)))
+        raise ConfigError(f"{_join(where, unknown[0])}: unknown key (known: {known})")
     kwargs: dict[str, Any] = {}
     for f in dataclasses.fields(cls):
         if not f.init:

@@ -69,6 +69,11 @@ class SimConfig:
         positive(where, step_hz=self.step_hz)
         non_negative(where, command_latency_s=self.command_latency_s, sensor_latency_s=self.sensor_latency_s,
                      start_delay_s=self.start_delay_s)
+        # Bounds on the work of a run: plant steps per simulated second, seconds of standing still.
+        if not 10.0 <= self.step_hz <= 100_000.0:
+            raise ConfigError(f"{where}.step_hz: must be in [10, 100000] Hz, got {self.step_hz}")
+        if self.start_delay_s > 60.0:
+            raise ConfigError(f"{where}.start_delay_s: at most 60 s, got {self.start_delay_s}")
         if self.sensors_freeze_after_s is not None:
             non_negative(where, sensors_freeze_after_s=self.sensors_freeze_after_s)
         if self.sensors_freeze_for_s is not None:
@@ -95,22 +100,98 @@ class SensorsConfig:
                               f"got {self.gyro_range_dps}")
 
 
+def _in_range(where: str, key: str, value: int, lo: int, hi: int) -> None:
+    if not lo <= value <= hi:
+        raise ConfigError(f"{where}.{key}: must be {lo}..{hi}, got {value}")
+
+
+@dataclass(frozen=True)
+class ImuConfig:
+    """The MPU-6050 on I2C (real backend). Its range is sensors.gyro_range_dps."""
+
+    MOVED: ClassVar[dict[str, str]] = {
+        "gyro_range_dps": "use sensors.gyro_range_dps, the one gyro range (the driver is configured from it)"}
+
+    bus: int | str | None = None  # I2C bus number or "sim"; required with hal.backend: real
+    address: int = 0x68
+    dlpf_cfg: int = 2
+    sample_rate_div: int = 4
+
+    def validate(self, where: str) -> None:
+        if isinstance(self.bus, str) and self.bus != "sim":
+            raise ConfigError(f"{where}.bus: expected a bus number or 'sim', got {self.bus!r}")
+        if isinstance(self.bus, int) and self.bus < 0:
+            raise ConfigError(f"{where}.bus: expected a bus number >= 0 or 'sim', got {self.bus}")
+        _in_range(where, "address", self.address, 0x03, 0x77)
+        _in_range(where, "dlpf_cfg", self.dlpf_cfg, 0, 6)
+        _in_range(where, "sample_rate_div", self.sample_rate_div, 0, 255)
+
+
+@dataclass(frozen=True)
+class BridgeConfig:
+    """The serial link to the microcontroller (real backend)."""
+
+    url: str | None = None  # required with hal.backend: real, unless hal.imu.bus is "sim"
+    baudrate: int = 115200
+    drive_timeout_ms: int = 100
+    state_stale_s: float = 0.05
+
+    def validate(self, where: str) -> None:
+        if self.url is not None and not self.url:
+            raise ConfigError(f"{where}.url: expected a serial port or URL, got ''")
+        _in_range(where, "baudrate", self.baudrate, 1, 10_000_000)
+        _in_range(where, "drive_timeout_ms", self.drive_timeout_ms, 1, 1000)
+        positive(where, state_stale_s=self.state_stale_s)
+
+
+@dataclass(frozen=True)
+class PwmSysfsConfig:
+    """Motors on the Linux PWM class plus direction GPIOs (real backend, hal.motors: pwm_sysfs)."""
+
+    chip: int = 0
+    channels: tuple[int, int] = (0, 1)
+    period_ns: int = 50_000
+    direction_gpios: tuple[int, int] | None = None  # required with hal.motors: pwm_sysfs
+    root: str = "/sys"
+
+    def validate(self, where: str) -> None:
+        _in_range(where, "chip", self.chip, 0, 1 << 16)
+        _in_range(where, "period_ns", self.period_ns, 1, 1_000_000_000)
+        for key in ("channels", "direction_gpios"):
+            pair = getattr(self, key)
+            if pair is not None and min(pair) < 0:
+                raise ConfigError(f"{where}.{key}: expected two numbers >= 0, got {list(pair)}")
+        if not self.root:
+            raise ConfigError(f"{where}.root: expected a directory, got ''")
+
+
 @dataclass(frozen=True)
 class HalConfig:
-    """Which backend drives the robot; the real backend validates its own sub-sections."""
+    """Which backend drives the robot, and the real backend's devices."""
 
     APPLY: ClassVar[str] = RESTART  # the devices are opened once
 
     backend: Literal["sim", "real"] = "sim"
     motors: Literal["bridge", "pwm_sysfs"] = "bridge"
-    imu: dict[str, Any] = field(default_factory=dict)
-    bridge: dict[str, Any] = field(default_factory=dict)
-    pwm_sysfs: dict[str, Any] = field(default_factory=dict)
+    imu: ImuConfig = field(default_factory=ImuConfig)
+    bridge: BridgeConfig = field(default_factory=BridgeConfig)
+    pwm_sysfs: PwmSysfsConfig = field(default_factory=PwmSysfsConfig)
     hold_ticks: int | None = None  # None: hold a stale value as long as hal.bridge.state_stale_s allows
 
     def validate(self, where: str) -> None:
         if self.hold_ticks is not None:
-            non_negative(where, hold_ticks=self.hold_ticks)
+            _in_range(where, "hold_ticks", self.hold_ticks, 0, 1000)
+        if self.backend == "real":
+            self.check_real(where)
+
+    def check_real(self, where: str = "hal") -> None:
+        """The keys the real backend needs that have no default (also checked when it opens)."""
+        if self.imu.bus is None:
+            raise ConfigError(f"{where}.imu.bus: missing (required with hal.backend: real)")
+        if self.bridge.url is None and self.imu.bus != "sim":
+            raise ConfigError(f"{where}.bridge.url: missing (required with hal.backend: real)")
+        if self.motors == "pwm_sysfs" and self.pwm_sysfs.direction_gpios is None:
+            raise ConfigError(f"{where}.pwm_sysfs.direction_gpios: missing (required with hal.motors: pwm_sysfs)")
 
 
 @dataclass(frozen=True)
@@ -198,6 +279,8 @@ class ControllerConfig:
         positive(where, rate_hz=self.rate_hz, heading_gain=self.heading_gain)
         if self.rate_hz > 2000:
             raise ConfigError(f"{where}.rate_hz: above 2000 Hz is not supported, got {self.rate_hz}")
+        if self.rate_hz < 1.0:
+            raise ConfigError(f"{where}.rate_hz: below 1 Hz is not supported, got {self.rate_hz}")
 
 
 @dataclass(frozen=True)
@@ -234,6 +317,8 @@ class EstimatorConfig:
                  gate_sigma=self.gate_sigma, gyro_scale=self.gyro_scale, gyro_noise_dps=self.gyro_noise_dps,
                  calibration_max_std_dps=self.calibration_max_std_dps, encoder_stuck_s=self.encoder_stuck_s)
         non_negative(where, calibration_s=self.calibration_s, gyro_bias_walk=self.gyro_bias_walk)
+        if self.calibration_s > 60.0:  # the robot stands still this long at every start
+            raise ConfigError(f"{where}.calibration_s: at most 60 s, got {self.calibration_s}")
         if self.gyro_delay_s is not None and not 0.0 <= self.gyro_delay_s <= 0.05:
             raise ConfigError(f"{where}.gyro_delay_s: must be null or in [0, 0.05] s, got {self.gyro_delay_s}")
         positive(where, max_rejects=self.max_rejects, stale_ticks=self.stale_ticks,
@@ -312,6 +397,46 @@ class DaemonConfig:
                  telemetry_max_files=self.telemetry_max_files, stop_decel=self.stop_decel)
 
 
+# The smallest radius, side or pivot radius a path may have (m): below it a path is a point
+# and its curvature beyond what the profile's floats can hold.
+MIN_PATH_SIZE_M = 0.001
+
+
+@dataclass(frozen=True)
+class PathsConfig:
+    """How paths are sampled, and how much work one path may ask for (checked before it is built)."""
+
+    APPLY: ClassVar[str] = NEXT_PATH  # read when a path is built
+
+    sample_step_m: float = 0.002
+    pivot_radius_m: float = 0.1  # a path's pivot_radius: overrides it
+    corner_pivot_deg: float = 30.0  # likewise corner_pivot_deg:
+    blend_max_m: float = 0.15  # likewise blend_max:
+    max_samples: int = 2_000_000
+    max_points: int = 10_000
+    max_extent_m: float = 10_000.0
+    max_duration_s: float = 86_400.0
+
+    def validate(self, where: str) -> None:
+        positive(where, sample_step_m=self.sample_step_m, max_extent_m=self.max_extent_m,
+                 max_duration_s=self.max_duration_s)
+        non_negative(where, corner_pivot_deg=self.corner_pivot_deg)
+        if self.sample_step_m > 1.0:
+            raise ConfigError(f"{where}.sample_step_m: must be <= 1 m, got {self.sample_step_m}")
+        for key in ("pivot_radius_m", "blend_max_m"):
+            value = getattr(self, key)
+            if not MIN_PATH_SIZE_M <= value <= self.max_extent_m:
+                raise ConfigError(f"{where}.{key}: must be in [{MIN_PATH_SIZE_M}, max_extent_m], got {value}")
+        _in_range(where, "max_samples", self.max_samples, 10, 100_000_000)
+        _in_range(where, "max_points", self.max_points, 2, 10_000_000)
+
+    def check_pose(self, pose: tuple[float, ...], where: str) -> None:
+        """A start pose (or point) inside the workspace: |x|, |y| <= max_extent_m."""
+        if max(abs(pose[0]), abs(pose[1])) > self.max_extent_m:
+            raise ConfigError(f"{where}: ({pose[0]:.6g}, {pose[1]:.6g}) is beyond paths.max_extent_m "
+                              f"= {self.max_extent_m:g} m from the origin")
+
+
 @dataclass(frozen=True)
 class Config:
     """Everything ddrt needs, validated. `robot` is what the controller believes, `plant`
@@ -330,6 +455,7 @@ class Config:
     pursuit: PursuitConfig = applies(NEXT_PATH)
     limits: LimitsConfig = applies(NEXT_PATH)
     daemon: DaemonConfig = applies(RESTART)
+    paths: PathsConfig = applies(NEXT_PATH, factory=PathsConfig)
     path: Any = restart(None)  # a path mapping or file name, followed at start (ddrt run --follow, ddrt sim)
     start: tuple[float, float, float] | None = restart(None)
     # Where the config came from: not settings, so never reported by a reload.

@@ -98,22 +98,48 @@ def _blend(x0: float, y0: float, heading: float, phi: float, length: float, step
 Curve = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
-def _parametric(r: Curve, dr: Curve, ddr: Curve, u0: float, u1: float, step: float) -> _Piece:
-    """Smooth curve r(u), u in [u0, u1], resampled at uniform arc length."""
-    fine = max(20001, int(50000 * (u1 - u0) / TWO_PI) + 1)
-    uf = np.linspace(u0, u1, fine)
+def _parametric(r: Curve, dr: Curve, ddr: Curve, u0: float, u1: float, step: float,
+                period: float | None = None) -> _Piece:
+    """Smooth curve r(u), u in [u0, u1], resampled at uniform arc length.
+
+    A curve that repeats every `period` in u (a closed shape's laps) keeps its arc-length
+    table for one period only, so many laps cost no more than one in the table.
+    """
+    span = u1 - u0
+    one = span if period is None else min(span, period)
+    fine = max(20001, int(50000 * one / TWO_PI) + 1)
+    uf = np.linspace(u0, u0 + one, fine)
     dxf, dyf = dr(uf)
     speed = np.hypot(dxf, dyf)
     if np.any(speed <= 0.0):
         raise ValueError("curve has a cusp (zero speed)")
     sf = np.concatenate(([0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(uf))))
-    length = float(sf[-1])
+    lap = float(sf[-1])
+    if period is None or span <= period:
+        length = lap
+
+        def s_of_u(u: np.ndarray) -> np.ndarray:
+            return np.interp(u, uf, sf)
+
+        def u_of_s(s: np.ndarray) -> np.ndarray:
+            return np.interp(s, sf, uf)
+    else:
+        full, rest = divmod(span, period)
+        length = full * lap + float(np.interp(u0 + rest, uf, sf))
+
+        def s_of_u(u: np.ndarray) -> np.ndarray:
+            k = np.floor((u - u0) / period)
+            return k * lap + np.interp(u - k * period, uf, sf)
+
+        def u_of_s(s: np.ndarray) -> np.ndarray:
+            k = np.floor(s / lap)
+            return k * period + np.interp(s - k * lap, sf, uf)
     n = _count(length, step)
     s = np.linspace(0.0, length, n + 1)
-    u = np.interp(s, sf, uf)
+    u = u_of_s(s)
     # One Newton step on s(u) = s_target using the exact speed refines the inverse.
     dxu, dyu = dr(u)
-    u = u - (np.interp(u, uf, sf) - s) / np.hypot(dxu, dyu)
+    u = u - (s_of_u(u) - s) / np.hypot(dxu, dyu)
     u[0], u[-1] = u0, u1
     x, y = r(u)
     dx, dy = dr(u)

@@ -10,7 +10,7 @@ constant acceleration (u^2 is linear in sigma), which makes t(sigma), v(t) and a
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from typing import Sequence
 
 import numpy as np
@@ -45,6 +45,34 @@ class SpeedLimits:
 
 
 
+_BLOCK = 4096  # samples per block of the vectorised passes (bounds their rounding, see below)
+
+
+def _limited_rise(cap2: np.ndarray, inc: np.ndarray) -> np.ndarray:
+    """w[0] = cap2[0], w[i+1] = min(cap2[i+1], w[i] + inc[i]): the profile's forward pass on u^2.
+
+    Unrolled, w[i] = min over j <= i of cap2[j] + (D[i] - D[j]) with D the running sum of
+    inc, which numpy evaluates without a Python loop per sample: the minimising j comes from
+    a running minimum, and w is then taken as cap2[j] + (D[i] - D[j]) so a small cap is
+    not lost against a large D. D restarts at each block of _BLOCK samples (the block's first
+    w carries over), so its rounding stays within ~_BLOCK ulps of the increments.
+    """
+    n = len(cap2)
+    w = np.empty(n)
+    w[0] = cap2[0]
+    for s0 in range(0, n - 1, _BLOCK):
+        s1 = min(s0 + _BLOCK, n - 1)
+        c = cap2[s0:s1 + 1].copy()
+        c[0] = w[s0]
+        d = np.concatenate(([0.0], np.cumsum(inc[s0:s1])))
+        key = c - d
+        run = np.minimum.accumulate(key)
+        idx = np.arange(len(c))
+        best = np.maximum.accumulate(np.where(key <= run, idx, 0))
+        w[s0:s1 + 1] = np.minimum(c[best] + (d - d[best]), c)
+    return w
+
+
 @dataclass(slots=True)
 class Profile:
     """Per-sample u, v, omega, t; per-interval acc_u, a, alpha; which samples lie in pivots."""
@@ -57,6 +85,7 @@ class Profile:
     a: list[float]
     alpha: list[float]
     pivot_sample: list[bool]
+    arrays: dict[str, np.ndarray] = field(default_factory=dict)  # the same as numpy arrays
 
 
 def speed_profile(sigma: Sequence[float], kappa: Sequence[float], seg_pivot: Sequence[bool],
@@ -92,31 +121,33 @@ def speed_profile(sigma: Sequence[float], kappa: Sequence[float], seg_pivot: Seq
     cap[0] = cap[-1] = 0.0
     acc_lim[piv] = b * lim.alpha_max
     dec_lim[piv] = b * lim.alpha_max
-    capl, dsl, accl, decl = cap.tolist(), ds.tolist(), acc_lim.tolist(), dec_lim.tolist()
-    u = [0.0] * n
-    for i in range(n - 1):
-        u[i + 1] = min(capl[i + 1], math.sqrt(u[i] * u[i] + 2.0 * accl[i] * dsl[i]))
-    for i in range(n - 2, -1, -1):
-        u[i] = min(u[i], math.sqrt(u[i + 1] * u[i + 1] + 2.0 * decl[i] * dsl[i]))
-    kl, pl, tl = list(kappa), list(seg_pivot), list(turn)
-    t = [0.0] * n
-    acc_u = [0.0] * (n - 1)
-    for i in range(n - 1):
-        us = u[i] + u[i + 1]
-        if us <= 0.0:  # cannot happen: every piece has an interior sample with u > 0
-            raise AssertionError("profile has two consecutive rest samples")
-        t[i + 1] = t[i] + 2.0 * dsl[i] / us
-        acc_u[i] = (u[i + 1] * u[i + 1] - u[i] * u[i]) / (2.0 * dsl[i])
+    # Forward (accel) then backward (decel) pass, on w = u^2: w[i+1] = min(cap^2, w[i] + 2 acc ds).
+    w = _limited_rise(cap * cap, 2.0 * acc_lim * ds)
+    w = _limited_rise(w[::-1], (2.0 * dec_lim * ds)[::-1])[::-1]
+    u_arr = np.sqrt(w)
+    us = u_arr[:-1] + u_arr[1:]
+    if not np.all(us > 0.0):
+        # Every piece has an interior sample with u > 0 unless the limits leave u^2 below
+        # the smallest float (a radius of 1e-300 m, a speed of 1e-200 m/s).
+        i = int(np.argmin(us > 0.0))
+        raise ValueError(f"the speed profile cannot move at progress {float(s[i]):.6g} m: the limits allow "
+                         "no speed there (a radius or speed too small to represent)")
+    t_arr = np.concatenate(([0.0], np.cumsum(2.0 * ds / us)))
+    acc_arr = (u_arr[1:] * u_arr[1:] - u_arr[:-1] * u_arr[:-1]) / (2.0 * ds)
     # Per-sample v and omega. A pivot's edge samples are rest points (v = omega = 0).
+    v_arr = np.where(in_piv, 0.0, u_arr)
+    turn_arr = np.asarray(turn, dtype=float)
+    # In a pivot, a sample takes the turn of its own interval, the last sample its left one's.
+    j = np.arange(n)
+    own = np.zeros(n, dtype=bool)
+    own[:-1] = piv
+    j = np.where(own, j, j - 1).clip(0, max(n - 2, 0))
+    omega_arr = np.where(in_piv, turn_arr[j] * u_arr / b, u_arr * kap)
+    a_arr = np.where(piv, 0.0, acc_arr)
+    alpha_arr = (omega_arr[1:] - omega_arr[:-1]) / (t_arr[1:] - t_arr[:-1])
+    u, v, omega, t = u_arr.tolist(), v_arr.tolist(), omega_arr.tolist(), t_arr.tolist()
+    acc_u, a, alpha = acc_arr.tolist(), a_arr.tolist(), alpha_arr.tolist()
     in_pivl = in_piv.tolist()
-    v = [0.0 if in_pivl[i] else u[i] for i in range(n)]
-    omega = [0.0] * n
-    for i in range(n):
-        if in_pivl[i]:
-            j = i if i < n - 1 and pl[i] else i - 1
-            omega[i] = tl[j] * u[i] / b
-        else:
-            omega[i] = u[i] * kl[i]
-    a = [0.0 if pl[i] else acc_u[i] for i in range(n - 1)]
-    alpha = [(omega[i + 1] - omega[i]) / (t[i + 1] - t[i]) for i in range(n - 1)]
-    return Profile(u, v, omega, t, acc_u, a, alpha, in_pivl)
+    arrays = {"u": u_arr, "v": v_arr, "omega": omega_arr, "t": t_arr, "acc_u": acc_arr, "a": a_arr,
+              "alpha": alpha_arr, "pivot_sample": in_piv}
+    return Profile(u, v, omega, t, acc_u, a, alpha, in_pivl, arrays)

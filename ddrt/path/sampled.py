@@ -82,8 +82,9 @@ class Path:
                  start_pose: tuple[float, float, float] | None = None) -> None:
         self.limits = limits
         self.pivot_radius = pivot_radius
+        self._np: dict[str, np.ndarray] = {}  # numpy copies of the sample lists, kept from construction
         self._assemble(geo.pieces)
-        sig = np.asarray(self.sigma)
+        sig = self._np["sigma"]
         cap = np.full(len(sig), min(v_cap, limits.v_max))
         if geo.cap_sigma is not None and geo.cap_value is not None:
             cap = np.minimum(cap, np.interp(sig, geo.cap_sigma, geo.cap_value))
@@ -93,7 +94,8 @@ class Path:
         if start_pose is None:
             start_pose = (self.x[0], self.y[0], self.theta[0])
         self.start_pose: tuple[float, float, float] = tuple(float(v) for v in start_pose)  # type: ignore[assignment]
-        self._np: dict[str, np.ndarray] | None = None
+        # What the loader changed on the way, for the user (e.g. a path limit clamped to the config's).
+        self.warnings: list[str] = []
 
     # -- construction -------------------------------------------------------------------------
     def _assemble(self, pieces: list[_Piece]) -> None:
@@ -131,9 +133,15 @@ class Path:
         self.seg_pivot: list[bool] = seg_pivot
         self.turn: list[float] = turn
         self.piece_end: list[float] = piece_end
+        self._np.update(sigma=arr["s"], x=arr["x"], y=arr["y"], theta=arr["theta"], kappa=arr["kappa"],
+                        seg_pivot=np.asarray(seg_pivot, dtype=bool), turn=np.asarray(turn, dtype=float))
 
     def _profile(self, v_cap: np.ndarray) -> None:
-        p = speed_profile(self.sigma, self.kappa, self.seg_pivot, self.turn, v_cap, self.limits, self.pivot_radius)
+        a = self._np
+        p = speed_profile(a["sigma"], a["kappa"], a["seg_pivot"], a["turn"], v_cap, self.limits, self.pivot_radius)
+        self._np.update(p.arrays)
+        for array in self._np.values():
+            array.flags.writeable = False  # shared by every caller of arrays()
         self.u, self.v, self.omega, self.t = p.u, p.v, p.omega, p.t
         self.acc_u, self.a, self.alpha = p.acc_u, p.a, p.alpha
         self.pivot_sample: list[bool] = p.pivot_sample
@@ -195,11 +203,7 @@ class Path:
 
     # -- offline helpers ----------------------------------------------------------------------
     def arrays(self) -> dict[str, np.ndarray]:
-        """Numpy copies of the sample arrays (for plots, metrics and tests)."""
-        if self._np is None:
-            names = ("sigma", "x", "y", "theta", "kappa", "u", "v", "omega", "t", "a", "alpha",
-                     "acc_u", "seg_pivot", "turn", "pivot_sample")
-            self._np = {k: np.asarray(getattr(self, k)) for k in names}
+        """The sample arrays as numpy arrays (read-only; for plots, metrics and tests)."""
         return self._np
 
     def distance_to(self, x: float, y: float) -> float:

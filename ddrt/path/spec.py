@@ -1,6 +1,11 @@
 """Loading a path: a CSV of waypoints, a YAML spec (an analytic shape, inline points or a CSV
 file), or the same spec as a mapping (from a config or the control socket). Errors name the
 file, line or key.
+
+A spec is built by the config's walker (one dataclass per kind, ddrt/path/shapes.py) from
+the same YAML reader as a config. Its own limits can only lower the config's: a larger value
+is clamped and reported in `path.warnings`. The config's paths: section sets the sampling
+and bounds the work (samples, waypoints, extent, duration), checked before allocating.
 """
 
 from __future__ import annotations
@@ -14,18 +19,19 @@ from pathlib import Path as FsPath
 from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 import numpy as np
-import yaml
 
-from ddrt.path.geometry import (
-    TWO_PI, Curve, _arc, _Geometry, _line, _Options, _parametric, _polyline,
-)
+from ddrt.config.schema import ConfigError, build
+from ddrt.config.sections import PathsConfig
+from ddrt.config.yamlio import read_text, read_yaml, shorten
+from ddrt.path.geometry import _Geometry, _Options, _polyline
 from ddrt.path.profile import SpeedLimits
 from ddrt.path.sampled import Path
+from ddrt.path.shapes import (
+    KINDS, LIMIT_KEYS, SHAPES, FileSpec, PathCommon, PointsSpec, RectangleSpec, polyline_samples,
+)
 
 if TYPE_CHECKING:
     from ddrt.config import Config
-
-YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml when present
 
 __all__ = ["PathError", "load_path", "resolve_path", "speed_limits"]
 
@@ -34,70 +40,36 @@ class PathError(ValueError):
     """A path file or spec is malformed; the message names the file, line or key, and the problem."""
 
 
+# Minimum length of a path (m): shorter, it is a point the robot cannot follow.
+MIN_PATH_LENGTH_M = 0.001
+
+# The config key each path limit lowers (the config has one acceleration, for braking too).
+_CONFIG_KEY = {"speed": "limits.v_max", "accel": "limits.accel", "decel": "limits.accel",
+               "lateral_accel": "limits.lateral_accel", "omega_max": "limits.omega_max",
+               "alpha_max": "limits.alpha_max"}
 
 
-_LIMIT_KEYS = ("accel", "decel", "lateral_accel", "omega_max", "alpha_max")
-_COMMON = {"shape", "speed", "start", "start_pose", "pivot_radius", "corner_pivot_deg", "blend_max",
-           "name", "description", *_LIMIT_KEYS}
-_SHAPE_KEYS = {
-    "line": {"heading_deg", "length", "origin"},
-    "circle": {"radius", "direction", "center", "laps"},
-    "rectangle": {"width", "height", "direction", "laps"},
-    "ellipse": {"a", "b", "direction", "center", "laps"},
-    "figure_eight": {"width", "height", "size", "center", "laps"},
-    "s_curve": {"length", "offset"},
-}
-_MISSING = object()
-
-
-class _Spec:
-    """A YAML mapping with typed getters whose errors name the file and key."""
-
-    def __init__(self, mapping: Mapping[str, Any], where: str) -> None:
-        self.m = mapping
-        self.where = where
-
-    def fail(self, key: str, problem: str) -> PathError:
-        return PathError(f"{self.where}: key '{key}': {problem}")
-
-    def num(self, key: str, default: Any = _MISSING, *, positive: bool = False, nonneg: bool = False) -> float:
-        if key not in self.m:
-            if default is _MISSING:
-                raise self.fail(key, "missing")
-            return default
-        return _number(self.m[key], lambda p: self.fail(key, p), positive=positive, nonneg=nonneg)
-
-    def vec(self, key: str, size: int | tuple[int, ...], default: Any = _MISSING) -> tuple[float, ...]:
-        if key not in self.m:
-            if default is _MISSING:
-                raise self.fail(key, "missing")
-            return default
-        raw = self.m[key]
-        sizes = (size,) if isinstance(size, int) else size
-        if not isinstance(raw, (list, tuple)) or len(raw) not in sizes:
-            raise self.fail(key, f"expected a list of {' or '.join(map(str, sizes))} numbers, got {raw!r}")
-        return tuple(_number(v, lambda p: self.fail(key, p)) for v in raw)
-
-    def choice(self, key: str, options: tuple[str, ...], default: str) -> str:
-        raw = self.m.get(key, default)
-        if not isinstance(raw, str) or raw.lower() not in options:
-            raise self.fail(key, f"expected one of {', '.join(options)}, got {raw!r}")
-        return raw.lower()
+def _path_error(exc: ConfigError, where: str) -> PathError:
+    """The walker's "key: problem" as the path loader's "where: key 'key': problem"."""
+    key, sep, problem = str(exc).partition(": ")
+    return PathError(f"{where}: key '{key}': {problem}" if sep else f"{where}: {exc}")
 
 
 def _number(raw: Any, fail: Callable[[str], PathError], *, positive: bool = False, nonneg: bool = False) -> float:
+    """A CSV cell as a number. (A side validator that stays: CSV cells are text, which the
+    walker rightly refuses for a YAML number.)"""
     if isinstance(raw, bool) or not isinstance(raw, (int, float, str)):
-        raise fail(f"expected a number, got {raw!r}")
+        raise fail(f"expected a number, got {shorten(raw)}")
     try:
         value = float(raw)
-    except ValueError:
-        raise fail(f"not a number: {raw!r}") from None
+    except (ValueError, OverflowError):
+        raise fail(f"not a number: {shorten(raw)}") from None
     if not math.isfinite(value):
-        raise fail(f"must be finite, got {raw!r}")
+        raise fail(f"must be finite, got {shorten(raw)}")
     if positive and value <= 0.0:
-        raise fail(f"must be > 0, got {raw!r}")
+        raise fail(f"must be > 0, got {shorten(raw)}")
     if nonneg and value < 0.0:
-        raise fail(f"must be >= 0, got {raw!r}")
+        raise fail(f"must be >= 0, got {shorten(raw)}")
     return value
 
 
@@ -112,226 +84,226 @@ def _merge_points(rows: list[tuple[float, float, float]]) -> list[tuple[float, f
     return out
 
 
-def _read_csv(filename: str) -> tuple[list[tuple[float, float, float]], bool]:
+def _read_csv(filename: str, paths: PathsConfig) -> tuple[list[tuple[float, float, float]], bool]:
     """Waypoints (x, y, v cap or inf) from a CSV with header x,y or x,y,v; second item: has v."""
-    try:
-        with open(filename, newline="", encoding="utf-8") as fh:
-            text = fh.read()
-    except OSError as exc:
-        raise PathError(f"{filename}: cannot read: {exc.strerror or exc}") from None
+    # At most ~128 bytes a waypoint: the file cannot be larger than its waypoints need.
+    text = read_text(filename, PathError, limit=128 * paths.max_points + 65536)
     rows: list[tuple[float, float, float]] = []
     header: list[str] | None = None
-    for lineno, fields_ in enumerate(csv.reader(io.StringIO(text)), start=1):
-        cells = [c.strip() for c in fields_]
-        if not cells or all(c == "" for c in cells) or cells[0].startswith("#"):
-            continue
-        if header is None:
-            header = [c.lower() for c in cells]
-            if header not in (["x", "y"], ["x", "y", "v"]):
-                raise PathError(f"{filename}: line {lineno}: header must be 'x,y' or 'x,y,v', got {','.join(cells)!r}")
-            continue
-        if len(cells) != len(header):
-            raise PathError(f"{filename}: line {lineno}: expected {len(header)} columns, got {len(cells)}")
-        vals = []
-        for name, cell in zip(header, cells):
-            vals.append(_number(cell, lambda p, n=name: PathError(f"{filename}: line {lineno}: column '{n}': {p}")))
-        v = math.inf
-        if len(vals) == 3:
-            v = vals[2]
-            if v <= 0.0:
-                raise PathError(f"{filename}: line {lineno}: column 'v': speed must be > 0, got {cells[2]!r}")
-        rows.append((vals[0], vals[1], v))
+    lineno = 0
+    reader = csv.reader(io.StringIO(text))
+    try:
+        for lineno, fields_ in enumerate(reader, start=1):
+            cells = [c.strip() for c in fields_]
+            if not cells or all(c == "" for c in cells) or cells[0].startswith("#"):
+                continue
+            if header is None:
+                header = [c.lower() for c in cells]
+                if header not in (["x", "y"], ["x", "y", "v"]):
+                    raise PathError(f"{filename}: line {lineno}: header must be 'x,y' or 'x,y,v', "
+                                    f"got {shorten(','.join(cells))}")
+                continue
+            if len(cells) != len(header):
+                raise PathError(f"{filename}: line {lineno}: expected {len(header)} columns, got {len(cells)}")
+            if len(rows) >= paths.max_points:
+                raise PathError(f"{filename}: line {lineno}: more than paths.max_points = "
+                                f"{paths.max_points} waypoints")
+            vals = []
+            for name, cell in zip(header, cells):
+                vals.append(_number(cell, lambda p, n=name: PathError(f"{filename}: line {lineno}: column '{n}': {p}")))
+            v = math.inf
+            if len(vals) == 3:
+                v = vals[2]
+                if v <= 0.0:
+                    raise PathError(f"{filename}: line {lineno}: column 'v': speed must be > 0, got {shorten(cells[2])}")
+            if max(abs(vals[0]), abs(vals[1])) > paths.max_extent_m:
+                raise PathError(f"{filename}: line {lineno}: ({vals[0]:.6g}, {vals[1]:.6g}) is beyond "
+                                f"paths.max_extent_m = {paths.max_extent_m:g} m from the origin")
+            rows.append((vals[0], vals[1], v))
+    except csv.Error as exc:  # a NUL byte, an unterminated quote, a field over the size limit
+        raise PathError(f"{filename}: line {reader.line_num or lineno}: not CSV: {exc}") from None
     if header is None:
         raise PathError(f"{filename}: line 1: missing header 'x,y' or 'x,y,v' (file is empty)")
     return rows, len(header) == 3
 
 
-def _waypoint_geometry(rows: list[tuple[float, float, float]], has_v: bool, where: str, opt: _Options) -> _Geometry:
+def _waypoint_geometry(rows: list[tuple[float, float, float]], has_v: bool, where: str, opt: _Options,
+                       paths: PathsConfig) -> _Geometry:
     pts = _merge_points(rows)
     if len(pts) < 2:
         raise PathError(f"{where}: fewer than 2 distinct points ({len(pts)})")
+    _check_samples(polyline_samples(pts, opt), where, paths, opt)
     caps = [p[2] for p in pts] if has_v else None
     return _polyline([(p[0], p[1]) for p in pts], caps, opt)
 
 
-def _closed_param(spec: _Spec, r: Curve, dr: Curve, ddr: Curve, laps: float, opt: _Options) -> _Geometry:
-    try:
-        return _Geometry([_parametric(r, dr, ddr, 0.0, TWO_PI * laps, opt.step)])
-    except ValueError as exc:
-        raise PathError(f"{spec.where}: {exc}") from None
+def _check_samples(estimate: float, where: str, paths: PathsConfig, opt: _Options) -> None:
+    if not estimate <= paths.max_samples:
+        raise PathError(f"{where}: the path would have about {estimate:.3g} samples at {opt.step:g} m "
+                        f"(paths.sample_step_m), more than paths.max_samples = {paths.max_samples}")
 
 
-def _shape_geometry(spec: _Spec, shape: str, opt: _Options) -> _Geometry:
-    if shape == "line":
-        origin = spec.vec("origin", 2, default=None)
-        if origin is None:
-            start = spec.m.get("start")
-            origin = spec.vec("start", 2) if isinstance(start, (list, tuple)) and len(start) == 2 else (0.0, 0.0)
-        heading = math.radians(spec.num("heading_deg", 0.0))
-        return _Geometry([_line(origin[0], origin[1], heading, spec.num("length", positive=True), opt.step)])
-    if shape == "circle":
-        radius = spec.num("radius", positive=True)
-        sign = 1.0 if spec.choice("direction", ("cw", "ccw"), "ccw") == "ccw" else -1.0
-        laps = spec.num("laps", 1.0, positive=True)
-        cx, cy = spec.vec("center", 2, default=(0.0, sign * radius))
-        # Start where the heading is +x: bottom of a ccw circle, top of a cw one.
-        return _Geometry([_arc(cx, cy - sign * radius, 0.0, radius, sign * TWO_PI * laps, opt.step)])
-    if shape == "rectangle":
-        w, h = spec.num("width", positive=True), spec.num("height", positive=True)
-        sign = 1.0 if spec.choice("direction", ("cw", "ccw"), "ccw") == "ccw" else -1.0
-        laps = spec.num("laps", 1.0, positive=True)
-        if laps != int(laps):
-            raise spec.fail("laps", f"a rectangle needs a whole number of laps, got {laps!r}")
-        corners = [(w, 0.0), (w, sign * h), (0.0, sign * h), (0.0, 0.0)]
-        return _polyline([(0.0, 0.0)] + corners * int(laps), None, opt)
-    if shape == "ellipse":
-        a, b = spec.num("a", positive=True), spec.num("b", positive=True)
-        sign = 1.0 if spec.choice("direction", ("cw", "ccw"), "ccw") == "ccw" else -1.0
-        laps = spec.num("laps", 1.0, positive=True)
-        cx, cy = spec.vec("center", 2, default=(0.0, sign * b))
-        # Starts at the end of the y semi-axis heading +x: (cx, cy - sign b).
-        return _closed_param(
-            spec,
-            lambda u: (cx + a * np.sin(u), cy - sign * b * np.cos(u)),
-            lambda u: (a * np.cos(u), sign * b * np.sin(u)),
-            lambda u: (-a * np.sin(u), sign * b * np.cos(u)),
-            laps, opt)
-    if shape == "figure_eight":
-        if "size" in spec.m and ("width" in spec.m or "height" in spec.m):
-            raise spec.fail("size", "give either size or width/height, not both")
-        if "size" in spec.m:
-            w = spec.num("size", positive=True)
-            h = 0.5 * w
-        else:
-            w, h = spec.num("width", positive=True), spec.num("height", positive=True)
-        laps = spec.num("laps", 1.0, positive=True)
-        cx, cy = spec.vec("center", 2, default=(0.0, 0.0))
-        # Gerono's lemniscate: x = (w/2) sin u, y = (h/2) sin 2u; crosses itself at the centre.
-        hw, hh = 0.5 * w, 0.5 * h
-        return _closed_param(
-            spec,
-            lambda u: (cx + hw * np.sin(u), cy + hh * np.sin(2.0 * u)),
-            lambda u: (hw * np.cos(u), 2.0 * hh * np.cos(2.0 * u)),
-            lambda u: (-hw * np.sin(u), -4.0 * hh * np.sin(2.0 * u)),
-            laps, opt)
-    if shape == "s_curve":
-        length, offset = spec.num("length", positive=True), spec.num("offset")
-        k = math.pi / length
-        # y = (offset/2)(1 - cos(pi x / length)): heading 0 at both ends, lateral shift `offset`.
-        piece = _parametric(
-            lambda u: (u, 0.5 * offset * (1.0 - np.cos(k * u))),
-            lambda u: (np.ones_like(u), 0.5 * offset * k * np.sin(k * u)),
-            lambda u: (np.zeros_like(u), 0.5 * offset * k * k * np.cos(k * u)),
-            0.0, length, opt.step)
-        return _Geometry([piece])
-    raise spec.fail("shape", f"unknown shape {shape!r} (known: {', '.join(sorted(_SHAPE_KEYS))})")
+def _options(spec: PathCommon, paths: PathsConfig) -> _Options:
+    return _Options(
+        paths.sample_step_m,
+        paths.pivot_radius_m if spec.pivot_radius is None else spec.pivot_radius,
+        paths.corner_pivot_deg if spec.corner_pivot_deg is None else spec.corner_pivot_deg,
+        paths.blend_max_m if spec.blend_max is None else spec.blend_max,
+    )
 
 
-def _from_mapping(m: Any, limits: SpeedLimits, where: str, base_dir: str | None, opt: _Options) -> Path:
+def _clamped_limits(spec: PathCommon, limits: SpeedLimits, where: str,
+                    notes: list[str]) -> tuple[SpeedLimits, float]:
+    """The path's limits, never above the config's: a larger value is clamped and noted."""
+    allowed = {"speed": limits.v_max, "accel": limits.accel, "decel": limits.decel_eff,
+               "lateral_accel": limits.lateral_accel, "omega_max": limits.omega_max,
+               "alpha_max": limits.alpha_max}
+    chosen: dict[str, float] = {}
+    for key in ("speed", *LIMIT_KEYS):
+        asked = getattr(spec, key)
+        if asked is None:
+            continue
+        if asked > allowed[key]:
+            notes.append(f"{where}: key '{key}': {asked:g} is above the config's {allowed[key]:g} "
+                         f"({_CONFIG_KEY[key]}); clamped to it")
+            asked = allowed[key]
+        chosen[key] = asked
+    v_cap = chosen.pop("speed", limits.v_max)
+    return replace(limits, **chosen), v_cap
+
+
+def _note_point_caps(caps: list[float], v_max: float, where: str, notes: list[str]) -> None:
+    over = [v for v in caps if math.isfinite(v) and v > v_max]
+    if over:
+        notes.append(f"{where}: {len(over)} waypoint speed(s) up to {max(over):g} are above the config's "
+                     f"{v_max:g} (limits.v_max); clamped to it")
+
+
+def _spec(m: Any, where: str, paths: PathsConfig) -> PathCommon:
+    """The mapping as its kind's dataclass, via the config walker; errors name the key."""
     if not isinstance(m, Mapping):
         raise PathError(f"{where}: expected a mapping at the top level, got {type(m).__name__}")
-    spec = _Spec(m, where)
     kinds = [k for k in ("shape", "points", "file") if k in m]
     if len(kinds) != 1:
         raise PathError(f"{where}: exactly one of keys 'shape', 'points', 'file' is required, got {kinds or 'none'}")
     kind = kinds[0]
+    body = dict(m)
     if kind == "shape":
-        shape = m["shape"]
-        if not isinstance(shape, str) or shape not in _SHAPE_KEYS:
-            raise spec.fail("shape", f"unknown shape {shape!r} (known: {', '.join(sorted(_SHAPE_KEYS))})")
-        allowed = _COMMON | _SHAPE_KEYS[shape]
+        shape = body.pop("shape")
+        if not isinstance(shape, str) or shape not in SHAPES:
+            raise PathError(f"{where}: key 'shape': unknown shape {shorten(shape)} (known: {', '.join(sorted(SHAPES))})")
+        cls = SHAPES[shape]
     else:
-        allowed = _COMMON | {kind}
-    unknown = sorted(str(k) for k in m if k not in allowed)
-    if unknown:
-        raise spec.fail(unknown[0], f"unknown key (allowed here: {', '.join(sorted(allowed))})")
-    overrides = {k: spec.num(k, positive=True) for k in _LIMIT_KEYS if k in m}
+        cls = KINDS[kind]
+        raw = body[kind]
+        if kind == "points" and isinstance(raw, (list, tuple)) and len(raw) > paths.max_points:
+            raise PathError(f"{where}: key 'points': {len(raw)} points, more than paths.max_points = {paths.max_points}")
     try:
-        lim = replace(limits, **overrides)
-    except ValueError as exc:
-        raise PathError(f"{where}: {exc}") from None
-    opt = replace(
-        opt,
-        pivot_radius=spec.num("pivot_radius", opt.pivot_radius, positive=True),
-        corner_pivot_deg=spec.num("corner_pivot_deg", opt.corner_pivot_deg, nonneg=True),
-        blend_max=spec.num("blend_max", opt.blend_max, positive=True),
-    )
-    v_cap = spec.num("speed", lim.v_max, positive=True)
-    if kind == "shape":
-        geo = _shape_geometry(spec, m["shape"], opt)
-    elif kind == "points":
-        raw = m["points"]
-        if not isinstance(raw, (list, tuple)):
-            raise spec.fail("points", f"expected a list of [x, y] or [x, y, v], got {raw!r}")
+        spec = build(cls, body)
+    except ConfigError as exc:
+        raise _path_error(exc, where) from None
+    if isinstance(spec, RectangleSpec) and spec.corners() > paths.max_points:
+        raise PathError(f"{where}: key 'laps': {spec.laps:g} laps make {spec.corners():.3g} corners, more than "
+                        f"paths.max_points = {paths.max_points}")
+    for key, point in spec.positions():
+        try:
+            paths.check_pose(point, key)
+        except ConfigError as exc:
+            raise _path_error(exc, where) from None
+    return spec
+
+
+def _from_mapping(m: Any, limits: SpeedLimits, where: str, base_dir: str | None, paths: PathsConfig) -> Path:
+    spec = _spec(m, where, paths)
+    opt = _options(spec, paths)
+    notes: list[str] = []
+    lim, v_cap = _clamped_limits(spec, limits, where, notes)
+    if isinstance(spec, PointsSpec):
         rows = []
-        has_v = False
-        for j, item in enumerate(raw):
-            key = f"points[{j}]"
-            if not isinstance(item, (list, tuple)) or len(item) not in (2, 3):
-                raise spec.fail(key, f"expected [x, y] or [x, y, v], got {item!r}")
-            vals = [_number(c, lambda p, k=key: spec.fail(k, p)) for c in item]
-            v = math.inf
-            if len(vals) == 3:
-                has_v = True
-                v = vals[2]
-                if v <= 0.0:
-                    raise spec.fail(key, f"speed must be > 0, got {item[2]!r}")
-            rows.append((vals[0], vals[1], v))
-        geo = _waypoint_geometry(rows, has_v, f"{where}: key 'points'", opt)
-        if has_v and geo.cap_value is not None:
-            geo.cap_value = np.minimum(geo.cap_value, v_cap)
-    else:
-        fname = m["file"]
-        if not isinstance(fname, str) or not fname.lower().endswith(".csv"):
-            raise spec.fail("file", f"expected a .csv file name, got {fname!r}")
+        for j, item in enumerate(spec.points):
+            try:
+                paths.check_pose(item, f"points[{j}]")
+            except ConfigError as exc:
+                raise _path_error(exc, where) from None
+            rows.append((item[0], item[1], item[2] if len(item) == 3 else math.inf))
+        has_v = any(len(item) == 3 for item in spec.points)
+        _note_point_caps([r[2] for r in rows], limits.v_max, f"{where}: key 'points'", notes)
+        geo = _waypoint_geometry(rows, has_v, f"{where}: key 'points'", opt, paths)
+    elif isinstance(spec, FileSpec):
+        fname = spec.file
+        if not fname.lower().endswith(".csv"):
+            raise PathError(f"{where}: key 'file': expected a .csv file name, got {shorten(fname)}")
         if base_dir is not None and not os.path.isabs(fname):
             fname = os.path.join(base_dir, fname)
         try:
-            rows, has_v = _read_csv(fname)
+            rows, has_v = _read_csv(fname, paths)
         except PathError as exc:
-            raise spec.fail("file", str(exc)) from None
-        geo = _waypoint_geometry(rows, has_v, fname, opt)
-        if geo.cap_value is not None:
-            geo.cap_value = np.minimum(geo.cap_value, v_cap)
-    start = None
-    for key in ("start_pose", "start"):
-        raw = m.get(key)
-        if isinstance(raw, (list, tuple)) and len(raw) == 3:
-            start = spec.vec(key, 3)
-        elif raw is not None and not (key == "start" and m.get("shape") == "line"):
-            raise spec.fail(key, f"expected [x, y, theta] (theta in rad), got {raw!r}")
-    return Path(geo, lim, v_cap=v_cap, pivot_radius=opt.pivot_radius, start_pose=start)
+            raise PathError(f"{where}: key 'file': {exc}") from None
+        _note_point_caps([r[2] for r in rows], limits.v_max, fname, notes)
+        geo = _waypoint_geometry(rows, has_v, fname, opt, paths)
+    else:
+        blame = spec.blame()
+        _check_samples(spec.samples(opt), f"{where}: key '{blame}'", paths, opt)
+        try:
+            geo = spec.geometry(opt)
+        except ValueError as exc:
+            raise PathError(f"{where}: {exc}") from None
+    if geo.cap_value is not None:
+        geo.cap_value = np.minimum(geo.cap_value, v_cap)
+    return _finish(geo, lim, v_cap, opt, spec.pose(), where, paths, notes)
+
+
+def _finish(geo: _Geometry, lim: SpeedLimits, v_cap: float, opt: _Options,
+            start: tuple[float, float, float] | None, where: str, paths: PathsConfig, notes: list[str]) -> Path:
+    """Check the sampled geometry against the bounds, then profile it into a Path."""
+    count = sum(len(pc.s) for pc in geo.pieces) - max(0, len(geo.pieces) - 1)
+    _check_samples(float(count), where, paths, opt)
+    length = sum(pc.length for pc in geo.pieces)
+    if not length >= MIN_PATH_LENGTH_M:
+        raise PathError(f"{where}: the path is {length:.3g} m long, shorter than {MIN_PATH_LENGTH_M} m")
+    extent = max(float(np.max(np.abs(np.concatenate((pc.x, pc.y))))) for pc in geo.pieces)
+    if not extent <= paths.max_extent_m:
+        raise PathError(f"{where}: the path reaches {extent:.6g} m from the origin, beyond "
+                        f"paths.max_extent_m = {paths.max_extent_m:g} m")
+    try:
+        path = Path(geo, lim, v_cap=v_cap, pivot_radius=opt.pivot_radius, start_pose=start)
+    except ValueError as exc:
+        raise PathError(f"{where}: {exc}") from None
+    if not path.duration <= paths.max_duration_s:
+        raise PathError(f"{where}: the path takes {path.duration:.3g} s at its limits, longer than "
+                        f"paths.max_duration_s = {paths.max_duration_s:g} s (a speed or acceleration too low?)")
+    path.warnings = notes
+    return path
 
 
 def load_path(source: str | os.PathLike[str] | Mapping[str, Any], limits: SpeedLimits | None = None, *,
-              base_dir: str | None = None, sample_step_m: float = 0.002, pivot_radius: float = 0.1,
-              corner_pivot_deg: float = 30.0, blend_max_m: float = 0.15) -> Path:
+              base_dir: str | None = None, paths: PathsConfig | None = None, where: str = "<mapping>") -> Path:
     """Load a path from a .csv / .yaml / .yml file or a mapping (see the module docstring).
 
-    Relative `file:` entries resolve against `base_dir`, which defaults to the YAML file's folder.
+    `limits` are the config's (speed_limits(cfg)): the path's own can only lower them (a
+    larger value is clamped and noted in `path.warnings`). `paths` bounds the work and sets
+    the sampling (paths: in the config; its defaults when None). Relative `file:` entries
+    resolve against `base_dir`, which defaults to the YAML file's folder; `where` names a
+    mapping in messages.
     """
     limits = SpeedLimits() if limits is None else limits
-    if not (sample_step_m > 0.0 and pivot_radius > 0.0 and blend_max_m > 0.0 and corner_pivot_deg >= 0.0):
-        raise ValueError("load_path: sample_step_m, pivot_radius, blend_max_m must be > 0, corner_pivot_deg >= 0")
-    opt = _Options(sample_step_m, pivot_radius, corner_pivot_deg, blend_max_m)
+    paths = PathsConfig() if paths is None else paths
     if isinstance(source, Mapping):
-        return _from_mapping(source, limits, "<mapping>", base_dir, opt)
+        return _from_mapping(source, limits, where, base_dir, paths)
+    if not isinstance(source, (str, os.PathLike)):
+        raise PathError(f"{where}: expected a path file name or a path mapping, got {shorten(source)}")
     fname = os.fspath(source)
     low = fname.lower()
     if low.endswith(".csv"):
-        rows, has_v = _read_csv(fname)
-        return Path(_waypoint_geometry(rows, has_v, fname, opt), limits, v_cap=limits.v_max, pivot_radius=pivot_radius)
+        rows, has_v = _read_csv(fname, paths)
+        notes: list[str] = []
+        _note_point_caps([r[2] for r in rows], limits.v_max, fname, notes)
+        opt = _Options(paths.sample_step_m, paths.pivot_radius_m, paths.corner_pivot_deg, paths.blend_max_m)
+        geo = _waypoint_geometry(rows, has_v, fname, opt, paths)
+        return _finish(geo, limits, limits.v_max, opt, None, fname, paths, notes)
     if low.endswith((".yaml", ".yml")):
-        try:
-            with open(fname, encoding="utf-8") as fh:
-                data = yaml.load(fh, Loader=YAML_LOADER)
-        except OSError as exc:
-            raise PathError(f"{fname}: cannot read: {exc.strerror or exc}") from None
-        except yaml.YAMLError as exc:
-            mark = getattr(exc, "problem_mark", None)
-            line = f"line {mark.line + 1}: " if mark is not None else ""
-            raise PathError(f"{fname}: {line}invalid YAML: {getattr(exc, 'problem', exc)}") from None
-        return _from_mapping(data, limits, fname, base_dir if base_dir is not None else os.path.dirname(fname), opt)
+        data = read_yaml(fname, PathError)
+        return _from_mapping(data, limits, fname, base_dir if base_dir is not None else os.path.dirname(fname), paths)
     raise PathError(f"{fname}: unknown path file type (expected .csv, .yaml or .yml)")
 
 
@@ -345,10 +317,10 @@ def resolve_path(cfg: "Config", path_arg: str | None = None) -> Path:
     """The path named on the command line, else the config's `path:` entry."""
     limits = speed_limits(cfg)
     if path_arg is not None:
-        return load_path(path_arg, limits)
+        return load_path(path_arg, limits, paths=cfg.paths)
     if cfg.path is None:
-        raise ValueError(f"{cfg.source}: path: missing; give one in the config or with --path")
+        raise PathError(f"{cfg.source}: path: missing; give one in the config or with --path")
     source = cfg.path
     if isinstance(source, str) and not FsPath(source).is_absolute():
         source = str(FsPath(cfg.base_dir) / source)
-    return load_path(source, limits, base_dir=cfg.base_dir)
+    return load_path(source, limits, base_dir=cfg.base_dir, paths=cfg.paths, where=f"{cfg.source}: path")

@@ -143,7 +143,15 @@ class Daemon:
         clock = self.clock
         # Everything slow happens before the calibration: once it has started, the loop's
         # samples must keep coming at the rate.
-        path = resolve_path(cfg) if self.follow_at_start and cfg.path is not None else None
+        path = None
+        if self.follow_at_start and cfg.path is not None:
+            try:
+                path = resolve_path(cfg)
+            except PathError as exc:
+                log.error("not following: %s", exc)
+            else:
+                for note in path.warnings:
+                    log.warning("path: %s", note)
 
         def sleep_unless_stopped(deadline: float) -> float:
             if self.stop_requested:
@@ -374,14 +382,16 @@ class Daemon:
             source = req["path"]
             if not isinstance(source, str):
                 return {"ok": False, "error": "follow: path: expected a file name"}
-        elif "points" in req:
-            source = {"points": req["points"], "speed": req.get("speed", 0.3)}
-        elif "shape" in req:
+        elif "points" in req or "shape" in req:
+            # An inline spec: every key but the request's own goes to the path loader, which
+            # refuses unknown ones and clamps limits above the config's (reported below).
             source = {k: v for k, v in req.items() if k not in ("cmd", "id", "pose")}
+            if "points" in source:
+                source.setdefault("speed", min(0.3, self.cfg.limits.v_max))
         else:
             return {"ok": False, "error": "follow: give path (a file), points ([[x, y], ...]) or shape"}
         try:
-            path = load_path(source, speed_limits(self.cfg))
+            path = load_path(source, speed_limits(self.cfg), paths=self.cfg.paths, where="request")
         except (PathError, ValueError, TypeError, OSError) as exc:
             return {"ok": False, "error": f"follow: {exc}"}
         pose = req.get("pose")
@@ -394,7 +404,12 @@ class Daemon:
             loop.follow(path, pose)
         except ValueError as exc:
             return {"ok": False, "error": f"follow: {exc}"}
-        return {"ok": True, "state": loop.state, "length_m": path.length, "duration_s": path.duration}
+        reply = {"ok": True, "state": loop.state, "length_m": path.length, "duration_s": path.duration}
+        if path.warnings:
+            for note in path.warnings:
+                log.warning("follow: %s", note)
+            reply["warnings"] = list(path.warnings)
+        return reply
 
     def reload(self) -> dict[str, Any]:
         """Re-read the config; put a valid one in force between ticks, bumplessly.

@@ -61,7 +61,8 @@ def run_sim(cfg: Config, path: Path, *, duration: float | None = None, seed: int
     for i in range(int(round(cfg.sim.start_delay_s / loop.period))):
         hal.sleep_until(t_idle + (i + 1) * loop.period)
         loop.tick()
-    loop.follow(path, pose)
+    if loop.state not in ("estop", "fault"):  # a fault at rest: one tick records it, below
+        loop.follow(path, pose)
     t0 = hal.now()
     limit = duration if duration is not None else 1.5 * path.duration + 10.0
     period = loop.period

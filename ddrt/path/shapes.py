@@ -1,0 +1,315 @@
+"""The path spec's schema: one frozen dataclass per kind of path, built by the config's walker
+(`ddrt.config.schema.build`), so a path's errors come from the same code as a config's.
+
+Each kind knows how many samples it will have (`samples(opt)`, checked against
+paths.max_samples before anything is allocated) and builds its geometry (`geometry(opt)`).
+Units: metres, radians, except `heading_deg` and `corner_pivot_deg` (degrees).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, ClassVar, Literal
+
+import numpy as np
+
+from ddrt.config.schema import ConfigError, non_negative, positive
+from ddrt.config.sections import MIN_PATH_SIZE_M
+from ddrt.path.geometry import TWO_PI, Curve, _arc, _Geometry, _line, _Options, _parametric, _polyline
+
+LIMIT_KEYS = ("accel", "decel", "lateral_accel", "omega_max", "alpha_max")
+
+
+def _sizes(where: str, **values: float | None) -> None:
+    """Lengths of a shape: > 0 and at least MIN_PATH_SIZE_M."""
+    given = {k: v for k, v in values.items() if v is not None}
+    positive(where, **given)
+    for key, value in given.items():
+        if value < MIN_PATH_SIZE_M:
+            raise ConfigError(f"{where + '.' if where else ''}{key}: must be at least {MIN_PATH_SIZE_M} m, got {value!r}")
+
+
+def _pivot_samples(opt: _Options, turn: float) -> float:
+    return max(2.0, opt.pivot_radius * abs(turn) / opt.step)
+
+
+@dataclass(frozen=True, kw_only=True)
+class PathCommon:
+    """Keys every kind of path takes: its own (lower) limits, sampling options, start pose."""
+
+    speed: float | None = None  # m/s, at most limits.v_max
+    accel: float | None = None
+    decel: float | None = None
+    lateral_accel: float | None = None
+    omega_max: float | None = None
+    alpha_max: float | None = None
+    pivot_radius: float | None = None  # default paths.pivot_radius_m
+    corner_pivot_deg: float | None = None  # default paths.corner_pivot_deg
+    blend_max: float | None = None  # default paths.blend_max_m
+    start_pose: tuple[float, float, float] | None = None
+    start: tuple[float, ...] | None = None  # [x, y, theta]; a line also takes [x, y] (its origin)
+    name: str | None = None
+    description: str | None = None
+
+    START_SIZES: ClassVar[tuple[int, ...]] = (3,)
+    SIZE_KEY: ClassVar[str] = "length"  # the key a too-large path is blamed on
+
+    def validate(self, where: str) -> None:
+        positive(where, **{k: getattr(self, k) for k in ("speed", *LIMIT_KEYS) if getattr(self, k) is not None})
+        _sizes(where, pivot_radius=self.pivot_radius, blend_max=self.blend_max)
+        if self.corner_pivot_deg is not None:
+            non_negative(where, corner_pivot_deg=self.corner_pivot_deg)
+        if self.start is not None and len(self.start) not in self.START_SIZES:
+            shown = "[x, y] (the line's origin) or " if 2 in self.START_SIZES else ""
+            raise ConfigError(f"start: expected {shown}[x, y, theta] (theta in rad), got {list(self.start)}")
+
+    def pose(self) -> tuple[float, float, float] | None:
+        """The robot's start pose the spec gives, if any (start_pose wins over start)."""
+        if self.start_pose is not None:
+            return self.start_pose
+        if self.start is not None and len(self.start) == 3:
+            return (self.start[0], self.start[1], self.start[2])
+        return None
+
+    def positions(self) -> list[tuple[str, tuple[float, ...]]]:
+        """(key, (x, y, ...)) of every position the spec names, for the workspace bound."""
+        out = [(k, v) for k in ("start_pose", "start") if (v := getattr(self, k)) is not None]
+        for key in ("center", "origin"):
+            value = getattr(self, key, None)
+            if value is not None:
+                out.append((key, value))
+        return out
+
+    def blame(self) -> str:
+        """The key to name when the path is too large: laps when there are several."""
+        laps = getattr(self, "laps", 1.0)
+        return "laps" if laps > 1.0 else self.SIZE_KEY
+
+    # Each kind: samples(opt) -> float (an estimate, never below the real count by much) and
+    # geometry(opt) -> _Geometry.
+
+
+def _direction(value: str) -> float:
+    return 1.0 if value == "ccw" else -1.0
+
+
+@dataclass(frozen=True, kw_only=True)
+class LineSpec(PathCommon):
+    length: float
+    heading_deg: float = 0.0
+    origin: tuple[float, float] | None = None
+
+    START_SIZES: ClassVar[tuple[int, ...]] = (2, 3)
+
+    def validate(self, where: str) -> None:
+        super().validate(where)
+        _sizes(where, length=self.length)
+
+    def samples(self, opt: _Options) -> float:
+        return self.length / opt.step
+
+    def geometry(self, opt: _Options) -> _Geometry:
+        origin = self.origin
+        if origin is None:
+            origin = (self.start[0], self.start[1]) if self.start is not None and len(self.start) == 2 else (0.0, 0.0)
+        return _Geometry([_line(origin[0], origin[1], math.radians(self.heading_deg), self.length, opt.step)])
+
+
+@dataclass(frozen=True, kw_only=True)
+class CircleSpec(PathCommon):
+    radius: float
+    direction: Literal["cw", "ccw"] = "ccw"
+    center: tuple[float, float] | None = None
+    laps: float = 1.0
+
+    SIZE_KEY: ClassVar[str] = "radius"
+
+    def validate(self, where: str) -> None:
+        super().validate(where)
+        _sizes(where, radius=self.radius)
+        positive(where, laps=self.laps)
+
+    def samples(self, opt: _Options) -> float:
+        return TWO_PI * self.radius * self.laps / opt.step
+
+    def geometry(self, opt: _Options) -> _Geometry:
+        sign = _direction(self.direction)
+        cx, cy = self.center if self.center is not None else (0.0, sign * self.radius)
+        # Start where the heading is +x: bottom of a ccw circle, top of a cw one.
+        return _Geometry([_arc(cx, cy - sign * self.radius, 0.0, self.radius, sign * TWO_PI * self.laps, opt.step)])
+
+
+@dataclass(frozen=True, kw_only=True)
+class RectangleSpec(PathCommon):
+    width: float
+    height: float
+    direction: Literal["cw", "ccw"] = "ccw"
+    laps: float = 1.0
+
+    SIZE_KEY: ClassVar[str] = "width"
+
+    def validate(self, where: str) -> None:
+        super().validate(where)
+        _sizes(where, width=self.width, height=self.height)
+        positive(where, laps=self.laps)
+        if self.laps != int(self.laps):
+            raise ConfigError(f"laps: a rectangle needs a whole number of laps, got {self.laps!r}")
+
+    def corners(self) -> float:
+        return 4.0 * self.laps + 1.0
+
+    def samples(self, opt: _Options) -> float:
+        per_lap = 2.0 * (self.width + self.height) / opt.step + 4.0 * _pivot_samples(opt, 0.5 * math.pi)
+        return self.laps * per_lap
+
+    def geometry(self, opt: _Options) -> _Geometry:
+        w, h, sign = self.width, self.height, _direction(self.direction)
+        corners = [(w, 0.0), (w, sign * h), (0.0, sign * h), (0.0, 0.0)]
+        return _polyline([(0.0, 0.0)] + corners * int(self.laps), None, opt)
+
+
+def _curve_length(dr: Curve, u1: float) -> float:
+    """Arc length of a smooth curve over u in [0, u1] (a coarse estimate, for the budget)."""
+    u = np.linspace(0.0, u1, 2001)
+    dx, dy = dr(u)
+    return float(np.trapezoid(np.hypot(dx, dy), u))
+
+
+@dataclass(frozen=True, kw_only=True)
+class EllipseSpec(PathCommon):
+    a: float
+    b: float
+    direction: Literal["cw", "ccw"] = "ccw"
+    center: tuple[float, float] | None = None
+    laps: float = 1.0
+
+    SIZE_KEY: ClassVar[str] = "a"
+
+    def validate(self, where: str) -> None:
+        super().validate(where)
+        _sizes(where, a=self.a, b=self.b)
+        positive(where, laps=self.laps)
+
+    def _curve(self) -> tuple[Curve, Curve, Curve]:
+        a, b, sign = self.a, self.b, _direction(self.direction)
+        cx, cy = self.center if self.center is not None else (0.0, sign * b)
+        # Starts at the end of the y semi-axis heading +x: (cx, cy - sign b).
+        return (lambda u: (cx + a * np.sin(u), cy - sign * b * np.cos(u)),
+                lambda u: (a * np.cos(u), sign * b * np.sin(u)),
+                lambda u: (-a * np.sin(u), sign * b * np.cos(u)))
+
+    def samples(self, opt: _Options) -> float:
+        a, b = self.a, self.b
+        h = ((a - b) / (a + b)) ** 2 if a + b < math.inf else 0.0
+        perimeter = math.pi * (a + b) * (1.0 + 3.0 * h / (10.0 + math.sqrt(4.0 - 3.0 * h)))  # Ramanujan
+        return perimeter * self.laps / opt.step
+
+    def geometry(self, opt: _Options) -> _Geometry:
+        r, dr, ddr = self._curve()
+        return _Geometry([_parametric(r, dr, ddr, 0.0, TWO_PI * self.laps, opt.step, period=TWO_PI)])
+
+
+@dataclass(frozen=True, kw_only=True)
+class FigureEightSpec(PathCommon):
+    width: float | None = None
+    height: float | None = None
+    size: float | None = None  # width = size, height = size / 2
+    center: tuple[float, float] = (0.0, 0.0)
+    laps: float = 1.0
+
+    SIZE_KEY: ClassVar[str] = "width"
+
+    def validate(self, where: str) -> None:
+        super().validate(where)
+        if self.size is not None and (self.width is not None or self.height is not None):
+            raise ConfigError("size: give either size or width/height, not both")
+        if self.size is None:
+            for key in ("width", "height"):
+                if getattr(self, key) is None:
+                    raise ConfigError(f"{key}: missing (required, or give size)")
+        _sizes(where, width=self.width, height=self.height, size=self.size)
+        positive(where, laps=self.laps)
+
+    def _curve(self) -> tuple[Curve, Curve, Curve]:
+        w = self.size if self.size is not None else self.width
+        h = 0.5 * self.size if self.size is not None else self.height
+        assert w is not None and h is not None  # validate() saw to it
+        cx, cy = self.center
+        hw, hh = 0.5 * w, 0.5 * h
+        # Gerono's lemniscate: x = (w/2) sin u, y = (h/2) sin 2u; crosses itself at the centre.
+        return (lambda u: (cx + hw * np.sin(u), cy + hh * np.sin(2.0 * u)),
+                lambda u: (hw * np.cos(u), 2.0 * hh * np.cos(2.0 * u)),
+                lambda u: (-hw * np.sin(u), -4.0 * hh * np.sin(2.0 * u)))
+
+    def blame(self) -> str:
+        return "laps" if self.laps > 1.0 else ("size" if self.size is not None else "width")
+
+    def samples(self, opt: _Options) -> float:
+        with np.errstate(over="ignore", invalid="ignore"):
+            lap = _curve_length(self._curve()[1], TWO_PI)
+        return lap * self.laps / opt.step if math.isfinite(lap) else math.inf
+
+    def geometry(self, opt: _Options) -> _Geometry:
+        r, dr, ddr = self._curve()
+        return _Geometry([_parametric(r, dr, ddr, 0.0, TWO_PI * self.laps, opt.step, period=TWO_PI)])
+
+
+@dataclass(frozen=True, kw_only=True)
+class SCurveSpec(PathCommon):
+    length: float
+    offset: float
+
+    def validate(self, where: str) -> None:
+        super().validate(where)
+        _sizes(where, length=self.length)
+
+    def samples(self, opt: _Options) -> float:
+        return (self.length + 2.0 * abs(self.offset)) / opt.step  # the arc is at most this long
+
+    def geometry(self, opt: _Options) -> _Geometry:
+        length, offset = self.length, self.offset
+        k = math.pi / length
+        # y = (offset/2)(1 - cos(pi x / length)): heading 0 at both ends, lateral shift `offset`.
+        return _Geometry([_parametric(
+            lambda u: (u, 0.5 * offset * (1.0 - np.cos(k * u))),
+            lambda u: (np.ones_like(u), 0.5 * offset * k * np.sin(k * u)),
+            lambda u: (np.zeros_like(u), 0.5 * offset * k * k * np.cos(k * u)),
+            0.0, length, opt.step)])
+
+
+@dataclass(frozen=True, kw_only=True)
+class PointsSpec(PathCommon):
+    points: tuple[tuple[float, ...], ...]  # [x, y] or [x, y, v] (v: speed cap, m/s)
+
+    SIZE_KEY: ClassVar[str] = "points"
+
+    def validate(self, where: str) -> None:
+        super().validate(where)
+        for j, item in enumerate(self.points):
+            if len(item) not in (2, 3):
+                raise ConfigError(f"points[{j}]: expected [x, y] or [x, y, v], got {list(item)}")
+            if len(item) == 3 and not item[2] > 0.0:
+                raise ConfigError(f"points[{j}]: speed must be > 0, got {item[2]!r}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class FileSpec(PathCommon):
+    file: str  # a .csv of waypoints, relative to the spec's folder
+
+    SIZE_KEY: ClassVar[str] = "file"
+
+
+SHAPES: dict[str, type[PathCommon]] = {
+    "line": LineSpec, "circle": CircleSpec, "rectangle": RectangleSpec, "ellipse": EllipseSpec,
+    "figure_eight": FigureEightSpec, "s_curve": SCurveSpec,
+}
+KINDS: dict[str, type[PathCommon]] = {"points": PointsSpec, "file": FileSpec}
+
+
+def polyline_samples(pts: list[tuple[float, float, Any]], opt: _Options) -> float:
+    """An upper estimate of the samples of a polyline through `pts` (every corner a pivot)."""
+    total = 0.0
+    for (x0, y0, _), (x1, y1, _) in zip(pts, pts[1:]):
+        total += max(2.0, math.hypot(x1 - x0, y1 - y0) / opt.step)
+    return total + max(0, len(pts) - 2) * _pivot_samples(opt, math.pi)
