@@ -47,9 +47,15 @@ def _clock(hal: Hal) -> Any:
 def _drive(loop: ControlLoop, clock: Any, limit_s: float) -> None:
     """Tick on absolute deadlines until the loop stops; fault or timeout raise."""
     t0 = clock.now()
+    holds = loop.recovery.holds
     for i in range(int(math.ceil(limit_s / loop.period))):
         clock.sleep_until(t0 + (i + 1) * loop.period)
         loop.tick()
+        if loop.recovery.holds != holds:
+            # A sensor gap stopped the robot mid-run: what it measured is not the run asked for.
+            cause = loop.recovery.last_cause
+            loop.estop("calibration run interrupted")
+            raise CalibrationRunError(f"the calibration run was interrupted ({cause}): run it again")
         if loop.state == "stopped":
             return
         if loop.state == "fault":

@@ -2,15 +2,30 @@
 read -> estimate -> reference -> control -> write -> record.
 
 `ControlLoop` owns the estimator, the reference and the controller and knows nothing of
-where the samples come from (a `hal.base.Hal`). Any fault (a HAL error, a stale or stuck
-sensor, a non-finite number anywhere) zeroes the motors at once and latches the `fault`
-state; `estop` latches until `reset`.
+where the samples come from (a `hal.base.Hal`).
+
+Transient faults degrade, persistent ones latch (docs/design.md, "Faults"):
+- A gap in the samples while moving (the loop stalled, the sensors went stale for longer
+  than `estimator.max_gap_s` or `estimator.stale_ticks`, a HAL read timed out) puts the
+  loop in `holding`: a controlled stop along the path, or the motors to zero at once when
+  the robot has been blind for longer than the motors' own watchdog
+  (`estimator.zero_motors_after_s`, default the HAL's DRIVE timeout). When fresh samples are
+  back and the robot is at rest, the path resumes from where the robot is
+  (`daemon.on_recover: resume`) or the loop stops and waits for a command (`wait`).
+- Such a fault latches `fault` only if it persists: no fresh sample for
+  `estimator.fault_latch_s`, more than `estimator.max_holds` holds within
+  `estimator.hold_window_s`, or a hold that does not end.
+- Latched at once, motors to zero: any other HAL error, a motor write that fails, a stuck
+  or saturated gyro, a stuck encoder, a non-finite number, a robot farther than
+  `limits.max_path_error_m` from its path. `estop` latches until `reset`.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+from collections import deque
+from dataclasses import dataclass
 from typing import Callable
 
 from ddrt.core.adapt import DynamicsAdapter
@@ -22,11 +37,46 @@ from ddrt.core.model import Dynamics
 from ddrt.core.motor import Motor
 from ddrt.path import Path
 from ddrt.path.reference import PathReference
-from hal.base import Hal, HalError, Sample
+from hal.base import Hal, HalError, HalTimeoutError, Sample
 
 log = logging.getLogger("ddrt.loop")
 
-STATES = ("idle", "following", "stopping", "stopped", "estop", "fault")
+# Codes are the index (telemetry's `state` column): new states go at the end.
+STATES = ("idle", "following", "stopping", "stopped", "estop", "fault", "holding")
+MOVING = ("following", "stopping")
+RECOVER_FRESH_TICKS = 10  # fresh samples in a row before a hold may end
+AT_REST_V = 2e-3  # m/s and rad/s below which the robot counts as at rest
+AT_REST_W = 5e-3
+DEFAULT_ZERO_AFTER_S = 0.1  # a HAL whose motors have no watchdog: the microcontroller's default
+
+
+@dataclass
+class RecoveryCounters:
+    """What the loop did about transient faults (status, stats, telemetry)."""
+
+    holds: int = 0  # controlled stops on a sensor gap / stale samples / a read timeout
+    stalls: int = 0  # of them, gaps because the loop itself did not run (a busy or stopped host)
+    zeroed: int = 0  # holds in which the motors went to zero at once (blind beyond the watchdog)
+    resumes: int = 0  # holds that ended by resuming the path
+    waits: int = 0  # holds that ended stopped (daemon.on_recover: wait, or a stop was asked)
+    latched: int = 0  # transient faults that persisted and latched
+    longest_hold_s: float = 0.0
+    last_cause: str = ""
+
+    def as_dict(self) -> dict[str, float | int | str]:
+        return {"holds": self.holds, "stalls": self.stalls, "zeroed": self.zeroed, "resumes": self.resumes, "waits": self.waits,
+                "latched": self.latched, "longest_hold_s": self.longest_hold_s, "last_cause": self.last_cause}
+
+
+@dataclass
+class _Hold:
+    """The hold in progress."""
+
+    cause: str
+    resume_to: str  # the state it interrupted: "following" resumes, "stopping" ends stopped
+    zeroed: bool = False
+    ticks: int = 0
+    fresh: int = 0  # fresh samples in a row
 
 COLUMNS = (
     "t", "x_est", "y_est", "theta_est", "v_est", "omega_est", "gyro_bias",
@@ -77,6 +127,19 @@ class ControlLoop:
             self.adapter = DynamicsAdapter(self.dyn, self.motor, cfg.controller.adaptation, self.period)
         self._adapt_active = False
         self.on_tick: Callable[["ControlLoop"], None] | None = None
+        self.recovery = RecoveryCounters()
+        self._hold: _Hold | None = None
+        self._hold_times: deque[float] = deque()  # sample times at which holds began
+        self._read_error = ""  # the HAL's timeout, while reads keep timing out
+        self._set_bounds(cfg)
+
+    def _set_bounds(self, cfg: Config) -> None:
+        """The hold's bounds from the config and the HAL."""
+        e = cfg.estimator
+        self._latch_s = e.fault_latch_s
+        watchdog = getattr(self.hal.info, "drive_timeout_s", None)
+        self.zero_after = (e.zero_motors_after_s if e.zero_motors_after_s is not None
+                           else watchdog if watchdog is not None else DEFAULT_ZERO_AFTER_S)
 
     def reconfigure(self, cfg: Config) -> None:
         """Put a config in force between two ticks: every part that holds a copy gets it.
@@ -105,6 +168,7 @@ class ControlLoop:
             self.adapter = adapter
             self._adapt_active = False
         self.cfg = cfg
+        self._set_bounds(cfg)
 
     # ------------------------------------------------------------------ start-up
 
@@ -121,7 +185,8 @@ class ControlLoop:
             t += self.period
             sleep_until(t)
             sample = self.hal.read()
-            raw.append(sample.gyro_z_raw)
+            if sample.fresh:  # a value the HAL held through a pause would count twice
+                raw.append(sample.gyro_z_raw)
         bias, std = calibrate_gyro(raw, self.hal.info.gyro_lsb_per_rad_s, est_cfg.gyro_scale,
                                    est_cfg.calibration_max_std_dps)
         self.estimator.reset(sample, self.estimator_pose(), bias)
@@ -149,6 +214,8 @@ class ControlLoop:
         cross_track, request_stop): calibration's turn in place is one."""
         if self.state in ("estop", "fault"):
             raise RuntimeError(f"cannot follow a path in state {self.state}: reset first")
+        if self.state == "holding":
+            raise ValueError("holding after a sensor gap: wait until it ends (or stop)")
         if path is not None:
             x, y, _ = pose if pose is not None else self.estimator_pose()
             start = path.at(0.0)
@@ -161,6 +228,7 @@ class ControlLoop:
         self.path = path
         self.controller.reset()
         self.state = "following"
+        self._hold = None
         self._starting = True  # the robot stood still until now: a pause before this is no gap
 
     def _off_path(self, x: float, y: float, px: float, py: float) -> str:
@@ -170,10 +238,24 @@ class ControlLoop:
         return "" if gap <= limit else f"{gap:.3f} m from the robot, beyond limits.max_path_error_m = {limit:g} m"
 
     def stop(self) -> None:
-        """Controlled stop along the path."""
+        """Controlled stop along the path (in a hold: end it stopped, do not resume)."""
         if self.state == "following" and self.reference is not None:
             self.reference.request_stop(self.cfg.daemon.stop_decel)
             self.state = "stopping"
+        elif self.state == "holding" and self._hold is not None:
+            self._hold.resume_to = "stopping"
+
+    def resume(self) -> None:
+        """Resume an interrupted path from where the robot stands (after a hold ended
+        stopped, with daemon.on_recover: wait)."""
+        ref = self.reference
+        if self.state != "stopped" or ref is None or ref.done or not hasattr(ref, "resume"):
+            raise ValueError(f"nothing to resume in state {self.state}")
+        est = self.estimator
+        ref.resume(est.x, est.y, est.theta)
+        self.controller.reset()
+        self.state = "following"
+        self._starting = True
 
     def estop(self, reason: str = "estop requested") -> None:
         """Motors to zero now, latched until reset()."""
@@ -188,12 +270,13 @@ class ControlLoop:
         self.reference = None
         self.estimator.health.fault = ""
         self.fault = ""
+        self._hold = None
         self.state = "idle"
 
     def shutdown(self) -> None:
         """The process is stopping: motors to zero, and a last row that shows it."""
         self._zero_motors()
-        if self.state in ("following", "stopping", "idle"):
+        if self.state in ("following", "stopping", "idle", "holding"):
             self.state = "stopped"
         self._record(self.sample.t if self.sample is not None else 0.0)
 
@@ -224,6 +307,18 @@ class ControlLoop:
         stamp()
         try:
             sample = self.hal.read()
+            self._read_error = ""
+        except HalTimeoutError as exc:
+            # The device stopped answering within its bound: a transient fault until it
+            # persists. The estimator dead-reckons through a stale copy of the last sample.
+            if self.sample is None:
+                self.enter_fault(f"sensor read failed: {exc}")
+                self._record(0.0)
+                return
+            self._read_error = str(exc)
+            last = self.sample
+            sample = Sample(t=last.t + self.period, encoder_count=last.encoder_count,
+                            gyro_z_raw=last.gyro_z_raw, fresh=False, faults="read_timeout")
         except HalError as exc:
             self.enter_fault(f"sensor read failed: {exc}")
             self._record(self.sample.t + self.period if self.sample else 0.0)
@@ -233,55 +328,196 @@ class ControlLoop:
         if sample.faults:
             self.hal_fault_ticks += 1
         state = self.state
-        moving = state in ("following", "stopping")
+        hold = self._hold
+        moving = state in MOVING or (state == "holding" and hold is not None and not hold.zeroed)
         est = self.estimator
         est.update(sample, self.duty_l, self.duty_r, commanded_still=not moving or self._starting)
         self._starting = False
-        if self.adapter is not None and moving:
+        if self.adapter is not None and state in MOVING:
             self._adapt()
-        if est.health.fault and state != "fault":
-            self.enter_fault(est.health.fault)
+        if state != "fault" and state != "estop":
+            if est.health.fault:
+                self.enter_fault(est.health.fault)
+            elif est.blind_s >= self._latch_s:
+                self.recovery.latched += 1
+                self.enter_fault(self._persistent())
+            elif (est.blind_s or est.gap_s or self._read_error) and state in MOVING and (why := self._transient()):
+                self._enter_hold(why, sample.t, stall=est.stall_s > 0.0)
             state = self.state
-        if state in ("following", "stopping"):
-            ref = self.reference
-            sp = self.setpoint
-            stamp()
-            ref.update(est.x, est.y, est.theta, sp, est.dt)  # type: ignore[union-attr]
-            stamp()
-            cmd = self.controller.update(est.x, est.y, est.theta, est.v, est.omega, sp)
-            stamp()
-            if ref.done and abs(est.v) < 2e-3 and abs(est.omega) < 5e-3:  # type: ignore[union-attr]
-                self.state = "stopped"
-                self._zero_motors()
-            elif not (math.isfinite(cmd.duty_l) and math.isfinite(cmd.duty_r)
-                      and math.isfinite(est.x) and math.isfinite(est.y) and math.isfinite(est.theta)):
-                self.enter_fault("non-finite value in the controller")
-            elif why := self._off_path(est.x, est.y, sp.x_d, sp.y_d):
-                # Pushed, stuck, slipping or a wrong model: never chase a path from afar.
-                self.enter_fault(f"the path's reference point is {why}")
-            else:
-                try:
-                    self.hal.write(cmd.duty_l, cmd.duty_r)
-                except HalError as exc:
-                    self.enter_fault(f"motor write failed: {exc}")
-                else:
-                    self.duty_l = cmd.duty_l
-                    self.duty_r = cmd.duty_r
-                    self.cmd = cmd
-                    if cmd.saturated:
-                        self.saturated_ticks += 1
+        if state == "holding":
+            self._tick_holding(sample, stamp)
+        elif state in MOVING:
+            self._drive(stamp)
         elif state != "fault":
             # Standing still is a command too: one write per tick keeps a serial bridge's
             # watchdog fed and re-asserts zero if anything else touched the motors.
-            try:
-                self.hal.write(0.0, 0.0)
-            except HalError as exc:
-                self.enter_fault(f"motor write failed: {exc}")
+            self._write_zero()
         stamp()
         self._record(sample.t)
         stamp()
         if self.on_tick is not None:
             self.on_tick(self)
+
+    def _drive(self, stamp: Callable[[], None] = _no_stamp) -> None:
+        """Reference -> control -> checks -> write, for a robot that moves along its path."""
+        est = self.estimator
+        ref = self.reference
+        sp = self.setpoint
+        stamp()
+        ref.update(est.x, est.y, est.theta, sp, est.dt)  # type: ignore[union-attr]
+        stamp()
+        cmd = self.controller.update(est.x, est.y, est.theta, est.v, est.omega, sp)
+        stamp()
+        if ref.done and abs(est.v) < AT_REST_V and abs(est.omega) < AT_REST_W:  # type: ignore[union-attr]
+            if self.state == "holding":
+                self._zero_motors()  # at rest at the end of the stop: the hold decides what next
+                return
+            self.state = "stopped"
+            self._zero_motors()
+        elif not (math.isfinite(cmd.duty_l) and math.isfinite(cmd.duty_r)
+                  and math.isfinite(est.x) and math.isfinite(est.y) and math.isfinite(est.theta)):
+            self.enter_fault("non-finite value in the controller")
+        elif why := self._off_path(est.x, est.y, sp.x_d, sp.y_d):
+            # Pushed, stuck, slipping or a wrong model: never chase a path from afar.
+            self.enter_fault(f"the path's reference point is {why}")
+        else:
+            try:
+                self.hal.write(cmd.duty_l, cmd.duty_r)
+            except HalError as exc:
+                self.enter_fault(f"motor write failed: {exc}")
+            else:
+                self.duty_l = cmd.duty_l
+                self.duty_r = cmd.duty_r
+                self.cmd = cmd
+                if cmd.saturated:
+                    self.saturated_ticks += 1
+
+    def _write_zero(self) -> None:
+        try:
+            self.hal.write(0.0, 0.0)
+        except HalError as exc:
+            self.enter_fault(f"motor write failed: {exc}")
+
+    # ------------------------------------------------------------------ transient faults
+
+    def _transient(self) -> str:
+        """Why the sensors cannot be trusted this tick (a hold while moving), or ''."""
+        est = self.estimator
+        if self._read_error:
+            return f"sensor read timed out: {self._read_error}"
+        if est.gap_s > est.max_gap:
+            stalled = " (the loop did not run)" if est.stall_s > 0.0 else ""
+            return f"sensor gap of {est.gap_s * 1000:.1f} ms{stalled}"
+        h = est.health
+        if est.blind_s > est.max_gap or h.stale_ticks >= self.cfg.estimator.stale_ticks:
+            return f"sensors stale for {h.stale_ticks} ticks ({est.blind_s * 1000:.0f} ms without a fresh sample)"
+        return ""
+
+    def _persistent(self) -> str:
+        """Why a transient fault that has lasted estimator.fault_latch_s latches."""
+        est = self.estimator
+        what = (f"sensor read timed out ({self._read_error})" if self._read_error
+                else f"sensors stale for {est.health.stale_ticks} ticks")
+        return f"{what}: {est.blind_s:.3f} s without a fresh sample (estimator.fault_latch_s = {self._latch_s:g} s)"
+
+    def _enter_hold(self, cause: str, t: float, stall: bool = False) -> None:
+        """Stop in a controlled way (or zero the motors at once) and wait for the sensors.
+
+        Holds on the sensors' account (stale samples, read timeouts) count towards
+        estimator.max_holds: sensors that keep failing latch, and the restart that follows
+        re-opens the devices. A stall of the loop itself does not: it is over when the loop
+        runs again, each one is held safely, and a restart cannot cure a busy host (it would
+        only lose the path)."""
+        e = self.cfg.estimator
+        rec = self.recovery
+        rec.last_cause = cause
+        if not stall:
+            times = self._hold_times
+            times.append(t)
+            while times and times[0] < t - e.hold_window_s:
+                times.popleft()
+            if len(times) > e.max_holds:
+                rec.latched += 1
+                self.enter_fault(f"{cause}: {len(times)} holds within {e.hold_window_s:g} s "
+                                 f"(estimator.max_holds = {e.max_holds})")
+                return
+        else:
+            rec.stalls += 1
+        rec.holds += 1
+        self._hold = _Hold(cause=cause, resume_to=self.state)
+        self.state = "holding"
+        est = self.estimator
+        if max(est.blind_s, est.gap_s) >= self.zero_after:
+            self._zero_hold()
+        elif self.reference is not None:
+            self.reference.request_stop(self._hold_decel())
+        log.warning("holding: %s; %s", cause,
+                    "motors zeroed" if self._hold.zeroed else "decelerating to a stop along the path")
+
+    def _hold_decel(self) -> float:
+        """The hardest braking the path's limits allow (the speed profile's own)."""
+        if self.path is not None:
+            return self.path.limits.decel_eff
+        return self.cfg.limits.accel
+
+    def _zero_hold(self) -> None:
+        self._zero_motors()
+        assert self._hold is not None
+        self._hold.zeroed = True
+        self.recovery.zeroed += 1
+
+    def _tick_holding(self, sample: Sample, stamp: Callable[[], None]) -> None:
+        h = self._hold
+        assert h is not None
+        est = self.estimator
+        h.ticks += 1
+        held_s = h.ticks * self.period
+        if held_s > self.recovery.longest_hold_s:
+            self.recovery.longest_hold_s = held_s
+        if not h.zeroed and max(est.blind_s, est.gap_s) >= self.zero_after:
+            self._zero_hold()
+            log.warning("holding: blind for %.0f ms, beyond the motors' watchdog: motors zeroed",
+                        max(est.blind_s, est.gap_s) * 1000)
+        if h.zeroed:
+            self._write_zero()
+        elif self.reference is not None:
+            self._drive(stamp)  # the controlled stop along the path
+        else:
+            self._zero_hold()
+            self._write_zero()
+        if self.state != "holding":
+            return  # the stop itself faulted (off the path, a write failed)
+        h.fresh = h.fresh + 1 if sample.fresh else 0
+        at_rest = abs(est.v) < AT_REST_V and abs(est.omega) < AT_REST_W
+        if h.fresh >= RECOVER_FRESH_TICKS and at_rest:
+            self._end_hold()
+            return
+        lim = self.cfg.limits
+        limit_s = self.cfg.estimator.fault_latch_s + 2.0 * lim.v_max / self._hold_decel() + 1.0
+        if held_s > limit_s:
+            self.recovery.latched += 1
+            self.enter_fault(f"{h.cause}: the hold did not end within {limit_s:.1f} s "
+                             "(sensors back and the robot at rest)")
+
+    def _end_hold(self) -> None:
+        h = self._hold
+        assert h is not None
+        self._hold = None
+        ref = self.reference
+        if (h.resume_to == "following" and self.cfg.daemon.on_recover == "resume" and ref is not None
+                and hasattr(ref, "resume") and not (ref.done and not ref.stopping)):
+            est = self.estimator
+            ref.resume(est.x, est.y, est.theta)
+            self.controller.reset()
+            self.state = "following"
+            self._starting = True
+            self.recovery.resumes += 1
+            log.info("hold ended (%s): resuming the path at %.3f m", h.cause, ref.sigma)
+        else:
+            self._zero_motors()
+            self.state = "stopped"
+            self.recovery.waits += 1
+            log.info("hold ended (%s): stopped, waiting for a command", h.cause)
 
     def _adapt(self) -> None:
         """Feed the adapter; every 10th tick move the model in use towards its estimate."""

@@ -3,11 +3,15 @@
 Fault reactions (the same for the emulated devices, which is how they are tested):
 - an I/O error on a read is retried once (named "<dev>_retry" in Sample.faults);
 - a read that yields no new data (no STATE since the last tick, or the retry failed too)
-  repeats the last value with `fresh=False` for at most `hold_ticks` ticks in a row
-  ("<dev>_hold");
-- beyond that, or when the STATE stream is older than the bridge's bound, HalTimeoutError,
-  so the loop performs a safe stop. A value is never invented: with no previous value the
-  error is raised at once.
+  repeats the last value with `fresh=False` ("<dev>_hold") while that value is no older than
+  the bridge's stale bound (`hal.bridge.state_stale_s`, 50 ms): the loop holds for as many
+  ticks as fit in that bound at its rate (10 at 200 Hz, 50 at 1 kHz), so a STATE pause the
+  bridge accepts is one the HAL accepts too. `hal.hold_ticks`, if set, overrides this with a
+  fixed number of ticks (the old behaviour);
+- beyond that, or when the STATE stream is older than the bridge's bound, HalTimeoutError:
+  the loop holds the robot (a controlled stop) and resumes when data returns, or latches a
+  fault if it does not (docs/design.md). A value is never invented: with no previous value
+  the error is raised at once.
 """
 
 from __future__ import annotations
@@ -65,24 +69,25 @@ class RealHal(Hal):
     (e.g. PwmSysfsMotors) is given. `closeables` are closed last (e.g. the SMBus)."""
 
     def __init__(self, imu: Imu, bridge: EncoderReader, clock: Clock | None = None, *,
-                 motors: Motors | None = None, hold_ticks: int = 3,
+                 motors: Motors | None = None, hold_ticks: int | None = None,
                  closeables: Sequence[Any] = ()) -> None:
-        if isinstance(hold_ticks, bool) or not isinstance(hold_ticks, int) or hold_ticks < 0:
-            raise ValueError(f"hold_ticks: expected a non-negative int, got {hold_ticks!r}")
         self.imu = imu
         self.encoder = bridge
         self.motors: Motors = motors if motors is not None else bridge  # type: ignore[assignment]
         self.clock = clock if clock is not None else MonotonicClock()
-        self.hold_ticks = hold_ticks
+        self.hold_s = hold_bound_s(bridge)
+        self.hold_ticks = hold_ticks  # None: hold while the value is within hold_s (derived)
         self._closeables = list(closeables)
         lsb, full = gyro_scale(imu.gyro_range_dps)
         self.info = HalInfo(encoder_counts_per_rev=int(bridge.counts_per_rev),
                             gyro_lsb_per_rad_s=lsb, gyro_full_scale_rad_s=full,
-                            gyro_delay_s=float(imu.gyro_delay_s))
+                            gyro_delay_s=float(imu.gyro_delay_s),
+                            drive_timeout_s=drive_timeout_s(self.motors))
         self._count: int | None = None
         self._gyro: int | None = None
         self._enc_missing = 0
         self._gyro_missing = 0
+        self._enc_new_t = self._gyro_new_t = 0.0  # clock time of each device's newest value
         self._last_error: BaseException | None = None
         self._bridge_seen = self._bridge_stats()
         self._counters = {
@@ -90,6 +95,17 @@ class RealHal(Hal):
             "imu_retries": 0, "imu_holds": 0, "timeouts": 0, "write_errors": 0,
             "stop_errors": 0, "close_errors": 0,
         }
+
+    @property
+    def hold_ticks(self) -> int | None:
+        """A fixed hold in ticks (`hal.hold_ticks`), or None: hold within `hold_s`."""
+        return self._hold_ticks
+
+    @hold_ticks.setter
+    def hold_ticks(self, value: int | None) -> None:
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
+            raise ValueError(f"hold_ticks: expected None or a non-negative int, got {value!r}")
+        self._hold_ticks = value
 
     # -- Hal ------------------------------------------------------------------------------
 
@@ -170,12 +186,20 @@ class RealHal(Hal):
             self._last_error = e
             return _MISSING
 
-    def _hold(self, dev: str, missing: int, have_last: bool, faults: list[str]) -> None:
-        if missing > self.hold_ticks or not have_last:
+    def _hold(self, dev: str, missing: int, since: float, have_last: bool, faults: list[str]) -> None:
+        """Repeat the last value of `dev` (no new data for `missing` reads, the newest from
+        clock time `since`), or raise HalTimeoutError when that is beyond the hold bound."""
+        if self._hold_ticks is not None:
+            over = missing > self._hold_ticks
+            bound = f"hold_ticks={self._hold_ticks}"
+        else:
+            age = self.clock.now() - since
+            over = age > self.hold_s + 1e-9
+            bound = f"{age * 1e3:.1f} ms, beyond the {self.hold_s * 1e3:.1f} ms stale bound"
+        if over or not have_last:
             self._counters["timeouts"] += 1
             cause = getattr(self, "_last_error", None)
-            raise HalTimeoutError(f"{dev}: no new data for {missing} tick(s) "
-                                  f"(hold_ticks={self.hold_ticks})") from cause
+            raise HalTimeoutError(f"{dev}: no new data for {missing} tick(s) ({bound})") from cause
         self._counters[f"{dev}_holds"] += 1
         faults.append(f"{dev}_hold")
 
@@ -188,11 +212,12 @@ class RealHal(Hal):
             raise
         if st is _MISSING or not st.new:
             self._enc_missing += 1
-            self._hold("encoder", self._enc_missing, self._count is not None, faults)
+            self._hold("encoder", self._enc_missing, self._enc_new_t, self._count is not None, faults)
             if st is not _MISSING:
                 self._count = st.count  # same value; keeps a stitched count consistent
             return self._count, False  # type: ignore[return-value]
         self._enc_missing = 0
+        self._enc_new_t = self.clock.now()
         self._count = st.count
         return st.count, True
 
@@ -205,9 +230,10 @@ class RealHal(Hal):
             self._last_error = e
         if raw is _MISSING:
             self._gyro_missing += 1
-            self._hold("imu", self._gyro_missing, self._gyro is not None, faults)
+            self._hold("imu", self._gyro_missing, self._gyro_new_t, self._gyro is not None, faults)
             return self._gyro, False  # type: ignore[return-value]
         self._gyro_missing = 0
+        self._gyro_new_t = self.clock.now()
         self._gyro = raw
         return raw, True
 
@@ -262,3 +288,20 @@ class RealHal(Hal):
                 except Exception:  # noqa: BLE001
                     pass
             raise
+
+
+def hold_bound_s(bridge: Any) -> float:
+    """How old a held value may get: the bridge's own stale bound on its STATE stream
+    (`hal.bridge.state_stale_s`), so the HAL and the bridge agree on what is stale."""
+    stale = getattr(bridge, "state_stale_s", None)
+    if isinstance(stale, (int, float)) and not isinstance(stale, bool) and 0.0 < stale < float("inf"):
+        return float(stale)
+    return 0.05  # the bridge's default
+
+
+def drive_timeout_s(motors: Any) -> float | None:
+    """The motor driver's own watchdog (s): the bridge's DRIVE timeout; None without one."""
+    ms = getattr(motors, "drive_timeout_ms", None)
+    if isinstance(ms, (int, float)) and not isinstance(ms, bool) and ms > 0:
+        return ms / 1000.0
+    return None

@@ -35,5 +35,5 @@ def open_sim_hal(cfg: Config, start: tuple[float, float, float] = (0.0, 0.0, 0.0
     robot = SimRobot(cfg.plant, cfg.plant_motor_l, cfg.plant_motor_r, plant_config(cfg, seed), start=start)
     hal = SimHal(robot, paced=paced)
     if cfg.sim.sensors_freeze_after_s is not None:
-        hal.freeze_after = robot.t + cfg.sim.sensors_freeze_after_s
+        hal.freeze(robot.t + cfg.sim.sensors_freeze_after_s, cfg.sim.sensors_freeze_for_s)
     return hal

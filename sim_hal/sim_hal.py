@@ -3,9 +3,20 @@
 Its time is sim_hal.simtime's: unpaced (the default, for CI) the loop's computation takes no
 sim time and a run goes as fast as the CPU allows; paced, sim time follows the wall clock, so
 the daemon can run against the simulator in real time.
+
+Like the robot's microcontroller, the simulated motor driver has a DRIVE watchdog: when no
+command arrives for `drive_timeout_s` (100 ms, `hal.bridge.drive_timeout_ms`'s default) it
+zeroes both motors, so a stalled or stopped loop leaves the simulated robot as it would the
+real one. A loop that writes every tick never trips it.
+
+Fault injection: `freeze(at, duration)` makes the sensors repeat their last reading, flagged
+not fresh, from sim time `at` for `duration` s (None: for good); `sim.sensors_freeze_after_s`
+with `sim.sensors_freeze_for_s` does it from the config.
 """
 
 from __future__ import annotations
+
+import math
 
 from ddrt.core.model import RobotParams
 from ddrt.core.motor import MotorParams
@@ -19,17 +30,24 @@ class SimHal(Hal):
 
     owns_time = True
 
-    def __init__(self, robot: SimRobot, paced: bool = False) -> None:
+    def __init__(self, robot: SimRobot, paced: bool = False, drive_timeout_s: float | None = 0.1) -> None:
+        if drive_timeout_s is not None and not (math.isfinite(drive_timeout_s) and drive_timeout_s > 0):
+            raise ValueError(f"drive_timeout_s: expected None or a positive number, got {drive_timeout_s!r}")
         self.robot = robot
-        self.time = SimTime(lambda: robot.t, robot.advance_to, paced)
+        self.time = SimTime(lambda: robot.t, self._advance, paced)
+        self.drive_timeout_s = drive_timeout_s
         self.info = HalInfo(
             encoder_counts_per_rev=robot.encoder_counts_per_rev,
             gyro_lsb_per_rad_s=robot.gyro_lsb_per_rad_s,
             gyro_full_scale_rad_s=robot.gyro_full_scale_rad_s,
             gyro_delay_s=robot.gyro_delay_s,
+            drive_timeout_s=drive_timeout_s,
         )
-        self.freeze_after: float | None = None  # fault injection: sensors stop updating
+        self._freezes: list[tuple[float, float]] = []  # fault injection: [start, end) in sim time
         self._last_sample: Sample | None = None
+        self._last_drive_t = robot.t
+        self._driving = False  # a nonzero command is in force (the watchdog can trip)
+        self.watchdog_trips = 0
 
     @classmethod
     def from_params(cls, params: RobotParams, motor_l: MotorParams | None = None,
@@ -40,7 +58,48 @@ class SimHal(Hal):
         robot = SimRobot(params, motor_l or MotorParams(), motor_r or MotorParams(), cfg, start)
         return cls(robot, paced=paced)
 
+    # --- fault injection -------------------------------------------------------------------
+
+    def freeze(self, at: float, duration: float | None = None) -> None:
+        """From sim time `at`, for `duration` s (None: for good), every read repeats the last
+        sample (its own timestamp, `fresh=False`): sensors that stopped updating."""
+        if not math.isfinite(at) or (duration is not None and not (math.isfinite(duration) and duration >= 0)):
+            raise ValueError(f"freeze: expected a finite start and None or a duration >= 0, got {at!r}, {duration!r}")
+        self._freezes.append((float(at), math.inf if duration is None else float(at) + float(duration)))
+
+    @property
+    def freeze_after(self) -> float | None:
+        """Start of the first injected freeze (None: none)."""
+        return self._freezes[0][0] if self._freezes else None
+
+    @freeze_after.setter
+    def freeze_after(self, at: float | None) -> None:
+        self._freezes = [] if at is None else [(float(at), math.inf)]
+
+    def _frozen(self, t: float) -> bool:
+        for start, end in self._freezes:
+            if start <= t < end:
+                return True
+        return False
+
+    @property
+    def fault_counters(self) -> dict[str, int]:
+        """For status: how often the simulated driver's watchdog zeroed the motors."""
+        return {"watchdog_trips": self.watchdog_trips}
+
     # --- clock (sim_hal.simtime) ------------------------------------------------------------
+
+    def _advance(self, t: float) -> None:
+        """Integrate the plant to `t`, zeroing the motors on the way if the watchdog trips."""
+        robot = self.robot
+        if self._driving and self.drive_timeout_s is not None:
+            trip = self._last_drive_t + self.drive_timeout_s
+            if trip < t:
+                robot.advance_to(trip)
+                robot.command(0.0, 0.0)
+                self._driving = False
+                self.watchdog_trips += 1
+        robot.advance_to(t)
 
     @property
     def paced(self) -> bool:
@@ -65,7 +124,7 @@ class SimHal(Hal):
             raise HalIOError("SimHal.read: the HAL is closed")
         t = self.time.now()
         last = self._last_sample
-        if self.freeze_after is not None and t >= self.freeze_after and last is not None:
+        if self._freezes and last is not None and self._frozen(t):
             return Sample(t=last.t, encoder_count=last.encoder_count, gyro_z_raw=last.gyro_z_raw,
                           fresh=False, faults="sensors frozen (injected)")
         self._last_sample = Sample(t=t, encoder_count=self.robot.read_encoder(), gyro_z_raw=self.robot.read_gyro_raw())
@@ -75,10 +134,13 @@ class SimHal(Hal):
         if self._closed:
             raise HalIOError("SimHal.write: the HAL is closed")
         self.robot.command(duty_l, duty_r)
+        self._last_drive_t = self.robot.t
+        self._driving = duty_l != 0.0 or duty_r != 0.0
 
     def stop(self) -> None:
         if not self._closed:
             self.robot.command(0.0, 0.0)
+            self._driving = False
 
     def _close(self) -> None:
         robot = getattr(self, "robot", None)

@@ -177,7 +177,10 @@ def test_corrupted_serial_bytes_are_counted_and_the_loop_keeps_going():
 
 
 def test_a_silent_microcontroller_ends_in_a_safe_stop():
-    cfg = load_config(SCENARIO, EMULATED)
+    # A read timeout is a transient fault until it persists for estimator.fault_latch_s
+    # (0.5 s by default, so a 400 ms freeze is survived; tests/test_recovery.py). This test
+    # pins the latch itself within 20 ticks, so it asks for a short one.
+    cfg = load_config(SCENARIO, {**EMULATED, "estimator": {"fault_latch_s": 0.08}})
     hal, loop = _loop_on_emulated(cfg)
     _tick(hal, loop, 200)
     assert loop.state == "following"

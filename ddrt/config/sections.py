@@ -62,6 +62,7 @@ class SimConfig:
     slip: SlipConfig = field(default_factory=SlipConfig)
     gyro: GyroTruth = field(default_factory=GyroTruth)
     sensors_freeze_after_s: float | None = None  # fault injection: no fresh samples after this
+    sensors_freeze_for_s: float | None = None  # ... for this long (None: for good)
     start_delay_s: float = 2.0  # `ddrt sim`: stand still this long after calibration (bias settles)
 
     def validate(self, where: str) -> None:
@@ -73,6 +74,12 @@ class SimConfig:
             raise ConfigError(f"{where}.step_hz: must be in [10, 100000] Hz, got {self.step_hz}")
         if self.start_delay_s > 60.0:
             raise ConfigError(f"{where}.start_delay_s: at most 60 s, got {self.start_delay_s}")
+        if self.sensors_freeze_after_s is not None:
+            non_negative(where, sensors_freeze_after_s=self.sensors_freeze_after_s)
+        if self.sensors_freeze_for_s is not None:
+            positive(where, sensors_freeze_for_s=self.sensors_freeze_for_s)
+            if self.sensors_freeze_after_s is None:
+                raise ConfigError(f"{where}.sensors_freeze_for_s: needs sim.sensors_freeze_after_s (when the freeze starts)")
         if self.command_latency_s > 0.1 or self.sensor_latency_s > 0.1:
             raise ConfigError(f"{where}: latencies above 0.1 s are not a robot this controller can drive")
 
@@ -169,10 +176,11 @@ class HalConfig:
     imu: ImuConfig = field(default_factory=ImuConfig)
     bridge: BridgeConfig = field(default_factory=BridgeConfig)
     pwm_sysfs: PwmSysfsConfig = field(default_factory=PwmSysfsConfig)
-    hold_ticks: int = 3
+    hold_ticks: int | None = None  # None: hold a stale value as long as hal.bridge.state_stale_s allows
 
     def validate(self, where: str) -> None:
-        _in_range(where, "hold_ticks", self.hold_ticks, 0, 1000)
+        if self.hold_ticks is not None:
+            _in_range(where, "hold_ticks", self.hold_ticks, 0, 1000)
         if self.backend == "real":
             self.check_real(where)
 
@@ -293,8 +301,12 @@ class EstimatorConfig:
     gyro_delay_s: float | None = None  # lag of the gyro's low-pass to undo; None: what the HAL reports
     gate_sigma: float = 5.0  # innovations beyond this many sigma are outliers
     max_rejects: int = 10  # after this many outliers in a row, re-sync and report
-    stale_ticks: int = 20  # ticks without a fresh sample before the sensors are stale
-    max_gap_s: float = 0.05  # a gap between samples longer than this (and 10 ticks) while moving is a fault
+    stale_ticks: int = 20  # ticks without a fresh sample while moving: hold (controlled stop)
+    max_gap_s: float = 0.05  # longer than this (and 10 ticks) without a fresh sample while moving: hold
+    fault_latch_s: float = 0.5  # without a fresh sample this long: the fault latches (run ends)
+    max_holds: int = 5  # more sensor holds (not loop stalls) than this within hold_window_s: the fault latches
+    hold_window_s: float = 60.0
+    zero_motors_after_s: float | None = None  # blind this long in a hold: motors to zero; None: the HAL's DRIVE watchdog
     stuck_gyro_ticks: int = 100  # identical raw gyro readings in a row = stuck sensor
     encoder_stuck_s: float = 0.3  # commanded motion but no encoder counts for this long
 
@@ -310,7 +322,14 @@ class EstimatorConfig:
         if self.gyro_delay_s is not None and not 0.0 <= self.gyro_delay_s <= 0.05:
             raise ConfigError(f"{where}.gyro_delay_s: must be null or in [0, 0.05] s, got {self.gyro_delay_s}")
         positive(where, max_rejects=self.max_rejects, stale_ticks=self.stale_ticks,
-                 stuck_gyro_ticks=self.stuck_gyro_ticks)
+                 stuck_gyro_ticks=self.stuck_gyro_ticks, fault_latch_s=self.fault_latch_s,
+                 hold_window_s=self.hold_window_s)
+        non_negative(where, max_holds=self.max_holds)
+        if self.zero_motors_after_s is not None:
+            positive(where, zero_motors_after_s=self.zero_motors_after_s)
+        if self.fault_latch_s <= self.max_gap_s:
+            raise ConfigError(f"{where}.fault_latch_s: must exceed max_gap_s ({self.max_gap_s:g} s), "
+                              f"got {self.fault_latch_s:g}")
 
 
 @dataclass(frozen=True)
@@ -367,6 +386,7 @@ class DaemonConfig:
     spin_us: int = applies(LIVE, 0)  # wake this long before each deadline and poll the clock up to it
     watch_config: bool = applies(LIVE, False)  # reload when the file changes
     stop_decel: float = applies(LIVE, 0.5)  # m/s^2 for a controlled stop
+    on_recover: Literal["resume", "wait"] = applies(LIVE, "resume")  # after a hold: resume the path, or stop and wait
 
     def validate(self, where: str) -> None:
         if not 0 <= self.rt_priority <= 99:

@@ -6,6 +6,15 @@ about accelerations before the sensors see them. Measurements: the front encoder
 travelled distance (a position, so quantisation stays white) and the raw gyro. The gyro's
 zero-rate bias is calibrated at rest before the robot moves and re-tracked whenever it
 stands still; outliers are gated; a sensor that stops changing or arriving is reported.
+
+Gaps: while no fresh sample arrives the estimate dead-reckons on the model (`blind_s` says for
+how long); the first fresh sample after a gap longer than `max_gap` (the loop stalled, or the
+sensors were stale) re-anchors the estimate instead of fusing across the gap: the time base
+and the count are re-synced, the distance the encoder counted meanwhile is put into the pose
+(less what dead reckoning already put there), the speeds are re-learnt from the next samples,
+and no motion is invented for the time nobody looked. Whether a gap stops the robot is the
+loop's decision (ddrt/loop.py: the `holding` state); `health.fault` is only set for faults
+that must latch at once (a stuck or saturated gyro, a stuck encoder).
 """
 
 from __future__ import annotations
@@ -21,6 +30,8 @@ from ddrt.core.types import HalInfo, Sample
 from ddrt.core.wrap import wrap_i32
 
 NOISE_STEP_S = 0.005  # the step the configured process noises are given for
+_RESYNC_V_VAR = 0.01  # (m/s)^2: speed variance after a re-anchor, so the next samples set it
+_RESYNC_W_VAR = 0.01  # (rad/s)^2: likewise for the yaw rate
 DEG = math.pi / 180.0
 
 
@@ -35,8 +46,15 @@ class EstimatorHealth:
     gyro_rejects: int = 0
     encoder_rejects: int = 0
     resyncs: int = 0
-    stale_ticks: int = 0
+    stale_ticks: int = 0  # stale samples in a row, now
+    gaps: int = 0  # gaps beyond max_gap that ended while commanded to move (each re-anchored)
+    longest_gap_s: float = 0.0
     fault: str = ""
+
+    def counters(self) -> dict[str, float | int]:
+        return {"gyro_rejects": self.gyro_rejects, "encoder_rejects": self.encoder_rejects,
+                "resyncs": self.resyncs, "stale_ticks": self.stale_ticks, "gaps": self.gaps,
+                "longest_gap_ms": self.longest_gap_s * 1000.0}
 
 
 def calibrate_gyro(raw: list[int], lsb_per_rad_s: float, scale: float, max_std_dps: float) -> tuple[float, float]:
@@ -88,6 +106,16 @@ class Estimator:
         self._same_gyro = 0
         self._count_still_s = 0.0  # time without counts while the filter says we move
         self._still_ticks = 0  # ticks in a row without a single encoder count
+        # Gaps: the newest fresh sample's time, how long the estimate has been blind, what
+        # dead reckoning added to the pose meanwhile, and the gap that ended this update.
+        self._last_fresh_t = 0.0
+        self._blind_ticks = 0
+        self._blind_travel = 0.0
+        self._blind_moving = False
+        self._ahead_of_anchor = 0.0  # time dead-reckoned past the anchor (repeated timestamps)
+        self.blind_s = 0.0
+        self.gap_s = 0.0
+        self.stall_s = 0.0  # of that gap, the last interval between two updates (the loop did not run)
 
     # ------------------------------------------------------------------ configuration
 
@@ -115,8 +143,8 @@ class Estimator:
         # bends the dead-reckoned path. The lead z + tau dz/dt undoes a lag tau.
         self.gyro_lead = info.gyro_delay_s if cfg.gyro_delay_s is None else cfg.gyro_delay_s
         self.gate2 = cfg.gate_sigma * cfg.gate_sigma
-        # A gap in the samples while moving is a fault: ten ticks, but never less than
-        # max_gap_s, so a fast loop does not fault on a host's scheduling hiccup.
+        # How long the estimate may go without a fresh sample while moving: ten ticks, but
+        # never less than max_gap_s, so a fast loop does not stop on a host's hiccup.
         self.max_gap = max(10.0 * period_s, cfg.max_gap_s)
 
     def reconfigure(self, cfg: EstimatorConfig, r_3: float, dyn: Dynamics, motor: Motor) -> None:
@@ -159,6 +187,13 @@ class Estimator:
             f.b = bias
         self._last_raw_gyro = sample.gyro_z_raw
         self._last_gyro_z = None
+        self._last_fresh_t = sample.t
+        self._blind_ticks = 0
+        self._blind_travel = 0.0
+        self._blind_moving = False
+        self._ahead_of_anchor = 0.0
+        self.blind_s = self.gap_s = 0.0
+        self.health.stale_ticks = 0
 
     def set_pose(self, pose: tuple[float, float, float]) -> None:
         self.x, self.y, self.theta = pose
@@ -189,27 +224,32 @@ class Estimator:
         if last_t is None:
             raise RuntimeError("Estimator.update before reset")
         dt = sample.t - last_t
+        self.gap_s = self.stall_s = 0.0
         if not sample.fresh or dt <= 0.0:
-            # No new measurement: a repeated value (dead-reckon through the time that
-            # passed), or a repeated timestamp (no time passed: nothing to predict).
+            # No new measurement: a repeated value with the time of the read (dead-reckon
+            # through the time that passed), or a repeated sample with its own timestamp
+            # (the loop ticked, so a period passed; the anchor stays at the sample's time,
+            # so the next fresh sample measures the whole gap).
             health.stale_ticks += 1
-            if health.stale_ticks >= self.cfg.stale_ticks:
-                health.fault = f"sensors stale for {health.stale_ticks} ticks"
+            self._blind_ticks += 1
+            self._blind_moving = self._blind_moving or not commanded_still
             fresh = False
             if dt <= 0.0:
-                dt = 0.0
+                dt = self.period if not sample.fresh else 0.0
                 new_anchor = last_t
+                self._ahead_of_anchor += dt
             else:
                 new_anchor = sample.t
+                self._ahead_of_anchor = 0.0
+            self.blind_s = max(sample.t - self._last_fresh_t, self._blind_ticks * self.period)
         else:
             health.stale_ticks = 0
             fresh = True
             new_anchor = sample.t
-            if dt > self.max_gap:
-                if commanded_still:
-                    dt = self.period  # standing still: a pause in the loop endangers nothing
-                else:
-                    health.fault = f"sensor gap of {dt * 1000:.1f} ms"
+            self.blind_s = 0.0
+            if dt > self.max_gap or sample.t - self._last_fresh_t > self.max_gap:
+                self._reanchor(sample, dt, commanded_still)
+                return
         self._last_t = new_anchor
         self.dt = dt
 
@@ -238,6 +278,76 @@ class Estimator:
         self.x += v * dt * math.cos(half)
         self.y += v * dt * math.sin(half)
         self.theta += w * dt
+        if fresh:
+            self._last_fresh_t = sample.t
+            if self._blind_ticks:
+                self._ahead_of_anchor = 0.0
+                self._blind_ticks = 0
+                self._blind_travel = 0.0
+                self._blind_moving = False
+        else:
+            self._blind_travel += v * dt
+
+    def _reanchor(self, sample: Sample, dt: float, commanded_still: bool) -> None:
+        """The first fresh sample after a gap beyond max_gap: re-sync instead of fusing.
+
+        The time base and the count restart at this sample. The pose gets the distance the
+        encoder counted since the last fresh sample, less what dead reckoning already put
+        in; its heading keeps what dead reckoning integrated through stale samples, and
+        where nothing ran (the loop itself stalled) the gyro's readings either side of the
+        gap give it (their mean). The speeds restart from what was measured, with wide
+        variances, so the next samples set them: no motion is invented for the gap.
+        """
+        health = self.health
+        gap = sample.t - self._last_fresh_t
+        delta = wrap_i32(sample.encoder_count - self._last_count)
+        self._last_count = sample.encoder_count
+        self._travel_counts += delta
+        measured = delta * self.metres_per_count
+        w_now = sample.gyro_z_raw * self.rad_s_per_lsb - self.heading.b
+        stalled = self._blind_ticks == 0  # nothing was dead-reckoned through this gap
+        # The heading turns through the time dead reckoning did not cover (all of a stall,
+        # the last interval otherwise) at the mean of the rates either side of it.
+        uncovered = max(0.0, dt - self._ahead_of_anchor)
+        turn = 0.5 * (self.heading.w + w_now) * uncovered
+        extra = measured - self._blind_travel
+        half = self.theta + 0.5 * turn
+        self.x += extra * math.cos(half)
+        self.y += extra * math.sin(half)
+        self.theta += turn
+        z = self._travel_counts * self.metres_per_count
+        v_new = measured / gap if stalled and gap > 0.0 else self.travel.v
+        for f in (self.travel, self.speed):
+            f.p = z
+            f.v = v_new
+            f.p00 = f.meas_var
+            f.p01 = 0.0
+            f.p11 = max(f.p11, _RESYNC_V_VAR)
+        for f in (self.yaw, self.heading):
+            f.w = w_now
+            f.p00 = max(f.p00, _RESYNC_W_VAR)
+            f.p01 = 0.0
+        self._last_gyro_z = None  # no lead across the gap
+        self._still_ticks = 1 if delta == 0 else 0
+        self._count_still_s = 0.0
+        self._enc_rejects_row = self._gyro_rejects_row = 0
+        self._last_t = sample.t
+        self._last_fresh_t = sample.t
+        self._ahead_of_anchor = 0.0
+        self._blind_ticks = 0
+        self._blind_travel = 0.0
+        self.dt = self.period
+        self.gap_s = gap
+        self.stall_s = dt if dt > self.max_gap else 0.0
+        moving = not commanded_still or self._blind_moving
+        self._blind_moving = False
+        if moving:  # a pause while standing still endangers nothing: not counted
+            health.gaps += 1
+            if gap > health.longest_gap_s:
+                health.longest_gap_s = gap
+        raw = sample.gyro_z_raw * self.rad_s_per_lsb
+        if abs(raw) >= self.gyro_full_scale * 0.999:
+            health.fault = "gyro saturated"
 
     def _fuse_encoder(self, count: int, dt: float) -> None:
         delta = wrap_i32(count - self._last_count)

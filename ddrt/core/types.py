@@ -30,13 +30,17 @@ class HalInfo:
     gyro_lsb_per_rad_s: float  # raw gyro z units per rad/s (131 LSB per deg/s at +-250 dps)
     gyro_full_scale_rad_s: float  # magnitude at which the raw reading saturates
     gyro_delay_s: float = 0.0  # how far the gyro's low-pass lags the encoder (s)
+    # The motor driver's own watchdog: it zeroes the motors when no command arrived for this
+    # long (the microcontroller's DRIVE timeout); None when the motors have none (sysfs PWM).
+    drive_timeout_s: float | None = None
 
 
 @dataclass(slots=True)
 class Sample:
     """One reading of every sensor, as the hardware delivers it.
 
-    `t` is on the monotonic clock of the loop (seconds). `encoder_count` is the raw front
+    `t` is on the monotonic clock of the loop (seconds): when the value was read (a backend
+    that repeats a value may stamp it with the time of the read, or keep the value's own). `encoder_count` is the raw front
     encoder counter (wraps like a signed 32-bit integer). `gyro_z_raw` is the raw int16 from
     the gyro at its configured range (bias not removed). `fresh` is False when a backend had
     no new data and repeated its last value; `faults` is a short text when the backend saw a

@@ -7,9 +7,16 @@ held back whenever it would lead the robot's progress by more than `max_lead_m`,
 that was stopped or slowed never has to race to catch up; `along_err` (schedule minus
 progress) drives the outer law's K_x term. Time-indexed mode is the seed's own: the
 reference is wherever the profile is at time t, whatever the robot does.
+
+After a hold (the loop stopped the robot on a sensor gap), `resume` restarts the schedule
+from rest where the robot is: the nearest point is found again from the robot's pose, and
+the schedule's speed ramps up from zero at the profile's own acceleration limits until it
+meets the profile, which it then follows as before.
 """
 
 from __future__ import annotations
+
+import math
 
 from ddrt.core.types import Setpoint
 from ddrt.path.sampled import Path
@@ -33,14 +40,46 @@ class PathReference:
         self._stop_decel: float | None = None
         self._stop_v = 0.0
         self._stop_sigma = 0.0
+        self._ramp = False  # restarting from rest after a hold (see resume)
+        self._ramp_s = 0.0  # the ramp's schedule: progress and progress rate
+        self._ramp_u = 0.0
 
     def request_stop(self, decel: float) -> None:
         """Come to rest along the path at `decel` m/s^2 from the current schedule speed."""
         if self._stop_decel is None:
-            point = self.path.at_time(self.t_sched)
+            if self._ramp:
+                i = self.path.index(self._ramp_s)
+                self._stop_v = 0.0 if self.path.seg_pivot[i] else self._ramp_u
+                self._stop_sigma = self._ramp_s
+                self._ramp = False
+            else:
+                point = self.path.at_time(self.t_sched)
+                self._stop_v = 0.0 if point.pivot else point.v
+                self._stop_sigma = point.sigma
             self._stop_decel = decel
-            self._stop_v = 0.0 if point.pivot else point.v
-            self._stop_sigma = point.sigma
+
+    def resume(self, x: float, y: float, theta: float) -> None:
+        """Restart from rest with the robot at (x, y, theta) (it was stopped by a hold).
+
+        The nearest point is found again (forward from the last progress, within the search
+        window, so a self-crossing path cannot make it jump branch); the schedule starts
+        there at speed zero and accelerates at the profile's limits until it meets the
+        profile. A pending stop is cancelled.
+        """
+        near = self.pursuit.update(x, y, theta)
+        self.sigma = near.sigma
+        self.cross_track = near.cross_track
+        self._stop_decel = None
+        self._ramp = True
+        self._ramp_s = near.sigma
+        self._ramp_u = 0.0
+        self.done = False
+        self.t_sched = self._time_at(near.sigma)
+
+    @property
+    def resuming(self) -> bool:
+        """True while the schedule is ramping up after `resume`."""
+        return self._ramp
 
     @property
     def stopping(self) -> bool:
@@ -60,6 +99,8 @@ class PathReference:
         step = self.period if dt is None else dt
         if self._stop_decel is not None:
             self._update_stopping(near, sp, step)
+            return
+        if self._ramp and self._update_ramp(near, sp, step):
             return
         t_next = self.t_sched + step
         if self.time_indexed:
@@ -94,6 +135,74 @@ class PathReference:
             sp.omega_d = sched.v * near.kappa
             sp.alpha_d = 0.0 if held else sched.alpha  # d(v kappa)/dt: a kappa + v^2 dkappa/ds
         self.done = near.done and self.t_sched >= path.duration
+
+    # ------------------------------------------------------------------ resuming from rest
+
+    def _rate_at(self, s: float) -> tuple[int, float]:
+        """(interval, the profile's progress rate u) at progress s."""
+        p = self.path
+        i = p.index(s)
+        uu = p.u[i] * p.u[i] + 2.0 * p.acc_u[i] * (s - p.sigma[i])
+        return i, math.sqrt(uu) if uu > 0.0 else 0.0
+
+    def _time_at(self, s: float) -> float:
+        i = self.path.index(s)
+        return self.path.dynamics(i, s)[4]
+
+    def _ramp_accel(self, i: int) -> float:
+        """The profile's acceleration limit on interval i (progress units per s^2)."""
+        p = self.path
+        lim = p.limits
+        if p.seg_pivot[i]:
+            return p.pivot_radius * lim.alpha_max
+        k = max(abs(p.kappa[i]), abs(p.kappa[i + 1]))
+        return min(lim.accel, 0.5 * lim.alpha_max / k) if k > 0.0 else lim.accel
+
+    def _update_ramp(self, near, sp: Setpoint, dt: float) -> bool:
+        """The schedule after `resume`: from rest at the profile's acceleration until it
+        meets the profile. Returns False once it has (the caller then follows the profile)."""
+        p = self.path
+        s = self._ramp_s
+        i, u_prof = self._rate_at(s)
+        acc = self._ramp_accel(i)
+        u_new = self._ramp_u + acc * dt
+        if u_new >= u_prof:
+            self._ramp = False  # merged: the profile from here on (at_time is exact)
+            self.t_sched = self._time_at(s)
+            return False
+        s_next = s + 0.5 * (self._ramp_u + u_new) * dt
+        held = not self.time_indexed and s_next > near.sigma + self.max_lead
+        if not held:
+            self._ramp_s = s = min(s_next, p.length)
+            self._ramp_u = u_new
+        i = p.index(s)
+        pivot = p.seg_pivot[i]
+        u = self._ramp_u
+        a = 0.0 if held else acc
+        if self.time_indexed:
+            x, y, th, k = p.geometry(i, s)
+            sp.x_d, sp.y_d, sp.theta_d = x, y, th
+            sp.kappa = 0.0 if pivot else k
+            sp.path_frame = False
+            sp.along_err = 0.0
+        else:
+            sp.x_d, sp.y_d, sp.theta_d = near.x_d, near.y_d, near.theta_d
+            sp.kappa = near.kappa
+            sp.path_frame = True
+            sp.along_err = s - near.sigma
+        if pivot:
+            sp.v_d = 0.0
+            sp.a_d = 0.0
+            sp.omega_d = p.turn[i] * u / p.pivot_radius
+            sp.alpha_d = p.turn[i] * a / p.pivot_radius
+        else:
+            sp.v_d = u
+            sp.a_d = a
+            sp.omega_d = u * sp.kappa
+            sp.alpha_d = a * sp.kappa
+        sp.pivot = pivot
+        self.done = False
+        return True
 
     def _update_stopping(self, near, sp: Setpoint, dt: float) -> None:
         decel = self._stop_decel or 1.0

@@ -242,6 +242,7 @@ class Daemon:
         notifier = self.notifier
         sched = RateScheduler(self.period, clock.now())
         perf = time.perf_counter
+        cpu = time.thread_time
         wd_interval = notifier.watchdog_interval() or 1.0
         next_watchdog = 0.0
         next_status = 0.0
@@ -252,20 +253,31 @@ class Daemon:
         while not self.stop_requested:
             deadline = sched.next_deadline()
             woke = clock.sleep_until(deadline)
-            skipped = sched.account(woke)
             if self.estop_signalled:  # SIGUSR1 (any time since the last tick, or before start)
                 self.estop_signalled = False
                 if loop.state != "estop":
                     log.warning("estop: SIGUSR1 received; motors zeroed, latched until reset")
                     loop.estop("estop: SIGUSR1")
+            # Lateness is how late the tick really starts (takes its sample), not when the
+            # sleep returned: the thread can lose the CPU or the GIL after waking (a busy
+            # host, a helper thread), and such a stall delays the sample as much as a late
+            # wake-up does. A simulated robot's physics, run here, costs CPU time that does
+            # not exist on the robot, so only its wall time beyond its own CPU time counts.
             if advance_plant is not None:
+                cpu0 = cpu()
                 advance_plant()
+                started = clock.now() - (cpu() - cpu0)
+            else:
+                started = clock.now()
+            if started < woke:
+                started = woke
+            skipped = sched.account(started)
             t0 = perf()
             loop.tick()
             if ring is not None:
                 ring.append(loop.row)
             compute = perf() - t0
-            stats.record(compute, woke - deadline, skipped)
+            stats.record(compute, started - deadline, skipped)
             if loop.state == "fault":
                 self._fail(f"stopping after fault: {loop.fault}")
                 self.exit_code = 1
@@ -325,7 +337,20 @@ class Daemon:
         s = self.stats.summary()
         state = loop.state if loop else "starting"
         p99 = s.get("compute_p99_us")
-        return f"{state}; tick p99 {p99:.0f} us; missed {s['missed_ticks']}" if p99 is not None else state
+        if p99 is None:
+            return state
+        line = f"{state}; tick p99 {p99:.0f} us; missed {s['missed_ticks']}"
+        if loop is not None and loop.recovery.holds:
+            line += f"; holds {loop.recovery.holds}, resumed {loop.recovery.resumes}"
+        return line
+
+    def recovery_report(self) -> dict[str, Any] | None:
+        """Sensor gaps, holds and resumes so far (status and --stats-json)."""
+        loop = self.loop
+        if loop is None:
+            return None
+        h = loop.estimator.health
+        return {"gaps": h.gaps, "longest_gap_ms": h.longest_gap_s * 1000.0, **loop.recovery.as_dict()}
 
     def stats_report(self) -> dict[str, Any]:
         s = self.stats.summary()
@@ -346,6 +371,7 @@ class Daemon:
             "final_duty": [self.loop.duty_l, self.loop.duty_r] if self.loop is not None else None,
             "final_state": self.loop.state if self.loop is not None else None,
             "reloads": dict(self.reloads),
+            "recovery": self.recovery_report(),
         }
 
     def status(self) -> dict[str, Any]:
@@ -367,14 +393,20 @@ class Daemon:
             "duty": {"l": loop.duty_l, "r": loop.duty_r},
             "progress": progress,
             "timing": self.stats.summary(),
-            "faults": {"gyro_rejects": est.health.gyro_rejects, "encoder_rejects": est.health.encoder_rejects,
-                       "resyncs": est.health.resyncs, "stale_ticks": est.health.stale_ticks,
-                       **getattr(self.hal, "fault_counters", lambda: {})()},
+            "faults": {**est.health.counters(), **self._hal_counters()},
+            "recovery": self.recovery_report(),
             "config": self.cfg.source,
             "reloads": dict(self.reloads),
             "adaptation": loop.adapter.status() if loop.adapter is not None else None,
             "control_socket": self.server.counters() if self.server is not None else None,
         }
+
+    def _hal_counters(self) -> dict[str, Any]:
+        # RealHal's is a property (a dict); a backend without one has none.
+        counters = getattr(self.hal, "fault_counters", None)
+        if callable(counters):
+            counters = counters()
+        return dict(counters) if isinstance(counters, dict) else {}
 
     # ------------------------------------------------------------------ commands
 
