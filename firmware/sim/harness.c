@@ -25,10 +25,12 @@
  *   regs                   Timer1 and port registers, for tests
  *   quit
  *
- * The reply to run/out is "ok CYCLE INST_L INST_R MEAN_L MEAN_R ENC_COUNT RESETS STATE",
- * after any "ev CYCLE L R", "rst CYCLE MCUSR" (a reset, with the cause the firmware found in
- * MCUSR) and, with --pipe, "tx CYCLE HEX" lines (MCU -> host bytes, each stamped with the
- * cycle its stop bit ends).
+ * The reply to run/out is "ok CYCLE INST_L INST_R MEAN_L MEAN_R ENC_COUNT RESETS TX_TOTAL
+ * STATE" (drives -1..1 now and averaged since the last report, the count the A/B lines show,
+ * resets so far, MCU -> host bytes delivered so far, the CPU state), after any "ev CYCLE L R",
+ * "rst CYCLE MCUSR" (a reset, with the cause the firmware found in MCUSR) and, with --pipe,
+ * "tx END BYTE_CYCLES HEX" lines (MCU -> host bytes sent back to back; END is the cycle the
+ * first one's stop bit ends, each next one a byte time later).
  *
  * Paced (--paced): simulated time follows the wall clock; the harness runs on its own and
  * serves commands and the pty as they come. Otherwise time moves only on `run`.
@@ -320,6 +322,7 @@ static uint64_t host_rx_total;      /* host bytes taken from the pty */
 static struct { avr_cycle_count_t at; uint8_t b; } txq[TXQ_SIZE];
 static size_t txq_head, txq_tail;   /* MCU -> host bytes until their stop bit ends */
 static uint64_t tx_lost;
+static uint64_t tx_total; /* MCU -> host bytes delivered (to the pty, or in tx lines) */
 
 /* Cycles per byte as simavr's UART paces them (it counts start + 8 data + a parity bit +
  * stop for 8N1: 11 bits), from the firmware's own UBRR0 and U2X0. */
@@ -392,10 +395,10 @@ static void tx_flush(void)
     while (txq_tail != txq_head && txq[txq_tail].at <= avr->cycle) {
         avr_cycle_count_t at = txq[txq_tail].at;
         if (pipe_mode) {
-            if (n == 0 || at != prev + bc) {
+            if (n == 0 || at > prev + bc + bc / 2) { /* a gap: a new run */
                 if (n)
                     emit("\n");
-                emit("tx %" PRIu64 " ", (uint64_t)at);
+                emit("tx %" PRIu64 " %" PRIu64 " ", (uint64_t)at, (uint64_t)bc);
             }
             emit("%02x", txq[txq_tail].b);
             prev = at;
@@ -409,6 +412,7 @@ static void tx_flush(void)
         return;
     if (pipe_mode) {
         emit("\n");
+        tx_total += n;
         return;
     }
     size_t off = 0;
@@ -421,6 +425,7 @@ static void tx_flush(void)
             break;
         }
         off += (size_t)w;
+        tx_total += (uint64_t)w;
     }
 }
 
@@ -560,8 +565,8 @@ static void report(void)
     double mr = drive_n ? drive_sum[1] / (double)drive_n : d[1];
     drive_sum[0] = drive_sum[1] = 0.0;
     drive_n = 0;
-    emit("ok %" PRIu64 " %.6f %.6f %.6f %.6f %" PRId64 " %u %s\n", (uint64_t)avr->cycle, d[0], d[1],
-         ml, mr, enc_emitted, resets, state_name());
+    emit("ok %" PRIu64 " %.6f %.6f %.6f %.6f %" PRId64 " %u %" PRIu64 " %s\n", (uint64_t)avr->cycle,
+         d[0], d[1], ml, mr, enc_emitted, resets, tx_total, state_name());
 }
 
 static int hexval(int c)
