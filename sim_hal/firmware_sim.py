@@ -11,12 +11,17 @@
   `hal.bridge.url: simavr://` (optionally `simavr://PATH/TO/FIRMWARE.elf`, relative to the
   source tree; the default is firmware/build/ddrt_bridge.elf, built with make if needed).
 
-Time: unpaced (`ddrt sim`, tests) the plant and the AVR advance in lockstep, one plant step
-(1 ms) at a time: the plant integrates the step with the duties the firmware applied, its
-encoder count at the step's end becomes the A/B edges of the same step on the AVR, and the
-AVR's mean drive over the step is the plant's next command. Paced (`ddrt run`), the harness
-runs on the wall clock by itself and the plant, brought up to the wall clock before each
-tick, tells it where the wheel is and how fast it turns.
+Time: the plant and the AVR advance in lockstep, one plant step (1 ms) at a time: the plant
+integrates the step with the duties the firmware applied, its encoder count at the step's
+end becomes the A/B edges of the same step on the AVR, and the AVR's mean drive over the
+step is the plant's next command. Unpaced (`ddrt sim`, tests) that is all simulated time;
+paced (`ddrt run`) the daemon's tick brings both up to the wall clock, as with the Python
+MCU model. With `simavr://?free-running`, a paced run instead lets the harness keep the
+wall clock itself (its --paced mode): the firmware's bytes then come as it sends them, as
+from a USB serial adapter, and the plant tells it where the wheel is and how fast it turns;
+but the harness is then a process of its own, which a busy machine can stall: measured with
+a load average of 3 to 5 on two cores, arrival gaps of up to 45 ms (any process there saw
+the same), against the bridge's 50 ms staleness bound.
 """
 
 from __future__ import annotations
@@ -96,6 +101,8 @@ class Simavr:
         self._stderr = tempfile.TemporaryFile()
         self._buf = b""
         self._closed = False
+        self._posted = 0  # commands sent with post() whose reply is still to come
+        self._pending: list[str] = []
         try:
             self.proc = subprocess.Popen(args, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                          stderr=self._stderr)
@@ -151,8 +158,46 @@ class Simavr:
                 raise HalIOError(f"ddrt-simavr: {line.split()[0]}: {reply[4:]}")
             before.append(reply)
 
+    def post(self, line: str) -> None:
+        """Send a command without waiting; its reply comes from `replies()`."""
+        try:
+            self.proc.stdin.write(line.encode() + b"\n")
+            self.proc.stdin.flush()
+        except (BrokenPipeError, OSError) as e:
+            raise HalIOError(f"ddrt-simavr: {e}{self._stderr_tail()}") from e
+        self._posted += 1
+
+    def replies(self) -> list[Report]:
+        """The reports of posted run/enc/out commands that have arrived (never blocks)."""
+        fd = self.proc.stdout.fileno()
+        while self._posted and select.select([fd], [], [], 0.0)[0]:
+            chunk = os.read(fd, 1 << 16)
+            if not chunk:
+                raise HalIOError(f"ddrt-simavr exited (code {self.proc.poll()}){self._stderr_tail()}")
+            self._buf += chunk
+        out = []
+        while self._posted and b"\n" in self._buf:
+            line, self._buf = self._buf.split(b"\n", 1)
+            text = line.decode()
+            if text.startswith("ok"):
+                self._posted -= 1
+                out.append(self._parse(self._pending, text.split()[1:]))
+                self._pending = []
+            elif text.startswith("err"):
+                self._posted -= 1
+                raise HalIOError(f"ddrt-simavr: {text[4:]}")
+            else:
+                self._pending.append(text)
+        return out
+
     def _report(self, line: str) -> Report:
+        if self._posted:
+            raise HalIOError("ddrt-simavr: a posted command is still outstanding")
         before, f = self.command(line)
+        return self._parse(before, f)
+
+    @staticmethod
+    def _parse(before: list[str], f: list[str]) -> Report:
         rep = Report(cycle=int(f[0]), inst=(float(f[1]), float(f[2])), mean=(float(f[3]), float(f[4])),
                      enc_count=int(f[5]), resets=int(f[6]), tx_total=int(f[7]), cpu=f[8])
         for b in before:
@@ -173,8 +218,10 @@ class Simavr:
     def out(self) -> Report:
         return self._report("out")
 
-    def enc(self, count: float, rate: float) -> None:
-        self.command(f"enc {count:.3f} {rate:.3f}")
+    def enc(self, count: float, rate: float) -> Report:
+        """The encoder heads for `count` (since power-on), then turns on at `rate` counts/s;
+        returns the outputs as `out` does."""
+        return self._report(f"enc {count:.3f} {rate:.3f}")
 
     def send(self, data: bytes) -> int:
         """Host bytes into the UART now; returns the cycle the last one is received."""
@@ -192,21 +239,22 @@ class Simavr:
     def close(self) -> None:
         if self._closed:
             return
-        try:
-            self.command("quit")
-        except HalIOError:
+        try:  # quit; its reply is not waited for (posted commands may still be answering)
+            self.proc.stdin.write(b"quit\n")
+            self.proc.stdin.flush()
+        except (BrokenPipeError, OSError):
             pass
         self._closed = True
-        try:
-            self.proc.stdin.close()
-        except OSError:
-            pass
+        for stream in (self.proc.stdin, self.proc.stdout):  # a full pipe must not hold it up
+            try:
+                stream.close()
+            except OSError:
+                pass
         try:
             self.proc.wait(timeout=5)
         except subprocess.TimeoutExpired:
             self.proc.kill()
             self.proc.wait()
-        self.proc.stdout.close()
         self._stderr.close()
 
     def __enter__(self) -> "Simavr":
@@ -274,7 +322,7 @@ class FirmwareSimDevices:
     MPU-6050, and the clock that drives them (`time`)."""
 
     def __init__(self, cfg: Config, start: tuple[float, float, float], seed: int | None = None,
-                 paced: bool = False, elf: str | Path | None = None) -> None:
+                 paced: bool = False, elf: str | Path | None = None, free_running: bool = False) -> None:
         if elf is None:
             ensure_built("all", "sim")
             elf = firmware_build.artifact(DEFAULT_ELF)
@@ -282,12 +330,18 @@ class FirmwareSimDevices:
             ensure_built("sim")
         self.robot = SimRobot(cfg.plant, cfg.plant_motor_l, cfg.plant_motor_r,
                               plant_config(cfg, seed), start=start)
-        self.sim = Simavr(elf, paced=paced)
+        # free-running: the harness keeps to the wall clock on its own (only when paced)
+        self.free_running = free_running = paced and free_running
+        self.sim = Simavr(elf, paced=free_running)
         self.paced = paced
         self.name = f"fw-{os.getpid()}-{next(_names)}"
         if paced:
+            # No waiting on the pty's kernel hand-over: its bytes land when they land (within
+            # microseconds, or as late as a busy machine's scheduler makes it), as from a USB
+            # serial adapter; the lockstep's waits are for determinism, which a run on the
+            # wall clock does not have anyway, and they would stall the daemon's tick.
             self.counts = None
-            self.url = self.sim.pty  # the harness serves the pty on its own, as a USB adapter does
+            self.url = self.sim.pty
         else:
             self.counts = protocol_simavr.register(self.name, self.sim.pty)
             self.url = f"simavr://{self.name}"
@@ -298,6 +352,7 @@ class FirmwareSimDevices:
         self._enc_total = 0  # counts the wheel turned since the AVR's power-on
         self._duty = (0.0, 0.0)
         self._closed = False
+        self.last: Report | None = None  # the harness's latest report (lockstep), for tests
         self.time = SimTime(lambda: robot.t, self._advance, paced)  # the real drivers' Clock
 
     def _cycle(self, t: float) -> int:
@@ -313,7 +368,7 @@ class FirmwareSimDevices:
     def _advance(self, t: float) -> None:
         robot = self.robot
         step = robot.step_s
-        if self.paced:
+        if self.free_running:
             t_prev = robot.t
             while robot.t < t - 1e-12:
                 robot.advance_to(min(t, robot.t + step))
@@ -323,8 +378,13 @@ class FirmwareSimDevices:
             d = wrap_i32(c - self._count)
             self._count = c
             self._enc_total += d
-            self.sim.enc(self._enc_total, d / (robot.t - t_prev))
-            self._command(self.sim.out().mean)
+            # Never wait for the harness here: it runs on its own, and a tick must not stall
+            # when the OS is slow to schedule it (the firmware's STATE stream is what the host
+            # waits for, as with real hardware). The plant takes the newest outputs that came.
+            reports = self.sim.replies()
+            self.sim.post(f"enc {self._enc_total:.3f} {d / (robot.t - t_prev):.3f}")
+            if reports:
+                self._command(reports[-1].mean)
             return
         counts = self.counts
         while robot.t < t - 1e-12:
@@ -332,26 +392,53 @@ class FirmwareSimDevices:
             c = robot.read_encoder()
             d = wrap_i32(c - self._count)
             self._count = c
-            rep = self.sim.run(self._cycle(robot.t), d, sync=counts.host_written)
-            counts.mcu_sent = rep.tx_total
+            rep = self.sim.run(self._cycle(robot.t), d, sync=counts.host_written if counts else None)
+            if counts is not None:
+                counts.mcu_sent = rep.tx_total
+            self.last = rep
             self._command(rep.mean)
+
+    def _settle(self) -> None:
+        """At close: the host's last bytes (the Bridge's STOP) reach the firmware, and its
+        outputs the plant, as they would on a robot whose computer shuts down."""
+        if self.free_running:
+            deadline = time.monotonic() + 1.0
+            while self.sim._posted and time.monotonic() < deadline:
+                self.sim.replies()
+                time.sleep(0.001)
+            time.sleep(0.005)  # the harness runs on its own: give it the STOP's time on the line
+            rep = self.sim.out() if not self.sim._posted else None
+        else:
+            if self.paced:
+                time.sleep(0.002)  # the STOP through the pty's kernel hand-over
+            rep = self.sim.run(self._cycle(self.robot.t) + self.sim.freq // 200, 0,
+                               sync=self.counts.host_written if self.counts else None)
+        if rep is not None:
+            self._command(rep.inst)
 
     def close(self) -> None:
         if self._closed:
             return
         self._closed = True
+        try:
+            self._settle()
+        except HalIOError:
+            pass  # the harness is gone already: nothing more reaches the plant
         protocol_simavr.unregister(self.name)
         self.sim.close()
 
 
-def _elf_from_url(url: str) -> Path | None:
-    """`simavr://` -> the default build; `simavr://PATH.elf` -> that file (relative to the
-    source tree unless absolute)."""
+def _parse_url(url: str) -> tuple[Path | None, bool]:
+    """`simavr://[PATH.elf][?free-running]` -> (the firmware, None for the default build;
+    whether a paced run lets the harness keep the wall clock itself). PATH is relative to the
+    source tree unless absolute."""
     rest = url.split("://", 1)[-1].strip()
+    rest, _, query = rest.partition("?")
+    free = "free-running" in query.split("&")
     if not rest or not rest.endswith(".elf"):
-        return None
+        return None, free
     path = Path(rest)
-    return path if path.is_absolute() else firmware_build.FIRMWARE_DIR.parent / path
+    return (path if path.is_absolute() else firmware_build.FIRMWARE_DIR.parent / path), free
 
 
 def open_firmware_sim_hal(cfg: Config, start: tuple[float, float, float] = (0.0, 0.0, 0.0),
@@ -363,7 +450,8 @@ def open_firmware_sim_hal(cfg: Config, start: tuple[float, float, float] = (0.0,
     real backend's, with the URL replaced by the harness's port."""
     hal_section = dict(cfg.raw.get("hal") or {})
     bridge = dict(hal_section.get("bridge") or {})
-    devices = FirmwareSimDevices(cfg, start, seed, paced, elf=_elf_from_url(str(bridge.get("url", ""))))
+    elf, free_running = _parse_url(str(bridge.get("url", "")))
+    devices = FirmwareSimDevices(cfg, start, seed, paced, elf=elf, free_running=free_running)
     bridge["url"] = devices.url
     hal_section["bridge"] = bridge
     try:
@@ -371,4 +459,23 @@ def open_firmware_sim_hal(cfg: Config, start: tuple[float, float, float] = (0.0,
     except BaseException:
         devices.close()
         raise
+    # The bridge asks the time for every packet; paced, each ask would bring the plant and
+    # the AVR up to the wall clock, a simulation step costs a round trip to the harness, and
+    # a burst of asks chases the wall clock instead of catching up with it. It reads the
+    # simulated time; RealHal.read (once per tick) and the daemon move it.
+    real.encoder.clock = _ReadingClock(devices.time, devices.robot)
     return EmulatedRealHal(real, devices)
+
+
+class _ReadingClock:
+    """A Clock that reads the simulated time without advancing it; sleeping advances it."""
+
+    def __init__(self, time_: SimTime, robot: SimRobot) -> None:
+        self._time = time_
+        self._robot = robot
+
+    def now(self) -> float:
+        return self._robot.t
+
+    def sleep_until(self, deadline: float) -> float:
+        return self._time.sleep_until(deadline)

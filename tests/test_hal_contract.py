@@ -2,7 +2,8 @@
 
 The real backend here is hal.real.RealHal (Mpu6050 over an emulated I2C register file,
 Bridge over protocol v1 to an emulated microcontroller), both backed by the same simulated
-robot, wired in process through pyserial's URL mechanism (ddrtsim://).
+robot, wired in process through pyserial's URL mechanism (ddrtsim://); and the same with the
+reference firmware in simavr as the microcontroller (simavr://, over a pseudo-terminal).
 """
 
 from __future__ import annotations
@@ -23,11 +24,20 @@ ROOT = FsPath(__file__).resolve().parents[1]
 SCENARIO = ROOT / "configs" / "scenarios" / "figure8_slow.yaml"
 EMULATED = {"hal": {"backend": "real", "imu": {"bus": "sim"},
                     "bridge": {"url": "ddrtsim://robot", "drive_timeout_ms": 100, "state_stale_s": 0.05}}}
-BACKENDS = {"sim": None, "real-emulated": EMULATED}
+FIRMWARE = {"hal": {"backend": "real", "imu": {"bus": "sim"},
+                    "bridge": {"url": "simavr://", "drive_timeout_ms": 100, "state_stale_s": 0.05}}}
+BACKENDS = {"sim": None, "real-emulated": EMULATED, "real-firmware": FIRMWARE}
 
 
 @pytest.fixture(params=sorted(BACKENDS))
 def backend(request):
+    if request.param == "real-firmware":
+        from sim_hal import firmware_build
+
+        missing = firmware_build.missing_tools("all", "sim")
+        if missing:
+            pytest.skip(f"AVR toolchain / simavr not installed ({', '.join(missing)}): "
+                        f"{firmware_build.INSTALL_HINT}")
     cfg = load_config(SCENARIO, BACKENDS[request.param])
     hal = open_hal(cfg, start=(0.0, 0.0, 0.0))
     yield request.param, cfg, hal

@@ -16,7 +16,8 @@
  *                          host wrote them before this command), then simulate up to CYCLE
  *                          with the encoder moving DELTA counts evenly over the interval
  *   enc COUNT RATE         the encoder heads for COUNT (absolute, since power-on), then goes
- *                          on at RATE counts/s (paced mode: the plant's latest state)
+ *                          on at RATE counts/s (paced mode: the plant's latest state); replies
+ *                          as `out`
  *   out                    (paced) outputs now, and the mean since the previous out
  *   send HEX               host bytes into the UART now (queued at the line rate);
  *                          replies "ok CYCLE" with the cycle the last byte is received
@@ -25,7 +26,7 @@
  *   regs                   Timer1 and port registers, for tests
  *   quit
  *
- * The reply to run/out is "ok CYCLE INST_L INST_R MEAN_L MEAN_R ENC_COUNT RESETS TX_TOTAL
+ * The reply to run/enc/out is "ok CYCLE INST_L INST_R MEAN_L MEAN_R ENC_COUNT RESETS TX_TOTAL
  * STATE" (drives -1..1 now and averaged since the last report, the count the A/B lines show,
  * resets so far, MCU -> host bytes delivered so far, the CPU state), after any "ev CYCLE L R",
  * "rst CYCLE MCUSR" (a reset, with the cause the firmware found in MCUSR) and, with --pipe,
@@ -618,7 +619,7 @@ static void command(char *line)
         double ms = avr->frequency / 1000.0;
         double span = dist * ENC_MIN_GAP * 4 > ms ? dist * ENC_MIN_GAP * 4 : ms;
         enc_segment(now + span, count + rate * span / avr->frequency, rate);
-        emit("ok %" PRIu64 "\n", (uint64_t)avr->cycle);
+        report(); /* as `out`: one round trip per plant update */
     } else if (!strcmp(cmd, "out")) {
         report();
     } else if (!strcmp(cmd, "send")) {
