@@ -17,15 +17,13 @@ from hal.protocol import (
     Drive, FrameDecoder, Hello, HelloReply, Packet, State, Stop, Unknown, decode_packet,
     encode_frame, encode_packet,
 )
+from firmware_tools import require
 from sim_hal import firmware_build
 
 
 @pytest.fixture(scope="module")
 def lib():
-    missing = firmware_build.missing_tools("host")
-    if missing:
-        pytest.skip(f"no host C compiler ({', '.join(missing)} missing)")
-    firmware_build.build("host")
+    require("host")
     so = ctypes.CDLL(str(firmware_build.artifact("host/libddrtproto.so")))
     so.proto_crc16.restype = ctypes.c_uint16
     so.proto_crc16.argtypes = [ctypes.c_uint16, ctypes.c_char_p, ctypes.c_uint8]

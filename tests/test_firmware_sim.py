@@ -23,7 +23,7 @@ from ddrt.loop import COLUMNS, ControlLoop
 from ddrt.path.spec import resolve_path
 from ddrt.simrun.runner import run_sim
 from hal.registry import backend_name, open_hal
-from sim_hal import firmware_build
+from firmware_tools import require
 
 ROOT = Path(__file__).resolve().parents[1]
 FIRMWARE_CFG = ROOT / "configs" / "firmware-sim.yaml"
@@ -34,11 +34,7 @@ EMULATED = {"hal": {"backend": "real", "imu": {"bus": "sim"},
 
 @pytest.fixture(scope="module", autouse=True)
 def built() -> None:
-    missing = firmware_build.missing_tools("all", "sim")
-    if missing:
-        pytest.skip(f"AVR toolchain / simavr not installed ({', '.join(missing)}): "
-                    f"{firmware_build.INSTALL_HINT}")
-    firmware_build.build("all", "sim")
+    require("all", "sim")
 
 
 def test_the_config_chooses_the_firmware_backend() -> None:
@@ -172,3 +168,28 @@ def test_ddrt_run_drives_the_firmware_paced_to_the_wall_clock(tmp_path: Path) ->
     assert max(abs(float(r["cross_track_est"])) for r in moving) < 0.03
     assert sum(float(r["fresh"]) for r in moving) > 0.9 * len(moving)
     assert all(math.isfinite(float(v)) for r in moving for v in r.values() if v)
+
+
+def test_the_free_running_harness_keeps_to_the_wall_clock() -> None:
+    """ddrt-simavr --paced (url simavr://?free-running): simulated time follows the wall
+    clock by itself, and the firmware's bytes come as it sends them."""
+    import time
+
+    from hal.protocol import FrameDecoder, State
+    from sim_hal import firmware_build
+    from sim_hal.firmware_sim import Simavr
+
+    sim = Simavr(firmware_build.artifact("ddrt_bridge.elf"), paced=True, pipe=True)
+    try:
+        t0 = time.monotonic()
+        c0 = sim.out().cycle
+        time.sleep(0.3)
+        rep = sim.out()
+        wall = time.monotonic() - t0
+        sim_s = (rep.cycle - c0) / sim.freq
+        assert wall - 0.05 <= sim_s <= wall + 0.01
+        dec = FrameDecoder()
+        states = [p for _, _, data in rep.tx for p in dec.feed(data) if isinstance(p.msg, State)]
+        assert len(states) >= 0.2 * 500
+    finally:
+        sim.close()

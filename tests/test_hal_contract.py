@@ -32,12 +32,9 @@ BACKENDS = {"sim": None, "real-emulated": EMULATED, "real-firmware": FIRMWARE}
 @pytest.fixture(params=sorted(BACKENDS))
 def backend(request):
     if request.param == "real-firmware":
-        from sim_hal import firmware_build
+        from firmware_tools import require
 
-        missing = firmware_build.missing_tools("all", "sim")
-        if missing:
-            pytest.skip(f"AVR toolchain / simavr not installed ({', '.join(missing)}): "
-                        f"{firmware_build.INSTALL_HINT}")
+        require("all", "sim")
     cfg = load_config(SCENARIO, BACKENDS[request.param])
     hal = open_hal(cfg, start=(0.0, 0.0, 0.0))
     yield request.param, cfg, hal

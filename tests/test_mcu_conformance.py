@@ -19,7 +19,7 @@ from hal.protocol import (
     FLAG_BAD_FRAME, FLAG_OUTPUTS_ON, FLAG_WATCHDOG, Drive, FrameDecoder, Hello, HelloReply,
     Packet, State, Stop, Unknown, encode_frame, seq_gap,
 )
-from sim_hal import firmware_build
+from firmware_tools import require
 from sim_hal.mcu_emulator import McuEmulator
 
 DUTY_TOL = 1.0 / 400 + 1e-6  # the firmware's PWM resolution (Timer1 TOP = 400)
@@ -27,20 +27,9 @@ ACT_S = 0.0003  # a command acts this soon after its last byte is in (frame deco
 STATE_HZ = 500  # the firmware's stream rate; the Python model is built with the same
 
 
-def firmware_missing() -> str | None:
-    missing = firmware_build.missing_tools("all", "hang", "sim")
-    if missing:
-        return (f"AVR toolchain / simavr not installed ({', '.join(missing)}): "
-                f"{firmware_build.INSTALL_HINT}")
-    return None
-
-
 @pytest.fixture(scope="session")
 def firmware_built() -> None:
-    reason = firmware_missing()
-    if reason:
-        pytest.skip(reason)
-    firmware_build.build("all", "hang", "sim")
+    require("all", "hang", "sim")
 
 
 # ---------------------------------------------------------------------- the two models
