@@ -144,6 +144,8 @@ class Simavr:
         """Send one command; return (the lines before the reply, the reply's fields)."""
         if self._closed:
             raise HalIOError("ddrt-simavr: closed")
+        if self._posted:
+            raise HalIOError("ddrt-simavr: a posted command is still outstanding")
         try:
             self.proc.stdin.write(line.encode() + b"\n")
             self.proc.stdin.flush()
@@ -191,8 +193,6 @@ class Simavr:
         return out
 
     def _report(self, line: str) -> Report:
-        if self._posted:
-            raise HalIOError("ddrt-simavr: a posted command is still outstanding")
         before, f = self.command(line)
         return self._parse(before, f)
 

