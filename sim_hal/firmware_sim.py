@@ -335,13 +335,16 @@ class FirmwareSimDevices:
         self.sim = Simavr(elf, paced=free_running)
         self.paced = paced
         self.name = f"fw-{os.getpid()}-{next(_names)}"
-        if paced:
-            # No waiting on the pty's kernel hand-over: its bytes land when they land (within
-            # microseconds, or as late as a busy machine's scheduler makes it), as from a USB
-            # serial adapter; the lockstep's waits are for determinism, which a run on the
-            # wall clock does not have anyway, and they would stall the daemon's tick.
+        if free_running:
             self.counts = None
-            self.url = self.sim.pty
+            self.url = self.sim.pty  # the harness serves it as the bytes come, as a USB adapter does
+        elif paced:
+            # The pty's kernel hand-over takes microseconds, or as long as a busy machine's
+            # scheduler makes it: wait for it briefly, then go on (a late byte comes with a
+            # later read); the harness does not wait for the host's bytes at all. A run on the
+            # wall clock is not deterministic anyway, and a long wait would stall the tick.
+            self.counts = protocol_simavr.register(self.name, self.sim.pty, wait_s=0.002, strict=False)
+            self.url = f"simavr://{self.name}"
         else:
             self.counts = protocol_simavr.register(self.name, self.sim.pty)
             self.url = f"simavr://{self.name}"
@@ -392,9 +395,8 @@ class FirmwareSimDevices:
             c = robot.read_encoder()
             d = wrap_i32(c - self._count)
             self._count = c
-            rep = self.sim.run(self._cycle(robot.t), d, sync=counts.host_written if counts else None)
-            if counts is not None:
-                counts.mcu_sent = rep.tx_total
+            rep = self.sim.run(self._cycle(robot.t), d, sync=None if self.paced else counts.host_written)
+            counts.mcu_sent = rep.tx_total
             self.last = rep
             self._command(rep.mean)
 
@@ -412,7 +414,7 @@ class FirmwareSimDevices:
             if self.paced:
                 time.sleep(0.002)  # the STOP through the pty's kernel hand-over
             rep = self.sim.run(self._cycle(self.robot.t) + self.sim.freq // 200, 0,
-                               sync=self.counts.host_written if self.counts else None)
+                               sync=None if self.paced else self.counts.host_written)
         if rep is not None:
             self._command(rep.inst)
 
