@@ -454,3 +454,25 @@ def test_the_hang_build_is_reset_by_the_hardware_watchdog(firmware_built) -> Non
         # the normal build ignores 0x7E (an unknown type): test_garbage_and_corrupted_frames...
     finally:
         mcu.close()
+
+
+@pytest.mark.parametrize("duties", [(5000, -2500), (-10000, 10000), (1, -1)])
+def test_the_drv8871_build_drives_the_same(firmware_built, duties: tuple[int, int]) -> None:
+    """DRIVER=DRIVER_DRV8871 (PWM on IN1, direction on IN2, the PWM inverted in reverse):
+    each H-bridge's mean drive is the commanded duty, as with the default build."""
+    from sim_hal import firmware_build
+    from sim_hal.firmware_sim import FirmwareMcu
+
+    firmware_build.build("all", extra=("BUILD=build/drv8871", "DRIVER=DRIVER_DRV8871"))
+    mcu = FirmwareMcu(firmware_build.artifact("drv8871/ddrt_bridge.elf"), driver="drv8871")
+    try:
+        host = Host(mcu)
+        host.boot()
+        t_in = host.send(Drive(duties[0], duties[1], 100))
+        host.run(0.01)
+        assert approx(outputs_at(mcu, t_in + ACT_S), (duties[0] / 10000, duties[1] / 10000))
+        t_stop = host.send(Stop())
+        host.run(0.01)
+        assert outputs_at(mcu, t_stop + ACT_S) == (0.0, 0.0)
+    finally:
+        mcu.close()
