@@ -11,6 +11,7 @@ zeroes the motors when DRIVEs stop, so a dead host cannot leave the robot runnin
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -28,6 +29,10 @@ __all__ = ["Bridge", "BridgeState"]
 
 _READ_CHUNK = 4096
 _MAX_READS_PER_POLL = 16  # bounds the time one poll can take when the MCU floods the line
+# The MCU's clock against the host's: the offset is the lower envelope of (arrival - t_us),
+# allowed to creep up this fast (a resonator-clocked AVR may run 0.5 % slow).
+_CLOCK_CREEP = 0.01
+_RATE_WINDOW_S = 0.02  # the count rate is taken over the STATEs of this long
 
 
 @dataclass(frozen=True, slots=True)
@@ -38,6 +43,11 @@ class BridgeState:
     did not move during the reboot); `raw_count` is what the MCU sent. `new` is True when at
     least one STATE arrived since the previous `state()` call; `resets` is the running
     number of MCU resets seen, so a caller notices one by its change.
+
+    `sampled_at` is when the MCU took the count, on the host's clock: its `t_us` mapped
+    through the earliest arrival seen (so it excludes the varying part of the delay: where
+    in its STATE period the MCU was when the host asked, and the host's own polling), and
+    `counts_per_s` the count's rate over the last STATEs; `count_at(t)` uses both.
     """
 
     count: int
@@ -48,6 +58,17 @@ class BridgeState:
     age_s: float
     new: bool
     resets: int
+    sampled_at: float = math.nan
+    counts_per_s: float = 0.0
+
+    def count_at(self, t: float) -> int:
+        """The count carried forward to host time `t` at its rate (the STATE stream runs on
+        the MCU's clock, not the host's ticks, so the newest count's age varies from tick
+        to tick; at most one STATE period plus the delay's jitter is bridged)."""
+        age = t - self.sampled_at
+        if not 0.0 < age < 0.05 or not math.isfinite(self.counts_per_s):
+            return self.count
+        return self.count + round(self.counts_per_s * age)
 
 
 class Bridge:
@@ -102,6 +123,10 @@ class Bridge:
         self._new = False
         self._offset = 0
         self._count = 0
+        self._mcu_s = 0.0  # MCU clock, unwrapped, since its boot
+        self._clock_offset: float | None = None  # host time - MCU time, lower envelope
+        self._offset_at = 0.0
+        self._history: deque[tuple[float, int]] = deque(maxlen=64)  # (MCU s, stitched count)
         self.last_drive_seq: int | None = None
         self._hellos_outstanding = 0
         self._stats = {
@@ -217,9 +242,11 @@ class Bridge:
         if last is None:
             raise HalTimeoutError(f"{self.url}: no STATE received yet")
         new, self._new = self._new, False
+        sampled_at = self._mcu_s + self._clock_offset if self._clock_offset is not None else math.nan
         return BridgeState(count=self._count, raw_count=last.count, t_us=last.t_us,
                            flags=last.flags, ack_seq=last.ack_seq, age_s=age, new=new,
-                           resets=self._stats["mcu_resets"])
+                           resets=self._stats["mcu_resets"], sampled_at=sampled_at,
+                           counts_per_s=self._rate())
 
     def close(self) -> None:
         """Send STOP (best effort) and close the port. Safe to call twice or half-built."""
@@ -320,6 +347,7 @@ class Bridge:
         elif prev_seq is not None:
             self._stats["lost_packets"] += seq_gap(prev_seq, pkt.seq)
         self._count = wrap_i32(msg.count + self._offset)
+        self._track_clock(msg.t_us, prev.t_us if prev is not None and not reset else None)
         if msg.flags & FLAG_WATCHDOG:
             self._stats["watchdog_trips"] += 1
         if msg.flags & FLAG_BAD_FRAME:
@@ -328,6 +356,37 @@ class Bridge:
         self._last_at = self.clock.now()
         self._new = True
         self._stats["states"] += 1
+
+    def _track_clock(self, t_us: int, prev_t_us: int | None) -> None:
+        """Map the MCU's clock onto the host's (see BridgeState.sampled_at)."""
+        now = self.clock.now()
+        if prev_t_us is None:  # the first STATE, or the MCU rebooted: its clock restarted
+            self._mcu_s = t_us * 1e-6
+            self._clock_offset = None
+            self._history.clear()
+        else:
+            self._mcu_s += ((t_us - prev_t_us) & 0xFFFFFFFF) * 1e-6
+        seen = now - self._mcu_s
+        off = self._clock_offset
+        if off is None or seen < off + _CLOCK_CREEP * (now - self._offset_at):
+            self._clock_offset = seen
+        else:
+            self._clock_offset = off + _CLOCK_CREEP * (now - self._offset_at)
+        self._offset_at = now
+        self._history.append((self._mcu_s, self._count))
+
+    def _rate(self) -> float:
+        """Counts per second over the STATEs of the last _RATE_WINDOW_S (0 with fewer than two)."""
+        h = self._history
+        if len(h) < 2:
+            return 0.0
+        s1, c1 = h[-1]
+        for s0, c0 in h:
+            if s1 - s0 <= _RATE_WINDOW_S:
+                break
+        if s1 <= s0:
+            return 0.0
+        return wrap_i32(c1 - c0) / (s1 - s0)
 
     def _on_hello_reply(self, seq: int, msg: HelloReply) -> None:
         if msg.protocol_version != PROTOCOL_VERSION:

@@ -84,6 +84,7 @@ class RealHal(Hal):
                             gyro_delay_s=float(imu.gyro_delay_s),
                             drive_timeout_s=drive_timeout_s(self.motors))
         self._count: int | None = None
+        self._read_t = 0.0
         self._gyro: int | None = None
         self._enc_missing = 0
         self._gyro_missing = 0
@@ -112,6 +113,7 @@ class RealHal(Hal):
     def read(self) -> Sample:
         faults: list[str] = []
         t = self.clock.now()
+        self._read_t = t
         count, enc_fresh = self._read_encoder(faults)
         gyro, gyro_fresh = self._read_gyro(faults)
         self._note_bridge_faults(faults)
@@ -218,8 +220,12 @@ class RealHal(Hal):
             return self._count, False  # type: ignore[return-value]
         self._enc_missing = 0
         self._enc_new_t = self.clock.now()
-        self._count = st.count
-        return st.count, True
+        # the count as of this read: the MCU streams on its own clock, so the newest STATE's
+        # age varies from tick to tick (BridgeState.count_at; devices without it report as is)
+        count_at = getattr(st, "count_at", None)
+        count = count_at(self._read_t) if count_at is not None else st.count
+        self._count = count
+        return count, True
 
     def _read_gyro(self, faults: list[str]) -> tuple[int, bool]:
         self._last_error = None

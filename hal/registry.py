@@ -2,7 +2,9 @@
 
 The config's choice resolves to a name in `BACKENDS` (`backend_name`): `hal.backend: sim` is
 the simulated robot, `hal.backend: real` the drivers on the robot's buses, and `real` with
-`hal.imu.bus: sim` the same drivers on emulated devices, whose entry lives in sim_hal. Each
+`hal.imu.bus: sim` the same drivers on emulated devices, whose entry lives in sim_hal: the
+Python model of the microcontroller, or with `hal.bridge.url: simavr://...` the reference
+firmware (firmware/) in the simavr simulator. Each
 backend module is imported only when chosen (by its "module:function" string, never by an
 import statement here), so the simulated robot needs no I2C or serial library, the robot
 never loads the simulator, and hal/ imports nothing from sim_hal/.
@@ -26,6 +28,7 @@ BACKENDS = {
     "sim": "sim_hal.factory:open_sim_hal",
     "real": "hal.real_factory:open_real_hal",
     "emulated": "sim_hal.emulated:open_emulated_real_hal",
+    "firmware-sim": "sim_hal.firmware_sim:open_firmware_sim_hal",
 }
 
 
@@ -33,8 +36,15 @@ def backend_name(cfg: "Config") -> str:
     """The BACKENDS entry the config's `hal:` section chooses."""
     name = cfg.hal.backend
     if name == "real" and cfg.hal.imu.bus == "sim":
+        if _bridge_url(cfg).startswith("simavr:"):
+            return "firmware-sim"  # the real drivers and the reference firmware in simavr
         return "emulated"  # the real drivers, byte for byte, on devices backed by the simulator
     return name
+
+
+def _bridge_url(cfg: "Config") -> str:
+    """hal.bridge.url, or "" when none is given."""
+    return cfg.hal.bridge.url or ""
 
 
 def open_hal(cfg: "Config", **options: Any) -> Hal:
