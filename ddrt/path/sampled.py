@@ -47,6 +47,7 @@ from __future__ import annotations
 import bisect
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -96,6 +97,15 @@ class Path:
         self.start_pose: tuple[float, float, float] = tuple(float(v) for v in start_pose)  # type: ignore[assignment]
         # What the loader changed on the way, for the user (e.g. a path limit clamped to the config's).
         self.warnings: list[str] = []
+        # How a polyline's points were read (ddrt.path.condition.Conditioning); None for shapes.
+        self.conditioning: Any = None
+
+    @property
+    def deviation_m(self) -> float:
+        """Largest distance from a point of the input polyline to this path (0 for shapes and
+        waypoints, whose segments are the path)."""
+        c = self.conditioning
+        return 0.0 if c is None or c.mode == "waypoints" else float(c.deviation_m)
 
     # -- construction -------------------------------------------------------------------------
     def _assemble(self, pieces: list[_Piece]) -> None:
