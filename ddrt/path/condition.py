@@ -68,8 +68,11 @@ __all__ = ["ConditionOptions", "Conditioning", "ConditionError", "classify", "co
 WAYPOINTS, SAMPLES, GRID = "waypoints", "samples", "grid"
 REVERSAL_DEG = 150.0  # a corner this sharp in samples is a cusp: the path reverses
 GRID_PIVOT_DEG = 112.5  # in a grid plan, turns sharper than 90 degrees (135, 180) pivot
+GRID_TOLERANCE_CELLS = 0.5  # a grid plan's tolerance, in cells: the robot stays in the planned cells
 NOISE_FLOOR_M = 2e-5  # below this the points are exact (an export): smooth to this level
 DISCREPANCY = 1.1  # RMS lateral residual allowed, in estimated noise sigmas
+MAX_SMOOTHING_M = 4.0  # longest smoothing length tried
+MAX_SMOOTHING_KNOTS = 40.0  # and at most this many knots (beyond, the normal equations lose precision)
 _FIX_WEIGHT = 1e6  # weight (relative to the largest) of a leg end fixed at a corner
 
 
@@ -161,7 +164,7 @@ def classify(p: np.ndarray, copt: ConditionOptions) -> tuple[str, float, float |
         return WAYPOINTS, copt.tolerance, None
     cell = grid_cell(p)
     if cell is not None and cell < copt.waypoint_spacing:
-        tol = copt.tolerance if copt.tolerance_given else max(copt.tolerance, 0.5 * cell)
+        tol = copt.tolerance if copt.tolerance_given else max(copt.tolerance, GRID_TOLERANCE_CELLS * cell)
         return GRID, tol, cell
     spacing = float(np.median(np.hypot(*np.diff(p, axis=0).T)))
     if spacing >= copt.waypoint_spacing:
@@ -456,10 +459,13 @@ def _straight(p: np.ndarray, step: float) -> _Leg:
     return _Leg([piece], heading, heading, t * length, np.hypot(*(p - foot).T))
 
 
-def _sample_piece(sp: _Spline, step: float, start: np.ndarray | None, end: np.ndarray | None) -> tuple[_Piece, Callable[[np.ndarray], np.ndarray]]:
-    """The spline sampled every `step` of its own arc length; also the map u -> arc length."""
-    m = max(64, 8 * sp.n_int)
-    uf = np.linspace(0.0, sp.length, m + 1)
+def _sample_piece(sp: _Spline, step: float, start: np.ndarray | None, end: np.ndarray | None,
+                  u0: float = 0.0, u1: float | None = None) -> tuple[_Piece, Callable[[np.ndarray], np.ndarray]]:
+    """The spline on [u0, u1] sampled every `step` of its own arc length; also the map from u
+    to that arc length."""
+    u1 = sp.length if u1 is None else u1
+    m = max(64, int(math.ceil(8 * sp.n_int * (u1 - u0) / sp.length)))
+    uf = np.linspace(u0, u1, m + 1)
     dx, dy = sp.eval(uf, 1)
     speed = np.hypot(dx, dy)
     if not np.all(speed > 0.0):
@@ -470,8 +476,8 @@ def _sample_piece(sp: _Spline, step: float, start: np.ndarray | None, end: np.nd
     s = np.linspace(0.0, total, n + 1)
     u = np.interp(s, sf, uf)
     dx, dy = sp.eval(u, 1)
-    u = np.clip(u - (np.interp(u, uf, sf) - s) / np.hypot(dx, dy), 0.0, sp.length)
-    u[0], u[-1] = 0.0, sp.length
+    u = np.clip(u - (np.interp(u, uf, sf) - s) / np.hypot(dx, dy), u0, u1)
+    u[0], u[-1] = u0, u1
     x, y = sp.eval(u)
     dx, dy = sp.eval(u, 1)
     ddx, ddy = sp.eval(u, 2)
@@ -485,56 +491,91 @@ def _sample_piece(sp: _Spline, step: float, start: np.ndarray | None, end: np.nd
     return _Piece(s, x, y, th, kap), (lambda uu: np.interp(uu, uf, sf))
 
 
+SEARCH_POINTS = 4000  # a longer leg chooses its smoothing on windows of this many points
+
+
+def _choose_smoothing(q: np.ndarray, u: np.ndarray, w: np.ndarray, fixed: np.ndarray, knot: float,
+                      noise: float) -> tuple[float, int]:
+    """The largest smoothing length on a sqrt(2) ladder whose RMS lateral residual is within
+    DISCREPANCY noise sigmas (bisection); a long leg takes the smallest over three windows
+    (the choice is about the noise, which a window shows as well as the whole)."""
+    n = len(q)
+    if n > SEARCH_POINTS:
+        starts = np.linspace(0, n - SEARCH_POINTS, 3).astype(int).tolist()
+        best, fits = math.inf, 0
+        for a in starts:
+            sl = slice(a, a + SEARCH_POINTS)
+            e, f = _choose_smoothing(q[sl], u[sl] - u[a], w[sl], fixed[sl], knot, noise)
+            best, fits = min(best, e), fits + f
+        return best, fits
+    fit = _LegFit(q, u, w, knot)
+    nrow = fit.nc - 3
+    kn = fit.spline.knot
+    ell_lo = 1.5 * kn
+    fits = 0
+
+    def rms_ok(ell: float) -> bool:
+        nonlocal fits
+        fits += 1
+        try:
+            sp = fit.solve(np.full(nrow, fit.lam(ell)))
+        except ConditionError:  # smoothing so heavy the system is ill-conditioned: too heavy
+            return False
+        d, _ = _project(sp, q, u)
+        return float(np.sqrt(np.mean(d[~fixed] ** 2))) <= DISCREPANCY * noise
+
+    total = float(u[-1])
+    ladder = [ell_lo * 2.0 ** (k / 2.0) for k in range(40)]
+    ladder = [e for e in ladder if e <= max(ell_lo, min(MAX_SMOOTHING_M, total, MAX_SMOOTHING_KNOTS * kn))]
+    lo, hi = 0, len(ladder) - 1
+    if not rms_ok(ladder[lo]):
+        return ell_lo, fits
+    if rms_ok(ladder[hi]):
+        return ladder[hi], fits
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if rms_ok(ladder[mid]):
+            lo = mid
+        else:
+            hi = mid
+    return ladder[lo], fits
+
+
 def _fit_leg(p: np.ndarray, fix0: np.ndarray | None, fix1: np.ndarray | None, tol: float, noise: float,
-             knot: float, step: float, names: Sequence[str], offset: int, where: str) -> _Leg:
-    """One leg between corners (or the path's ends): the smoothing spline of the module doc."""
+             knot: float, step: float, names: Sequence[str], offset: int, where: str,
+             wrap: tuple[np.ndarray, np.ndarray] | None = None) -> _Leg:
+    """One leg between corners (or the path's ends): the smoothing spline of the module doc.
+
+    `wrap`: a closed loop's points before its start and after its end (the loop's own, taken
+    round), fitted with it so its ends are smoothed as well as its middle; the reference
+    still runs from the first point's foot to the last one's."""
     q = p.copy()
     if fix0 is not None:
         q[0] = fix0
     if fix1 is not None:
         q[-1] = fix1
-    u = _chord_param(q)
-    total = float(u[-1])
-    if len(q) < 4 or total < 3.0 * knot:
+    if len(q) < 4 or float(np.sum(np.hypot(*np.diff(q, axis=0).T))) < 3.0 * knot:
         return _straight(q, step)
+    core = slice(0, len(q))
+    if wrap is not None:
+        core = slice(len(wrap[0]), len(wrap[0]) + len(q))
+        q = np.concatenate((wrap[0], q, wrap[1]))
+    u = _chord_param(q)
     h = np.diff(u)
     w = 0.5 * (np.concatenate((h, [0.0])) + np.concatenate(([0.0], h)))
-    fixed = np.zeros(len(q), dtype=bool)
+    fixed = np.zeros(len(q), dtype=bool)  # not checked against the tolerance
     if fix0 is not None:
         fixed[0] = True
     if fix1 is not None:
         fixed[-1] = True
     w[fixed] = _FIX_WEIGHT * float(w.max())
+    fixed[:core.start] = True
+    fixed[core.stop:] = True
     fit = _LegFit(q, u, w, knot)
     nrow = fit.nc - 3
     kn = fit.spline.knot
-    ell_lo = 1.5 * kn
     ell_min = 0.5 * kn
-    fits = 0
-
-    def rms_ok(ell: float) -> bool:
-        nonlocal fits
-        sp = fit.solve(np.full(nrow, fit.lam(ell)))
-        fits += 1
-        d, _ = _project(sp, q, u)
-        return float(np.sqrt(np.mean(d[~fixed] ** 2))) <= DISCREPANCY * noise
-
-    # The largest smoothing length on the ladder whose residual is noise-like (bisection).
-    ladder = [ell_lo * 2.0 ** (k / 2.0) for k in range(40)]
-    ladder = [e for e in ladder if e <= max(ell_lo, min(4.0, total))]
-    lo, hi = 0, len(ladder) - 1
-    if not rms_ok(ladder[lo]):
-        hi = -1
-    elif rms_ok(ladder[hi]):
-        lo = hi
-    else:
-        while hi - lo > 1:
-            mid = (lo + hi) // 2
-            if rms_ok(ladder[mid]):
-                lo = mid
-            else:
-                hi = mid
-    ell = ladder[lo] if hi >= 0 else ell_lo
+    ell, fits = _choose_smoothing(q, u, w, fixed, knot, noise)
     lam = np.full(nrow, fit.lam(ell))
     lam_min = fit.lam(ell_min)
     reach = int(math.ceil(ell / kn)) + 3
@@ -564,12 +605,18 @@ def _fit_leg(p: np.ndarray, fix0: np.ndarray | None, fix1: np.ndarray | None, to
             f"{where}: {names[offset + i]}: the reference cannot stay within {tol:g} m of the point "
             f"({q[i, 0]:.6g}, {q[i, 1]:.6g}): the closest smooth curve passes {dev[i] * 1000:.3g} mm away "
             "(the points are noisier than the tolerance); raise paths.tolerance_m or the path's tolerance:")
-    piece, s_of_u = _sample_piece(sp, step, fix0, fix1)
-    return _Leg([piece], float(piece.theta[0]), float(piece.theta[-1]), s_of_u(uf), dev, ell, fits)
+    ua, ub = float(u[core.start]), float(u[core.stop - 1])
+    piece, s_of_u = _sample_piece(sp, step, fix0, fix1, ua, ub)
+    sig = s_of_u(np.clip(uf[core], ua, ub))
+    return _Leg([piece], float(piece.theta[0]), float(piece.theta[-1]), sig, dev[core], ell, fits)
 
 
 def _estimate_noise(p: np.ndarray, knot: float) -> float:
-    """Lateral noise of the points: residuals of a light fit, scaled by the share it leaves."""
+    """Lateral noise of the points: residuals of a light fit, scaled by the share it leaves
+    (on three windows of a long polyline)."""
+    if len(p) > SEARCH_POINTS:
+        starts = np.linspace(0, len(p) - SEARCH_POINTS, 3).astype(int).tolist()
+        return float(np.median([_estimate_noise(p[a:a + SEARCH_POINTS], knot) for a in starts]))
     u = _chord_param(p)
     if len(p) < 8 or u[-1] < 6.0 * knot:
         return 0.0
@@ -584,6 +631,38 @@ def _estimate_noise(p: np.ndarray, knot: float) -> float:
 # --------------------------------------------------------------------------- the whole polyline
 
 
+def _loop_wrap(p: np.ndarray, knot: float, scale: float, threshold: float, tol: float,
+               spacing: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """A closed loop whose end runs smoothly into its start (a lap of a recording): the points
+    to fit before and after it, taken round the loop; else None."""
+    n = len(p)
+    gap = float(math.hypot(*(p[-1] - p[0])))
+    if n < 12 or gap > max(tol, 1.5 * spacing):
+        return None
+    same = gap < 0.3 * spacing  # the last point repeats the first
+    body = p[:-1] if same else p
+    total = float(np.sum(np.hypot(*np.diff(body, axis=0).T))) + (float(math.hypot(*(body[-1] - body[0]))))
+    reach = min(0.45 * total, max(2.0 * scale, 120.0 * knot), 2.0)
+    u = _chord_param(body)
+    k_pre = len(body) - int(np.searchsorted(u, u[-1] - reach, side="left"))  # points within reach of the end
+    k_post = int(np.searchsorted(u, reach, side="right"))
+    k_pre = max(1, min(k_pre, len(body) - 1))
+    k_post = max(1, min(k_post, len(body) - 1))
+    pre = body[len(body) - k_pre:]
+    post = body[:k_post] if not same else p[1:1 + k_post]
+    if same:
+        pre = p[n - 1 - k_pre:n - 1]
+    # The junction must not be a corner (a rectangle recorded from one of its corners).
+    ext = np.concatenate((pre, p[:k_post + 1]))
+    ue = _chord_param(ext)
+    for sc in (scale, 0.5 * scale):
+        t = _turns(ext, ue, sc)[len(pre)]
+        if not np.isfinite(t) or abs(t) > threshold:
+            return None
+    return pre, post
+
+
+
 def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, copt: ConditionOptions,
                        where: str, names: Sequence[str]) -> tuple[_Geometry, Conditioning]:
     """The geometry of a polyline of distinct points (module docstring); caps per point or None."""
@@ -596,7 +675,9 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, 
         geo = _polyline([(float(a), float(b)) for a, b in p], None if caps is None else caps.tolist(), opt)
         return geo, info
     u = _chord_param(p)
-    knot = max(spacing, 1e-4)
+    # Knots at the points' spacing, but no closer than half the tolerance (finer detail than
+    # that is noise to be removed, and denser knots only cost time).
+    knot = max(spacing, 0.5 * tol, 1e-4)
     if cell is not None:
         knot = cell
     rough = _raw_noise(p)
@@ -620,6 +701,8 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, 
                                  "ddrt drives forward only; split the path at this point into two")
     noise = max(_estimate_noise(p, knot), NOISE_FLOOR_M)
     info.noise_m = noise
+    wrap = _loop_wrap(p, knot, scale, threshold, tol, spacing) if not corners else None
+    info.extra["closed_loop"] = wrap is not None
     cuts = [0] + [k for k, _ in corners] + [len(p) - 1]
     fixes: list[np.ndarray | None] = [None] + [_refine_corner(p, u, k, scale, tol) for k, _ in corners] + [None]
     pieces: list[_Piece] = []
@@ -633,7 +716,7 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, 
     ells: list[float] = []
     for j in range(len(cuts) - 1):
         a, b = cuts[j], cuts[j + 1]
-        leg = _fit_leg(p[a:b + 1], fixes[j], fixes[j + 1], tol, noise, knot, opt.step, names, a, where)
+        leg = _fit_leg(p[a:b + 1], fixes[j], fixes[j + 1], tol, noise, knot, opt.step, names, a, where, wrap)
         info.iterations += leg.fits
         if leg.ell is not None:
             ells.append(leg.ell)
