@@ -673,6 +673,13 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, 
     info = Conditioning(mode, tol, p, names, grid_cell_m=cell, spacing_m=spacing)
     if mode == WAYPOINTS:
         geo = _polyline([(float(a), float(b)) for a, b in p], None if caps is None else caps.tolist(), opt)
+        if len(p) > 2:
+            d = np.diff(p, axis=0)
+            turn = _wrap(np.diff(np.arctan2(d[:, 1], d[:, 0])))
+            sharp = np.abs(turn) > math.radians(opt.corner_pivot_deg)
+            info.corners = tuple(Corner(int(i) + 1, float(turn[i]), float(p[i + 1, 0]), float(p[i + 1, 1]))
+                                 for i in np.flatnonzero(sharp))
+            info.extra["blends"] = int(np.sum(~sharp & (np.abs(turn) > 1e-9)))
         return geo, info
     u = _chord_param(p)
     # Knots at the points' spacing, but no closer than half the tolerance (finer detail than

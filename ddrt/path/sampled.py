@@ -89,6 +89,8 @@ class Path:
         cap = np.full(len(sig), min(v_cap, limits.v_max))
         if geo.cap_sigma is not None and geo.cap_value is not None:
             cap = np.minimum(cap, np.interp(sig, geo.cap_sigma, geo.cap_value))
+        self.v_cap: float = min(v_cap, limits.v_max)  # the path's speed (its own or limits.v_max)
+        self._np["v_cap"] = cap  # per sample: that speed or a lower waypoint cap
         self._profile(cap)
         self.length: float = self.sigma[-1]
         self.duration: float = self.t[-1]
