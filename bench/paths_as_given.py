@@ -254,16 +254,23 @@ def write_csv(fname: FsPath, xy: np.ndarray, speed: float) -> None:
 
 
 def curve_distance(curve: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """Distance of each point to the polyline `curve` (coarse search, then a window around it)."""
+    """Distance of each point to the polyline `curve`: a coarse search for the two nearest
+    stretches (where a figure-eight crosses itself both are near), then a window round each."""
     if len(xy) == 0:
         return np.zeros(0)
     stride = 20
     coarse = curve[::stride]
-    near = np.empty(len(xy), dtype=np.intp)
+    near = np.empty((2, len(xy)), dtype=np.intp)
+    idx = np.arange(len(coarse))
     for a in range(0, len(xy), 512):
         d2 = ((xy[a:a + 512, None, :] - coarse[None, :, :]) ** 2).sum(axis=2)
-        near[a:a + 512] = np.argmin(d2, axis=1) * stride
-    return distances_to_polyline(curve, xy, np.clip(near, 0, len(curve) - 2), window=2 * stride)
+        first = np.argmin(d2, axis=1)
+        d2[np.abs(idx[None, :] - first[:, None]) <= 3] = np.inf
+        second = np.argmin(d2, axis=1)
+        near[0, a:a + 512], near[1, a:a + 512] = first * stride, second * stride
+    top = len(curve) - 2
+    return np.minimum(distances_to_polyline(curve, xy, np.clip(near[0], 0, top), window=2 * stride),
+                      distances_to_polyline(curve, xy, np.clip(near[1], 0, top), window=2 * stride))
 
 
 @dataclass

@@ -22,7 +22,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from bench import accuracy, adaptation, io_bound, loop_timing, startup, tick_cost
+from bench import accuracy, adaptation, io_bound, loop_timing, paths_as_given, startup, tick_cost
 from ddrt.config import load_config
 from ddrt.path.spec import resolve_path
 from ddrt.simrun.runner import run_sim
@@ -40,6 +40,7 @@ SECTIONS = (
     "5. Start-up and memory",
     "6. The physical bound",
     "7. Adaptive dynamics and calibration",
+    "8. Paths as people hand them over",
 )
 
 
@@ -58,6 +59,8 @@ class BenchOptions:
     import_modules: tuple[str, ...] = startup.MODULES
     import_repeats: int = 3
     sim_rss_duration_s: float | None = None
+    paths_cases: tuple[str, ...] | None = None  # None: every case of bench/paths_as_given.py
+    paths_long: tuple[int, ...] = (10_000, 100_000)  # points of the long recordings timed
 
 
 FULL = BenchOptions()
@@ -76,6 +79,7 @@ class Results:
     startup: startup.Startup
     bound: io_bound.IoBound
     adapt: adaptation.AdaptationResult
+    paths: paths_as_given.PathsResult | None = None
     wall_s: dict[str, float] = field(default_factory=dict)
 
 
@@ -150,11 +154,12 @@ def measure_all(opts: BenchOptions, command: str, say: Callable[[str], None] = _
                                                               opts.workers, opts.scenarios, progress))
     adapt = timed("adaptation", lambda: adaptation.measure_adaptation(SCENARIO_DIR, opts.seeds, opts.workers,
                                                                       opts.scenarios))
+    paths = timed("paths as given", lambda: paths_as_given.measure(opts.paths_cases, opts.seeds[0], opts.paths_long))
     machine["load average at the end"] = (load_average() + " (other work on this machine shows in the maxima "
                                           "and the loop timing)")
     return Results(options=opts, command=command, machine=machine, accuracy=acc,  # type: ignore[arg-type]
                    ticks=ticks, loop=loop, speed=speed, startup=st, bound=io_bound.io_bound(),  # type: ignore[arg-type]
-                   adapt=adapt, wall_s=walls)  # type: ignore[arg-type]
+                   adapt=adapt, paths=paths, wall_s=walls)  # type: ignore[arg-type]
 
 
 # --------------------------------------------------------------------------- the document
@@ -229,6 +234,8 @@ def render_document(r: Results) -> str:
     lines += io_bound.render(r.bound, r.ticks.compute.p50_us, r.ticks.compute.p99_us, r.ticks.period_s)
     lines += ["", _header(7), ""]
     lines += adaptation.render(r.adapt)
+    lines += ["", _header(8), ""]
+    lines += paths_as_given.render(r.paths) if r.paths is not None else ["Not measured in this run."]
     return "\n".join(lines) + "\n"
 
 

@@ -14,6 +14,10 @@ Geometry choices (documented because they shape the motion):
   to both straight segments. Its curvature is zero where it meets the lines, so omega = v kappa
   has no step and the angular acceleration stays finite (a circular fillet would step kappa).
   The blend's tangent length is at most `blend_max_m` and at most half of each adjacent segment.
+- Dense polylines (recordings, exported curves, grid plans) are not corners at every point:
+  they are fitted by a smoothing spline within `paths.tolerance_m` of every point, with
+  pivots only at genuine corners (ddrt/path/condition.py); `Path.conditioning` says how a
+  polyline was read and `Path.deviation_m` how far the reference lies from its points.
 - Analytic shapes (circle, ellipse, figure-eight, S-curve) are sampled exactly at uniform arc
   length; ellipse-like curves are re-parametrised by arc length numerically.
 - Samples are `sample_step_m` apart (2 mm by default): linear interpolation between them then
