@@ -80,6 +80,14 @@ class ConditionError(ValueError):
     """The polyline cannot be conditioned; the message names the point (line or key)."""
 
 
+class _Cusp(Exception):
+    """The fitted curve stops (zero speed) at `index`: a u value, or a point's index in its leg."""
+
+    def __init__(self, index: float) -> None:
+        super().__init__(index)
+        self.index = index
+
+
 @dataclass(frozen=True, slots=True)
 class ConditionOptions:
     tolerance: float = 0.01  # m; 0: every point is a waypoint (no conditioning)
@@ -448,15 +456,30 @@ class _Leg:
     fits: int = 0
 
 
-def _straight(p: np.ndarray, step: float) -> _Leg:
-    """Few points: a straight line from the first to the last (its points' feet on it)."""
+def _short(p: np.ndarray, tol: float, opt: _Options) -> _Leg:
+    """Few points (or a leg shorter than three knots): a straight line from the first to the
+    last if every point is within `tol` of it, else straight segments through them all (as
+    waypoints)."""
     d = p[-1] - p[0]
     length = float(math.hypot(d[0], d[1]))
-    heading = math.atan2(d[1], d[0])
-    piece = _line(float(p[0, 0]), float(p[0, 1]), heading, length, step)
-    t = np.clip(((p - p[0]) @ d) / (length * length), 0.0, 1.0)
-    foot = p[0] + t[:, None] * d
-    return _Leg([piece], heading, heading, t * length, np.hypot(*(p - foot).T))
+    if length > 0.0:
+        t = np.clip(((p - p[0]) @ d) / (length * length), 0.0, 1.0)
+        dev = np.hypot(*(p - (p[0] + t[:, None] * d)).T)
+        if np.all(dev <= tol):
+            heading = math.atan2(d[1], d[0])
+            return _Leg([_line(float(p[0, 0]), float(p[0, 1]), heading, length, opt.step)], heading, heading,
+                        t * length, dev)
+    keep = np.concatenate(([True], np.hypot(*np.diff(p, axis=0).T) > 1e-9))
+    q = p[keep]
+    if len(q) < 2:
+        raise ConditionError("a leg of the path has no length")
+    geo = _polyline([(float(a), float(b)) for a, b in q], [0.0] * len(q), opt)
+    enter = np.asarray(geo.cap_sigma)[::2]
+    sig = np.interp(np.cumsum(keep) - 1, np.arange(len(q)), enter)
+    seg = np.diff(q, axis=0)
+    th0 = math.atan2(seg[0, 1], seg[0, 0])
+    th1 = float(geo.pieces[-1].theta[-1])
+    return _Leg(geo.pieces, th0, th1, sig, np.zeros(len(p)))
 
 
 def _sample_piece(sp: _Spline, step: float, start: np.ndarray | None, end: np.ndarray | None,
@@ -468,8 +491,8 @@ def _sample_piece(sp: _Spline, step: float, start: np.ndarray | None, end: np.nd
     uf = np.linspace(u0, u1, m + 1)
     dx, dy = sp.eval(uf, 1)
     speed = np.hypot(dx, dy)
-    if not np.all(speed > 0.0):
-        raise ConditionError("the smoothed curve has a cusp (zero speed)")
+    if not np.all(speed > 1e-6 * float(np.max(speed))):
+        raise _Cusp(float(uf[int(np.argmin(speed))]))
     sf = np.concatenate(([0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(uf))))
     total = float(sf[-1])
     n = max(2, int(math.ceil(total / step - 1e-9)))
@@ -542,7 +565,7 @@ def _choose_smoothing(q: np.ndarray, u: np.ndarray, w: np.ndarray, fixed: np.nda
 
 
 def _fit_leg(p: np.ndarray, fix0: np.ndarray | None, fix1: np.ndarray | None, tol: float, noise: float,
-             knot: float, step: float, names: Sequence[str], offset: int, where: str,
+             knot: float, opt: _Options, names: Sequence[str], offset: int, where: str,
              wrap: tuple[np.ndarray, np.ndarray] | None = None) -> _Leg:
     """One leg between corners (or the path's ends): the smoothing spline of the module doc.
 
@@ -555,7 +578,7 @@ def _fit_leg(p: np.ndarray, fix0: np.ndarray | None, fix1: np.ndarray | None, to
     if fix1 is not None:
         q[-1] = fix1
     if len(q) < 4 or float(np.sum(np.hypot(*np.diff(q, axis=0).T))) < 3.0 * knot:
-        return _straight(q, step)
+        return _short(q, tol, opt)
     core = slice(0, len(q))
     if wrap is not None:
         core = slice(len(wrap[0]), len(wrap[0]) + len(q))
@@ -606,7 +629,10 @@ def _fit_leg(p: np.ndarray, fix0: np.ndarray | None, fix1: np.ndarray | None, to
             f"({q[i, 0]:.6g}, {q[i, 1]:.6g}): the closest smooth curve passes {dev[i] * 1000:.3g} mm away "
             "(the points are noisier than the tolerance); raise paths.tolerance_m or the path's tolerance:")
     ua, ub = float(u[core.start]), float(u[core.stop - 1])
-    piece, s_of_u = _sample_piece(sp, step, fix0, fix1, ua, ub)
+    try:
+        piece, s_of_u = _sample_piece(sp, opt.step, fix0, fix1, ua, ub)
+    except _Cusp as exc:
+        raise _Cusp(int(np.clip(np.searchsorted(u, exc.index), core.start, core.stop - 1)) - core.start) from None
     sig = s_of_u(np.clip(uf[core], ua, ub))
     return _Leg([piece], float(piece.theta[0]), float(piece.theta[-1]), sig, dev[core], ell, fits)
 
@@ -723,7 +749,17 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, 
     ells: list[float] = []
     for j in range(len(cuts) - 1):
         a, b = cuts[j], cuts[j + 1]
-        leg = _fit_leg(p[a:b + 1], fixes[j], fixes[j + 1], tol, noise, knot, opt.step, names, a, where, wrap)
+        try:
+            leg = _fit_leg(p[a:b + 1], fixes[j], fixes[j + 1], tol, noise, knot, opt, names, a, where, wrap)
+        except _Cusp as exc:
+            k = a + exc.index
+            raise ConditionError(f"{where}: {names[k]}: the points turn back on themselves here (the smoothed "
+                                 "curve stops and reverses): ddrt drives forward only; split the path at this "
+                                 "point into two") from None
+        except ConditionError as exc:
+            if str(exc).startswith(where):
+                raise
+            raise ConditionError(f"{where}: {names[a]}: the points from here cannot be smoothed: {exc}") from None
         info.iterations += leg.fits
         if leg.ell is not None:
             ells.append(leg.ell)
