@@ -788,6 +788,9 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, 
         sl = slice(a, b + 1)
         sig_pts[sl] = sigma + leg.sigma
         devs[sl] = np.maximum(devs[sl], leg.dev)
+        for k, c in ((a, fixes[j]), (b, fixes[j + 1])):  # a corner's own point against the corner
+            if c is not None:
+                devs[k] = max(devs[k], float(math.hypot(*(p[k] - c))))
         if caps is not None:
             cap_s.extend((sigma + leg.sigma).tolist())
             cap_v.extend(caps[sl].tolist())

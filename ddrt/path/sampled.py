@@ -44,6 +44,8 @@ Index arrays (read-only Python lists, for the pursuit's hot path; n samples, n -
     seg_pivot  True if the interval lies in a pivot
     turn       +1 (left) / -1 (right) for pivot intervals, 0 otherwise
     piece_end  sigma at which the interval's piece ends
+  arrays()["v_cap"]                             per sample: the speed cap the profile started from
+                                                (the path's speed, or a lower waypoint v)
 """
 
 from __future__ import annotations
