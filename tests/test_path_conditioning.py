@@ -302,3 +302,31 @@ def test_recordings_closed_loop_meet_the_targets(name) -> None:
     assert r.true_rms_m < pg.TARGET_TRUE_RMS_M
     assert r.domega_rms < pg.TARGET_DOMEGA_RMS
     assert r.saturated <= pg.TARGET_SATURATION
+
+
+# --------------------------------------------------------------------------- where it is reported
+
+
+def test_ddrt_sim_and_a_follow_reply_report_the_deviation(tmp_path, capsys) -> None:
+    from ddrt.service.daemon import Daemon
+
+    case = pg.teach_and_repeat()
+    f = _csv(tmp_path, case)
+    cli_main(["sim", str(SIM), "--path", str(f), "--duration", "0.2", "--quiet", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert "teach_repeat.csv: 480 points as samples of a curve: smoothed within 10.0 mm (largest deviation" in err
+
+    class _Loop:
+        state = "idle"
+
+        def follow(self, path, pose=None) -> None:
+            self.path = path
+
+    cfg = tmp_path / "d.yaml"
+    cfg.write_text(f"extends: {SIM}\ndaemon: {{socket: null, telemetry_dir: {tmp_path / 'tel'}}}\n")
+    d = Daemon(str(cfg))
+    d.loop = _Loop()  # type: ignore[assignment]
+    reply = d.handle({"cmd": "follow", "points": case.xy.tolist(), "speed": 0.6, "pose": [0, 0, 0]})
+    assert reply["ok"] is True, reply
+    assert any("samples of a curve" in w and "largest deviation" in w for w in reply["warnings"])
+    assert d.loop.path.deviation_m == pytest.approx(load_path(f, LIM).deviation_m, abs=1e-5)  # CSV: 6 decimals
