@@ -22,7 +22,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from bench import accuracy, adaptation, ctl_flood, io_bound, loop_timing, startup, tick_cost
+from bench import accuracy, adaptation, ctl_flood, io_bound, loop_timing, paths_as_given, startup, tick_cost
 from ddrt.config import load_config
 from ddrt.path.spec import resolve_path
 from ddrt.simrun.runner import run_sim
@@ -41,6 +41,7 @@ SECTIONS = (
     "6. The physical bound",
     "7. Adaptive dynamics and calibration",
     "8. The control socket under abuse",
+    "9. Paths as people hand them over",
 )
 
 
@@ -61,6 +62,8 @@ class BenchOptions:
     sim_rss_duration_s: float | None = None
     ctl_counts: tuple[int, ...] = ctl_flood.COUNTS
     ctl_estops: int = ctl_flood.ESTOPS
+    paths_cases: tuple[str, ...] | None = None  # None: every case of bench/paths_as_given.py
+    paths_long: tuple[int, ...] = (10_000, 100_000)  # points of the long recordings timed
 
 
 FULL = BenchOptions()
@@ -80,6 +83,7 @@ class Results:
     bound: io_bound.IoBound
     adapt: adaptation.AdaptationResult
     ctl: list[ctl_flood.FloodRow] = field(default_factory=list)
+    paths: paths_as_given.PathsResult | None = None
     wall_s: dict[str, float] = field(default_factory=dict)
 
 
@@ -155,11 +159,12 @@ def measure_all(opts: BenchOptions, command: str, say: Callable[[str], None] = _
                                                               opts.workers, opts.scenarios, progress))
     adapt = timed("adaptation", lambda: adaptation.measure_adaptation(SCENARIO_DIR, opts.seeds, opts.workers,
                                                                       opts.scenarios))
+    paths = timed("paths as given", lambda: paths_as_given.measure(opts.paths_cases, opts.seeds[0], opts.paths_long))
     machine["load average at the end"] = (load_average() + " (other work on this machine shows in the maxima "
                                           "and the loop timing)")
     return Results(options=opts, command=command, machine=machine, accuracy=acc,  # type: ignore[arg-type]
                    ticks=ticks, loop=loop, speed=speed, startup=st, bound=io_bound.io_bound(),  # type: ignore[arg-type]
-                   adapt=adapt, ctl=ctl, wall_s=walls)  # type: ignore[arg-type]
+                   adapt=adapt, ctl=ctl, paths=paths, wall_s=walls)  # type: ignore[arg-type]
 
 
 # --------------------------------------------------------------------------- the document
@@ -236,6 +241,8 @@ def render_document(r: Results) -> str:
     lines += adaptation.render(r.adapt)
     lines += ["", _header(8), ""]
     lines += ctl_flood.render(r.ctl)
+    lines += ["", _header(9), ""]
+    lines += paths_as_given.render(r.paths) if r.paths is not None else ["Not measured in this run."]
     return "\n".join(lines) + "\n"
 
 

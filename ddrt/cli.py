@@ -1,4 +1,4 @@
-"""The `ddrt` command: sim, run, ctl, calibrate."""
+"""The `ddrt` command: sim, path, run, ctl, calibrate."""
 
 from __future__ import annotations
 
@@ -49,6 +49,36 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     print(summary_text(result.metrics))
     print(f"wrote {args.out}/telemetry.csv and {args.out}/metrics.json" + (" and figures" if args.plot else ""))
     return 0 if result.metrics["completed"] else 1
+
+
+def _cmd_path(args: argparse.Namespace) -> int:
+    from ddrt.config.sections import LimitsConfig, PathsConfig
+    from ddrt.path.profile import SpeedLimits
+    from ddrt.path.report import path_report, report_text, write_plot
+    from ddrt.path.spec import load_path, speed_limits
+
+    if args.plot:
+        import importlib.util
+
+        if importlib.util.find_spec("matplotlib") is None:
+            raise ValueError("--plot needs matplotlib, which is not installed: pip install 'ddrt[plot]'")
+    if args.config is not None:
+        from ddrt.config import load_config
+
+        cfg = load_config(args.config)
+        limits, paths = speed_limits(cfg), cfg.paths
+    else:
+        d = LimitsConfig()
+        limits = SpeedLimits(v_max=d.v_max, accel=d.accel, lateral_accel=d.lateral_accel, omega_max=d.omega_max,
+                             alpha_max=d.alpha_max)
+        paths = PathsConfig()
+    path = load_path(args.file, limits, paths=paths)
+    report = path_report(path, args.file)
+    print(report_text(report))
+    if args.plot:
+        out = write_plot(path, report, Path(args.out) / "path_report.png")
+        print(f"wrote {out}")
+    return 0
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
@@ -142,6 +172,13 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--plot", action="store_true", help="also write the seed's figures as PNG")
     sim.add_argument("--quiet", action="store_true", help="no progress line")
     sim.set_defaults(func=_cmd_sim)
+
+    pth = sub.add_parser("path", help="what a path file becomes: length, time, corners, deviation, speed limits")
+    pth.add_argument("file", help="path file (.csv, .yaml or .yml)")
+    pth.add_argument("--config", help="YAML config whose limits: and paths: apply (default: the defaults)")
+    pth.add_argument("--plot", action="store_true", help="also draw the input, the reference and the speed profile")
+    pth.add_argument("--out", default="out", help="directory for path_report.png (default: out)")
+    pth.set_defaults(func=_cmd_path)
 
     run = sub.add_parser("run", help="the long-running controller (systemd service)")
     run.add_argument("config", help="YAML config (e.g. /etc/ddrt/ddrt.yaml)")

@@ -93,7 +93,8 @@ def test_serial_frames_use_the_protocol_encoder() -> None:
 TINY = run.BenchOptions(seeds=(1,), lookaheads=(0.03, 0.12), scenarios=("s_curve",), workers=1, ticks=1000,
                         loop_rates=(), loop_duration_s=1.0, speed_scenarios=("s_curve",),
                         import_modules=("yaml",), import_repeats=1, sim_rss_duration_s=1.0,
-                        ctl_counts=(32,), ctl_estops=5)
+                        ctl_counts=(32,), ctl_estops=5,
+                        paths_cases=("figure_eight_361",), paths_long=(2000,))
 
 
 @pytest.fixture(scope="module")
@@ -159,6 +160,7 @@ def test_document_has_every_section(tiny_results: run.Results, tmp_path) -> None
     assert all(f > 1.0 for f in tiny_results.speed["s_curve"])  # faster than real time
     assert tiny_results.startup.loop_loads == {"yaml": True}
     assert "| 32 | idle | 5/5 |" in doc and "| 32 | dribbling | 5/5 |" in doc  # every estop answered
+    assert "| figure_eight_361 |" in doc and "| 2000 |" in doc  # paths as given
     out = tmp_path / "BENCHMARKS.md"
     out.write_text(doc)
     assert out.read_text().count("\n## ") == len(run.SECTIONS)

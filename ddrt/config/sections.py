@@ -400,6 +400,7 @@ class DaemonConfig:
 # The smallest radius, side or pivot radius a path may have (m): below it a path is a point
 # and its curvature beyond what the profile's floats can hold.
 MIN_PATH_SIZE_M = 0.001
+MAX_TOLERANCE_M = 1.0  # paths.tolerance_m and a path's tolerance: at most this (m)
 
 
 @dataclass(frozen=True)
@@ -412,6 +413,8 @@ class PathsConfig:
     pivot_radius_m: float = 0.1  # a path's pivot_radius: overrides it
     corner_pivot_deg: float = 30.0  # likewise corner_pivot_deg:
     blend_max_m: float = 0.15  # likewise blend_max:
+    tolerance_m: float = 0.01  # a polyline's samples: the reference stays this close (a path's tolerance: overrides)
+    waypoint_spacing_m: float = 0.25  # a polyline this sparse (median spacing) is waypoints, as given
     max_samples: int = 2_000_000
     max_points: int = 10_000
     max_extent_m: float = 10_000.0
@@ -423,6 +426,12 @@ class PathsConfig:
         non_negative(where, corner_pivot_deg=self.corner_pivot_deg)
         if self.sample_step_m > 1.0:
             raise ConfigError(f"{where}.sample_step_m: must be <= 1 m, got {self.sample_step_m}")
+        non_negative(where, tolerance_m=self.tolerance_m)
+        if self.tolerance_m > MAX_TOLERANCE_M:
+            raise ConfigError(f"{where}.tolerance_m: must be at most {MAX_TOLERANCE_M:g} m, got {self.tolerance_m}")
+        if not MIN_PATH_SIZE_M <= self.waypoint_spacing_m <= self.max_extent_m:
+            raise ConfigError(f"{where}.waypoint_spacing_m: must be in [{MIN_PATH_SIZE_M}, max_extent_m], "
+                              f"got {self.waypoint_spacing_m}")
         for key in ("pivot_radius_m", "blend_max_m"):
             value = getattr(self, key)
             if not MIN_PATH_SIZE_M <= value <= self.max_extent_m:

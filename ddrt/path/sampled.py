@@ -14,6 +14,10 @@ Geometry choices (documented because they shape the motion):
   to both straight segments. Its curvature is zero where it meets the lines, so omega = v kappa
   has no step and the angular acceleration stays finite (a circular fillet would step kappa).
   The blend's tangent length is at most `blend_max_m` and at most half of each adjacent segment.
+- Dense polylines (recordings, exported curves, grid plans) are not corners at every point:
+  they are fitted by a smoothing spline within `paths.tolerance_m` of every point, with
+  pivots only at genuine corners (ddrt/path/condition.py); `Path.conditioning` says how a
+  polyline was read and `Path.deviation_m` how far the reference lies from its points.
 - Analytic shapes (circle, ellipse, figure-eight, S-curve) are sampled exactly at uniform arc
   length; ellipse-like curves are re-parametrised by arc length numerically.
 - Samples are `sample_step_m` apart (2 mm by default): linear interpolation between them then
@@ -40,6 +44,8 @@ Index arrays (read-only Python lists, for the pursuit's hot path; n samples, n -
     seg_pivot  True if the interval lies in a pivot
     turn       +1 (left) / -1 (right) for pivot intervals, 0 otherwise
     piece_end  sigma at which the interval's piece ends
+  arrays()["v_cap"]                             per sample: the speed cap the profile started from
+                                                (the path's speed, or a lower waypoint v)
 """
 
 from __future__ import annotations
@@ -47,6 +53,7 @@ from __future__ import annotations
 import bisect
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -88,6 +95,8 @@ class Path:
         cap = np.full(len(sig), min(v_cap, limits.v_max))
         if geo.cap_sigma is not None and geo.cap_value is not None:
             cap = np.minimum(cap, np.interp(sig, geo.cap_sigma, geo.cap_value))
+        self.v_cap: float = min(v_cap, limits.v_max)  # the path's speed (its own or limits.v_max)
+        self._np["v_cap"] = cap  # per sample: that speed or a lower waypoint cap
         self._profile(cap)
         self.length: float = self.sigma[-1]
         self.duration: float = self.t[-1]
@@ -96,6 +105,15 @@ class Path:
         self.start_pose: tuple[float, float, float] = tuple(float(v) for v in start_pose)  # type: ignore[assignment]
         # What the loader changed on the way, for the user (e.g. a path limit clamped to the config's).
         self.warnings: list[str] = []
+        # How a polyline's points were read (ddrt.path.condition.Conditioning); None for shapes.
+        self.conditioning: Any = None
+
+    @property
+    def deviation_m(self) -> float:
+        """Largest distance from a point of the input polyline to this path (0 for shapes and
+        waypoints, whose segments are the path)."""
+        c = self.conditioning
+        return 0.0 if c is None or c.mode == "waypoints" else float(c.deviation_m)
 
     # -- construction -------------------------------------------------------------------------
     def _assemble(self, pieces: list[_Piece]) -> None:

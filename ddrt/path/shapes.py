@@ -15,7 +15,7 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 
 from ddrt.config.schema import ConfigError, non_negative, positive
-from ddrt.config.sections import MIN_PATH_SIZE_M
+from ddrt.config.sections import MAX_TOLERANCE_M, MIN_PATH_SIZE_M
 from ddrt.path.geometry import TWO_PI, Curve, _arc, _Geometry, _line, _Options, _parametric, _polyline
 
 LIMIT_KEYS = ("accel", "decel", "lateral_accel", "omega_max", "alpha_max")
@@ -278,14 +278,24 @@ class SCurveSpec(PathCommon):
             0.0, length, opt.step)])
 
 
+def _check_tolerance(where: str, tolerance: float | None) -> None:
+    if tolerance is not None:
+        non_negative(where, tolerance=tolerance)
+        if tolerance > MAX_TOLERANCE_M:
+            raise ConfigError(f"{where + '.' if where else ''}tolerance: must be at most {MAX_TOLERANCE_M:g} m, "
+                              f"got {tolerance!r}")
+
+
 @dataclass(frozen=True, kw_only=True)
 class PointsSpec(PathCommon):
     points: tuple[tuple[float, ...], ...]  # [x, y] or [x, y, v] (v: speed cap, m/s)
+    tolerance: float | None = None  # m; default paths.tolerance_m (0: every point is a waypoint)
 
     SIZE_KEY: ClassVar[str] = "points"
 
     def validate(self, where: str) -> None:
         super().validate(where)
+        _check_tolerance(where, self.tolerance)
         for j, item in enumerate(self.points):
             if len(item) not in (2, 3):
                 raise ConfigError(f"points[{j}]: expected [x, y] or [x, y, v], got {list(item)}")
@@ -296,8 +306,13 @@ class PointsSpec(PathCommon):
 @dataclass(frozen=True, kw_only=True)
 class FileSpec(PathCommon):
     file: str  # a .csv of waypoints, relative to the spec's folder
+    tolerance: float | None = None  # m; default paths.tolerance_m (0: every point is a waypoint)
 
     SIZE_KEY: ClassVar[str] = "file"
+
+    def validate(self, where: str) -> None:
+        super().validate(where)
+        _check_tolerance(where, self.tolerance)
 
 
 SHAPES: dict[str, type[PathCommon]] = {

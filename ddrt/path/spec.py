@@ -23,7 +23,10 @@ import numpy as np
 from ddrt.config.schema import ConfigError, build
 from ddrt.config.sections import PathsConfig
 from ddrt.config.yamlio import read_text, read_yaml, shorten
-from ddrt.path.geometry import _Geometry, _Options, _polyline
+from ddrt.path.condition import (
+    WAYPOINTS, ConditionError, ConditionOptions, Conditioning, classify, condition_polyline,
+)
+from ddrt.path.geometry import _Geometry, _Options
 from ddrt.path.profile import SpeedLimits
 from ddrt.path.sampled import Path
 from ddrt.path.shapes import (
@@ -73,22 +76,27 @@ def _number(raw: Any, fail: Callable[[str], PathError], *, positive: bool = Fals
     return value
 
 
-def _merge_points(rows: list[tuple[float, float, float]]) -> list[tuple[float, float, float]]:
-    """Drop consecutive duplicates (keeping the lower speed cap)."""
+def _merge_points(rows: list[tuple[float, float, float]],
+                  names: list[str]) -> tuple[list[tuple[float, float, float]], list[str]]:
+    """Drop consecutive duplicates (keeping the lower speed cap); the names of the kept ones."""
     out: list[tuple[float, float, float]] = []
-    for x, y, v in rows:
+    kept: list[str] = []
+    for (x, y, v), name in zip(rows, names):
         if out and math.hypot(x - out[-1][0], y - out[-1][1]) < 1e-9:
             out[-1] = (out[-1][0], out[-1][1], min(out[-1][2], v))
         else:
             out.append((x, y, v))
-    return out
+            kept.append(name)
+    return out, kept
 
 
-def _read_csv(filename: str, paths: PathsConfig) -> tuple[list[tuple[float, float, float]], bool]:
-    """Waypoints (x, y, v cap or inf) from a CSV with header x,y or x,y,v; second item: has v."""
+def _read_csv(filename: str, paths: PathsConfig) -> tuple[list[tuple[float, float, float]], bool, list[str]]:
+    """Waypoints (x, y, v cap or inf) from a CSV with header x,y or x,y,v; second item: has v;
+    third: each waypoint's line ("line 7")."""
     # At most ~128 bytes a waypoint: the file cannot be larger than its waypoints need.
     text = read_text(filename, PathError, limit=128 * paths.max_points + 65536)
     rows: list[tuple[float, float, float]] = []
+    lines: list[str] = []
     header: list[str] | None = None
     lineno = 0
     reader = csv.reader(io.StringIO(text))
@@ -120,21 +128,38 @@ def _read_csv(filename: str, paths: PathsConfig) -> tuple[list[tuple[float, floa
                 raise PathError(f"{filename}: line {lineno}: ({vals[0]:.6g}, {vals[1]:.6g}) is beyond "
                                 f"paths.max_extent_m = {paths.max_extent_m:g} m from the origin")
             rows.append((vals[0], vals[1], v))
+            lines.append(f"line {lineno}")
     except csv.Error as exc:  # a NUL byte, an unterminated quote, a field over the size limit
         raise PathError(f"{filename}: line {reader.line_num or lineno}: not CSV: {exc}") from None
     if header is None:
         raise PathError(f"{filename}: line 1: missing header 'x,y' or 'x,y,v' (file is empty)")
-    return rows, len(header) == 3
+    return rows, len(header) == 3, lines
 
 
 def _waypoint_geometry(rows: list[tuple[float, float, float]], has_v: bool, where: str, opt: _Options,
-                       paths: PathsConfig) -> _Geometry:
-    pts = _merge_points(rows)
+                       paths: PathsConfig, names: list[str], tolerance: float | None = None,
+                       budget_where: str | None = None) -> tuple[_Geometry, Conditioning]:
+    """A polyline's geometry: waypoints as they are, samples of a curve smoothed (condition.py).
+    Errors about one point name `where` and the point's name; about the whole, `budget_where`."""
+    pts, kept = _merge_points(rows, names)
+    whole = where if budget_where is None else budget_where
     if len(pts) < 2:
-        raise PathError(f"{where}: fewer than 2 distinct points ({len(pts)})")
-    _check_samples(polyline_samples(pts, opt), where, paths, opt)
-    caps = [p[2] for p in pts] if has_v else None
-    return _polyline([(p[0], p[1]) for p in pts], caps, opt)
+        only = f" (every point equals the one at {kept[0]})" if kept and len(rows) > 1 else ""
+        raise PathError(f"{where}: {kept[0] + ': ' if kept else ''}fewer than 2 distinct points ({len(pts)}){only}")
+    copt = ConditionOptions(paths.tolerance_m if tolerance is None else tolerance, paths.waypoint_spacing_m,
+                            tolerance is not None)
+    xy = np.array([(p[0], p[1]) for p in pts], dtype=float)
+    mode = classify(xy, copt)[0]
+    if mode == WAYPOINTS:
+        _check_samples(polyline_samples(pts, opt), whole, paths, opt)
+    else:  # a smoothed curve is no longer than its points' polyline (and pivots are few)
+        length = float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
+        _check_samples(1.05 * length / opt.step + 2.0 * len(pts) ** 0.5, whole, paths, opt)
+    caps = np.array([p[2] for p in pts]) if has_v else None
+    try:
+        return condition_polyline(xy, caps, opt, copt, where, kept)
+    except ConditionError as exc:
+        raise PathError(str(exc)) from None
 
 
 def _check_samples(estimate: float, where: str, paths: PathsConfig, opt: _Options) -> None:
@@ -144,6 +169,7 @@ def _check_samples(estimate: float, where: str, paths: PathsConfig, opt: _Option
 
 
 def _options(spec: PathCommon, paths: PathsConfig) -> _Options:
+    """Sampling options: the config's paths: section, with the spec's own keys first."""
     return _Options(
         paths.sample_step_m,
         paths.pivot_radius_m if spec.pivot_radius is None else spec.pivot_radius,
@@ -228,7 +254,9 @@ def _from_mapping(m: Any, limits: SpeedLimits, where: str, base_dir: str | None,
             rows.append((item[0], item[1], item[2] if len(item) == 3 else math.inf))
         has_v = any(len(item) == 3 for item in spec.points)
         _note_point_caps([r[2] for r in rows], limits.v_max, f"{where}: key 'points'", notes)
-        geo = _waypoint_geometry(rows, has_v, f"{where}: key 'points'", opt, paths)
+        names = [f"key 'points[{j}]'" for j in range(len(rows))]
+        geo, cond = _waypoint_geometry(rows, has_v, where, opt, paths, names, spec.tolerance,
+                                        f"{where}: key 'points'")
     elif isinstance(spec, FileSpec):
         fname = spec.file
         if not fname.lower().endswith(".csv"):
@@ -236,12 +264,13 @@ def _from_mapping(m: Any, limits: SpeedLimits, where: str, base_dir: str | None,
         if base_dir is not None and not os.path.isabs(fname):
             fname = os.path.join(base_dir, fname)
         try:
-            rows, has_v = _read_csv(fname, paths)
+            rows, has_v, lines = _read_csv(fname, paths)
+            geo, cond = _waypoint_geometry(rows, has_v, fname, opt, paths, lines, spec.tolerance)
         except PathError as exc:
             raise PathError(f"{where}: key 'file': {exc}") from None
         _note_point_caps([r[2] for r in rows], limits.v_max, fname, notes)
-        geo = _waypoint_geometry(rows, has_v, fname, opt, paths)
     else:
+        cond = None
         blame = spec.blame()
         _check_samples(spec.samples(opt), f"{where}: key '{blame}'", paths, opt)
         try:
@@ -250,11 +279,12 @@ def _from_mapping(m: Any, limits: SpeedLimits, where: str, base_dir: str | None,
             raise PathError(f"{where}: {exc}") from None
     if geo.cap_value is not None:
         geo.cap_value = np.minimum(geo.cap_value, v_cap)
-    return _finish(geo, lim, v_cap, opt, spec.pose(), where, paths, notes)
+    return _finish(geo, lim, v_cap, opt, spec.pose(), where, paths, notes, cond)
 
 
 def _finish(geo: _Geometry, lim: SpeedLimits, v_cap: float, opt: _Options,
-            start: tuple[float, float, float] | None, where: str, paths: PathsConfig, notes: list[str]) -> Path:
+            start: tuple[float, float, float] | None, where: str, paths: PathsConfig, notes: list[str],
+            cond: Conditioning | None = None) -> Path:
     """Check the sampled geometry against the bounds, then profile it into a Path."""
     count = sum(len(pc.s) for pc in geo.pieces) - max(0, len(geo.pieces) - 1)
     _check_samples(float(count), where, paths, opt)
@@ -272,7 +302,10 @@ def _finish(geo: _Geometry, lim: SpeedLimits, v_cap: float, opt: _Options,
     if not path.duration <= paths.max_duration_s:
         raise PathError(f"{where}: the path takes {path.duration:.3g} s at its limits, longer than "
                         f"paths.max_duration_s = {paths.max_duration_s:g} s (a speed or acceleration too low?)")
+    if cond is not None and cond.mode != WAYPOINTS:
+        notes.append(f"{where}: {cond.summary()}")
     path.warnings = notes
+    path.conditioning = cond
     return path
 
 
@@ -295,12 +328,12 @@ def load_path(source: str | os.PathLike[str] | Mapping[str, Any], limits: SpeedL
     fname = os.fspath(source)
     low = fname.lower()
     if low.endswith(".csv"):
-        rows, has_v = _read_csv(fname, paths)
+        rows, has_v, lines = _read_csv(fname, paths)
         notes: list[str] = []
         _note_point_caps([r[2] for r in rows], limits.v_max, fname, notes)
         opt = _Options(paths.sample_step_m, paths.pivot_radius_m, paths.corner_pivot_deg, paths.blend_max_m)
-        geo = _waypoint_geometry(rows, has_v, fname, opt, paths)
-        return _finish(geo, limits, limits.v_max, opt, None, fname, paths, notes)
+        geo, cond = _waypoint_geometry(rows, has_v, fname, opt, paths, lines)
+        return _finish(geo, limits, limits.v_max, opt, None, fname, paths, notes, cond)
     if low.endswith((".yaml", ".yml")):
         data = read_yaml(fname, PathError)
         return _from_mapping(data, limits, fname, base_dir if base_dir is not None else os.path.dirname(fname), paths)

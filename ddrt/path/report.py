@@ -1,0 +1,262 @@
+"""`ddrt path FILE`: what a path file becomes before the robot drives it.
+
+Length, duration, curvature, corners, how the points were read (waypoints, samples of a
+curve, a grid plan: ddrt/path/condition.py), the reference's largest deviation from them, and
+which limit sets the speed where. The profile (ddrt/path/profile.py) caps the progress rate
+per sample, then limits it by acceleration and braking; this module recomputes the same caps
+from the path's arrays and names, per sample, the one that binds:
+
+  speed        the path's speed (its own `speed:` or limits.v_max)
+  point cap    a waypoint's or a CSV row's `v`
+  lateral      lateral acceleration: v^2 |kappa| <= limits.lateral_accel
+  omega        yaw rate: v |kappa| <= limits.omega_max
+  curv. rate   yaw acceleration from the change of curvature: v^2 |dkappa/ds| <= alpha_max / 2
+  pivot omega  a turn in place at pivot_radius x omega_max
+  accel        speeding up at the acceleration limit (min(accel, alpha_max / (2 |kappa|)))
+  decel        braking at the deceleration limit (for the next cap, a pivot or the end)
+  rest         standing: the ends and both sides of a turn in place
+  other        a limit this module does not know (none today)
+
+`--plot` draws the input points against the reference, and the speed profile under its caps.
+"""
+
+from __future__ import annotations
+
+import math
+import textwrap
+from dataclasses import dataclass, field
+from pathlib import Path as FsPath
+
+import numpy as np
+
+from ddrt.path.sampled import Path, distances_to_polyline
+
+__all__ = ["LABELS", "PathReport", "active_limits", "path_report", "report_text", "write_plot"]
+
+LABELS = ("speed", "point cap", "lateral", "omega", "curv. rate", "pivot omega", "accel", "decel", "rest", "other")
+_REL = 1e-6
+
+
+def _caps(path: Path) -> dict[str, np.ndarray]:
+    """The per-sample caps of the profile, by name (inf where a cap does not apply)."""
+    a = path.arrays()
+    lim, b = path.limits, path.pivot_radius
+    s, kap, piv = a["sigma"], a["kappa"], a["seg_pivot"]
+    n = len(s)
+    absk = np.abs(kap)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lat = np.sqrt(lim.lateral_accel / absk)
+        om = lim.omega_max / absk
+        dk = np.abs(np.diff(kap)) / np.diff(s)
+        dk[piv] = 0.0
+        kc = np.sqrt(0.5 * lim.alpha_max / dk)
+    rate = np.full(n, np.inf)
+    rate[:-1] = np.minimum(rate[:-1], kc)
+    rate[1:] = np.minimum(rate[1:], kc)
+    v_cap = a.get("v_cap", np.full(n, path.v_cap if hasattr(path, "v_cap") else lim.v_max))
+    speed = np.full(n, getattr(path, "v_cap", lim.v_max))
+    point = np.where(v_cap < speed * (1.0 - _REL), v_cap, np.inf)
+    in_piv = np.zeros(n, dtype=bool)
+    in_piv[:-1] |= piv
+    in_piv[1:] |= piv
+    caps = {"speed": speed, "point cap": point, "lateral": lat, "omega": om, "curv. rate": rate}
+    for name in caps:
+        caps[name] = np.where(in_piv, np.inf, caps[name])
+    caps["pivot omega"] = np.where(in_piv, b * lim.omega_max, np.inf)
+    return caps
+
+
+def active_limits(path: Path) -> np.ndarray:
+    """Index into LABELS of the limit that sets the speed at each sample."""
+    a = path.arrays()
+    lim = path.limits
+    u, s, kap, piv, acc = a["u"], a["sigma"], a["kappa"], a["seg_pivot"], a["acc_u"]
+    n = len(u)
+    caps = _caps(path)
+    names = list(caps)
+    stack = np.vstack([caps[k] for k in names])
+    static = stack.min(axis=0)
+    which = np.argmin(stack, axis=0)
+    out = np.full(n, LABELS.index("other"))
+    at_cap = u >= static * (1.0 - 1e-6)
+    out[at_cap] = [LABELS.index(names[j]) for j in which[at_cap]]
+    kmax = np.maximum(np.abs(kap[1:]), np.abs(kap[:-1]))
+    with np.errstate(divide="ignore"):
+        acc_lim = np.where(piv, path.pivot_radius * lim.alpha_max, np.minimum(lim.accel, 0.5 * lim.alpha_max / kmax))
+        dec_lim = np.where(piv, path.pivot_radius * lim.alpha_max, np.minimum(lim.decel_eff, 0.5 * lim.alpha_max / kmax))
+    rising = np.zeros(n, dtype=bool)
+    rising[1:] = acc >= acc_lim * (1.0 - 1e-3)
+    falling = np.zeros(n, dtype=bool)
+    falling[:-1] = acc <= -dec_lim * (1.0 - 1e-3)
+    free = ~at_cap
+    out[free & rising] = LABELS.index("accel")
+    out[free & ~rising & falling] = LABELS.index("decel")
+    out[u <= 0.0] = LABELS.index("rest")
+    return out
+
+
+@dataclass
+class Stretch:
+    start_m: float
+    end_m: float
+    label: str
+
+
+@dataclass
+class PathReport:
+    source: str
+    length_m: float
+    duration_s: float
+    v_cap: float
+    kappa_max: float
+    kappa_max_at_m: float
+    pivots: list[tuple[float, float, float, float]]  # (sigma, x, y, turn rad)
+    blends: int
+    mode: str
+    summary: str
+    tolerance_m: float | None
+    deviation_m: float
+    deviation_at: str
+    corridor_m: float  # largest distance of the reference from the input polyline
+    share_length: dict[str, float]
+    share_time: dict[str, float]
+    stretches: list[Stretch]
+    labels: np.ndarray = field(repr=False)
+    warnings: list[str] = field(default_factory=list)
+
+
+def _pivot_runs(path: Path) -> list[tuple[int, int]]:
+    piv = path.arrays()["seg_pivot"]
+    runs, start = [], None
+    for i, flag in enumerate(np.append(piv, False)):
+        if flag and start is None:
+            start = i
+        elif not flag and start is not None:
+            runs.append((start, i))
+            start = None
+    return runs
+
+
+def _corridor(path: Path) -> float:
+    """Largest distance of the reference's samples from the input polyline (samples only)."""
+    c = path.conditioning
+    if c is None or c.mode == "waypoints" or c.point_sigma is None or len(c.points) < 2:
+        return 0.0
+    a = path.arrays()
+    ps = np.maximum.accumulate(np.asarray(c.point_sigma, dtype=float))
+    near = np.clip(np.searchsorted(ps, a["sigma"]) - 1, 0, len(c.points) - 2)
+    d = distances_to_polyline(np.asarray(c.points, dtype=float), np.column_stack((a["x"], a["y"])), near, window=12)
+    return float(d.max())
+
+
+def path_report(path: Path, source: str) -> PathReport:
+    a = path.arrays()
+    labels = active_limits(path)
+    s, t = a["sigma"], a["t"]
+    ds = np.diff(s)
+    dt = np.diff(t)
+    wl = np.zeros(len(s))
+    wt = np.zeros(len(s))
+    wl[:-1] += 0.5 * ds
+    wl[1:] += 0.5 * ds
+    wt[:-1] += 0.5 * dt
+    wt[1:] += 0.5 * dt
+    share_l = {name: float(wl[labels == i].sum() / max(wl.sum(), 1e-300)) for i, name in enumerate(LABELS)}
+    share_t = {name: float(wt[labels == i].sum() / max(wt.sum(), 1e-300)) for i, name in enumerate(LABELS)}
+    stretches: list[Stretch] = []
+    change = np.flatnonzero(np.diff(labels)) + 1
+    bounds = np.concatenate(([0], change, [len(labels)]))
+    for i0, i1 in zip(bounds[:-1], bounds[1:]):
+        stretches.append(Stretch(float(s[i0]), float(s[min(i1, len(s) - 1)]), LABELS[int(labels[i0])]))
+    kap = np.where(np.append(a["seg_pivot"], False), 0.0, np.abs(a["kappa"]))
+    j = int(np.argmax(kap))
+    pivots = []
+    for i0, i1 in _pivot_runs(path):
+        pivots.append((float(s[i0]), float(a["x"][i0]), float(a["y"][i0]), float(a["theta"][i1] - a["theta"][i0])))
+    c = path.conditioning
+    mode = "shape" if c is None else c.mode
+    blends = int(c.extra.get("blends", 0)) if c is not None else 0
+    summary = "an analytic shape" if c is None else c.summary()
+    return PathReport(
+        source=source, length_m=path.length, duration_s=path.duration, v_cap=float(getattr(path, "v_cap", path.limits.v_max)),
+        kappa_max=float(kap[j]), kappa_max_at_m=float(s[j]), pivots=pivots, blends=blends, mode=mode, summary=summary,
+        tolerance_m=None if c is None or c.mode == "waypoints" else c.tolerance_m,
+        deviation_m=path.deviation_m, deviation_at="" if c is None or c.mode == "waypoints" else c.names[c.worst],
+        corridor_m=_corridor(path), share_length=share_l, share_time=share_t, stretches=stretches, labels=labels,
+        warnings=list(path.warnings))
+
+
+def report_text(r: PathReport, max_stretches: int = 24) -> str:
+    lines = [f"path          {r.source}", f"read as       {r.summary}"]
+    lines.append(f"length        {r.length_m:.3f} m   duration {r.duration_s:.2f} s   mean speed "
+                 f"{r.length_m / r.duration_s if r.duration_s > 0 else 0.0:.3f} m/s (path speed {r.v_cap:g} m/s)")
+    radius = f" (radius {1.0 / r.kappa_max:.3g} m)" if r.kappa_max > 0 else ""
+    lines.append(f"curvature     max {r.kappa_max:.3g} /m at {r.kappa_max_at_m:.3f} m{radius}")
+    lines.append(f"corners       {len(r.pivots)} turned in place" + (f", {r.blends} blended" if r.mode == "waypoints" else "")
+                 + "; cusps: none (a path that reverses is refused)")
+    for sig, x, y, turn in r.pivots[:12]:
+        lines.append(f"              at {sig:8.3f} m ({x:.3f}, {y:.3f}): {math.degrees(turn):+.1f} deg")
+    if len(r.pivots) > 12:
+        lines.append(f"              ... and {len(r.pivots) - 12} more")
+    if r.tolerance_m is not None:
+        lines.append(f"deviation     largest {r.deviation_m * 1000:.2f} mm from the input points (at {r.deviation_at}), "
+                     f"tolerance {r.tolerance_m * 1000:.1f} mm; the reference lies within {r.corridor_m * 1000:.2f} mm "
+                     "of the input polyline")
+    elif r.mode == "waypoints":
+        lines.append("deviation     none: straight segments through the waypoints (corners blended or turned in place)")
+    lines.append("speed set by  (share of length, of time)")
+    for name in LABELS:
+        if r.share_length[name] > 0.0 or r.share_time[name] > 0.0:
+            lines.append(f"  {name:<12s} {100 * r.share_length[name]:6.1f} %  {100 * r.share_time[name]:6.1f} %")
+    lines.append("where         (progress in m)")
+    shown = r.stretches
+    if len(shown) > max_stretches:
+        keep = sorted(sorted(range(len(shown)), key=lambda i: -(shown[i].end_m - shown[i].start_m))[:max_stretches])
+        lines.append(f"  ({len(shown)} stretches; the {max_stretches} longest)")
+        shown = [shown[i] for i in keep]
+    for st in shown:
+        lines.append(f"  {st.start_m:8.3f} - {st.end_m:8.3f}  {st.label}")
+    for w in r.warnings:
+        if not w.endswith(r.summary):  # the conditioning's own note is the "read as" line
+            lines.append(f"note          {w}")
+    return "\n".join(lines)
+
+
+def write_plot(path: Path, r: PathReport, out_file: str | FsPath) -> FsPath:
+    """The input against the reference, and the speed profile under its caps (matplotlib)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    a = path.arrays()
+    c = path.conditioning
+    fig, (ax0, ax1) = plt.subplots(2, 1, figsize=(9, 10), gridspec_kw={"height_ratios": [3, 2]})
+    if c is not None:
+        pts = np.asarray(c.points)
+        ax0.plot(pts[:, 0], pts[:, 1], ".", ms=3, color="0.45", label=f"input ({len(pts)} points)")
+    ax0.plot(a["x"], a["y"], "-", lw=1.2, color="tab:red", label="reference")
+    if r.pivots:
+        pv = np.array([(x, y) for _, x, y, _ in r.pivots])
+        ax0.plot(pv[:, 0], pv[:, 1], "o", mfc="none", color="tab:blue", label="turn in place")
+    ax0.set_aspect("equal")
+    ax0.set_xlabel("x (m)")
+    ax0.set_ylabel("y (m)")
+    ax0.legend(loc="best", fontsize=8)
+    ax0.set_title("\n".join(textwrap.wrap(f"{FsPath(r.source).name}: {r.summary}", 100)), fontsize=9)
+    s = a["sigma"]
+    top = 1.3 * max(r.v_cap, float(np.max(a["u"])), 1e-9)
+    for name, cap in _caps(path).items():
+        if np.any(np.isfinite(cap) & (cap < top)):
+            ax1.plot(s, np.where(cap < top, cap, np.nan), lw=0.8, ls="--", label=name if "cap" in name else f"{name} cap")
+    ax1.plot(s, a["u"], "k-", lw=1.4, label="profile (progress rate)")
+    ax1.set_ylim(0.0, top)
+    ax1.set_xlabel("progress (m)")
+    ax1.set_ylabel("speed (m/s)")
+    ax1.legend(loc="best", fontsize=8, ncol=2)
+    fig.tight_layout()
+    out = FsPath(out_file)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out

@@ -1,0 +1,332 @@
+"""Paths as people hand them over: recordings, exports and grid plans become smooth references
+(ddrt/path/condition.py); waypoints and every seed scenario's path stay as they were."""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path as FsPath
+
+import numpy as np
+import pytest
+
+from bench import paths_as_given as pg
+from ddrt.cli import main as cli_main
+from ddrt.config import load_config
+from ddrt.config.sections import PathsConfig
+from ddrt.path import PathError, load_path
+from ddrt.path.geometry import _Options, _polyline
+from ddrt.path.report import LABELS, active_limits, path_report
+from ddrt.path.sampled import Path
+from ddrt.path.spec import resolve_path, speed_limits
+
+ROOT = FsPath(__file__).resolve().parents[1]
+SIM = ROOT / "configs" / "sim.yaml"
+LIM = speed_limits(load_config(SIM))
+
+
+def _csv(tmp_path: FsPath, case: pg.Case) -> FsPath:
+    f = tmp_path / f"{case.name}.csv"
+    pg.write_csv(f, case.xy, case.speed)
+    return f
+
+
+def _pivots(path: Path) -> list[tuple[int, int]]:
+    piv = path.arrays()["seg_pivot"]
+    runs, start = [], None
+    for i, flag in enumerate(np.append(piv, False)):
+        if flag and start is None:
+            start = i
+        elif not flag and start is not None:
+            runs.append((start, i))
+            start = None
+    return runs
+
+
+def _xy(path: Path) -> np.ndarray:
+    a = path.arrays()
+    return np.column_stack((a["x"], a["y"]))
+
+
+# --------------------------------------------------------------------------- each defect
+
+
+def test_noisy_circle_recording_is_driven_at_the_asked_speed(tmp_path) -> None:
+    """Main: 230 s instead of ~16 s, curvature 140 /m on a 0.83 /m circle, turns at noise."""
+    case = pg.circle_recording()
+    path = load_path(_csv(tmp_path, case), LIM)
+    length = 2 * math.pi * 1.2
+    assert path.duration < 1.3 * length / 0.5 + 3.0  # ~15.6 s
+    assert not _pivots(path)
+    kap = np.abs(path.arrays()["kappa"])
+    assert kap.max() < 1.0 and kap.min() > 0.7  # 0.83 /m all round, ends included
+    d = np.abs(np.hypot(path.arrays()["x"], path.arrays()["y"] - 1.2) - 1.2)
+    assert np.sqrt(np.mean(d ** 2)) < 1.5e-3 and d.max() < 3e-3  # from the true circle (1 mm noise)
+    assert path.conditioning.mode == "samples"
+    assert 0.0 < path.deviation_m <= 0.01
+    assert any("samples of a curve" in w for w in path.warnings)
+
+
+def test_exported_figure_eight_keeps_the_shape_and_the_time(tmp_path) -> None:
+    """Main: the 361-point export averaged 0.17 m/s at 0.8 m/s."""
+    case = pg.figure_eight_export()
+    path = load_path(_csv(tmp_path, case), LIM)
+    exact = case.exact
+    assert path.duration < 1.1 * exact.duration
+    assert path.length == pytest.approx(exact.length, rel=2e-3)
+    kmax = np.abs(path.arrays()["kappa"]).max()
+    assert kmax == pytest.approx(np.abs(exact.arrays()["kappa"]).max(), rel=0.05)
+    assert path.deviation_m < 1e-3  # exact points: hardly smoothed at all
+    d = pg.curve_distance(_xy(exact), _xy(path)[::10])
+    assert d.max() < 1e-3
+
+
+@pytest.mark.parametrize("cell", [0.05, 0.10])
+def test_grid_plan_is_smoothed_within_its_cells(tmp_path, cell) -> None:
+    """Main: a stop and a turn in place at every 45 degree step, 1.56x the time."""
+    case = pg.grid_plan(cell)
+    path = load_path(_csv(tmp_path, case), LIM)
+    c = path.conditioning
+    assert c.mode == "grid" and c.grid_cell_m == pytest.approx(cell)
+    assert c.tolerance_m == pytest.approx(0.5 * cell)
+    assert not _pivots(path)
+    length = float(np.sum(np.hypot(*np.diff(case.xy, axis=0).T)))
+    assert path.duration < 1.15 * length / case.speed + 3.0
+    assert path.deviation_m <= 0.5 * cell + 1e-9
+    d = pg.curve_distance(case.curve, _xy(path)[::5])
+    assert np.sqrt(np.mean(d ** 2)) < 0.25 * cell  # close to the staircase on the whole
+
+
+def test_teach_and_repeat_recording_follows_the_curve_not_the_noise(tmp_path) -> None:
+    """Main: 13x the time, turns in place at noise, 23 mm RMS from the curve."""
+    case = pg.teach_and_repeat()
+    path = load_path(_csv(tmp_path, case), LIM)
+    assert not _pivots(path)
+    assert path.duration < 1.3 * max(case.exact.length / case.speed, case.exact.duration) + 3.0
+    d = pg.curve_distance(case.curve, _xy(path)[::3])
+    assert np.sqrt(np.mean(d ** 2)) < 2e-3 and d.max() < 8e-3
+    assert path.conditioning.noise_m == pytest.approx(2e-3, rel=0.3)  # the noise is estimated
+
+
+@pytest.mark.parametrize("seed", [11, 12, 13])
+def test_noise_never_becomes_a_corner(seed) -> None:
+    case = pg.teach_and_repeat(seed=seed)
+    path = load_path({"points": case.xy.tolist(), "speed": 0.6}, LIM)
+    assert not _pivots(path)
+
+
+def test_genuine_corners_of_a_recording_still_turn_in_place(tmp_path) -> None:
+    case = pg.rectangle_recording()
+    path = load_path(_csv(tmp_path, case), LIM)
+    corners = path.conditioning.corners
+    assert len(corners) == 3 and len(_pivots(path)) == 3
+    for c, (x, y) in zip(corners, [(1.2, 0.0), (1.2, 0.8), (0.0, 0.8)]):
+        assert math.degrees(c.turn) == pytest.approx(90.0, abs=3.0)
+        assert math.hypot(c.x - x, c.y - y) < 4e-3
+    assert path.duration < 1.1 * case.exact.duration
+
+
+def test_speed_column_stays_a_cap(tmp_path) -> None:
+    case = pg.teach_and_repeat()
+    n = len(case.xy)
+    f = tmp_path / "caps.csv"
+    with open(f, "w") as fh:
+        fh.write("x,y,v\n")
+        for i, (x, y) in enumerate(case.xy):
+            fh.write(f"{x:.6f},{y:.6f},{0.2 if i < n // 2 else 0.5}\n")
+    path = load_path(f, LIM)
+    a = path.arrays()
+    half = path.conditioning.point_sigma[n // 2 - 1]
+    first = a["sigma"] <= half
+    assert a["u"][first].max() <= 0.2 + 1e-9
+    assert a["u"].max() == pytest.approx(0.5, abs=1e-6)
+    assert np.all(a["u"] <= a["v_cap"] + 1e-12)
+
+
+# --------------------------------------------------------------------------- unchanged
+
+
+def test_sparse_waypoints_and_rectangles_are_built_as_before() -> None:
+    f = ROOT / "configs" / "paths" / "waypoints_sparse.csv"
+    path = load_path(f, LIM)
+    assert path.conditioning.mode == "waypoints" and path.deviation_m == 0.0
+    data = np.loadtxt(f, delimiter=",", skiprows=3)
+    paths = PathsConfig()
+    opt = _Options(paths.sample_step_m, paths.pivot_radius_m, paths.corner_pivot_deg, paths.blend_max_m)
+    legacy = Path(_polyline([tuple(p) for p in data[:, :2]], data[:, 2].tolist(), opt), LIM, v_cap=LIM.v_max,
+                  pivot_radius=opt.pivot_radius)
+    for key in ("sigma", "x", "y", "theta", "kappa", "u", "t"):
+        assert np.array_equal(path.arrays()[key], legacy.arrays()[key]), key
+    rect = load_path({"points": [[0, 0], [1.2, 0], [1.2, 0.8], [0, 0.8], [0, 0]], "speed": 0.25}, LIM)
+    assert rect.conditioning.mode == "waypoints" and len(_pivots(rect)) == 3
+
+
+def test_every_scenario_path_is_a_shape_or_waypoints() -> None:
+    """The seed scenarios' paths do not go through the smoothing, so their accuracy is as before."""
+    for f in sorted((ROOT / "configs" / "scenarios").glob("*.yaml")):
+        path = resolve_path(load_config(f))
+        c = path.conditioning
+        assert c is None or c.mode == "waypoints", f.name
+
+
+def test_tolerance_zero_reads_points_as_waypoints(tmp_path) -> None:
+    case = pg.circle_recording()
+    f = _csv(tmp_path, case)
+    spec = tmp_path / "raw.yaml"
+    spec.write_text(f"file: {f.name}\ntolerance: 0\n")
+    raw = load_path(spec, LIM)
+    assert raw.conditioning.mode == "waypoints" and len(_pivots(raw)) > 5  # the old behaviour, on request
+    wide = tmp_path / "wide.yaml"
+    wide.write_text(f"file: {f.name}\ntolerance: 0.02\n")
+    assert load_path(wide, LIM).conditioning.tolerance_m == 0.02
+
+
+# --------------------------------------------------------------------------- bad input
+
+
+def test_tolerance_that_cannot_be_met_names_file_and_line(tmp_path) -> None:
+    case = pg.teach_and_repeat()
+    f = _csv(tmp_path, case)
+    with pytest.raises(PathError, match=r"teach_repeat\.csv: line \d+: the reference cannot stay within 0\.0002 m"):
+        load_path(f, LIM, paths=PathsConfig(tolerance_m=0.0002))
+
+
+def test_a_reversal_is_refused_naming_the_line(tmp_path) -> None:
+    rng = np.random.default_rng(4)
+    s = np.arange(0.0, 1.0, 0.01)
+    there = np.column_stack((s, 0.02 * np.sin(3 * s)))
+    back = there[::-1][1:] + [0.0, 0.003]
+    xy = np.vstack((there, back)) + rng.normal(0.0, 0.001, (len(there) + len(back), 2))
+    f = tmp_path / "reverse.csv"
+    pg.write_csv(f, xy, 0.3)
+    with pytest.raises(PathError) as exc:
+        load_path(f, LIM)
+    msg = str(exc.value)
+    assert "reverse.csv: line " in msg and "reverses" in msg and "forward only" in msg
+    line = int(msg.split("line ")[1].split(":")[0])
+    assert abs(line - (len(there) + 1)) <= 8  # at the turn (header is line 1)
+    grid = tmp_path / "back.csv"
+    pg.write_csv(grid, np.array([[0, 0], [0.05, 0], [0.1, 0], [0.15, 0], [0.1, 0], [0.05, 0]]), 0.3)
+    with pytest.raises(PathError, match=r"back\.csv: line 5: the plan steps back"):
+        load_path(grid, LIM)
+
+
+@pytest.mark.parametrize(("text", "needle"), [
+    ("x,y\n0,0\nnan,0.01\n", "line 3: column 'x': must be finite"),
+    ("x,y\n0,0\n0.01,inf\n", "line 3: column 'y': must be finite"),
+    ("x,y\n0.5,0.5\n", "line 2: fewer than 2 distinct points"),
+    ("x,y\n0.5,0.5\n0.5,0.5\n0.5,0.5\n", "line 2: fewer than 2 distinct points (1) (every point equals the one at line 2)"),
+])
+def test_bad_points_name_file_and_line(tmp_path, text, needle) -> None:
+    f = tmp_path / "bad.csv"
+    f.write_text(text)
+    with pytest.raises(PathError) as exc:
+        load_path(f, LIM)
+    assert str(exc.value).startswith(str(f)) and needle in str(exc.value), str(exc.value)
+
+
+def test_bad_tolerances_name_the_key(tmp_path) -> None:
+    (tmp_path / "p.csv").write_text("x,y\n0,0\n1,0\n")
+    for value, problem in (("-0.01", "must be >= 0"), ("5", "must be at most 1 m")):
+        spec = tmp_path / "t.yaml"
+        spec.write_text(f"file: p.csv\ntolerance: {value}\n")
+        with pytest.raises(PathError, match=rf"t\.yaml: key 'tolerance': {problem}"):
+            load_path(spec, LIM)
+
+
+# --------------------------------------------------------------------------- cost
+
+
+def test_a_long_recording_is_conditioned_quickly() -> None:
+    xy = pg.long_recording(20_000)  # 200 m at 1 cm
+    paths = PathsConfig(max_points=20_000)
+    t0 = time.process_time()
+    path = load_path({"points": xy.tolist(), "speed": 0.5}, LIM, paths=paths)
+    assert time.process_time() - t0 < 4.0  # about 0.4 s; the bench row times 100 000 points
+    assert not _pivots(path) and path.deviation_m <= 0.01
+
+
+# --------------------------------------------------------------------------- ddrt path
+
+
+def test_active_limits_name_the_binding_cap() -> None:
+    line = load_path({"shape": "line", "length": 2.0, "speed": 0.5}, LIM)
+    labels = {LABELS[i] for i in active_limits(line)}
+    assert labels == {"rest", "accel", "speed", "decel"}
+    fast = load_path({"shape": "circle", "radius": 0.1, "speed": 1.0}, LIM)  # omega: 3 rad/s at 0.3 m/s
+    mid = active_limits(fast)[len(fast.sigma) // 2]
+    assert LABELS[mid] == "omega"
+    rep = path_report(fast, "circle")
+    assert rep.share_length["omega"] > 0.8
+
+
+def test_ddrt_path_reports_and_plots(tmp_path, capsys) -> None:
+    case = pg.teach_and_repeat()
+    f = _csv(tmp_path, case)
+    assert cli_main(["path", str(f), "--config", str(SIM), "--plot", "--out", str(tmp_path / "out")]) == 0
+    out = capsys.readouterr().out
+    for needle in ("length", "duration", "curvature     max", "corners       0 turned in place",
+                   "samples of a curve", "deviation     largest", "speed set by", "point cap"):
+        assert needle in out, needle
+    assert (tmp_path / "out" / "path_report.png").stat().st_size > 10_000
+
+
+def test_ddrt_path_without_matplotlib_says_so(tmp_path, capsys, monkeypatch) -> None:
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "matplotlib" else real(name, *a))
+    f = tmp_path / "p.csv"
+    f.write_text("x,y\n0,0\n1,0\n")
+    assert cli_main(["path", str(f), "--plot"]) == 2
+    assert "--plot needs matplotlib" in capsys.readouterr().err
+
+
+def test_ddrt_path_bad_file_is_one_clear_line(tmp_path, capsys) -> None:
+    f = tmp_path / "p.csv"
+    f.write_text("x,y\n0,0\n1,zz\n")
+    assert cli_main(["path", str(f)]) == 2
+    assert "p.csv: line 3: column 'y': not a number" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------- closed loop
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["circle_1cm", "teach_repeat"])
+def test_recordings_closed_loop_meet_the_targets(name) -> None:
+    row = pg.measure_case(pg.CASES[name](), seed=1, exact=False)
+    r = row.run
+    assert r.completed
+    assert r.time_s <= row.target_s
+    assert r.true_rms_m < pg.TARGET_TRUE_RMS_M
+    assert r.domega_rms < pg.TARGET_DOMEGA_RMS
+    assert r.saturated <= pg.TARGET_SATURATION
+
+
+# --------------------------------------------------------------------------- where it is reported
+
+
+def test_ddrt_sim_and_a_follow_reply_report_the_deviation(tmp_path, capsys) -> None:
+    from ddrt.service.daemon import Daemon
+
+    case = pg.teach_and_repeat()
+    f = _csv(tmp_path, case)
+    cli_main(["sim", str(SIM), "--path", str(f), "--duration", "0.2", "--quiet", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert "teach_repeat.csv: 480 points as samples of a curve: smoothed within 10.0 mm (largest deviation" in err
+
+    class _Loop:
+        state = "idle"
+
+        def follow(self, path, pose=None) -> None:
+            self.path = path
+
+    cfg = tmp_path / "d.yaml"
+    cfg.write_text(f"extends: {SIM}\ndaemon: {{socket: null, telemetry_dir: {tmp_path / 'tel'}}}\n")
+    d = Daemon(str(cfg))
+    d.loop = _Loop()  # type: ignore[assignment]
+    reply = d.handle({"cmd": "follow", "points": case.xy.tolist(), "speed": 0.6, "pose": [0, 0, 0]})
+    assert reply["ok"] is True, reply
+    assert any("samples of a curve" in w and "largest deviation" in w for w in reply["warnings"])
+    assert d.loop.path.deviation_m == pytest.approx(load_path(f, LIM).deviation_m, abs=1e-5)  # CSV: 6 decimals
