@@ -19,6 +19,7 @@ import resource
 import signal
 import threading
 import time
+from array import array
 from pathlib import Path as FsPath
 from typing import Any
 
@@ -32,9 +33,9 @@ from ddrt.path import PathError
 from ddrt.config.schema import ConfigError
 from ddrt.service.sdnotify import Notifier
 from ddrt.path.spec import path_source, speed_limits
-from ddrt.service.pathworker import Build, BuildJob, PathWorker, describe
+from ddrt.service.pathworker import Build, BuildJob, PathWorker, build_path, describe
 from ddrt.service.telemetry import RotatingCsvWriter, TelemetryLogger, TelemetryRing
-from ddrt.service.timing import RateScheduler, TimingStats
+from ddrt.service.timing import RateScheduler, TimingStats, percentile
 from hal.base import HalError
 from hal.registry import open_hal
 
@@ -47,7 +48,7 @@ class _Interrupted(Exception):
 class _PendingFollow:
     """A follow whose path is being built in the worker; the loop switches to it when ready."""
 
-    __slots__ = ("build", "pose", "reply", "what", "ticks", "late_max_s", "missed0")
+    __slots__ = ("build", "pose", "reply", "what", "ticks", "late", "missed0")
 
     def __init__(self, build: Build, pose: tuple[float, float, float] | None, reply: Deferred | None,
                  what: str, missed0: int) -> None:
@@ -56,9 +57,18 @@ class _PendingFollow:
         self.reply = reply
         self.what = what
         self.ticks = 0
-        self.late_max_s = 0.0
+        self.late = array("d")  # each tick's lateness while the path is prepared (bounded)
         self.missed0 = missed0
 
+    def report(self, missed: int) -> dict[str, Any]:
+        """What preparing the path cost the loop: the ticks it ran meanwhile, how late."""
+        late = sorted(self.late)
+        return {"seconds": self.build.elapsed_s, "ticks": self.ticks, "missed_ticks": missed - self.missed0,
+                "late_p99_us": percentile(late, 99.0) * 1e6 if late else None,
+                "late_max_us": late[-1] * 1e6 if late else None}
+
+
+PREPARE_SAMPLES = 1 << 14  # lateness samples kept while a path is prepared (82 s at 200 Hz)
 
 COMMANDS = ("status", "follow", "stop", "estop", "reset", "gains", "reload")
 
@@ -403,11 +413,18 @@ class Daemon:
                                for v in pose)):
                 return {"ok": False, "error": "follow: pose: expected [x, y, theta]"}
             pose = (float(pose[0]), float(pose[1]), float(pose[2]))
-        if self.paths is None:
-            return {"ok": False, "error": "follow: no path worker"}
-        build = self.paths.submit(BuildJob(source, speed_limits(self.cfg), self.cfg.paths, where="request"))
-        reply = Deferred()
+        job = BuildJob(source, speed_limits(self.cfg), self.cfg.paths, where="request")
         what = describe(source)
+        if self.paths is None:
+            # A Daemon that is not running (tests, tools): no loop to protect, build here.
+            build = Build(job)
+            try:
+                build._finish(path=build_path(job))
+            except (PathError, ValueError, TypeError, OSError) as exc:
+                return {"ok": False, "error": f"follow: {exc}"}
+            return self._switch(_PendingFollow(build, pose, None, what, self.stats.missed), build)
+        build = self.paths.submit(job)
+        reply = Deferred()
         self._pending = _PendingFollow(build, pose, reply, what, self.stats.missed)
         log.info("follow: preparing %s", what)
         return reply
@@ -417,13 +434,14 @@ class Daemon:
         p = self._pending
         assert p is not None
         p.ticks += 1
-        if late_s > p.late_max_s:
-            p.late_max_s = late_s
+        if len(p.late) < PREPARE_SAMPLES:
+            p.late.append(late_s)
         build = p.build
         if not build.done:
             return
         self._pending = None
         reply = self._switch(p, build) if not build.error else {"ok": False, "error": f"follow: {build.error}"}
+        reply["prepared"] = p.report(self.stats.missed)
         if not reply["ok"]:
             log.error("not following %s: %s", p.what, reply["error"])
         if p.reply is not None:
@@ -431,17 +449,18 @@ class Daemon:
 
     def _switch(self, p: _PendingFollow, build: Build) -> dict[str, Any]:
         loop = self.loop
-        assert loop is not None and self.paths is not None
+        assert loop is not None
         path, build.path = build.path, None
-        old = loop.path
+        old = getattr(loop, "path", None)
         try:
             if loop.state in ("following", "stopping"):
                 raise ValueError(f"already {loop.state}")
             loop.follow(path, p.pose)
         except (ValueError, RuntimeError) as exc:
-            self.paths.dispose(path)
+            if self.paths is not None:
+                self.paths.dispose(path)
             return {"ok": False, "error": f"follow: {exc}"}
-        if old is not None and old is not path:
+        if old is not None and old is not path and self.paths is not None:
             self.paths.dispose(old)  # the loop's last reference is gone: free it off the loop
         del old
         for note in path.warnings:
@@ -450,9 +469,6 @@ class Daemon:
                  build.elapsed_s)
         reply: dict[str, Any] = {
             "ok": True, "state": loop.state, "length_m": path.length, "duration_s": path.duration,
-            # What preparing it cost the loop: the ticks it ran meanwhile, the latest of them.
-            "prepared": {"seconds": build.elapsed_s, "ticks": p.ticks, "late_max_us": p.late_max_s * 1e6,
-                         "missed_ticks": self.stats.missed - p.missed0},
         }
         if path.warnings:
             reply["warnings"] = list(path.warnings)

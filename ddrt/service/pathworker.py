@@ -56,6 +56,8 @@ PAUSE_S = 5e-5  # after a piece of work that held the GIL: lets a waiting loop t
 POLL_S = 0.05  # how often a wait checks for a cancel
 MAX_HEADER_BYTES = 16 * 1024 * 1024
 _LEN = struct.Struct("<Q")
+READY = b"R"
+START_TIMEOUT_S = 60.0  # a worker process that has not imported what it needs by then is stuck
 
 
 # --------------------------------------------------------------------------- the job
@@ -300,6 +302,7 @@ def worker_main() -> int:
 
     import ddrt.path.spec  # noqa: F401
 
+    out.write(READY)  # imports done: the build's time starts when the job comes
     raw = _read_exact_blocking(sys.stdin.buffer, _LEN.size)
     if raw is None:
         return 0  # the daemon closed the pipe: no job
@@ -413,8 +416,6 @@ class PathWorker:
         return proc
 
     def _do(self, build: Build) -> None:
-        job = build.job
-        deadline = build.t_submit + job.paths.build_timeout_s
         if build.cancelled:
             build._finish(error="cancelled")
             return
@@ -430,7 +431,7 @@ class PathWorker:
                     return
             self._active = proc
             try:
-                path = self._exchange(proc, build, deadline)
+                path = self._exchange(proc, build)
             except _Stop as exc:
                 build._finish(error=str(exc))
             else:
@@ -443,10 +444,15 @@ class PathWorker:
             self._active = None
             _kill(proc)
 
-    def _exchange(self, proc: subprocess.Popen[bytes], build: Build, deadline: float) -> Any:
+    def _exchange(self, proc: subprocess.Popen[bytes], build: Build) -> Any:
         job = build.job
         data = pickle.dumps(job, protocol=pickle.HIGHEST_PROTOCOL)
         assert proc.stdin is not None and proc.stdout is not None
+        # The worker says when its imports are done; paths.build_timeout_s counts from then.
+        started = _Reader(proc.stdout.fileno(), time.monotonic() + START_TIMEOUT_S, build, None, self, proc)
+        if started.read_bytes(len(READY)) != READY:
+            raise _Stop("the path worker sent a malformed reply")
+        deadline = time.monotonic() + job.paths.build_timeout_s
         try:
             proc.stdin.write(_LEN.pack(len(data)) + data)
             proc.stdin.close()
@@ -489,7 +495,7 @@ class _Dispose:
 class _Reader:
     """Exact reads from the worker's pipe, with the job's deadline and cancel honoured."""
 
-    def __init__(self, fd: int, deadline: float, build: Build, timeout_s: float, owner: PathWorker,
+    def __init__(self, fd: int, deadline: float, build: Build, timeout_s: float | None, owner: PathWorker,
                  proc: subprocess.Popen[bytes]) -> None:
         self.fd = fd
         self.deadline = deadline
@@ -504,6 +510,8 @@ class _Reader:
                 raise _Stop("cancelled")
             left = self.deadline - time.monotonic()
             if left <= 0.0:
+                if self.timeout_s is None:
+                    raise _Stop(f"the path worker did not start within {START_TIMEOUT_S:g} s")
                 raise _Stop(f"not ready within paths.build_timeout_s = {self.timeout_s:g} s "
                             f"(the path worker was stopped)")
             ready, _, _ = select.select([self.fd], [], [], min(POLL_S, left))
