@@ -26,7 +26,8 @@ from ddrt.service.ctlsocket import request
 from test_daemon import DaemonProc, start_daemon, wait_for
 
 HUGE_CIRCLE = {"shape": "circle", "radius": 300.0, "speed": 0.3, "pose": [0.0, 0.0, 0.0]}  # 942 000 samples
-STALL_BOUND_S = 0.05  # the worst tick while a path is prepared; main stalled 1.2 to 143 s
+STALL_BOUND_S = 0.1  # the worst tick while a path is prepared; main stalled 1.2 to 143 s
+MISSED_BOUND = 20  # ticks skipped meanwhile (a 1.2 s stall skips 240)
 ANSWER_BOUND_S = 1.0  # estop / stop / status round trip from a client (10 ms is the target)
 
 
@@ -96,19 +97,19 @@ def test_a_huge_inline_circle_is_built_while_the_loop_ticks_and_status_answers(f
         dt, reply = timed(fd, "status")
         answers.append(dt)
         assert reply["ok"] is True
-        time.sleep(0.05)
+        time.sleep(0.1)
     reply = pending.wait()
     assert reply["ok"] is True and reply["state"] == "following", reply
     assert reply["length_m"] == pytest.approx(2 * 3.14159265 * 300.0, rel=1e-4)
     prepared = reply["prepared"]
     assert prepared["ticks"] > 0.5 * prepared["seconds"] * 200.0  # the loop ticked all along
     assert prepared["late_max_us"] < STALL_BOUND_S * 1e6, prepared
-    assert prepared["missed_ticks"] <= 5, prepared
+    assert prepared["missed_ticks"] <= MISSED_BOUND, prepared
     assert answers and max(answers) < ANSWER_BOUND_S, answers
     after = fd.status()
     assert after["state"] == "following" and after["preparing"] is None
     assert after["progress"]["length_m"] == pytest.approx(reply["length_m"])
-    assert after["timing"]["missed_ticks"] - before["missed_ticks"] <= 5
+    assert after["timing"]["missed_ticks"] - before["missed_ticks"] <= MISSED_BOUND
     # estop answers within a tick while following the huge path, and holds.
     dt, e = timed(fd, "estop")
     assert e == {"ok": True, "state": "estop"} and dt < ANSWER_BOUND_S
@@ -178,7 +179,7 @@ def test_a_million_point_csv_is_refused_by_its_size_unread(fd: DaemonProc) -> No
     reply = fd.request({"cmd": "follow", "path": str(big)}, timeout=30.0)
     assert reply["ok"] is False and "paths.max_file_bytes = 2000000" in reply["error"], reply
     assert time.monotonic() - t0 < 10.0
-    assert fd.status()["timing"]["missed_ticks"] - before["missed_ticks"] <= 5
+    assert fd.status()["timing"]["missed_ticks"] - before["missed_ticks"] <= MISSED_BOUND
 
 
 def test_a_ten_thousand_point_csv_is_built_off_the_loop(fd: DaemonProc) -> None:
@@ -223,7 +224,7 @@ def test_follow_at_start_on_a_huge_path_ticks_while_it_is_built() -> None:
         d.wait_ready()
         s = wait_for(lambda: (s := d.status())["state"] == "following" and s, 60.0, "following the start path")
         assert s["progress"]["length_m"] > 1800.0
-        assert s["timing"]["missed_ticks"] <= 5, s["timing"]
+        assert s["timing"]["missed_ticks"] <= MISSED_BOUND, s["timing"]
         dt, e = timed(d, "estop")
         assert e["state"] == "estop" and dt < ANSWER_BOUND_S
     finally:

@@ -1,7 +1,10 @@
 """`ddrt run`: the long-running service around one ControlLoop.
 
-Start-up: config -> HAL -> control socket and telemetry thread -> real-time set-up -> gyro
-calibration at rest -> fixed-rate loop (READY=1 after the first good tick). Each period:
+Start-up: config -> path worker (ddrt/service/pathworker.py; it builds the config's path
+meanwhile) -> HAL -> control socket and telemetry thread -> real-time set-up -> gyro
+calibration at rest -> fixed-rate loop (READY=1 after the first good tick). A follow (the
+socket's, or --follow's) is built by the worker while the loop ticks and starts between two
+ticks once ready; its socket reply waits for that. Each period:
 sleep to an absolute deadline, tick, record timing, then (outside the timed part) serve
 the control socket, ping the watchdog, apply a pending reload. Signals only set flags.
 

@@ -20,8 +20,8 @@ loop waiting for the GIL waits microseconds. A Path the loop lets go of is hande
 to be freed (`dispose`): giving a few hundred MB back to the kernel takes milliseconds.
 
 One job at a time: a standby worker is started ahead (its imports done), takes one job, and
-exits (whatever memory the build took goes with it); the next standby starts as soon as a
-job is handed to the current one. The file checks run in the worker: a path file
+exits (whatever memory the build took goes with it); the next standby starts once that job
+is over, so at most one worker process works beside the loop. The file checks run in the worker: a path file
 must be a regular file of at most `paths.max_file_bytes` (checked with stat, then an
 O_NONBLOCK open and fstat, so a FIFO or a device never blocks anything), and the CSV an
 inline or YAML `file:` names likewise. Nothing here touches the file system from the loop
@@ -52,6 +52,7 @@ from typing import Any, Callable, Mapping
 log = logging.getLogger("ddrt.service.pathworker")
 
 CHUNK_BYTES = 64 * 1024
+NICE = 10
 PAUSE_S = 5e-5  # after a piece of work that held the GIL: lets a waiting loop thread take it
 POLL_S = 0.05  # how often a wait checks for a cancel
 MAX_HEADER_BYTES = 16 * 1024 * 1024
@@ -269,13 +270,18 @@ def _demote_self() -> None:
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     except (OSError, AttributeError):
         pass
-    try:
-        os.setpriority(os.PRIO_PROCESS, 0, min(19, os.getpriority(os.PRIO_PROCESS, 0) + 10))
-    except OSError:
-        pass
+    _renice(0)
     try:
         with open("/proc/self/oom_score_adj", "w") as fh:
             fh.write("1000")
+    except OSError:
+        pass
+
+
+def _renice(who: int) -> None:
+    """At least NICE (lowering one's own priority is always allowed)."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, who, max(NICE, os.getpriority(os.PRIO_PROCESS, who)))
     except OSError:
         pass
 
@@ -383,6 +389,9 @@ class PathWorker:
         from ddrt.service.rt import demote_current_thread
 
         demote_current_thread()
+        # Nice is per thread on Linux, and a child starts with its parent thread's: the worker
+        # processes are niced from their first instruction (their imports included).
+        _renice(threading.get_native_id())
         try:
             self._standby = self._spawn()
         except OSError as exc:
@@ -443,6 +452,13 @@ class PathWorker:
         finally:
             self._active = None
             _kill(proc)
+            if not self._closed and self._standby is None:
+                # The next job's worker starts now (not during this build: one worker process
+                # at a time beside the loop), so its imports are done when that job comes.
+                try:
+                    self._standby = self._spawn()
+                except OSError as exc:
+                    log.error("cannot start the path worker: %s", exc)
 
     def _exchange(self, proc: subprocess.Popen[bytes], build: Build) -> Any:
         job = build.job
@@ -459,12 +475,6 @@ class PathWorker:
         except OSError:
             raise _Stop(self._died(proc)) from None
         build.phase = "building"
-        if not self._closed:
-            # The next job's worker starts now, so its imports are done when that job comes.
-            try:
-                self._standby = self._spawn()
-            except OSError as exc:
-                log.error("cannot start the path worker: %s", exc)
         reader = _Reader(proc.stdout.fileno(), deadline, build, job.paths.build_timeout_s, self, proc)
         n = _LEN.unpack(reader.read_bytes(_LEN.size))[0]
         if n > MAX_HEADER_BYTES:
