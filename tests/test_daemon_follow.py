@@ -229,3 +229,15 @@ def test_follow_at_start_on_a_huge_path_ticks_while_it_is_built() -> None:
         assert e["state"] == "estop" and dt < ANSWER_BOUND_S
     finally:
         d.close()
+
+
+def test_a_follow_far_off_the_heading_turns_in_place_first_over_the_socket(fd: DaemonProc) -> None:
+    """The daemon side of tests/test_start.py: status shows the start's phase."""
+    reply = fd.request({"cmd": "follow", "shape": "line", "length": 0.3, "speed": 0.2,
+                        "pose": [0.0, 0.0, 2.356]}, timeout=30.0)  # 135 deg off the line's heading
+    assert reply["ok"] is True and reply["state"] == "following", reply
+    s = fd.status()
+    assert s["progress"]["phase"] == "turn" and s["progress"]["sigma_m"] == 0.0, s["progress"]
+    s = wait_for(lambda: (s := fd.status())["state"] == "stopped" and s, 20.0, "the line's end")
+    assert s["progress"]["phase"] in ("release", "follow") and s["progress"]["fraction"] == pytest.approx(1.0)
+    assert s["fault"] == ""

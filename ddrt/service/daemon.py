@@ -329,7 +329,9 @@ class Daemon:
         if ref is not None and loop.path is not None:
             progress = {"sigma_m": ref.sigma, "length_m": loop.path.length,
                         "fraction": ref.sigma / loop.path.length if loop.path.length else 1.0,
-                        "cross_track_m": ref.cross_track}
+                        "cross_track_m": ref.cross_track,
+                        # turn (in place to the start heading), join, release, follow: ddrt/path/start.py
+                        "phase": getattr(ref, "phase", "follow")}
         return {
             "state": loop.state,
             "fault": loop.fault,
