@@ -34,7 +34,6 @@ to this module: an 8-byte length and a pickle each way, then the buffers).
 from __future__ import annotations
 
 import logging
-import math
 import os
 import pickle
 import queue
@@ -47,7 +46,7 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping
+from typing import Any, Mapping
 
 log = logging.getLogger("ddrt.service.pathworker")
 
