@@ -9,6 +9,9 @@ from pathlib import Path
 from typing import Sequence
 
 
+FOLLOW_TIMEOUT_S = 120.0
+
+
 def _pose(text: str) -> tuple[float, float, float]:
     try:
         x, y, th = (float(v) for v in text.split(","))
@@ -102,8 +105,13 @@ def _cmd_ctl(args: argparse.Namespace) -> int:
         if not args.args:
             raise ValueError("ctl follow: give a path file")
         payload["path"] = str(Path(args.args[0]).resolve())
+    timeout = args.timeout
+    if timeout is None:
+        # A follow is answered once its path is built and followed (within the daemon's
+        # paths.build_timeout_s); everything else between two ticks.
+        timeout = FOLLOW_TIMEOUT_S if args.command_name == "follow" else 2.0
     try:
-        reply = request(args.socket, payload, timeout=args.timeout)
+        reply = request(args.socket, payload, timeout=timeout)
     except (OSError, TimeoutError) as exc:
         print(f"ddrt ctl: cannot reach {args.socket}: {exc}", file=sys.stderr)
         return 1
@@ -191,7 +199,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     ctl = sub.add_parser("ctl", help="talk to a running daemon over its control socket")
     ctl.add_argument("--socket", default="/run/ddrt/ddrt.sock", help="control socket path")
-    ctl.add_argument("--timeout", type=float, default=2.0)
+    ctl.add_argument("--timeout", type=float, default=None,
+                     help=f"seconds to wait for the reply (default 2; {FOLLOW_TIMEOUT_S:g} for follow)")
     ctl.add_argument("command_name", metavar="COMMAND",
                      choices=("status", "follow", "stop", "estop", "reset", "gains", "reload"))
     ctl.add_argument("args", nargs="*", help="follow: the path file")

@@ -37,6 +37,7 @@ from ddrt.core.model import Dynamics
 from ddrt.core.motor import Motor
 from ddrt.path import Path
 from ddrt.path.reference import PathReference
+from ddrt.path.start import JOIN_APPROACH_RAD, StartReference, needs_join, start_heading_offset
 from hal.base import Hal, HalError, HalTimeoutError, Sample
 
 log = logging.getLogger("ddrt.loop")
@@ -105,7 +106,7 @@ class ControlLoop:
         self.estimator = Estimator(self.dyn, self.motor, cfg.estimator, hal.info, cfg.robot.r_3, self.period)
         self.controller: DynamicController | KinematicController = make_controller(
             cfg.controller.mode, self.dyn, self.seed_dyn, self.motor, cfg.controller, cfg.limits, self.period)
-        self.reference: PathReference | None = None
+        self.reference: PathReference | StartReference | None = None
         self.path: Path | None = None
         self.setpoint = Setpoint()
         self.idle_cmd = Command()
@@ -202,16 +203,49 @@ class ControlLoop:
     # ------------------------------------------------------------------ commands
 
     def follow(self, path: Path, pose: tuple[float, float, float] | None = None) -> None:
-        """Start following `path`; `pose` (if given) resets the dead-reckoned pose."""
+        """Start following `path`; `pose` (if given) resets the dead-reckoned pose.
+
+        A start the robot cannot make as it stands is made a start it can (ddrt/path/start.py):
+        a start heading more than `pursuit.max_start_heading_deg` from the robot's is turned
+        to in place first (or refused, with `pursuit.start_turn: refuse`), and a start off
+        the path or off its heading is joined at no more than the path's speed."""
+        self._check_start(path, pose)
         p = self.cfg.pursuit
-        ref = PathReference(path, p.lookahead_m, p.search_window_m, self.period,
-                            time_indexed=(p.mode == "time" or self.cfg.controller.mode == "seed"))
+        ref: PathReference | StartReference = PathReference(
+            path, p.lookahead_m, p.search_window_m, self.period,
+            time_indexed=(p.mode == "time" or self.cfg.controller.mode == "seed"))
+        x, y, theta = pose if pose is not None else self.estimator_pose()
+        start = path.at(0.0)
+        offset = start_heading_offset(start.theta, theta)
+        turn = abs(offset) > math.radians(p.max_start_heading_deg)
+        if turn and p.start_turn == "refuse":
+            raise ValueError(f"the path starts {math.degrees(abs(offset)):.0f} deg from the robot's heading, more "
+                             f"than pursuit.max_start_heading_deg = {p.max_start_heading_deg:g} deg "
+                             f"(pursuit.start_turn: refuse): turn the robot or the path")
+        join = needs_join(math.hypot(start.x - x, start.y - y), offset)
+        if turn or join:
+            outer = self.cfg.controller.outer
+            ref = StartReference(ref, (x, y, theta), path.limits, self.period, turn=turn, join=join,
+                                 y_cap=outer.k_theta * math.sin(JOIN_APPROACH_RAD) / outer.k_y)
         self.follow_reference(ref, pose, path)
 
-    def follow_reference(self, reference: PathReference, pose: tuple[float, float, float] | None = None,
+    def follow_reference(self, reference: PathReference | StartReference, pose: tuple[float, float, float] | None = None,
                          path: Path | None = None) -> None:
         """Start following any reference with PathReference's interface (update, done, sigma,
         cross_track, request_stop): calibration's turn in place is one."""
+        self._check_start(path, pose)
+        if pose is not None:
+            self.estimator.set_pose(pose)
+        self.reference = reference
+        self.path = path
+        sp = self.setpoint
+        sp.v_cap = sp.omega_cap = sp.y_cap = math.inf  # a previous start's caps end here
+        self.controller.reset()
+        self.state = "following"
+        self._hold = None
+        self._starting = True  # the robot stood still until now: a pause before this is no gap
+
+    def _check_start(self, path: Path | None, pose: tuple[float, float, float] | None) -> None:
         if self.state in ("estop", "fault"):
             raise RuntimeError(f"cannot follow a path in state {self.state}: reset first")
         if self.state == "holding":
@@ -222,14 +256,6 @@ class ControlLoop:
             why = self._off_path(x, y, start.x, start.y)
             if why:
                 raise ValueError(f"the path's start is {why}: move the robot or the path")
-        if pose is not None:
-            self.estimator.set_pose(pose)
-        self.reference = reference
-        self.path = path
-        self.controller.reset()
-        self.state = "following"
-        self._hold = None
-        self._starting = True  # the robot stood still until now: a pause before this is no gap
 
     def _off_path(self, x: float, y: float, px: float, py: float) -> str:
         """'' while (x, y) is within limits.max_path_error_m of the path point (px, py), else why."""

@@ -341,9 +341,16 @@ class PursuitConfig:
     mode: Literal["path", "time"] = "path"
     lookahead_m: float = 0.05
     search_window_m: float = 0.3
+    # A path whose start heading differs from the robot's by more than this: turn in place
+    # to it first, or refuse the path (ddrt/path/start.py).
+    max_start_heading_deg: float = 30.0
+    start_turn: Literal["turn", "refuse"] = "turn"
 
     def validate(self, where: str) -> None:
         positive(where, lookahead_m=self.lookahead_m, search_window_m=self.search_window_m)
+        if not 0.0 <= self.max_start_heading_deg <= 180.0:
+            raise ConfigError(f"{where}.max_start_heading_deg: must be in [0, 180] deg, "
+                              f"got {self.max_start_heading_deg}")
 
 
 @dataclass(frozen=True)
@@ -419,10 +426,16 @@ class PathsConfig:
     max_points: int = 10_000
     max_extent_m: float = 10_000.0
     max_duration_s: float = 86_400.0
+    # The daemon reads and builds a path in a worker process, within these bounds.
+    max_file_bytes: int = 4_000_000  # a path file (and a CSV it names) larger than this is refused unread
+    build_timeout_s: float = 30.0  # the worker is stopped if the path is not ready by then
 
     def validate(self, where: str) -> None:
         positive(where, sample_step_m=self.sample_step_m, max_extent_m=self.max_extent_m,
                  max_duration_s=self.max_duration_s)
+        _in_range(where, "max_file_bytes", self.max_file_bytes, 1, 1_000_000_000)
+        if not 0.1 <= self.build_timeout_s <= 3600.0:
+            raise ConfigError(f"{where}.build_timeout_s: must be in [0.1, 3600] s, got {self.build_timeout_s}")
         non_negative(where, corner_pivot_deg=self.corner_pivot_deg)
         if self.sample_step_m > 1.0:
             raise ConfigError(f"{where}.sample_step_m: must be <= 1 m, got {self.sample_step_m}")

@@ -183,6 +183,10 @@ class DynamicController(_Controller):
         s = math.sin(frame)
         x_e = c * dx + s * dy + sp.along_err
         y_e = -s * dx + c * dy
+        if y_e > sp.y_cap:  # joining a path from off it: approach at a bounded angle
+            y_e = sp.y_cap
+        elif y_e < -sp.y_cap:
+            y_e = -sp.y_cap
         th_e = wrap_angle(sp.theta_d - theta)
         o = self.outer
         v_d = sp.v_d
@@ -198,8 +202,10 @@ class DynamicController(_Controller):
             w_c += o.k_x * sp.along_err / sp.pivot_radius * (1.0 if sp.omega_d >= 0.0 else -1.0)
             v_c = v_d * math.cos(th_e) + o.k_x * (c * dx + s * dy)
         lim = self.limits
-        v_c = max(-lim.v_max, min(lim.v_max, v_c))
-        w_c = max(-lim.omega_max, min(lim.omega_max, w_c))
+        vm = lim.v_max if lim.v_max < sp.v_cap else sp.v_cap
+        wm = lim.omega_max if lim.omega_max < sp.omega_cap else sp.omega_cap
+        v_c = max(-vm, min(vm, v_c))
+        w_c = max(-wm, min(wm, w_c))
 
         # 2. Inner PID on eta_c - eta with acceleration feed-forward.
         e_v = v_c - v
@@ -275,8 +281,10 @@ class KinematicController(_Controller):
             w_c = v_c * sp.pp_curvature
             if sp.v_d < 1e-3:
                 w_c += self.heading_gain * math.sin(th_e)
-        v_c = max(-lim.v_max, min(lim.v_max, v_c))
-        w_c = max(-lim.omega_max, min(lim.omega_max, w_c))
+        vm = lim.v_max if lim.v_max < sp.v_cap else sp.v_cap
+        wm = lim.omega_max if lim.omega_max < sp.omega_cap else sp.omega_cap
+        v_c = max(-vm, min(vm, v_c))
+        w_c = max(-wm, min(wm, w_c))
         dyn = self.dyn
         wl_c = (v_c - dyn.L * w_c) / dyn.r_L
         wr_c = (v_c + dyn.R * w_c) / dyn.r_R

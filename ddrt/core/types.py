@@ -6,6 +6,8 @@ driver never imports a controller."""
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -62,6 +64,9 @@ class Setpoint:
     reference speeds and their derivatives; `along_err` the path distance by which the
     schedule leads the robot (path-following mode; 0 when time-indexed); `kappa` the path's
     curvature at q_d and `pp_curvature` pure pursuit's curvature to its lookahead point.
+    `v_cap` and `omega_cap` bound the commanded speeds below the config's limits for this
+    tick, `y_cap` the lateral error the outer law acts on (the start of a path the robot
+    joins from off it: ddrt/path/start.py); inf: none.
     """
 
     x_d: float = 0.0
@@ -78,3 +83,6 @@ class Setpoint:
     pivot_radius: float = 0.1
     path_frame: bool = False  # errors in the path's frame at q_d (path-following mode)
     active: bool = False  # False: hold still (no path, or finished)
+    v_cap: float = math.inf  # |v_c| at most this (m/s), besides limits.v_max
+    y_cap: float = math.inf  # the outer law sees at most this lateral error (m)
+    omega_cap: float = math.inf  # |omega_c| at most this (rad/s), besides limits.omega_max

@@ -36,7 +36,7 @@ from ddrt.path.shapes import (
 if TYPE_CHECKING:
     from ddrt.config import Config
 
-__all__ = ["PathError", "load_path", "resolve_path", "speed_limits"]
+__all__ = ["PathError", "load_path", "path_source", "resolve_path", "speed_limits"]
 
 
 class PathError(ValueError):
@@ -348,12 +348,18 @@ def speed_limits(cfg: "Config") -> SpeedLimits:
 
 def resolve_path(cfg: "Config", path_arg: str | None = None) -> Path:
     """The path named on the command line, else the config's `path:` entry."""
-    limits = speed_limits(cfg)
+    source, kwargs = path_source(cfg, path_arg)
+    return load_path(source, speed_limits(cfg), **kwargs)
+
+
+def path_source(cfg: "Config", path_arg: str | None = None) -> tuple[Any, dict[str, Any]]:
+    """What resolve_path hands load_path besides the limits: (source, keyword arguments).
+    For callers that load it elsewhere (the daemon's path worker)."""
     if path_arg is not None:
-        return load_path(path_arg, limits, paths=cfg.paths)
+        return path_arg, {"paths": cfg.paths}
     if cfg.path is None:
         raise PathError(f"{cfg.source}: path: missing; give one in the config or with --path")
     source = cfg.path
     if isinstance(source, str) and not FsPath(source).is_absolute():
         source = str(FsPath(cfg.base_dir) / source)
-    return load_path(source, limits, base_dir=cfg.base_dir, paths=cfg.paths, where=f"{cfg.source}: path")
+    return source, {"base_dir": cfg.base_dir, "paths": cfg.paths, "where": f"{cfg.source}: path"}

@@ -31,7 +31,10 @@ naming the field) or in a reply (a non-finite float from the handler goes out as
 the reply lists it in "non_finite").
 
 Replies: `{"ok": true, ...}` from the handler, or `{"ok": false, "error": "..."}`. A request
-with an "id" gets it back in the reply. Errors found by the thread are sent at once and may
+with an "id" gets it back in the reply. A handler that cannot answer between two ticks
+returns a `Deferred` and completes it later, from the loop thread (`Deferred.complete`): the
+connection stays open for that reply, and other requests, on it and on other connections,
+are answered meanwhile. Errors found by the thread are sent at once and may
 overtake replies still queued for the loop; use "id" to match them when pipelining. A client
 that leaves (or is closed) before its reply does not cancel its request: it still runs.
 
@@ -141,6 +144,52 @@ def _error_line(message: str, request_id: Any = None) -> bytes:
     if request_id is not None:
         reply["id"] = request_id
     return encode_reply(reply)
+
+
+class Deferred:
+    """A reply that comes later: a handler returns one, and its owner calls `complete(reply)`
+    once (from the loop thread) when the answer is known. Until then the request counts as
+    pending on its connection. Completing it after the server closed, or twice, does nothing.
+    """
+
+    __slots__ = ("_server", "_conn", "_rid", "_cmd", "done")
+
+    def __init__(self) -> None:
+        self._server: ControlServer | None = None
+        self._conn: _Conn | None = None
+        self._rid: Any = None
+        self._cmd: Any = None
+        self.done = False
+
+    def _bind(self, server: "ControlServer", conn: "_Conn", request: dict[str, Any]) -> None:
+        self._server, self._conn = server, conn
+        self._rid, self._cmd = request.get("id"), request.get("cmd")
+
+    def complete(self, reply: dict[str, Any]) -> None:
+        if self.done:
+            return
+        self.done = True
+        server, conn = self._server, self._conn
+        self._server = self._conn = None
+        if server is None or conn is None or server._closed:
+            return
+        server._replies.append((conn, _reply_line(reply, self._rid, self._cmd), self._cmd in server.never_refused))
+        server._wake()
+
+
+def _reply_line(reply: Any, rid: Any, cmd: Any) -> bytes:
+    """A handler's reply as one strict JSON line (an error line if it is not a JSON-able dict)."""
+    try:
+        if not isinstance(reply, dict):
+            raise TypeError(f"handler returned {type(reply).__name__}, expected dict")
+        if "ok" not in reply or (rid is not None and "id" not in reply):
+            reply = {"ok": True, **reply}
+            if rid is not None:
+                reply.setdefault("id", rid)
+        return encode_reply(reply)
+    except Exception as exc:  # the loop must survive any command
+        log.warning("control command %r failed: %s: %s", cmd, type(exc).__name__, exc)
+        return _error_line(f"{cmd}: {type(exc).__name__}: {exc}", rid)
 
 
 @dataclass(eq=False)
@@ -306,13 +355,14 @@ class ControlServer:
 
     # ----- loop side ----------------------------------------------------------------------
 
-    def poll(self, handler: Callable[[dict[str, Any]], dict[str, Any]], max_requests: int = 4) -> int:
+    def poll(self, handler: Callable[[dict[str, Any]], "dict[str, Any] | Deferred"], max_requests: int = 4) -> int:
         """Answer waiting requests; return how many. Never blocks.
 
         First the connections whose next request is a priority command (at most
         `max_priority_per_poll`), then up to `max_requests` others, one per connection in
         turn. A handler that raises, or returns something that is not a JSON-able dict,
-        produces an error reply; the exception does not propagate.
+        produces an error reply; the exception does not propagate. A handler that returns a
+        `Deferred` answers when it completes it.
         """
         incoming = self._requests
         ring = self._ring
@@ -362,16 +412,14 @@ class ControlServer:
         else:
             try:
                 reply = handler(request)
-                if not isinstance(reply, dict):
-                    raise TypeError(f"handler returned {type(reply).__name__}, expected dict")
-                if "ok" not in reply or (rid is not None and "id" not in reply):
-                    reply = {"ok": True, **reply}
-                    if rid is not None:
-                        reply.setdefault("id", rid)
-                data = encode_reply(reply)
             except Exception as exc:  # the loop must survive any command
                 log.warning("control command %r failed: %s: %s", cmd, type(exc).__name__, exc)
                 data = _error_line(f"{cmd}: {type(exc).__name__}: {exc}", rid)
+            else:
+                if isinstance(reply, Deferred):
+                    reply._bind(self, conn, request)  # answered by reply.complete(), later
+                    return
+                data = _reply_line(reply, rid, cmd)
         self._replies.append((conn, data, cmd in self.never_refused))
 
     @property

@@ -1,12 +1,14 @@
 """`ddrt run`: the long-running service around one ControlLoop.
 
-Start-up: config -> the one-daemon-per-robot lock (ddrt/service/instance.py) -> control
-socket -> HAL -> telemetry thread -> real-time set-up -> gyro calibration at rest ->
-fixed-rate loop (READY=1 after the first good tick). Nothing touches a device before the
-lock and the socket are ours, so a second daemon on the same robot sends it nothing. Each
-period: sleep to an absolute deadline, latch a SIGUSR1 estop, tick, record timing, then
-(outside the timed part) serve the control socket, ping the watchdog, apply a pending
-reload. Signals only set flags.
+Start-up: config -> the one-daemon-per-robot lock (ddrt/service/instance.py) -> path worker
+(ddrt/service/pathworker.py; it builds the config's path meanwhile) -> control socket -> HAL
+-> telemetry thread -> real-time set-up -> gyro calibration at rest -> fixed-rate loop
+(READY=1 after the first good tick). Nothing touches a device before the lock and the socket
+are ours, so a second daemon on the same robot sends it nothing. A follow (the socket's, or
+--follow's) is built by the worker while the loop ticks and starts between two ticks once
+ready; its socket reply waits for that. Each period: sleep to an absolute deadline, latch a
+SIGUSR1 estop, tick, record timing, then (outside the timed part) serve the control socket,
+ping the watchdog, apply a pending reload. Signals only set flags.
 
 Exit codes: 0 after a requested stop (SIGTERM, SIGINT, --duration, also during the start-up
 calibration), 1 after a fault or when the robot cannot be run (another daemon holds the lock,
@@ -25,6 +27,7 @@ import resource
 import signal
 import threading
 import time
+from array import array
 from pathlib import Path as FsPath
 from typing import Any
 
@@ -32,15 +35,16 @@ from ddrt.service import rt
 from ddrt.service.clock import MonotonicClock
 from ddrt.config import Config, load_config
 from ddrt.config.policy import ReloadPlan, plan_reload
-from ddrt.service.ctlsocket import ControlServer, finite_or_null
+from ddrt.service.ctlsocket import ControlServer, Deferred, finite_or_null
 from ddrt.service.instance import AlreadyRunning, InstanceLock, lock_path_for
 from ddrt.loop import COLUMNS, ControlLoop
-from ddrt.path import PathError, load_path
+from ddrt.path import PathError
 from ddrt.config.schema import ConfigError
 from ddrt.service.sdnotify import Notifier
-from ddrt.path.spec import resolve_path, speed_limits
+from ddrt.path.spec import path_source, speed_limits
+from ddrt.service.pathworker import Build, BuildJob, PathWorker, build_path, describe
 from ddrt.service.telemetry import RotatingCsvWriter, TelemetryLogger, TelemetryRing
-from ddrt.service.timing import RateScheduler, TimingStats
+from ddrt.service.timing import RateScheduler, TimingStats, percentile
 from hal.base import HalError
 from hal.registry import open_hal
 
@@ -49,6 +53,31 @@ log = logging.getLogger("ddrt.service.daemon")
 class _Interrupted(Exception):
     """A stop was requested before the loop started."""
 
+
+class _PendingFollow:
+    """A follow whose path is being built in the worker; the loop switches to it when ready."""
+
+    __slots__ = ("build", "pose", "reply", "what", "ticks", "late", "missed0")
+
+    def __init__(self, build: Build, pose: tuple[float, float, float] | None, reply: Deferred | None,
+                 what: str, missed0: int) -> None:
+        self.build = build
+        self.pose = pose
+        self.reply = reply
+        self.what = what
+        self.ticks = 0
+        self.late = array("d")  # each tick's lateness while the path is prepared (bounded)
+        self.missed0 = missed0
+
+    def report(self, missed: int) -> dict[str, Any]:
+        """What preparing the path cost the loop: the ticks it ran meanwhile, how late."""
+        late = sorted(self.late)
+        return {"seconds": self.build.elapsed_s, "ticks": self.ticks, "missed_ticks": missed - self.missed0,
+                "late_p99_us": percentile(late, 99.0) * 1e6 if late else None,
+                "late_max_us": late[-1] * 1e6 if late else None}
+
+
+PREPARE_SAMPLES = 1 << 14  # lateness samples kept while a path is prepared (82 s at 200 Hz)
 
 COMMANDS = ("status", "follow", "stop", "estop", "reset", "gains", "reload")
 # Served before other clients' requests; each supersedes the listed commands sent before it
@@ -88,6 +117,11 @@ class Daemon:
         self.hal: Any = None
         self.clock: Any = None
         self.reloads = {"applied": 0, "rejected": 0}
+        # Paths are read and built in a worker process (ddrt/service/pathworker.py), never on
+        # the loop thread; at most one follow waits for its path at a time.
+        self.paths: PathWorker | None = None
+        self._start_build: Build | None = None
+        self._pending: _PendingFollow | None = None
 
     # ------------------------------------------------------------------ set-up
 
@@ -96,7 +130,7 @@ class Daemon:
         self.clock = MonotonicClock(spin_s=cfg.daemon.spin_us * 1e-6)
         start = cfg.start or (0.0, 0.0, 0.0)
         if cfg.start is None and cfg.path is not None:
-            start = resolve_path(cfg).start_pose
+            start = self._wait_start_path().start_pose
         # Every backend takes the options it needs. One whose robot runs in simulated time
         # (Hal.owns_time) starts it at `start` and, paced, brings it up to the wall clock on
         # every read, so the loop is scheduled (and its lateness measured) on the real
@@ -174,6 +208,13 @@ class Daemon:
             self._fail(f"cannot take the one-daemon-per-robot lock {lock.path}: {exc.strerror or exc}")
             return 1
         self.lock = lock
+        # The path worker before any thread goes real-time: its helper thread (and the worker
+        # processes it starts) keep the normal policy and every CPU.
+        self.paths = PathWorker()
+        cfg = self.cfg
+        if cfg.path is not None and (self.follow_at_start or cfg.start is None):
+            source, kwargs = path_source(cfg)
+            self._start_build = self.paths.submit(BuildJob(source, speed_limits(cfg), **kwargs))
         # Helper threads (socket, telemetry) need little stack; with mlockall every byte of
         # the default 8 MiB per thread would be resident.
         threading.stack_size(512 * 1024)
@@ -203,12 +244,6 @@ class Daemon:
                                          d.timer_slack_ns or None, gil_switch_interval_s=0.0005):
             log.warning("real-time set-up: %s (running without it)", warning)
         clock = self.clock
-        # Everything slow happens before the calibration: once it has started, the loop's
-        # samples must keep coming at the rate.
-        # A path that does not load is a bad start-up input like a bad config (exit 2).
-        path = resolve_path(cfg) if self.follow_at_start and cfg.path is not None else None
-        for note in path.warnings if path is not None else ():
-            log.warning("path: %s", note)
 
         def sleep_unless_stopped(deadline: float) -> float:
             if self.stop_requested:
@@ -225,11 +260,12 @@ class Daemon:
             self._fail(f"start-up calibration failed: {exc}")
             self.exit_code = 1
             return 1
-        if path is not None:
-            try:
-                loop.follow(path)
-            except ValueError as exc:
-                log.error("not following %s: %s", cfg.path, exc)
+        if self.follow_at_start and self._start_build is not None:
+            # Built in the worker meanwhile (or still being built): the loop switches to it
+            # between two ticks once it is ready.
+            self._pending = _PendingFollow(self._start_build, None, None, f"{cfg.source}: path", self.stats.missed)
+            self._follow_step(0.0)  # ready already (the usual case): following from the first tick
+        self._start_build = None
         self._fixed_rate_loop()
         return self.exit_code
 
@@ -286,6 +322,8 @@ class Daemon:
                 self.ready_s = time.monotonic() - self.t_start
                 notifier.ready()
                 log.info("ready after %.3f s at %.0f Hz", self.ready_s, 1.0 / self.period)
+            if self._pending is not None:
+                self._follow_step(woke - deadline)
             if self.server is not None:
                 self.server.poll(self.handle)
             if self.reload_requested:
@@ -306,6 +344,7 @@ class Daemon:
 
     def _shutdown(self) -> None:
         self.notifier.stopping()
+        self._cancel_follow("the daemon is stopping")
         if self.loop is not None:
             self.loop.shutdown()
             if self.ring is not None:
@@ -322,6 +361,8 @@ class Daemon:
                 log.error("close failed: %s", exc)
         if self.server is not None:
             self.server.close()
+        if self.paths is not None:
+            self.paths.close()
         if self.telemetry is not None:
             self.telemetry.close()
         self.notifier.close()
@@ -383,7 +424,9 @@ class Daemon:
         if ref is not None and loop.path is not None:
             progress = {"sigma_m": ref.sigma, "length_m": loop.path.length,
                         "fraction": ref.sigma / loop.path.length if loop.path.length else 1.0,
-                        "cross_track_m": ref.cross_track}
+                        "cross_track_m": ref.cross_track,
+                        # turn (in place to the start heading), join, release, follow: ddrt/path/start.py
+                        "phase": getattr(ref, "phase", "follow")}
         return {
             "state": loop.state,
             "fault": loop.fault,
@@ -399,6 +442,7 @@ class Daemon:
             "reloads": dict(self.reloads),
             "adaptation": loop.adapter.status() if loop.adapter is not None else None,
             "control_socket": self.server.counters() if self.server is not None else None,
+            "preparing": self._preparing(),
         }
 
     def _hal_counters(self) -> dict[str, Any]:
@@ -422,11 +466,13 @@ class Daemon:
             return {"ok": True, "mode": c.mode, "outer": vars_of(c.outer), "inner": vars_of(c.inner),
                     "wheel_pid": vars_of(c.wheel_pid), "heading_gain": c.heading_gain}
         if cmd == "stop":
+            cancelled = self._cancel_follow("cancelled by stop")
             loop.stop()
-            return {"ok": True, "state": loop.state}
+            return {"ok": True, "state": loop.state, **cancelled}
         if cmd == "estop":
             loop.estop("estop requested over the control socket")
-            return {"ok": True, "state": loop.state}
+            cancelled = self._cancel_follow("cancelled by estop")
+            return {"ok": True, "state": loop.state, **cancelled}
         if cmd == "reset":
             loop.reset()
             return {"ok": True, "state": loop.state}
@@ -440,18 +486,29 @@ class Daemon:
             return self._follow(req)
         return {"ok": False, "error": f"unknown command {cmd!r}"}
 
-    def _follow(self, req: dict[str, Any]) -> dict[str, Any]:
+    def _follow(self, req: dict[str, Any]) -> dict[str, Any] | Deferred:
+        """Check the request, hand the path to the worker, answer when the loop has switched.
+
+        Nothing here reads a file or builds anything: a follow costs the loop microseconds
+        whatever it asks for. A follow while following (or while another one is being
+        prepared) is refused, as before: send stop first.
+        """
         loop = self.loop
         assert loop is not None
         if loop.state in ("following", "stopping"):
             return {"ok": False, "error": f"already {loop.state}: send stop first"}
         if loop.state in ("estop", "fault"):
             return {"ok": False, "error": f"in {loop.state}: send reset first"}
+        if self._pending is not None:
+            return {"ok": False, "error": f"busy: still preparing {self._pending.what} "
+                                          f"({self._pending.build.elapsed_s:.1f} s): send stop to cancel it"}
         source: Any
         if "path" in req:
             source = req["path"]
             if not isinstance(source, str):
                 return {"ok": False, "error": "follow: path: expected a file name"}
+            if not source or "\0" in source:
+                return {"ok": False, "error": f"follow: path: not a file name: {source!r}"}
         elif "points" in req or "shape" in req:
             # An inline spec: every key but the request's own goes to the path loader, which
             # refuses unknown ones and clamps limits above the config's (reported below).
@@ -460,26 +517,111 @@ class Daemon:
                 source.setdefault("speed", min(0.3, self.cfg.limits.v_max))
         else:
             return {"ok": False, "error": "follow: give path (a file), points ([[x, y], ...]) or shape"}
-        try:
-            path = load_path(source, speed_limits(self.cfg), paths=self.cfg.paths, where="request")
-        except (PathError, ValueError, TypeError, OSError) as exc:
-            return {"ok": False, "error": f"follow: {exc}"}
         pose = req.get("pose")
         if pose is not None:
             if (not isinstance(pose, list) or len(pose) != 3
-                    or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in pose)):
+                    or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                               for v in pose)):
                 return {"ok": False, "error": "follow: pose: expected [x, y, theta]"}
             pose = (float(pose[0]), float(pose[1]), float(pose[2]))
+        job = BuildJob(source, speed_limits(self.cfg), self.cfg.paths, where="request")
+        what = describe(source)
+        if self.paths is None:
+            # A Daemon that is not running (tests, tools): no loop to protect, build here.
+            build = Build(job)
+            try:
+                build._finish(path=build_path(job))
+            except (PathError, ValueError, TypeError, OSError) as exc:
+                return {"ok": False, "error": f"follow: {exc}"}
+            return self._switch(_PendingFollow(build, pose, None, what, self.stats.missed), build)
+        build = self.paths.submit(job)
+        reply = Deferred()
+        self._pending = _PendingFollow(build, pose, reply, what, self.stats.missed)
+        log.info("follow: preparing %s", what)
+        return reply
+
+    def _follow_step(self, late_s: float) -> None:
+        """Between two ticks while a follow waits for its path: switch once it is ready."""
+        p = self._pending
+        assert p is not None
+        p.ticks += 1
+        if len(p.late) < PREPARE_SAMPLES:
+            p.late.append(late_s)
+        build = p.build
+        if not build.done:
+            return
+        self._pending = None
+        reply = self._switch(p, build) if not build.error else {"ok": False, "error": f"follow: {build.error}"}
+        reply["prepared"] = p.report(self.stats.missed)
+        if not reply["ok"]:
+            log.error("not following %s: %s", p.what, reply["error"])
+        if p.reply is not None:
+            p.reply.complete(reply)
+        elif build.error:
+            # The start path (--follow) does not load: a bad start-up input like a bad config.
+            self.error = f"{p.what}: {build.error}"
+            self.exit_code = 2
+            self.stop_requested = True
+
+    def _switch(self, p: _PendingFollow, build: Build) -> dict[str, Any]:
+        loop = self.loop
+        assert loop is not None
+        path, build.path = build.path, None
+        old = getattr(loop, "path", None)
         try:
-            loop.follow(path, pose)
-        except ValueError as exc:
+            if loop.state in ("following", "stopping"):
+                raise ValueError(f"already {loop.state}")
+            loop.follow(path, p.pose)
+        except (ValueError, RuntimeError) as exc:
+            if self.paths is not None:
+                self.paths.dispose(path)
             return {"ok": False, "error": f"follow: {exc}"}
-        reply = {"ok": True, "state": loop.state, "length_m": path.length, "duration_s": path.duration}
+        if old is not None and old is not path and self.paths is not None:
+            self.paths.dispose(old)  # the loop's last reference is gone: free it off the loop
+        del old
+        for note in path.warnings:
+            log.warning("follow: %s", note)
+        log.info("following %s: %.2f m, %.1f s (prepared in %.2f s)", p.what, path.length, path.duration,
+                 build.elapsed_s)
+        reply: dict[str, Any] = {
+            "ok": True, "state": loop.state, "length_m": path.length, "duration_s": path.duration,
+        }
         if path.warnings:
-            for note in path.warnings:
-                log.warning("follow: %s", note)
             reply["warnings"] = list(path.warnings)
         return reply
+
+    def _cancel_follow(self, why: str) -> dict[str, Any]:
+        """A stop or estop (or the daemon's exit) cancels a follow still being prepared."""
+        p = self._pending
+        if p is None:
+            return {}
+        self._pending = None
+        if self.paths is not None:
+            self.paths.cancel(p.build)
+        log.info("follow of %s %s", p.what, why)
+        if p.reply is not None:
+            p.reply.complete({"ok": False, "error": f"follow: {why}"})
+        return {"cancelled": f"follow of {p.what}"}
+
+    def _preparing(self) -> dict[str, Any] | None:
+        p = self._pending
+        if p is None:
+            return None
+        return {"source": p.what, "phase": p.build.phase, "elapsed_s": p.build.elapsed_s}
+
+    def _wait_start_path(self) -> Any:
+        """The config's path, for the simulated robot's start pose: wait for the worker (no
+        loop runs yet), within paths.build_timeout_s."""
+        build = self._start_build
+        if build is None:
+            raise PathError(f"{self.cfg.source}: path: not being built")
+        while not build.done:
+            if self.stop_requested:
+                raise PathError("stopped while the start path was being built")
+            time.sleep(0.01)
+        if build.error:
+            raise PathError(build.error)
+        return build.path
 
     def reload(self) -> dict[str, Any]:
         """Re-read the config; put a valid one in force between ticks, bumplessly.

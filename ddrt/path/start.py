@@ -1,0 +1,223 @@
+"""The start of a path the robot is not lined up with: turn in place to its heading, then join
+it at bounded speed.
+
+`PathReference` assumes the robot starts on the path, facing along it. Sent a path that
+starts behind it or beside it, the outer law's gains (tuned for millimetres of error) and the
+schedule's 5 cm lead asked for far more than the path does: a path at 0.3 m/s that started
+135 degrees off the robot's heading swung it 0.3 m sideways at 0.67 m/s; one 180 degrees off
+faulted 0.3 m away. `StartReference` wraps the path's reference for such a start:
+
+1. **turn** (only when the start heading differs from the robot's by more than
+   `pursuit.max_start_heading_deg`): a turn in place about the robot's position to the path's
+   start heading, on a trapezoid of the path's `omega_max` and `alpha_max` (which never
+   exceed the config's limits), the position held. It ends once the heading is within
+   TURN_TOL_RAD of the target (or TURN_GRACE_S after the trapezoid ends, whatever is left is
+   the join's).
+2. **join**: the path's own reference, with the schedule's lead kept to JOIN_LEAD_M (so the
+   along-track gain cannot surge the robot), the commanded speed capped at the schedule's
+   speed plus JOIN_SPEED_MARGIN (never faster than the path there) and the yaw rate at the
+   path's `omega_max` and at `lateral_accel / v_cap`. The outer law sees at most `y_cap` of
+   lateral error (the loop passes K_theta sin(JOIN_APPROACH_RAD) / K_y): its yaw demand
+   `v K_y y` then balances `v K_theta sin(heading error)` at an approach angle of
+   JOIN_APPROACH_RAD, instead of saturating the yaw rate and circling (a robot 0.2 m beside
+   a line, capped at the line's speed, turned circles at omega_max for ever). The reference
+   point itself stays the nearest point of the path, so the loop's `limits.max_path_error_m`
+   check holds throughout. The join ends once the robot is within JOIN_DONE_M of the path
+   and JOIN_DONE_RAD of its heading.
+3. **release**: the margin of the speed cap over the schedule's speed rises at a quarter of
+   the path's `accel` until it reaches `v_max`, the lead still at JOIN_LEAD_M, so lifting
+   them steps nothing and a schedule that accelerates away from the robot just joined
+   cannot make it surge after it; then the path's reference alone (**follow**).
+
+A stop during the turn brakes the turn at `alpha_max` and ends there (the path is never
+started); during the other phases it is the path's own controlled stop. In time-indexed mode
+(`pursuit.mode: time`, the seed's method) only the turn applies: its schedule runs on the
+clock whatever the robot does, and capping the robot would only let it fall behind.
+"""
+
+from __future__ import annotations
+
+import math
+
+from ddrt.core.types import Setpoint
+from ddrt.core.wrap import wrap_angle
+from ddrt.path.profile import SpeedLimits
+from ddrt.path.reference import PathReference
+
+__all__ = ["StartReference", "start_heading_offset", "needs_join"]
+
+TURN_TOL_RAD = math.radians(3.0)
+TURN_GRACE_S = 2.0
+TURN_HOLD_V = 0.05  # m/s: while turning the robot only holds its position
+JOIN_LEAD_M = 0.005
+JOIN_SPEED_MARGIN = 0.01  # m/s above the schedule's speed
+JOIN_APPROACH_RAD = math.radians(30.0)
+JOIN_LATERAL_FRACTION = 0.25
+JOIN_DONE_M = 0.005
+RELEASE_ACCEL_FRACTION = 0.25
+JOIN_DONE_RAD = math.radians(3.0)
+# A start farther than this from the path's first point, or turned more than this from its
+# heading, is joined (phase 2); a closer one is the path's reference alone, as before.
+JOIN_NEEDED_M = 0.005
+JOIN_NEEDED_RAD = math.radians(3.0)
+
+
+def start_heading_offset(path_theta0: float, theta: float) -> float:
+    """The turn (rad, in (-pi, pi]) from heading `theta` to the path's start heading."""
+    return wrap_angle(path_theta0 - theta)
+
+
+def needs_join(dist_m: float, heading_rad: float) -> bool:
+    return dist_m > JOIN_NEEDED_M or abs(heading_rad) > JOIN_NEEDED_RAD
+
+
+class StartReference:
+    """Turn in place (optional), join at bounded speed, then the path's reference as is.
+
+    Has PathReference's interface (update, done, sigma, cross_track, request_stop, path).
+    """
+
+    def __init__(self, inner: PathReference, pose: tuple[float, float, float], limits: SpeedLimits,
+                 period_s: float, *, turn: bool, join: bool, y_cap: float = math.inf) -> None:
+        self.inner = inner
+        self.path = inner.path
+        self.limits = limits
+        self.period = period_s
+        self.join = join and not inner.time_indexed
+        self.y_cap = y_cap
+        # Turning in from the approach angle to the path's heading within y_cap of it is an arc
+        # of radius about y_cap / (1 - cos(approach)): at v_join its lateral acceleration is
+        # JOIN_LATERAL_FRACTION of the path's limit (the outer law turns in more sharply than
+        # that arc).
+        radius = y_cap / (1.0 - math.cos(JOIN_APPROACH_RAD))
+        self.v_join = max(JOIN_SPEED_MARGIN, math.sqrt(JOIN_LATERAL_FRACTION * limits.lateral_accel * radius))
+        self._lead = inner.max_lead
+        self.x0, self.y0, self.th0 = pose
+        self.angle = start_heading_offset(self.path.at(0.0).theta, self.th0)
+        self.sign = 1.0 if self.angle >= 0.0 else -1.0
+        span = abs(self.angle)
+        alpha = limits.alpha_max
+        self.w = min(limits.omega_max, math.sqrt(span * alpha)) if span > 0.0 else 0.0
+        self.t_ramp = self.w / alpha
+        self.t_end = span / self.w + self.t_ramp if self.w > 0.0 else 0.0
+        self.t = 0.0
+        self._brake: tuple[float, float, float] | None = None  # (angle, rate, time) when a stop came
+        self._turn_sigma = 0.0
+        self._turn_ct = 0.0
+        self._release_v = 0.0
+        self._cap = 0.0
+        self.phase = "turn" if turn and span > 0.0 else ("join" if self.join else "follow")
+        if self.phase == "join":
+            inner.max_lead = min(self._lead, JOIN_LEAD_M)
+
+    # -- PathReference's interface --------------------------------------------------------------
+    @property
+    def sigma(self) -> float:
+        return self._turn_sigma if self.phase == "turn" else self.inner.sigma
+
+    @property
+    def cross_track(self) -> float:
+        return self._turn_ct if self.phase == "turn" else self.inner.cross_track
+
+    @property
+    def done(self) -> bool:
+        if self.phase == "turn":
+            return self._brake is not None and self._turn_rate() == 0.0
+        return self.inner.done
+
+    @property
+    def stopping(self) -> bool:
+        return self._brake is not None or self.inner.stopping
+
+    def request_stop(self, decel: float) -> None:
+        if self.phase == "turn":
+            if self._brake is None:
+                ang, w, _ = self._profile(self.t)
+                self._brake = (ang, w, self.t)
+        else:
+            self.inner.request_stop(decel)
+
+    def update(self, x: float, y: float, theta: float, sp: Setpoint, dt: float | None = None) -> None:
+        step = self.period if dt is None else dt
+        if self.phase == "turn":
+            self.t += step
+            if self._turn(x, y, theta, sp):
+                return
+            # Lined up: the path's reference from this tick on.
+            self.phase = "join" if self.join else "follow"
+            if self.join:
+                self.inner.max_lead = min(self._lead, JOIN_LEAD_M)
+            sp.v_cap = sp.omega_cap = sp.y_cap = math.inf
+        self.inner.update(x, y, theta, sp, dt)
+        if self.phase == "join":
+            lim = self.limits
+            v_cap = min(max(sp.v_d, 0.0) + JOIN_SPEED_MARGIN, self.v_join)
+            self._cap = v_cap
+            sp.v_cap = v_cap
+            sp.omega_cap = min(lim.omega_max, lim.lateral_accel / v_cap)
+            sp.y_cap = self.y_cap
+            if (math.hypot(sp.x_d - x, sp.y_d - y) <= JOIN_DONE_M
+                    and abs(wrap_angle(sp.theta_d - theta)) <= JOIN_DONE_RAD):
+                self.phase = "release"
+                self._release_v = JOIN_SPEED_MARGIN
+                sp.omega_cap = sp.y_cap = math.inf
+        elif self.phase == "release":
+            accel = self.limits.accel
+            self._release_v += RELEASE_ACCEL_FRACTION * accel * step
+            if self._release_v >= self.limits.v_max:
+                self.phase = "follow"
+                self.inner.max_lead = self._lead
+                sp.v_cap = math.inf
+            else:
+                self._cap = min(max(sp.v_d, 0.0) + self._release_v, self._cap + accel * step)
+                sp.v_cap = self._cap
+
+    # -- the turn in place ---------------------------------------------------------------------
+    def _profile(self, t: float) -> tuple[float, float, float]:
+        """(angle turned, rate, acceleration) at time t of the trapezoid."""
+        w, a, tr, te = self.w, self.limits.alpha_max, self.t_ramp, self.t_end
+        if t <= 0.0 or w == 0.0:
+            return 0.0, 0.0, 0.0
+        if t < tr:
+            return 0.5 * a * t * t, a * t, a
+        if t < te - tr:
+            return 0.5 * a * tr * tr + w * (t - tr), w, 0.0
+        if t < te:
+            r = te - t
+            return abs(self.angle) - 0.5 * a * r * r, a * r, -a
+        return abs(self.angle), 0.0, 0.0
+
+    def _turn_rate(self) -> float:
+        if self._brake is None:
+            return self._profile(self.t)[1]
+        _, w0, t0 = self._brake
+        return max(0.0, w0 - self.limits.alpha_max * (self.t - t0))
+
+    def _turn(self, x: float, y: float, theta: float, sp: Setpoint) -> bool:
+        """Fill `sp` for the turn; False once it is over (and the path should take over)."""
+        a = self.limits.alpha_max
+        if self._brake is None:
+            ang, w, alpha = self._profile(self.t)
+        else:
+            ang0, w0, t0 = self._brake
+            w = self._turn_rate()
+            ang = min(abs(self.angle), ang0 + (w0 * w0 - w * w) / (2.0 * a))
+            alpha = -a if w > 0.0 else 0.0
+        s = self.sign
+        sp.x_d, sp.y_d = self.x0, self.y0
+        sp.theta_d = self.th0 + s * ang
+        sp.v_d = sp.a_d = sp.along_err = sp.kappa = sp.pp_curvature = 0.0
+        sp.omega_d = s * w
+        sp.alpha_d = s * alpha
+        sp.pivot = True
+        sp.path_frame = False
+        sp.active = True
+        sp.v_cap = TURN_HOLD_V
+        sp.omega_cap = self.limits.omega_max
+        self._turn_ct = math.hypot(x - self.x0, y - self.y0)
+        if self._brake is not None:
+            return True
+        if self.t < self.t_end:
+            return True
+        left = abs(wrap_angle(self.th0 + s * abs(self.angle) - theta))
+        return left > TURN_TOL_RAD and self.t < self.t_end + TURN_GRACE_S

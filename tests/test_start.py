@@ -1,0 +1,151 @@
+"""A start the robot can make (ddrt/path/start.py): a path that starts 45 to 180 degrees off
+the robot's heading is turned to in place first, a path beside or behind the robot is joined
+at no more than the path's speed, and both complete, on the simulated robot.
+
+The defects these pin (before the start stage): 135 degrees off, the robot swung 0.23 m
+sideways at 0.69 m/s on a 0.3 m/s path with duty 0.98; 180 degrees off it left the path and
+faulted 0.3 m away; 0.2 m beside the line it ran at 0.66 m/s with duty 0.97.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from ddrt.config import load_config
+from ddrt.loop import ControlLoop
+from ddrt.path.spec import load_path, speed_limits
+from ddrt.path.start import StartReference
+from ddrt.simrun.runner import run_sim
+from hal.registry import open_hal
+from pathlib import Path as FsPath
+
+SIM = FsPath(__file__).resolve().parents[1] / "configs" / "sim.yaml"
+QUICK = {"sim": {"start_delay_s": 0.2}, "estimator": {"calibration_s": 0.3}}
+SPEED = 0.3
+SPEED_MARGIN = 0.05  # m/s over the path's speed (the inner loop's overshoot; was +0.39)
+DUTY_BOUND = 0.7  # the worst measured is 0.49 (was 0.98)
+
+
+def _cfg(**extra):
+    overrides = dict(QUICK)
+    overrides.update(extra)
+    return load_config(SIM, overrides)
+
+
+def _line(cfg, speed: float = SPEED, length: float = 1.0):
+    return load_path({"shape": "line", "length": length, "speed": speed}, speed_limits(cfg), paths=cfg.paths)
+
+
+def _peaks(result):
+    v = result.column("v")
+    duty = np.maximum(np.abs(result.column("duty_l")), np.abs(result.column("duty_r")))
+    return float(v.max()), float(v.min()), float(duty.max())
+
+
+@pytest.mark.parametrize("deg", [45, 90, 135, 180, -90, -135])
+def test_a_path_far_off_the_robots_heading_is_turned_to_in_place_then_followed(deg: int) -> None:
+    cfg = _cfg()
+    path = _line(cfg)
+    result = run_sim(cfg, path, start=(0.0, 0.0, math.radians(deg)))
+    m = result.metrics
+    assert m["completed"], m
+    v_max, v_min, duty = _peaks(result)
+    assert v_max <= SPEED + SPEED_MARGIN, v_max
+    assert v_min > -0.05, v_min  # it does not back away
+    assert duty < DUTY_BOUND, duty
+    # It turned on the spot: the robot's true position never left the path by more than 2 cm
+    # (limits.max_path_error_m is 0.3 m); the main branch swung out 0.23 m at 135 deg.
+    assert m["max_cross_track_m"] < 0.02, m["max_cross_track_m"]
+    assert m["final_pos_err_m"] < 0.01
+    # The yaw rate stayed near the path's omega_max (3 rad/s; the inner loop overshoots a little).
+    assert np.abs(result.column("omega")).max() < 1.2 * cfg.limits.omega_max
+
+
+@pytest.mark.parametrize("start, label", [
+    ((0.0, 0.2, 0.0), "0.2 m to the left"),
+    ((0.0, -0.25, math.radians(20.0)), "0.25 m to the right, 20 deg off"),
+    ((-0.2, 0.0, 0.0), "0.2 m behind the start"),
+    ((-0.1, 0.15, math.radians(170.0)), "behind, beside and facing away"),
+])
+def test_a_path_beside_or_behind_the_robot_is_joined_at_the_paths_speed(start, label) -> None:
+    cfg = _cfg()
+    path = _line(cfg)
+    result = run_sim(cfg, path, start=start)
+    m = result.metrics
+    assert m["completed"], (label, m)
+    v_max, v_min, duty = _peaks(result)
+    assert v_max <= SPEED + SPEED_MARGIN, (label, v_max)
+    assert v_min > -0.05, (label, v_min)
+    assert duty < DUTY_BOUND, (label, duty)
+    # The path error never grows beyond where it started (plus 1 cm), far below the limit.
+    first = math.hypot(start[1], min(0.0, start[0]))
+    assert m["max_cross_track_m"] < first + 0.01, (label, m["max_cross_track_m"])
+    assert m["final_pos_err_m"] < 0.01
+    # Lateral acceleration v * omega within the path's limit (with the inner loop's overshoot).
+    lat = np.abs(result.column("v") * result.column("omega"))
+    assert lat.max() < 1.3 * cfg.limits.lateral_accel, (label, lat.max())
+
+
+def test_a_fast_path_beside_the_robot_is_joined_slower_than_the_path() -> None:
+    cfg = _cfg()
+    path = _line(cfg, speed=0.8, length=2.0)
+    result = run_sim(cfg, path, start=(0.0, 0.25, 0.0))
+    assert result.metrics["completed"], result.metrics
+    v_max, _, duty = _peaks(result)
+    assert v_max <= 0.8 + SPEED_MARGIN and duty < 0.9, (v_max, duty)
+    lat = np.abs(result.column("v") * result.column("omega"))
+    assert lat.max() < 1.3 * cfg.limits.lateral_accel, lat.max()
+
+
+def test_a_start_on_the_path_is_unchanged() -> None:
+    """On the path and facing along it, there is no start stage: the path's reference as before."""
+    cfg = _cfg()
+    path = _line(cfg)
+    hal = open_hal(cfg, start=(0.0, 0.0, 0.0))
+    loop = ControlLoop(cfg, hal)
+    loop.calibrate(hal.sleep_until, hal.now)
+    loop.follow(path, (0.0, 0.0, 0.0))
+    assert not isinstance(loop.reference, StartReference)
+    hal.close()
+
+
+def test_start_turn_refuse_refuses_a_path_that_needs_a_turn_naming_the_key() -> None:
+    cfg = _cfg(pursuit={"start_turn": "refuse", "max_start_heading_deg": 40.0})
+    path = _line(cfg)
+    hal = open_hal(cfg, start=(0.0, 0.0, math.radians(90.0)))
+    loop = ControlLoop(cfg, hal)
+    loop.calibrate(hal.sleep_until, hal.now)
+    with pytest.raises(ValueError, match=r"starts 90 deg from the robot's heading.*pursuit.max_start_heading_deg = 40"):
+        loop.follow(path, (0.0, 0.0, math.radians(90.0)))
+    assert loop.state == "idle" and loop.reference is None
+    # Within the angle it is accepted, and joined.
+    loop.follow(path, (0.0, 0.0, math.radians(30.0)))
+    assert isinstance(loop.reference, StartReference) and loop.reference.phase == "join"
+    hal.close()
+
+
+def test_a_stop_during_the_turn_brakes_it_and_ends_there() -> None:
+    cfg = _cfg()
+    path = _line(cfg)
+    hal = open_hal(cfg, start=(0.0, 0.0, math.pi))
+    loop = ControlLoop(cfg, hal)
+    loop.calibrate(hal.sleep_until, hal.now)
+    loop.follow(path, (0.0, 0.0, math.pi))
+    t0 = hal.now()
+    ticks = 0
+    for ticks in range(1, 400):
+        hal.sleep_until(t0 + ticks * loop.period)
+        loop.tick()
+        if ticks == 40:  # 0.2 s into the turn, at speed
+            assert loop.reference.phase == "turn" and abs(hal.robot.velocity[1]) > 1.0
+            loop.stop()
+        if loop.state == "stopped":
+            break
+    assert loop.state == "stopped", loop.state
+    assert ticks * loop.period < 2.0  # braked at alpha_max, not turned to the end
+    x, y, _ = hal.robot.pose
+    assert math.hypot(x, y) < 0.02 and loop.reference.phase == "turn"  # the path was never started
+    hal.close()
