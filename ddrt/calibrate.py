@@ -279,14 +279,7 @@ class SpinReference:
         self.t += self.period if dt is None else dt
         ang, w, alpha = self._profile(self.t)
         s = self.sign
-        sp.x_d, sp.y_d = self.x0, self.y0
-        sp.theta_d = self.th0 + s * ang
-        sp.v_d = sp.a_d = sp.along_err = sp.kappa = sp.pp_curvature = 0.0
-        sp.omega_d = s * w
-        sp.alpha_d = s * alpha
-        sp.pivot = True
-        sp.path_frame = False
-        sp.active = True
+        sp.turn_in_place(self.x0, self.y0, self.th0 + s * ang, s * w, s * alpha)
         self.sigma = ang
         self.cross_track = math.hypot(x - self.x0, y - self.y0)
         self.done = self.t >= self.t_end

@@ -14,6 +14,7 @@ from bench import paths_as_given as pg
 from ddrt.cli import main as cli_main
 from ddrt.config import load_config
 from ddrt.config.sections import PathsConfig
+from ddrt.path.report import pivot_runs
 from ddrt.path import PathError, load_path
 from ddrt.path.geometry import _Options, _polyline
 from ddrt.path.report import LABELS, active_limits, path_report
@@ -31,18 +32,6 @@ def _csv(tmp_path: FsPath, case: pg.Case) -> FsPath:
     return f
 
 
-def _pivots(path: Path) -> list[tuple[int, int]]:
-    piv = path.arrays()["seg_pivot"]
-    runs, start = [], None
-    for i, flag in enumerate(np.append(piv, False)):
-        if flag and start is None:
-            start = i
-        elif not flag and start is not None:
-            runs.append((start, i))
-            start = None
-    return runs
-
-
 def _xy(path: Path) -> np.ndarray:
     a = path.arrays()
     return np.column_stack((a["x"], a["y"]))
@@ -57,7 +46,7 @@ def test_noisy_circle_recording_is_driven_at_the_asked_speed(tmp_path) -> None:
     path = load_path(_csv(tmp_path, case), LIM)
     length = 2 * math.pi * 1.2
     assert path.duration < 1.3 * length / 0.5 + 3.0  # ~15.6 s
-    assert not _pivots(path)
+    assert not pivot_runs(path)
     kap = np.abs(path.arrays()["kappa"])
     assert kap.max() < 1.0 and kap.min() > 0.7  # 0.83 /m all round, ends included
     d = np.abs(np.hypot(path.arrays()["x"], path.arrays()["y"] - 1.2) - 1.2)
@@ -89,7 +78,7 @@ def test_grid_plan_is_smoothed_within_its_cells(tmp_path, cell) -> None:
     c = path.conditioning
     assert c.mode == "grid" and c.grid_cell_m == pytest.approx(cell)
     assert c.tolerance_m == pytest.approx(0.5 * cell)
-    assert not _pivots(path)
+    assert not pivot_runs(path)
     length = float(np.sum(np.hypot(*np.diff(case.xy, axis=0).T)))
     assert path.duration < 1.15 * length / case.speed + 3.0
     assert path.deviation_m <= 0.5 * cell + 1e-9
@@ -101,7 +90,7 @@ def test_teach_and_repeat_recording_follows_the_curve_not_the_noise(tmp_path) ->
     """Main: 13x the time, turns in place at noise, 23 mm RMS from the curve."""
     case = pg.teach_and_repeat()
     path = load_path(_csv(tmp_path, case), LIM)
-    assert not _pivots(path)
+    assert not pivot_runs(path)
     assert path.duration < 1.3 * max(case.exact.length / case.speed, case.exact.duration) + 3.0
     d = pg.curve_distance(case.curve, _xy(path)[::3])
     assert np.sqrt(np.mean(d ** 2)) < 2e-3 and d.max() < 8e-3
@@ -112,14 +101,14 @@ def test_teach_and_repeat_recording_follows_the_curve_not_the_noise(tmp_path) ->
 def test_noise_never_becomes_a_corner(seed) -> None:
     case = pg.teach_and_repeat(seed=seed)
     path = load_path({"points": case.xy.tolist(), "speed": 0.6}, LIM)
-    assert not _pivots(path)
+    assert not pivot_runs(path)
 
 
 def test_genuine_corners_of_a_recording_still_turn_in_place(tmp_path) -> None:
     case = pg.rectangle_recording()
     path = load_path(_csv(tmp_path, case), LIM)
     corners = path.conditioning.corners
-    assert len(corners) == 3 and len(_pivots(path)) == 3
+    assert len(corners) == 3 and len(pivot_runs(path)) == 3
     for c, (x, y) in zip(corners, [(1.2, 0.0), (1.2, 0.8), (0.0, 0.8)]):
         assert math.degrees(c.turn) == pytest.approx(90.0, abs=3.0)
         assert math.hypot(c.x - x, c.y - y) < 4e-3
@@ -158,7 +147,7 @@ def test_sparse_waypoints_and_rectangles_are_built_as_before() -> None:
     for key in ("sigma", "x", "y", "theta", "kappa", "u", "t"):
         assert np.array_equal(path.arrays()[key], legacy.arrays()[key]), key
     rect = load_path({"points": [[0, 0], [1.2, 0], [1.2, 0.8], [0, 0.8], [0, 0]], "speed": 0.25}, LIM)
-    assert rect.conditioning.mode == "waypoints" and len(_pivots(rect)) == 3
+    assert rect.conditioning.mode == "waypoints" and len(pivot_runs(rect)) == 3
 
 
 def test_every_scenario_path_is_a_shape_or_waypoints() -> None:
@@ -175,7 +164,7 @@ def test_tolerance_zero_reads_points_as_waypoints(tmp_path) -> None:
     spec = tmp_path / "raw.yaml"
     spec.write_text(f"file: {f.name}\ntolerance: 0\n")
     raw = load_path(spec, LIM)
-    assert raw.conditioning.mode == "waypoints" and len(_pivots(raw)) > 5  # the old behaviour, on request
+    assert raw.conditioning.mode == "waypoints" and len(pivot_runs(raw)) > 5  # the old behaviour, on request
     wide = tmp_path / "wide.yaml"
     wide.write_text(f"file: {f.name}\ntolerance: 0.02\n")
     assert load_path(wide, LIM).conditioning.tolerance_m == 0.02
@@ -243,7 +232,7 @@ def test_a_long_recording_is_conditioned_quickly() -> None:
     t0 = time.process_time()
     path = load_path({"points": xy.tolist(), "speed": 0.5}, LIM, paths=paths)
     assert time.process_time() - t0 < 4.0  # about 0.4 s; the bench row times 100 000 points
-    assert not _pivots(path) and path.deviation_m <= 0.01
+    assert not pivot_runs(path) and path.deviation_m <= 0.01
 
 
 # --------------------------------------------------------------------------- ddrt path

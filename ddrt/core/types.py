@@ -83,6 +83,17 @@ class Setpoint:
     pivot_radius: float = 0.1
     path_frame: bool = False  # errors in the path's frame at q_d (path-following mode)
     active: bool = False  # False: hold still (no path, or finished)
+
+    def turn_in_place(self, x: float, y: float, theta: float, omega: float, alpha: float) -> None:
+        """A pivot at (x, y): heading theta, yaw rate omega and its derivative, no travel."""
+        self.x_d, self.y_d = x, y
+        self.theta_d = theta
+        self.v_d = self.a_d = self.along_err = self.kappa = self.pp_curvature = 0.0
+        self.omega_d = omega
+        self.alpha_d = alpha
+        self.pivot = True
+        self.path_frame = False
+        self.active = True
     v_cap: float = math.inf  # |v_c| at most this (m/s), besides limits.v_max
     y_cap: float = math.inf  # the outer law sees at most this lateral error (m)
     omega_cap: float = math.inf  # |omega_c| at most this (rad/s), besides limits.omega_max

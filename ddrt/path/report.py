@@ -125,7 +125,7 @@ class PathReport:
     warnings: list[str] = field(default_factory=list)
 
 
-def _pivot_runs(path: Path) -> list[tuple[int, int]]:
+def pivot_runs(path: Path) -> list[tuple[int, int]]:
     piv = path.arrays()["seg_pivot"]
     runs, start = [], None
     for i, flag in enumerate(np.append(piv, False)):
@@ -171,7 +171,7 @@ def path_report(path: Path, source: str) -> PathReport:
     kap = np.where(np.append(a["seg_pivot"], False), 0.0, np.abs(a["kappa"]))
     j = int(np.argmax(kap))
     pivots = []
-    for i0, i1 in _pivot_runs(path):
+    for i0, i1 in pivot_runs(path):
         pivots.append((float(s[i0]), float(a["x"][i0]), float(a["y"][i0]), float(a["theta"][i1] - a["theta"][i0])))
     c = path.conditioning
     mode = "shape" if c is None else c.mode

@@ -204,14 +204,7 @@ class StartReference:
             ang = min(abs(self.angle), ang0 + (w0 * w0 - w * w) / (2.0 * a))
             alpha = -a if w > 0.0 else 0.0
         s = self.sign
-        sp.x_d, sp.y_d = self.x0, self.y0
-        sp.theta_d = self.th0 + s * ang
-        sp.v_d = sp.a_d = sp.along_err = sp.kappa = sp.pp_curvature = 0.0
-        sp.omega_d = s * w
-        sp.alpha_d = s * alpha
-        sp.pivot = True
-        sp.path_frame = False
-        sp.active = True
+        sp.turn_in_place(self.x0, self.y0, self.th0 + s * ang, s * w, s * alpha)
         sp.v_cap = TURN_HOLD_V
         sp.omega_cap = self.limits.omega_max
         self._turn_ct = math.hypot(x - self.x0, y - self.y0)
