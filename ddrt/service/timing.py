@@ -32,6 +32,8 @@ from __future__ import annotations
 import math
 from array import array
 
+import numpy as np
+
 
 def _positive_finite(name: str, value: float) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
@@ -157,23 +159,44 @@ class TimingStats:
                 (self._late[i:] + self._late[:i]).tolist())
 
     def summary(self) -> dict[str, float | int | None]:
-        """Percentiles over the window in microseconds, and counters since start."""
-        compute, late = self.window()
+        """Percentiles over the window in microseconds, and counters since start.
+
+        The loop thread answers `status`, so this must be cheap: a selection (O(n), about
+        0.15 ms for the full window) rather than a sort of 16 384 floats (3-12 ms, most of
+        a 5 ms tick). The ring's order does not matter for a percentile."""
         out: dict[str, float | int | None] = {
             "count": self._n,
-            "window": len(compute),
+            "window": min(self._n, self.capacity),
             "overruns": self.overruns,
             "missed_ticks": self.missed,
             "compute_worst_us": self.worst_compute_s * 1e6,
             "late_worst_us": self.worst_late_s * 1e6,
         }
-        for name, data in (("compute", compute), ("late", late)):
-            data.sort()
-            if data:
-                out[f"{name}_p50_us"] = percentile(data, 50.0) * 1e6
-                out[f"{name}_p99_us"] = percentile(data, 99.0) * 1e6
-                out[f"{name}_max_us"] = data[-1] * 1e6
+        n = min(self._n, self.capacity)
+        for name, ring in (("compute", self._compute), ("late", self._late)):
+            if n:
+                p50, p99, top = _select_quantiles(np.frombuffer(ring, dtype=np.float64, count=n))
+                out[f"{name}_p50_us"] = p50 * 1e6
+                out[f"{name}_p99_us"] = p99 * 1e6
+                out[f"{name}_max_us"] = top * 1e6
             else:
                 # None, not NaN: the summary goes out as JSON, which has no NaN.
                 out[f"{name}_p50_us"] = out[f"{name}_p99_us"] = out[f"{name}_max_us"] = None
         return out
+
+
+def _select_quantiles(data: np.ndarray) -> tuple[float, float, float]:
+    """(p50, p99, max) of unsorted data, numpy.percentile's "linear" definition, by
+    partitioning around the four ranks the two percentiles interpolate between."""
+    n = len(data)
+    ranks: list[int] = []
+    fracs: list[float] = []
+    for q in (50.0, 99.0):
+        r = (n - 1) * q / 100.0
+        lo = int(math.floor(r))
+        ranks += [lo, min(lo + 1, n - 1)]
+        fracs.append(r - lo)
+    part = np.partition(data, sorted(set(ranks)))
+    p50 = float(part[ranks[0]] + (part[ranks[1]] - part[ranks[0]]) * fracs[0])
+    p99 = float(part[ranks[2]] + (part[ranks[3]] - part[ranks[2]]) * fracs[1])
+    return p50, p99, float(data.max())
