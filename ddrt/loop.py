@@ -263,6 +263,14 @@ class ControlLoop:
         gap = math.hypot(px - x, py - y)
         return "" if gap <= limit else f"{gap:.3f} m from the robot, beyond limits.max_path_error_m = {limit:g} m"
 
+    @property
+    def path_completed(self) -> bool:
+        """Stopped at the end of the path, not stopped part way (a hold that ended waiting
+        under daemon.on_recover: wait, or a stop that was asked)."""
+        ref = self.reference
+        return (self.state == "stopped" and ref is not None and ref.done
+                and not getattr(ref, "stopping", False))
+
     def stop(self) -> None:
         """Controlled stop along the path (in a hold: end it stopped, do not resume)."""
         if self.state == "following" and self.reference is not None:

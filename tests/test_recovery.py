@@ -553,3 +553,19 @@ def test_the_simulated_driver_has_the_microcontrollers_watchdog() -> None:
         assert hal.robot.applied_duty == (0.0, 0.0) and hal.watchdog_trips == 1
     finally:
         hal.close()
+
+
+def test_ddrt_sim_does_not_count_a_path_interrupted_by_a_waiting_hold_as_completed() -> None:
+    """With daemon.on_recover: wait a sensor freeze ends the run stopped part way: the metrics
+    say not completed; the same freeze with resume completes."""
+    from ddrt.path.spec import resolve_path
+    from ddrt.simrun.runner import run_sim
+
+    done = {}
+    for mode in ("wait", "resume"):
+        cfg = load_config(SIM_YAML, {"daemon": {"on_recover": mode},
+                                     "sim": {"sensors_freeze_after_s": 3.0, "sensors_freeze_for_s": 0.15}})
+        res = run_sim(cfg, resolve_path(cfg), seed=1)
+        done[mode] = (res.metrics["completed"], res.metrics["state"])
+    assert done["wait"][0] is False and done["wait"][1] == "stopped", done
+    assert done["resume"][0] is True, done

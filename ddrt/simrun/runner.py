@@ -114,7 +114,7 @@ class TelemetryStream:
         """metrics.json's content from what has been flushed."""
         m: dict[str, Any] = self.tracking.result()
         m.update({
-            "completed": loop.state == "stopped",
+            "completed": loop.path_completed,
             "state": loop.state,
             "fault": loop.fault,
             "ticks": self.ticks,
