@@ -275,10 +275,15 @@ class ControlLoop:
         """Hold the velocities (v, omega) until the next command, a stop, or
         daemon.command_timeout_s without one (ddrt/core/drive.py); returns them as limited
         and the fields that were clamped. Changes nothing when it refuses: ValueError for a
-        value that is no plausible velocity (naming it) and while holding, following or
+        value that is no plausible velocity (naming it), with controller.mode seed, and while holding, following or
         stopping a path (a drive does not take over a path: stop it first); RuntimeError in
         estop or fault (reset first)."""
         v_lim, w_lim, clamped = check_command(v, omega, self.cfg.limits)
+        if self.cfg.controller.mode == "seed":
+            # Its weak fixed inner gains hold a speed only with the outer law's pose feedback
+            # (measured: 0.17 m/s for a 0.3 m/s command); it is there to compare paths.
+            raise ValueError("controller.mode seed (the report's method, for comparison on paths) does not "
+                             "drive: use dynamic or kinematic")
         state = self.state
         if state in ("estop", "fault"):
             raise RuntimeError(f"cannot drive in state {state}: reset first")

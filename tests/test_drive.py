@@ -161,6 +161,23 @@ def test_the_setpoint_keeps_the_limits_and_the_robot_reaches_the_command(robot: 
     assert loop.row[21] == STATE_CODE["driving"]
 
 
+def test_the_kinematic_baseline_drives_too_and_the_seeds_method_is_refused() -> None:
+    r = Robot(controller={"mode": "kinematic"})
+    try:
+        for cmd in ((0.3, 1.0), (0.0, 1.5), (-0.2, 0.0)):  # a turn in place among them
+            r.ticks(400, drive=cmd)
+            assert r.true_v() == pytest.approx(cmd, abs=0.01)
+    finally:
+        r.close()
+    r = Robot(controller={"mode": "seed"})
+    try:
+        with pytest.raises(ValueError, match="seed"):
+            r.loop.drive(0.3, 0.0)
+        assert r.loop.state == "idle" and r.loop.reference is None
+    finally:
+        r.close()
+
+
 @pytest.mark.parametrize("jerk", [10.0, None])
 def test_after_the_last_command_at_1_m_s_the_robot_stands_still_in_time_and_distance(jerk: float | None) -> None:
     """The issue's requirement, on the plant's true state: still within the timeout plus the
