@@ -100,7 +100,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _cmd_ctl(args: argparse.Namespace) -> int:
     from ddrt.service.ctlsocket import request
 
+    if args.for_s is not None and args.command_name != "drive":
+        raise ValueError("ctl: --for is for drive only")
     payload: dict = {"cmd": args.command_name}
+    if args.command_name == "drive":
+        return _ctl_drive(args)
     if args.command_name == "follow":
         if not args.args:
             raise ValueError("ctl follow: give a path file")
@@ -112,6 +116,49 @@ def _cmd_ctl(args: argparse.Namespace) -> int:
         timeout = FOLLOW_TIMEOUT_S if args.command_name == "follow" else 2.0
     try:
         reply = request(args.socket, payload, timeout=timeout)
+    except (OSError, TimeoutError) as exc:
+        print(f"ddrt ctl: cannot reach {args.socket}: {exc}", file=sys.stderr)
+        return 1
+    print(json.dumps(reply, indent=2, sort_keys=True))
+    return 0 if reply.get("ok") else 1
+
+
+def _number(text: str, what: str) -> float:
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"ctl drive: {what}: expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise ValueError(f"ctl drive: {what}: must be finite, got {text!r}")
+    return value
+
+
+def _ctl_drive(args: argparse.Namespace) -> int:
+    """`ddrt ctl drive V W [--for S]`: one drive command, or S seconds of them then a stop."""
+    from ddrt.service.ctlsocket import request
+    from ddrt.service.drivecmd import drive_for
+
+    if len(args.args) != 2:
+        raise ValueError("ctl drive: give V (m/s) and OMEGA (rad/s), e.g. ddrt ctl drive 0.3 0 --for 2")
+    v = _number(args.args[0], "V (m/s)")
+    omega = _number(args.args[1], "OMEGA (rad/s)")
+    timeout = args.timeout if args.timeout is not None else 2.0
+
+    def send(payload: dict) -> dict:
+        return request(args.socket, payload, timeout=timeout)
+
+    try:
+        if args.for_s is None:
+            reply = send({"cmd": "drive", "v": v, "omega": omega})
+        else:
+            if not 0.0 < args.for_s < float("inf"):
+                raise ValueError(f"ctl drive: --for: expected seconds > 0, got {args.for_s:g}")
+            try:
+                reply = drive_for(send, v, omega, args.for_s)
+            except KeyboardInterrupt:  # drive_for sent the stop on its way out
+                return 130
     except (OSError, TimeoutError) as exc:
         print(f"ddrt ctl: cannot reach {args.socket}: {exc}", file=sys.stderr)
         return 1
@@ -202,8 +249,10 @@ def build_parser() -> argparse.ArgumentParser:
     ctl.add_argument("--timeout", type=float, default=None,
                      help=f"seconds to wait for the reply (default 2; {FOLLOW_TIMEOUT_S:g} for follow)")
     ctl.add_argument("command_name", metavar="COMMAND",
-                     choices=("status", "follow", "stop", "estop", "reset", "gains", "reload"))
-    ctl.add_argument("args", nargs="*", help="follow: the path file")
+                     choices=("status", "follow", "drive", "stop", "estop", "reset", "gains", "reload"))
+    ctl.add_argument("args", nargs="*", help="follow: the path file; drive: V (m/s) and OMEGA (rad/s)")
+    ctl.add_argument("--for", dest="for_s", type=float, metavar="S",
+                     help="drive: re-send the command at 10 Hz for S seconds, then stop")
     ctl.set_defaults(func=_cmd_ctl)
 
     cal = sub.add_parser("calibrate", help="gyro at rest, dynamic identification, odometry")

@@ -18,6 +18,9 @@ Transient faults degrade, persistent ones latch (docs/design.md, "Faults"):
 - Latched at once, motors to zero: any other HAL error, a motor write that fails, a stuck
   or saturated gyro, a stuck encoder, a non-finite number, a robot farther than
   `limits.max_path_error_m` from its path. `estop` latches until `reset`.
+
+Velocity mode (`drive`, ddrt/core/drive.py): the state `driving`, whose reference is a
+`DriveReference`; it ends `stopped` once it has braked to rest after a stop or a timeout.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ from typing import Callable
 from ddrt.core.adapt import DynamicsAdapter
 from ddrt.config import Config
 from ddrt.core.control import Command, DynamicController, KinematicController, make_controller
+from ddrt.core.drive import DriveReference, check_command
 from ddrt.core.types import Setpoint
 from ddrt.core.estimator import Estimator, calibrate_gyro
 from ddrt.core.model import Dynamics
@@ -43,8 +47,8 @@ from hal.base import Hal, HalError, HalTimeoutError, Sample
 log = logging.getLogger("ddrt.loop")
 
 # Codes are the index (telemetry's `state` column): new states go at the end.
-STATES = ("idle", "following", "stopping", "stopped", "estop", "fault", "holding")
-MOVING = ("following", "stopping")
+STATES = ("idle", "following", "stopping", "stopped", "estop", "fault", "holding", "driving")
+MOVING = ("following", "stopping", "driving")
 RECOVER_FRESH_TICKS = 10  # fresh samples in a row before a hold may end
 AT_REST_V = 2e-3  # m/s and rad/s below which the robot counts as at rest
 AT_REST_W = 5e-3
@@ -106,7 +110,7 @@ class ControlLoop:
         self.estimator = Estimator(self.dyn, self.motor, cfg.estimator, hal.info, cfg.robot.r_3, self.period)
         self.controller: DynamicController | KinematicController = make_controller(
             cfg.controller.mode, self.dyn, self.seed_dyn, self.motor, cfg.controller, cfg.limits, self.period)
-        self.reference: PathReference | StartReference | None = None
+        self.reference: PathReference | StartReference | DriveReference | None = None
         self.path: Path | None = None
         self.setpoint = Setpoint()
         self.idle_cmd = Command()
@@ -162,6 +166,8 @@ class ControlLoop:
         self.estimator.reconfigure(cfg.estimator, cfg.robot.r_3,
                                    self.estimator.dyn if not model_changed else dyn, motor)
         self.controller.retune(cfg.controller, cfg.limits)
+        if isinstance(self.reference, DriveReference):
+            self.reference.configure(cfg.limits, cfg.drive, cfg.daemon.command_timeout_s)
         if model_changed:
             self.dyn, self.seed_dyn, self.motor = dyn, seed_dyn, motor
             self.controller.set_model(seed_dyn if cfg.controller.mode == "seed" else dyn, motor)
@@ -229,7 +235,7 @@ class ControlLoop:
                                  y_cap=outer.k_theta * math.sin(JOIN_APPROACH_RAD) / outer.k_y)
         self.follow_reference(ref, pose, path)
 
-    def follow_reference(self, reference: PathReference | StartReference, pose: tuple[float, float, float] | None = None,
+    def follow_reference(self, reference: PathReference | StartReference | DriveReference, pose: tuple[float, float, float] | None = None,
                          path: Path | None = None) -> None:
         """Start following any reference with PathReference's interface (update, done, sigma,
         cross_track, request_stop): calibration's turn in place is one."""
@@ -250,6 +256,8 @@ class ControlLoop:
             raise RuntimeError(f"cannot follow a path in state {self.state}: reset first")
         if self.state == "holding":
             raise ValueError("holding after a sensor gap: wait until it ends (or stop)")
+        if self.state == "driving":
+            raise ValueError("driving: send stop first, and follow once status says 'stopped'")
         if path is not None:
             x, y, _ = pose if pose is not None else self.estimator_pose()
             start = path.at(0.0)
@@ -271,11 +279,45 @@ class ControlLoop:
         return (self.state == "stopped" and ref is not None and ref.done
                 and not getattr(ref, "stopping", False))
 
+    def drive(self, v: object, omega: object, source: str = "") -> tuple[float, float, tuple[str, ...]]:
+        """Hold the velocities (v, omega) until the next command, a stop, or
+        daemon.command_timeout_s without one (ddrt/core/drive.py); returns them as limited
+        and the fields that were clamped. Changes nothing when it refuses: ValueError for a
+        value that is no plausible velocity (naming it), with controller.mode seed, and while holding, following or
+        stopping a path (a drive does not take over a path: stop it first); RuntimeError in
+        estop or fault (reset first)."""
+        v_lim, w_lim, clamped = check_command(v, omega, self.cfg.limits)
+        if self.cfg.controller.mode == "seed":
+            # Its weak fixed inner gains hold a speed only with the outer law's pose feedback
+            # (measured: 0.17 m/s for a 0.3 m/s command); it is there to compare paths.
+            raise ValueError("controller.mode seed (the report's method, for comparison on paths) does not "
+                             "drive: use dynamic or kinematic")
+        state = self.state
+        if state in ("estop", "fault"):
+            raise RuntimeError(f"cannot drive in state {state}: reset first")
+        if state == "holding":
+            raise ValueError("holding after a sensor gap: wait until it ends (or stop)")
+        if state in ("following", "stopping"):
+            raise ValueError(f"{state} a path: a drive does not take over a path; send stop, and drive once "
+                             "status says 'stopped'")
+        ref = self.reference
+        if state != "driving" or not isinstance(ref, DriveReference):
+            d = self.cfg
+            ref = DriveReference(d.limits, d.drive, d.daemon.command_timeout_s, self.period)
+            self.follow_reference(ref)
+            self.state = "driving"
+            log.info("driving (%s): v %.3f m/s, omega %.3f rad/s", source or "a command", v_lim, w_lim)
+        ref.command(v_lim, w_lim, (float(v), float(omega)), source)  # type: ignore[arg-type]
+        return v_lim, w_lim, clamped
+
     def stop(self) -> None:
-        """Controlled stop along the path (in a hold: end it stopped, do not resume)."""
+        """Controlled stop along the path (in a hold: end it stopped, do not resume); in
+        the velocity mode, braking to rest within its limits as on a timeout."""
         if self.state == "following" and self.reference is not None:
             self.reference.request_stop(self.cfg.daemon.stop_decel)
             self.state = "stopping"
+        elif self.state == "driving" and self.reference is not None:
+            self.reference.request_stop(self.cfg.limits.accel)
         elif self.state == "holding" and self._hold is not None:
             self._hold.resume_to = "stopping"
 
@@ -310,7 +352,7 @@ class ControlLoop:
     def shutdown(self) -> None:
         """The process is stopping: motors to zero, and a last row that shows it."""
         self._zero_motors()
-        if self.state in ("following", "stopping", "idle", "holding"):
+        if self.state in ("following", "stopping", "idle", "holding", "driving"):
             self.state = "stopped"
         self._record(self.sample.t if self.sample is not None else 0.0)
 

@@ -54,6 +54,7 @@ def test_values_equal_to_the_running_ones_are_no_change() -> None:
     ("estimator.accel_noise", LIVE), ("estimator.calibration_s", RESTART), ("daemon.socket", RESTART),
     ("daemon.cpus", RESTART), ("daemon.spin_us", LIVE), ("daemon.telemetry_max_files", LIVE),
     ("daemon.telemetry_dir", RESTART), ("daemon.stop_decel", LIVE), ("daemon.watch_config", LIVE),
+    ("daemon.command_timeout_s", LIVE), ("drive.jerk_max", LIVE), ("drive.angular_jerk_max", LIVE),
     ("limits.v_max", NEXT_PATH), ("limits.duty_max", LIVE), ("limits.max_path_error_m", LIVE),
     ("pursuit.lookahead_m", NEXT_PATH), ("path", RESTART), ("start", RESTART),
 ])

@@ -5,13 +5,13 @@ from ddrt.config.load import (
 )
 from ddrt.config.schema import ConfigError
 from ddrt.config.sections import (
-    AdaptationConfig, BridgeConfig, Config, ControllerConfig, DaemonConfig, EstimatorConfig, GyroTruth,
+    AdaptationConfig, BridgeConfig, Config, ControllerConfig, DaemonConfig, DriveConfig, EstimatorConfig, GyroTruth,
     HalConfig, ImuConfig, LimitsConfig, OuterGains, PathsConfig, PidGains, PursuitConfig, PwmSysfsConfig,
     SensorsConfig, SimConfig, SlipConfig, WheelPidGains,
 )
 
 __all__ = [
-    "AdaptationConfig", "BridgeConfig", "Config", "ConfigError", "ControllerConfig", "DaemonConfig",
+    "AdaptationConfig", "BridgeConfig", "Config", "ConfigError", "ControllerConfig", "DaemonConfig", "DriveConfig",
     "EstimatorConfig", "GyroTruth", "HalConfig", "ImuConfig", "LimitsConfig", "OuterGains", "PathsConfig",
     "PidGains", "PursuitConfig", "PwmSysfsConfig", "SensorsConfig", "SimConfig",
     "SlipConfig", "WheelPidGains", "config_from_mapping",

@@ -13,7 +13,7 @@ from typing import Any, Mapping
 
 from ddrt.config.schema import ConfigError, build, convert
 from ddrt.config.sections import (
-    Config, ControllerConfig, DaemonConfig, EstimatorConfig, HalConfig, LimitsConfig, PathsConfig,
+    Config, ControllerConfig, DaemonConfig, DriveConfig, EstimatorConfig, HalConfig, LimitsConfig, PathsConfig,
     PursuitConfig, SensorsConfig, SimConfig,
 )
 from ddrt.config.yamlio import read_yaml, shorten
@@ -23,7 +23,7 @@ from ddrt.core.motor import MotorParams
 # --------------------------------------------------------------------------- loading
 
 _TOP_KEYS = ("extends", "robot", "plant", "sim", "sensors", "hal", "controller", "estimator",
-             "pursuit", "limits", "daemon", "paths", "path", "start", "name", "description")
+             "pursuit", "limits", "daemon", "drive", "paths", "path", "start", "name", "description")
 
 
 def _section(data: Mapping[str, Any], key: str) -> Any:
@@ -143,6 +143,7 @@ def _config_from_mapping(data: Mapping[str, Any], source: str, base_dir: str) ->
         pursuit=build(PursuitConfig, _section(data, "pursuit"), "pursuit"),
         limits=limits,
         daemon=build(DaemonConfig, _section(data, "daemon"), "daemon"),
+        drive=build(DriveConfig, _section(data, "drive"), "drive"),
         paths=paths,
         path=path,
         start=start,

@@ -394,6 +394,8 @@ class DaemonConfig:
     watch_config: bool = applies(LIVE, False)  # reload when the file changes
     stop_decel: float = applies(LIVE, 0.5)  # m/s^2 for a controlled stop
     on_recover: Literal["resume", "wait"] = applies(LIVE, "resume")  # after a hold: resume the path, or stop and wait
+    # Velocity mode (`drive`): no command for this long and the robot brakes to a stop.
+    command_timeout_s: float = applies(LIVE, 0.5)
 
     def validate(self, where: str) -> None:
         if not 0 <= self.rt_priority <= 99:
@@ -401,7 +403,33 @@ class DaemonConfig:
         if not 0 <= self.spin_us <= 2000:
             raise ConfigError(f"{where}.spin_us: must be 0..2000, got {self.spin_us}")
         positive(where, telemetry_max_bytes=self.telemetry_max_bytes,
-                 telemetry_max_files=self.telemetry_max_files, stop_decel=self.stop_decel)
+                 telemetry_max_files=self.telemetry_max_files, stop_decel=self.stop_decel,
+                 command_timeout_s=self.command_timeout_s)
+        if self.command_timeout_s > MAX_COMMAND_TIMEOUT_S:
+            raise ConfigError(f"{where}.command_timeout_s: at most {MAX_COMMAND_TIMEOUT_S:g} s (a robot that "
+                              f"drives on that long after its last command is not stopped by it), "
+                              f"got {self.command_timeout_s:g}")
+
+
+MAX_COMMAND_TIMEOUT_S = 5.0
+
+
+@dataclass(frozen=True)
+class DriveConfig:
+    """The velocity mode's own limits (ddrt/core/drive.py); speeds and accelerations are
+    limits.*, shared with paths. Jerk limits as ros2 diff_drive_controller's
+    linear/angular max_jerk; null: none (its has_jerk_limits: false)."""
+
+    APPLY: ClassVar[str] = LIVE  # the velocity mode takes them between two ticks
+
+    jerk_max: float | None = 10.0  # m/s^3: limits.accel (1 m/s^2) is reached in 0.1 s
+    angular_jerk_max: float | None = 200.0  # rad/s^3: limits.alpha_max (20 rad/s^2) in 0.1 s
+
+    def validate(self, where: str) -> None:
+        if self.jerk_max is not None:
+            positive(where, jerk_max=self.jerk_max)
+        if self.angular_jerk_max is not None:
+            positive(where, angular_jerk_max=self.angular_jerk_max)
 
 
 # The smallest radius, side or pivot radius a path may have (m): below it a path is a point
@@ -477,6 +505,7 @@ class Config:
     pursuit: PursuitConfig = applies(NEXT_PATH)
     limits: LimitsConfig = applies(NEXT_PATH)
     daemon: DaemonConfig = applies(RESTART)
+    drive: DriveConfig = applies(LIVE, factory=DriveConfig)
     paths: PathsConfig = applies(NEXT_PATH, factory=PathsConfig)
     path: Any = restart(None)  # a path mapping or file name, followed at start (ddrt run --follow, ddrt sim)
     start: tuple[float, float, float] | None = restart(None)

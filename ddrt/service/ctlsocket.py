@@ -23,7 +23,7 @@ Nobody can lock a command out (the operator's estop above all):
   (round robin), so one client's burst cannot starve another's request. A connection whose
   next request is in `priority` (the daemon: estop, stop) is served before the rest; so that
   a priority command cannot be undone by one sent before it, `priority[cmd]` names the
-  commands it supersedes (estop: follow, reset; stop: follow): such a request that arrived
+  commands it supersedes (estop: follow, reset, drive; stop: follow, drive): such a request that arrived
   before it and is still waiting is answered with an error and not run.
 
 Strict JSON both ways: NaN and Infinity are not JSON, in a request (answered with an error

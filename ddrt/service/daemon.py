@@ -36,6 +36,7 @@ from ddrt.service.clock import MonotonicClock
 from ddrt.config import Config, load_config
 from ddrt.config.policy import ReloadPlan, plan_reload
 from ddrt.service.ctlsocket import ControlServer, Deferred, finite_or_null
+from ddrt.service.drivecmd import drive_fields, drive_status
 from ddrt.service.instance import AlreadyRunning, InstanceLock, lock_path_for
 from ddrt.loop import COLUMNS, ControlLoop
 from ddrt.path import PathError
@@ -79,10 +80,10 @@ class _PendingFollow:
 
 PREPARE_SAMPLES = 1 << 14  # lateness samples kept while a path is prepared (82 s at 200 Hz)
 
-COMMANDS = ("status", "follow", "stop", "estop", "reset", "gains", "reload")
+COMMANDS = ("status", "follow", "drive", "stop", "estop", "reset", "gains", "reload")
 # Served before other clients' requests; each supersedes the listed commands sent before it
 # and still waiting (so an estop cannot be undone by a reset that was queued ahead of it).
-PRIORITY = {"estop": ("follow", "reset"), "stop": ("follow",)}
+PRIORITY = {"estop": ("follow", "reset", "drive"), "stop": ("follow", "drive")}
 NEVER_REFUSED = ("estop",)  # no rate limit, no shared queue bound
 
 
@@ -421,7 +422,7 @@ class Daemon:
         est = loop.estimator
         ref = loop.reference
         progress = None
-        if ref is not None and loop.path is not None:
+        if ref is not None and loop.path is not None and loop.state != "driving":
             progress = {"sigma_m": ref.sigma, "length_m": loop.path.length,
                         "fraction": ref.sigma / loop.path.length if loop.path.length else 1.0,
                         "cross_track_m": ref.cross_track,
@@ -430,6 +431,7 @@ class Daemon:
         return {
             "state": loop.state,
             "fault": loop.fault,
+            **drive_status(loop),
             "pose": {"x": est.x, "y": est.y, "theta": est.theta},
             "speeds": {"v": est.v, "omega": est.omega},
             "gyro_bias_rad_s": est.bias,
@@ -478,6 +480,12 @@ class Daemon:
             return {"ok": True, "state": loop.state}
         if cmd == "reload":
             return self.reload()
+        if cmd == "drive":
+            try:
+                v, omega = drive_fields(req)
+            except ValueError as exc:
+                return {"ok": False, "error": f"drive: {exc}"}
+            return self.drive(v, omega, "control socket")
         if cmd == "follow":
             if loop.state == "stopping":
                 return {"ok": False, "error": "follow: not started: the robot is still stopping on its last path; "
@@ -485,6 +493,28 @@ class Daemon:
                                               "(estop stops it at once)"}
             return self._follow(req)
         return {"ok": False, "error": f"unknown command {cmd!r}"}
+
+    def drive(self, v: object, omega: object, source: str) -> dict[str, Any]:
+        """Velocity mode (ddrt/core/drive.py): hold (v, omega) until the next drive, a stop
+        or daemon.command_timeout_s without one. The one entry for every caller (the control
+        socket, a teleop bridge), between two ticks; a refusal changes nothing."""
+        loop = self.loop
+        assert loop is not None
+        if self._pending is not None:
+            return {"ok": False, "error": f"drive: busy: preparing {self._pending.what} to follow: "
+                                          "send stop to cancel it"}
+        old = loop.path
+        try:
+            v_lim, w_lim, clamped = loop.drive(v, omega, source)
+        except (ValueError, RuntimeError) as exc:
+            return {"ok": False, "error": f"drive: {exc}"}
+        if old is not None and loop.path is None and self.paths is not None:
+            self.paths.dispose(old)  # the last path's samples are freed off the loop
+        reply: dict[str, Any] = {"ok": True, "state": loop.state, "v": v_lim, "omega": w_lim,
+                                 "timeout_s": self.cfg.daemon.command_timeout_s}
+        if clamped:
+            reply["clamped"] = list(clamped)
+        return reply
 
     def _follow(self, req: dict[str, Any]) -> dict[str, Any] | Deferred:
         """Check the request, hand the path to the worker, answer when the loop has switched.
@@ -495,7 +525,7 @@ class Daemon:
         """
         loop = self.loop
         assert loop is not None
-        if loop.state in ("following", "stopping"):
+        if loop.state in ("following", "stopping", "driving"):
             return {"ok": False, "error": f"already {loop.state}: send stop first"}
         if loop.state in ("estop", "fault"):
             return {"ok": False, "error": f"in {loop.state}: send reset first"}
@@ -569,7 +599,7 @@ class Daemon:
         path, build.path = build.path, None
         old = getattr(loop, "path", None)
         try:
-            if loop.state in ("following", "stopping"):
+            if loop.state in ("following", "stopping", "driving"):
                 raise ValueError(f"already {loop.state}")
             loop.follow(path, p.pose)
         except (ValueError, RuntimeError) as exc:
