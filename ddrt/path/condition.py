@@ -62,6 +62,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ddrt.path.geometry import _Geometry, _line, _Options, _Piece, _pivot, _polyline
+from ddrt.path.turnspeed import turn_caps
 
 __all__ = ["ConditionOptions", "Conditioning", "ConditionError", "classify", "condition_polyline"]
 
@@ -689,6 +690,16 @@ def _loop_wrap(p: np.ndarray, knot: float, scale: float, threshold: float, tol: 
 
 
 
+def _cap_turns(geo: _Geometry, info: Conditioning) -> None:
+    """A grid plan's turns at a bounded yaw acceleration (ddrt/path/turnspeed.py), merged with
+    the points' own caps; the slowest turn's cap is reported."""
+    ts, tv = turn_caps(geo.pieces)
+    if geo.cap_sigma is not None and geo.cap_value is not None:
+        tv = np.minimum(tv, np.interp(ts, geo.cap_sigma, geo.cap_value))
+    geo.cap_sigma, geo.cap_value = ts, tv
+    info.extra["turn_speed_m_s"] = float(tv.min())
+
+
 def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, copt: ConditionOptions,
                        where: str, names: Sequence[str]) -> tuple[_Geometry, Conditioning]:
     """The geometry of a polyline of distinct points (module docstring); caps per point or None."""
@@ -800,6 +811,8 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, 
         cs = np.maximum.accumulate(np.asarray(cap_s))
         geo.cap_sigma = cs
         geo.cap_value = np.asarray(cap_v)
+    if mode == GRID:
+        _cap_turns(geo, info)
     info.deviation_m = float(devs.max())
     info.worst = int(np.argmax(devs))
     info.corners = tuple(kept)
