@@ -167,6 +167,14 @@ def grid_cell(p: np.ndarray) -> float | None:
     return c
 
 
+def grid_axis(p: np.ndarray) -> float:
+    """The direction of a grid plan's first axis (its steps are along it, across it or diagonal)."""
+    d = p[1] - p[0]
+    ang = math.atan2(d[1], d[0])
+    diagonal = abs(math.hypot(d[0], d[1]) - float(np.min(np.hypot(*np.diff(p, axis=0).T)))) > 1e-6 * math.hypot(*d)
+    return ang - 0.25 * math.pi if diagonal else ang
+
+
 def classify(p: np.ndarray, copt: ConditionOptions) -> tuple[str, float, float | None]:
     """(mode, tolerance, grid cell) for the distinct points p (n, 2)."""
     if len(p) < 4 or copt.tolerance <= 0.0:
@@ -565,10 +573,22 @@ def _choose_smoothing(q: np.ndarray, u: np.ndarray, w: np.ndarray, fixed: np.nda
     return ladder[lo], fits
 
 
+def _cell_distance(sp: _Spline, q: np.ndarray, uf: np.ndarray, axis: float) -> np.ndarray:
+    """How far each point's foot on the curve lies from the point along the grid's axes (the
+    larger of the two): at most half a cell while the curve crosses the point's own cell."""
+    x, y = sp.eval(uf)
+    ex, ey = q[:, 0] - x, q[:, 1] - y
+    c, s = math.cos(axis), math.sin(axis)
+    return np.maximum(np.abs(c * ex + s * ey), np.abs(c * ey - s * ex))
+
+
 def _fit_leg(p: np.ndarray, fix0: np.ndarray | None, fix1: np.ndarray | None, tol: float, noise: float,
              knot: float, opt: _Options, names: Sequence[str], offset: int, where: str,
-             wrap: tuple[np.ndarray, np.ndarray] | None = None) -> _Leg:
+             wrap: tuple[np.ndarray, np.ndarray] | None = None, cell_axis: float | None = None) -> _Leg:
     """One leg between corners (or the path's ends): the smoothing spline of the module doc.
+
+    `cell_axis`: a grid plan's axis direction; the corridor is then each point's cell (the
+    distance is taken along the grid's axes, at the point's foot), not a disc round it.
 
     `wrap`: a closed loop's points before its start and after its end (the loop's own, taken
     round), fitted with it so its ends are smoothed as well as its middle; the reference
@@ -607,7 +627,7 @@ def _fit_leg(p: np.ndarray, fix0: np.ndarray | None, fix1: np.ndarray | None, to
         sp = fit.solve(lam)
         fits += 1
         d, uf = _project(sp, q, u)
-        dev = np.abs(d)
+        dev = np.abs(d) if cell_axis is None else _cell_distance(sp, q, uf, cell_axis)
         bad = (dev > tol) & ~fixed
         if not bad.any():
             break
@@ -744,6 +764,7 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, 
             raise ConditionError(f"{where}: {names[k]}: the plan steps back the way it came (a reversal): "
                                  "ddrt drives forward only; split the path at this point into two")
     noise = max(_estimate_noise(p, knot), NOISE_FLOOR_M)
+    axis = grid_axis(p) if mode == GRID else None
     info.noise_m = noise
     wrap = _loop_wrap(p, knot, scale, threshold, tol, spacing) if not corners else None
     info.extra["closed_loop"] = wrap is not None
@@ -761,7 +782,8 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, 
     for j in range(len(cuts) - 1):
         a, b = cuts[j], cuts[j + 1]
         try:
-            leg = _fit_leg(p[a:b + 1], fixes[j], fixes[j + 1], tol, noise, knot, opt, names, a, where, wrap)
+            leg = _fit_leg(p[a:b + 1], fixes[j], fixes[j + 1], tol, noise, knot, opt, names, a, where, wrap,
+                           axis)
         except _Cusp as exc:
             k = a + exc.index
             raise ConditionError(f"{where}: {names[k]}: the points turn back on themselves here (the smoothed "
