@@ -27,7 +27,7 @@ from ddrt.path.geometry import _Piece
 
 __all__ = ["GRID_YAW_ACCEL", "STRAIGHT_KAPPA", "turn_caps"]
 
-GRID_YAW_ACCEL = 1.5  # rad/s^2: RMS of d(omega)/dt over each of a grid plan's turns
+GRID_YAW_ACCEL = 1.4  # rad/s^2: RMS of d(omega)/dt over each of a grid plan's turns
 STRAIGHT_KAPPA = 0.25  # 1/m: below this a sample is on a straight (a kappa <= 0.25 rad/s^2 at 1 m/s^2)
 _NO_CAP = 1e3  # m/s: a sample whose curvature does not change
 
