@@ -9,9 +9,12 @@ A CSV or `points:` list arrives as a polyline. Three kinds are told apart (`clas
 - **grid**: a grid planner's plan cell by cell (every step one cell along an axis or a
   diagonal of a common grid, a cell below the waypoint spacing). The plan says which cells
   are free, not that the robot must zig-zag through their centres: it is smoothed like
-  samples with a tolerance of half a cell (or the path's own `tolerance:`), and only turns
-  sharper than 90 degrees (135, 180) become turns in place; 45 and 90 degree steps are
-  smoothed within the cell.
+  samples with a tolerance of half a cell (or the path's own `tolerance:`) measured along
+  the grid's axes, so the corridor is each point's cell, and only turns sharper than 90
+  degrees (135, 180) become turns in place; 45 and 90 degree steps are smoothed within the
+  cells. A 90 degree step (at an obstacle's corner) still bends within about 1.7 cells, too
+  tight to take at speed, so each turn of the reference gets one speed cap that bounds the
+  RMS of v^2 dkappa/ds over it (ddrt/path/turnspeed.py).
 - **samples**: anything denser. The points are samples of a curve with noise (a recording,
   a planner's output, an exported curve). The reference is a smoothing spline through them
   that stays within `tolerance` (`paths.tolerance_m`, 10 mm) of every point; genuine corners
@@ -45,7 +48,8 @@ exact export of a figure-eight by the whole tolerance):
    is refused naming the point's line.
 
 The reported deviation (`Conditioning.deviation_m`) is the largest distance from an input
-point to the reference.
+point to the reference (for a grid plan, along the grid's axes: at most half a cell while
+the reference crosses every planned cell).
 
 Reversals: in samples a corner that turns by 150 degrees or more is a cusp (the recording
 drove back the way it came). ddrt drives forward only, so such a path is refused naming the
@@ -712,12 +716,11 @@ def _loop_wrap(p: np.ndarray, knot: float, scale: float, threshold: float, tol: 
 
 def _cap_turns(geo: _Geometry, info: Conditioning) -> None:
     """A grid plan's turns at a bounded yaw acceleration (ddrt/path/turnspeed.py), merged with
-    the points' own caps; the slowest turn's cap is reported."""
+    the points' own caps."""
     ts, tv = turn_caps(geo.pieces)
     if geo.cap_sigma is not None and geo.cap_value is not None:
         tv = np.minimum(tv, np.interp(ts, geo.cap_sigma, geo.cap_value))
     geo.cap_sigma, geo.cap_value = ts, tv
-    info.extra["turn_speed_m_s"] = float(tv.min())
 
 
 def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, copt: ConditionOptions,
