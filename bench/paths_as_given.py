@@ -128,17 +128,28 @@ def astar(cell: float) -> np.ndarray:
         free &= ~((gx > x0 - CLEARANCE) & (gx < x1 + CLEARANCE) & (gy > y0 - CLEARANCE) & (gy < y1 + CLEARANCE))
     start = (int(START[0] / cell), int(START[1] / cell))
     goal = (int(GOAL[0] / cell), int(GOAL[1] / cell))
+    cells = astar_cells(free, start, goal, diagonal=True)
+    assert cells is not None
+    return np.array([((i + 0.5) * cell, (j + 0.5) * cell) for i, j in cells])
+
+
+def astar_cells(free: np.ndarray, start: tuple[int, int], goal: tuple[int, int],
+                diagonal: bool = True) -> list[tuple[int, int]] | None:
+    """A* over the free cells of a boolean grid, 8-connected (octile heuristic, no cutting past
+    an occupied cell's corner) or 4-connected (Manhattan); deterministic tie-breaks; None if the
+    goal cannot be reached."""
+    nx, ny = free.shape
     sq2 = math.sqrt(2.0)
 
     def h(a: tuple[int, int]) -> float:
         dx, dy = abs(a[0] - goal[0]), abs(a[1] - goal[1])
-        return (dx + dy) + (sq2 - 2.0) * min(dx, dy)
+        return (dx + dy) + ((sq2 - 2.0) * min(dx, dy) if diagonal else 0.0)
 
     openq: list[tuple[float, int, tuple[int, int]]] = [(h(start), 0, start)]
     g = {start: 0.0}
     came: dict[tuple[int, int], tuple[int, int]] = {}
     count = 0
-    moves = [(1, 0), (0, 1), (-1, 0), (0, -1), (1, 1), (-1, 1), (-1, -1), (1, -1)]
+    moves = [(1, 0), (0, 1), (-1, 0), (0, -1)] + ([(1, 1), (-1, 1), (-1, -1), (1, -1)] if diagonal else [])
     while openq:
         _, _, cur = heapq.heappop(openq)
         if cur == goal:
@@ -155,13 +166,15 @@ def astar(cell: float) -> np.ndarray:
                 came[nb] = cur
                 count += 1
                 heapq.heappush(openq, (cost + h(nb), count, nb))
+    if goal not in g:
+        return None
     node = goal
     cells = [node]
     while node != start:
         node = came[node]
         cells.append(node)
     cells.reverse()
-    return np.array([((i + 0.5) * cell, (j + 0.5) * cell) for i, j in cells])
+    return cells
 
 
 def grid_plan(cell: float) -> Case:

@@ -9,9 +9,12 @@ A CSV or `points:` list arrives as a polyline. Three kinds are told apart (`clas
 - **grid**: a grid planner's plan cell by cell (every step one cell along an axis or a
   diagonal of a common grid, a cell below the waypoint spacing). The plan says which cells
   are free, not that the robot must zig-zag through their centres: it is smoothed like
-  samples with a tolerance of half a cell (or the path's own `tolerance:`), and only turns
-  sharper than 90 degrees (135, 180) become turns in place; 45 and 90 degree steps are
-  smoothed within the cell.
+  samples with a tolerance of half a cell (or the path's own `tolerance:`) measured along
+  the grid's axes, so the corridor is each point's cell, and only turns sharper than 90
+  degrees (135, 180) become turns in place; 45 and 90 degree steps are smoothed within the
+  cells. A 90 degree step (at an obstacle's corner) still bends within about 1.7 cells, too
+  tight to take at speed, so each turn of the reference gets one speed cap that bounds the
+  RMS of v^2 dkappa/ds over it (ddrt/path/turnspeed.py).
 - **samples**: anything denser. The points are samples of a curve with noise (a recording,
   a planner's output, an exported curve). The reference is a smoothing spline through them
   that stays within `tolerance` (`paths.tolerance_m`, 10 mm) of every point; genuine corners
@@ -45,7 +48,8 @@ exact export of a figure-eight by the whole tolerance):
    is refused naming the point's line.
 
 The reported deviation (`Conditioning.deviation_m`) is the largest distance from an input
-point to the reference.
+point to the reference (for a grid plan, along the grid's axes: at most half a cell while
+the reference crosses every planned cell).
 
 Reversals: in samples a corner that turns by 150 degrees or more is a cusp (the recording
 drove back the way it came). ddrt drives forward only, so such a path is refused naming the
@@ -62,6 +66,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ddrt.path.geometry import _Geometry, _line, _Options, _Piece, _pivot, _polyline
+from ddrt.path.turnspeed import turn_caps
 
 __all__ = ["ConditionOptions", "Conditioning", "ConditionError", "classify", "condition_polyline"]
 
@@ -164,6 +169,14 @@ def grid_cell(p: np.ndarray) -> float | None:
     if not np.array_equal(parity, axis != axis[0]):
         return None
     return c
+
+
+def grid_axis(p: np.ndarray) -> float:
+    """The direction of a grid plan's first axis (its steps are along it, across it or diagonal)."""
+    d = p[1] - p[0]
+    ang = math.atan2(d[1], d[0])
+    diagonal = abs(math.hypot(d[0], d[1]) - float(np.min(np.hypot(*np.diff(p, axis=0).T)))) > 1e-6 * math.hypot(*d)
+    return ang - 0.25 * math.pi if diagonal else ang
 
 
 def classify(p: np.ndarray, copt: ConditionOptions) -> tuple[str, float, float | None]:
@@ -564,10 +577,22 @@ def _choose_smoothing(q: np.ndarray, u: np.ndarray, w: np.ndarray, fixed: np.nda
     return ladder[lo], fits
 
 
+def _cell_distance(sp: _Spline, q: np.ndarray, uf: np.ndarray, axis: float) -> np.ndarray:
+    """How far each point's foot on the curve lies from the point along the grid's axes (the
+    larger of the two): at most half a cell while the curve crosses the point's own cell."""
+    x, y = sp.eval(uf)
+    ex, ey = q[:, 0] - x, q[:, 1] - y
+    c, s = math.cos(axis), math.sin(axis)
+    return np.maximum(np.abs(c * ex + s * ey), np.abs(c * ey - s * ex))
+
+
 def _fit_leg(p: np.ndarray, fix0: np.ndarray | None, fix1: np.ndarray | None, tol: float, noise: float,
              knot: float, opt: _Options, names: Sequence[str], offset: int, where: str,
-             wrap: tuple[np.ndarray, np.ndarray] | None = None) -> _Leg:
+             wrap: tuple[np.ndarray, np.ndarray] | None = None, cell_axis: float | None = None) -> _Leg:
     """One leg between corners (or the path's ends): the smoothing spline of the module doc.
+
+    `cell_axis`: a grid plan's axis direction; the corridor is then each point's cell (the
+    distance is taken along the grid's axes, at the point's foot), not a disc round it.
 
     `wrap`: a closed loop's points before its start and after its end (the loop's own, taken
     round), fitted with it so its ends are smoothed as well as its middle; the reference
@@ -606,7 +631,7 @@ def _fit_leg(p: np.ndarray, fix0: np.ndarray | None, fix1: np.ndarray | None, to
         sp = fit.solve(lam)
         fits += 1
         d, uf = _project(sp, q, u)
-        dev = np.abs(d)
+        dev = np.abs(d) if cell_axis is None else _cell_distance(sp, q, uf, cell_axis)
         bad = (dev > tol) & ~fixed
         if not bad.any():
             break
@@ -689,6 +714,15 @@ def _loop_wrap(p: np.ndarray, knot: float, scale: float, threshold: float, tol: 
 
 
 
+def _cap_turns(geo: _Geometry, info: Conditioning) -> None:
+    """A grid plan's turns at a bounded yaw acceleration (ddrt/path/turnspeed.py), merged with
+    the points' own caps."""
+    ts, tv = turn_caps(geo.pieces)
+    if geo.cap_sigma is not None and geo.cap_value is not None:
+        tv = np.minimum(tv, np.interp(ts, geo.cap_sigma, geo.cap_value))
+    geo.cap_sigma, geo.cap_value = ts, tv
+
+
 def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, copt: ConditionOptions,
                        where: str, names: Sequence[str]) -> tuple[_Geometry, Conditioning]:
     """The geometry of a polyline of distinct points (module docstring); caps per point or None."""
@@ -733,6 +767,7 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, 
             raise ConditionError(f"{where}: {names[k]}: the plan steps back the way it came (a reversal): "
                                  "ddrt drives forward only; split the path at this point into two")
     noise = max(_estimate_noise(p, knot), NOISE_FLOOR_M)
+    axis = grid_axis(p) if mode == GRID else None
     info.noise_m = noise
     wrap = _loop_wrap(p, knot, scale, threshold, tol, spacing) if not corners else None
     info.extra["closed_loop"] = wrap is not None
@@ -750,7 +785,8 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, 
     for j in range(len(cuts) - 1):
         a, b = cuts[j], cuts[j + 1]
         try:
-            leg = _fit_leg(p[a:b + 1], fixes[j], fixes[j + 1], tol, noise, knot, opt, names, a, where, wrap)
+            leg = _fit_leg(p[a:b + 1], fixes[j], fixes[j + 1], tol, noise, knot, opt, names, a, where, wrap,
+                           axis)
         except _Cusp as exc:
             k = a + exc.index
             raise ConditionError(f"{where}: {names[k]}: the points turn back on themselves here (the smoothed "
@@ -800,6 +836,8 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, 
         cs = np.maximum.accumulate(np.asarray(cap_s))
         geo.cap_sigma = cs
         geo.cap_value = np.asarray(cap_v)
+    if mode == GRID:
+        _cap_turns(geo, info)
     info.deviation_m = float(devs.max())
     info.worst = int(np.argmax(devs))
     info.corners = tuple(kept)

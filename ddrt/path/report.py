@@ -7,7 +7,7 @@ per sample, then limits it by acceleration and braking; this module recomputes t
 from the path's arrays and names, per sample, the one that binds:
 
   speed        the path's speed (its own `speed:` or limits.v_max)
-  point cap    a waypoint's or a CSV row's `v`
+  point cap    a waypoint's or a CSV row's `v`, or a grid plan's turn speed (ddrt/path/turnspeed.py)
   lateral      lateral acceleration: v^2 |kappa| <= limits.lateral_accel
   omega        yaw rate: v |kappa| <= limits.omega_max
   curv. rate   yaw acceleration from the change of curvature: v^2 |dkappa/ds| <= alpha_max / 2
