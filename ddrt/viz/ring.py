@@ -15,7 +15,7 @@ import struct
 from typing import Iterator, Sequence
 
 # After the telemetry row (ddrt.loop.COLUMNS): what only the daemon's loop knows.
-EXTRA = ("late_s", "tick_s", "wall_s", "true_x", "true_y", "true_theta", "true_v", "true_omega", "has_truth")
+EXTRA = ("late_s", "tick_s", "mono_s", "true_x", "true_y", "true_theta", "true_v", "true_omega", "has_truth")
 
 
 class VizRing:
@@ -35,15 +35,15 @@ class VizRing:
         self._tail = 0  # slots ever read
         self.dropped = 0
 
-    def put(self, row: Sequence[float], late_s: float, tick_s: float, wall_s: float,
+    def put(self, row: Sequence[float], late_s: float, tick_s: float, mono_s: float,
             truth: tuple[float, ...] | None = None) -> None:
         """Loop thread: copy one tick in, O(1). `truth` is (x, y, theta, v, omega) or None."""
         head = self.head
         off = (head % self.capacity) * self._size
         if truth is None:
-            self._struct.pack_into(self._buf, off, *row, late_s, tick_s, wall_s, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+            self._struct.pack_into(self._buf, off, *row, late_s, tick_s, mono_s, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         else:
-            self._struct.pack_into(self._buf, off, *row, late_s, tick_s, wall_s, *truth, 1.0)
+            self._struct.pack_into(self._buf, off, *row, late_s, tick_s, mono_s, *truth, 1.0)
         self.head = head + 1
 
     def take(self) -> Iterator[tuple[float, ...]]:
