@@ -117,7 +117,7 @@ class VizService:
         self._teleop_seq = 0
         self._teleop_taken = 0
         self._publish_params = False
-        self._no_drive_logged = False
+        self._last_mono = 0.0  # the last published tick's start (the publisher's phase)
         self.drops = DropLog()
         self.interval_s = interval_s
         self.tap = LogTap()
@@ -218,11 +218,20 @@ class VizService:
         from ddrt.service.rt import demote_current_thread
 
         demote_current_thread()
-        while not self._stop.wait(self.interval_s):
+        # Phase-locked to the loop: wake a quarter period after a tick started, every
+        # `interval_s` worth of ticks, so the batch is encoded while the loop sleeps and the
+        # two threads do not fight over the GIL during a tick.
+        period = 1.0 / self.host.cfg.controller.rate_hz
+        every = max(1, round(self.interval_s / period)) * period
+        wait = self.interval_s
+        while not self._stop.wait(wait):
             try:
                 self.publish_once()
             except Exception as exc:  # noqa: BLE001 - the publisher must outlive a bad message
                 log.error("foxglove publisher: %s: %s", type(exc).__name__, exc)
+            now = time.monotonic()
+            anchor = self._last_mono + 0.25 * period
+            wait = (anchor + every * (1 + (now - anchor) // every) - now) if self._last_mono else self.interval_s
 
     def _ns(self, mono_s: float) -> int:
         return int((mono_s + self._offset) * 1e9)
@@ -237,6 +246,7 @@ class VizService:
             ch.publish_path(self._last_path[0], self._last_path[1], time.time_ns())
         for rec in self.ring.take():
             truth = rec[w + 3:w + 8] if rec[w + 8] else None
+            self._last_mono = rec[w + 2]
             ch.publish_tick(rec[:w], self._ns(rec[w + 2]), truth, (rec[w], rec[w + 1]), fault)
         tap = self.tap.records
         while tap:
