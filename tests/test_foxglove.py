@@ -360,3 +360,15 @@ def test_a_websocket_client_sees_the_channels_sets_gains_and_cannot_hurt_the_dae
         assert stats["reloads"]["applied"] >= 1 and stats["error"] is None
     finally:
         d.close()
+
+
+def test_the_layout_plots_only_fields_the_channels_carry() -> None:
+    from ddrt.viz.channels import STATE_FIELDS, TIMING_FIELDS, TOPICS
+
+    layout = json.loads((REPO / "docs" / "foxglove-layout.json").read_text())
+    text = json.dumps(layout)
+    paths = re.findall(r'"(/[a-z_]+)\.([a-z_]+)"', text)
+    assert len(paths) > 15
+    for topic, field in paths:
+        assert topic in TOPICS, topic
+        assert field in {"/state": STATE_FIELDS, "/timing": TIMING_FIELDS}[topic], f"{topic}.{field}"
