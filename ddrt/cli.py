@@ -30,6 +30,10 @@ def _cmd_sim(args: argparse.Namespace) -> int:
 
         if importlib.util.find_spec("matplotlib") is None:
             raise ValueError("--plot needs matplotlib, which is not installed: pip install 'ddrt[plot]'")
+    if args.mcap is not None:
+        from ddrt.viz.optional import foxglove
+
+        foxglove("--mcap")  # a clear error now, not after the run
     overrides = {"sim": {"seed": args.seed}} if args.seed is not None else None
     cfg = load_config(args.config, overrides)
     if cfg.hal.backend == "real" and cfg.hal.imu.bus != "sim":
@@ -41,7 +45,7 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     # The rows go to telemetry.csv as the run makes them (the figures read them back from it).
     result = run_sim(cfg, path, duration=args.duration, seed=args.seed, start=args.start,
                      progress=None if args.quiet else stderr_progress,
-                     telemetry=Path(args.out) / "telemetry.csv")
+                     telemetry=Path(args.out) / "telemetry.csv", mcap=args.mcap)
     if not args.quiet:
         sys.stderr.write("\n")
     write_outputs(result, args.out)
@@ -50,7 +54,8 @@ def _cmd_sim(args: argparse.Namespace) -> int:
 
         write_plots(result, args.out)
     print(summary_text(result.metrics))
-    print(f"wrote {args.out}/telemetry.csv and {args.out}/metrics.json" + (" and figures" if args.plot else ""))
+    print(f"wrote {args.out}/telemetry.csv and {args.out}/metrics.json" + (" and figures" if args.plot else "")
+          + (f" and {args.mcap}" if args.mcap else ""))
     return 0 if result.metrics["completed"] else 1
 
 
@@ -226,6 +231,8 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--out", default="out", help="output directory (default: out)")
     sim.add_argument("--plot", action="store_true", help="also write the seed's figures as PNG")
     sim.add_argument("--quiet", action="store_true", help="no progress line")
+    sim.add_argument("--mcap", metavar="FILE", help="also record the run as MCAP on the Foxglove channels "
+                                                    "(pip install 'ddrt[foxglove]')")
     sim.set_defaults(func=_cmd_sim)
 
     pth = sub.add_parser("path", help="what a path file becomes: length, time, corners, deviation, speed limits")

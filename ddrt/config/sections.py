@@ -377,6 +377,20 @@ class LimitsConfig:
 
 
 @dataclass(frozen=True)
+class FoxgloveConfig:
+    """The opt-in Foxglove WebSocket server (docs/foxglove.md); needs `pip install 'ddrt[foxglove]'`."""
+
+    enabled: bool = False
+    host: str = "127.0.0.1"  # loopback by default: the server has no authentication
+    port: int = 8765  # 0: any free port (tests)
+
+    def validate(self, where: str) -> None:
+        if not self.host:
+            raise ConfigError(f"{where}.host: expected a host name or address, got ''")
+        _in_range(where, "port", self.port, 0, 65535)
+
+
+@dataclass(frozen=True)
 class DaemonConfig:
     """The long-running service: socket, telemetry files, real-time setup, safety bounds."""
 
@@ -396,6 +410,8 @@ class DaemonConfig:
     on_recover: Literal["resume", "wait"] = applies(LIVE, "resume")  # after a hold: resume the path, or stop and wait
     # Velocity mode (`drive`): no command for this long and the robot brakes to a stop.
     command_timeout_s: float = applies(LIVE, 0.5)
+    telemetry_format: Literal["csv", "mcap", "both"] = "csv"  # mcap needs the foxglove extra
+    foxglove: FoxgloveConfig = field(default_factory=FoxgloveConfig)
 
     def validate(self, where: str) -> None:
         if not 0 <= self.rt_priority <= 99:

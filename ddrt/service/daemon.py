@@ -33,7 +33,7 @@ from typing import Any
 
 from ddrt.service import rt
 from ddrt.service.clock import MonotonicClock
-from ddrt.config import Config, load_config
+from ddrt.config import Config, load_config, with_overrides
 from ddrt.config.policy import ReloadPlan, plan_reload
 from ddrt.service.ctlsocket import ControlServer, Deferred, finite_or_null
 from ddrt.service.drivecmd import drive_fields, drive_status
@@ -123,6 +123,8 @@ class Daemon:
         self.paths: PathWorker | None = None
         self._start_build: Build | None = None
         self._pending: _PendingFollow | None = None
+        self._teleop_refusal = ""  # the last teleop refusal logged
+        self.viz: Any = None  # ddrt.viz.service.VizService: Foxglove and MCAP, when configured
 
     # ------------------------------------------------------------------ set-up
 
@@ -141,6 +143,8 @@ class Daemon:
     def _open_telemetry(self) -> None:
         d = self.cfg.daemon
         directory = os.environ.get("LOGS_DIRECTORY") or d.telemetry_dir
+        if d.telemetry_format == "mcap":
+            return  # the Foxglove publisher writes the MCAP files (_open_viz)
         try:
             FsPath(directory).mkdir(parents=True, exist_ok=True)
             writer = RotatingCsvWriter(directory, "telemetry", COLUMNS, d.telemetry_max_bytes, d.telemetry_max_files)
@@ -149,6 +153,43 @@ class Daemon:
             return
         self.ring = TelemetryRing(COLUMNS, capacity=4096)
         self.telemetry = TelemetryLogger(self.ring, writer)
+
+    def _open_viz(self) -> bool:
+        """Foxglove server and MCAP files (ddrt/viz/service.py); False if they cannot start."""
+        from ddrt.viz.service import start_service
+
+        try:
+            self.viz = start_service(self, len(COLUMNS), self.hal)
+        except Exception as exc:  # noqa: BLE001 - the SDK raises its own types (port in use, ...)
+            d = self.cfg.daemon
+            self._fail(f"cannot start Foxglove (daemon.foxglove {d.foxglove.host}:{d.foxglove.port}, "
+                       f"daemon.telemetry_format {d.telemetry_format}): {type(exc).__name__}: {exc}")
+            return False
+        return True
+
+    def apply_overrides(self, overrides: dict[str, Any], who: str) -> dict[str, Any]:
+        """A reload of a few keys (Foxglove parameters): planned and applied as a reload is."""
+        try:
+            plan = plan_reload(self.cfg, with_overrides(self.cfg, overrides))
+            self._apply(plan)
+        except (ConfigError, ValueError, TypeError, ArithmeticError) as exc:
+            return self._reject(f"{who}: {exc}")
+        self.reloads["applied"] += 1
+        log.info("%s: %s", who, plan.summary())
+        return {"ok": True, "message": plan.summary(), **plan.report()}
+
+    def on_teleop(self, v: float, omega: float) -> None:
+        """A Foxglove teleop command (between two ticks): the velocity mode, as a socket
+        `drive`. A refusal is logged once until the reason changes (a panel publishing at
+        20 Hz while a path runs must not flood the log)."""
+        reply = self.drive(v, omega, "foxglove")
+        error = "" if reply.get("ok") else str(reply.get("error", ""))
+        if error and error != self._teleop_refusal:
+            log.warning("foxglove teleop refused: %s", error)
+        self._teleop_refusal = error
+
+    def fault_text(self) -> str:
+        return self.loop.fault if self.loop is not None else ""
 
     def _signals(self) -> None:
         def on_stop(signum: int, _frame: object) -> None:
@@ -196,6 +237,10 @@ class Daemon:
 
     def _run(self) -> int:
         self._signals()
+        if self.cfg.daemon.foxglove.enabled or self.cfg.daemon.telemetry_format != "csv":
+            from ddrt.viz.service import check_available
+
+            check_available(self.cfg)  # a missing extra is a config error, before anything opens
         # The lock first: a second daemon on this robot must stop before it opens anything.
         d = self.cfg.daemon
         lock = InstanceLock(lock_path_for(self.socket_path,
@@ -240,6 +285,8 @@ class Daemon:
         cfg = self.cfg
         self.loop = loop = ControlLoop(cfg, self.hal)
         self._open_telemetry()
+        if not self._open_viz():
+            return 1
         d = cfg.daemon
         for warning in rt.apply_realtime(d.rt_priority or None, set(d.cpus) or None, d.lock_memory,
                                          d.timer_slack_ns or None, gil_switch_interval_s=0.0005):
@@ -287,6 +334,8 @@ class Daemon:
         # A simulated robot integrates its physics when asked for the time: do that before
         # the timed part, so a tick's compute time is the controller's alone.
         advance_plant = self.hal.advance_to_wall_clock if self.hal.owns_time else None
+        viz = self.viz
+        truth = getattr(self.hal, "robot", None) if viz is not None else None
         while not self.stop_requested:
             deadline = sched.next_deadline()
             woke = clock.sleep_until(deadline)
@@ -315,6 +364,9 @@ class Daemon:
                 ring.append(loop.row)
             compute = perf() - t0
             stats.record(compute, started - deadline, skipped)
+            if viz is not None:
+                viz.put(loop.row, started - deadline, compute, started,
+                        truth.pose + truth.velocity if truth is not None else None)
             if loop.state == "fault":
                 self._fail(f"stopping after fault: {loop.fault}")
                 self.exit_code = 1
@@ -327,6 +379,8 @@ class Daemon:
                 self._follow_step(woke - deadline)
             if self.server is not None:
                 self.server.poll(self.handle)
+            if viz is not None:
+                viz.between_ticks()
             if self.reload_requested:
                 self.reload_requested = False
                 self.reload()
@@ -362,6 +416,10 @@ class Daemon:
                 log.error("close failed: %s", exc)
         if self.server is not None:
             self.server.close()
+        if self.viz is not None:
+            if self.loop is not None:
+                self.viz.put(self.loop.row, 0.0, 0.0, time.monotonic(), None)
+            self.viz.close()
         if self.paths is not None:
             self.paths.close()
         if self.telemetry is not None:
@@ -609,6 +667,8 @@ class Daemon:
         if old is not None and old is not path and self.paths is not None:
             self.paths.dispose(old)  # the loop's last reference is gone: free it off the loop
         del old
+        if self.viz is not None:
+            self.viz.path_started(path)
         for note in path.warnings:
             log.warning("follow: %s", note)
         log.info("following %s: %.2f m, %.1f s (prepared in %.2f s)", p.what, path.length, path.duration,
@@ -698,6 +758,8 @@ class Daemon:
             self.clock.spin_s = spin_s
         if self.telemetry is not None:
             self.telemetry.writer.set_rotation(d.telemetry_max_bytes, d.telemetry_max_files)
+        if self.viz is not None:
+            self.viz.set_rotation(d.telemetry_max_bytes, d.telemetry_max_files)
         self.cfg = cfg
 
     def _config_changed(self) -> bool:

@@ -108,38 +108,39 @@ def _format_row(row: Sequence[float]) -> str:
     return ",".join([repr(float(v)) for v in row]) + "\n"
 
 
-class RotatingCsvWriter:
-    """CSV files `prefix.csv`, `prefix.1.csv` ... `prefix.<max_files-1>.csv` (oldest last).
+class FileRotation:
+    """The rotation policy telemetry files share (CSV and MCAP): `prefix.ext` is the one being
+    written, `prefix.1.ext` ... `prefix.<max_files-1>.ext` the older ones (oldest last).
 
-    Each file starts with the header row. A file is rotated once it has reached `max_bytes`,
-    so no file exceeds `max_bytes` by more than one row. An existing `prefix.csv` from an
-    earlier run is rotated away at open, so every run starts a fresh file.
-    """
+    A file is rotated once it has reached `max_bytes`. An existing `prefix.ext` from an earlier
+    run is rotated away at open, so every run starts a fresh file. New bounds (a reload) may
+    be set from any thread; the writing thread takes them before its next write."""
 
-    def __init__(self, directory: str | os.PathLike[str], prefix: str, columns: Sequence[str],
-                 max_bytes: int, max_files: int) -> None:
-        self.columns = _check_columns("RotatingCsvWriter", columns)
+    def __init__(self, directory: str | os.PathLike[str], prefix: str, suffix: str, max_bytes: int,
+                 max_files: int, owner: str = "FileRotation") -> None:
         if not prefix or "/" in prefix or prefix.startswith("."):
-            raise ValueError(f"RotatingCsvWriter.prefix: expected a plain file name stem, got {prefix!r}")
+            raise ValueError(f"{owner}.prefix: expected a plain file name stem, got {prefix!r}")
         self.directory = Path(directory)
         if not self.directory.is_dir():
-            raise FileNotFoundError(f"RotatingCsvWriter.directory: {self.directory} is not a directory")
+            raise FileNotFoundError(f"{owner}.directory: {self.directory} is not a directory")
+        self.owner = owner
         self.prefix = prefix
-        self.max_bytes = _positive_int("RotatingCsvWriter.max_bytes", max_bytes)
-        self.max_files = _positive_int("RotatingCsvWriter.max_files", max_files)
-        self._header = ",".join(self.columns) + "\n"
+        self.suffix = suffix
+        self.max_bytes = _positive_int(f"{owner}.max_bytes", max_bytes)
+        self.max_files = _positive_int(f"{owner}.max_files", max_files)
         self._pending_rotation: tuple[int, int] | None = None
-        self.rows_written = 0
         self.rotations = 0
-        current = self.path(0)
-        if current.exists() and current.stat().st_size > 0:
-            self._rotate()
-        self._open_new()
 
     def path(self, index: int) -> Path:
         """File `index` (0 is the one being written)."""
-        name = f"{self.prefix}.csv" if index == 0 else f"{self.prefix}.{index}.csv"
+        name = f"{self.prefix}{self.suffix}" if index == 0 else f"{self.prefix}.{index}{self.suffix}"
         return self.directory / name
+
+    def rotate_stale(self) -> None:
+        """At open: move an earlier run's non-empty current file out of the way."""
+        current = self.path(0)
+        if current.exists() and current.stat().st_size > 0:
+            self._rotate()
 
     def _rotate(self) -> None:
         last = self.path(self.max_files - 1)
@@ -150,16 +151,11 @@ class RotatingCsvWriter:
                 os.replace(src, self.path(i + 1))
         self.rotations += 1
 
-    def _open_new(self) -> None:
-        self._file = open(self.path(0), "w", encoding="ascii", newline="")
-        self._file.write(self._header)
-        self._size = len(self._header)
-
     def set_rotation(self, max_bytes: int, max_files: int) -> None:
         """New rotation bounds (a reload). Safe from another thread: the writing thread takes
         them before its next rows, and then removes files beyond the new count."""
-        self._pending_rotation = (_positive_int("RotatingCsvWriter.max_bytes", max_bytes),
-                                  _positive_int("RotatingCsvWriter.max_files", max_files))
+        self._pending_rotation = (_positive_int(f"{self.owner}.max_bytes", max_bytes),
+                                  _positive_int(f"{self.owner}.max_files", max_files))
 
     def _take_rotation(self) -> None:
         pending, self._pending_rotation = self._pending_rotation, None
@@ -169,6 +165,29 @@ class RotatingCsvWriter:
         self.max_bytes, self.max_files = pending
         for i in range(self.max_files, old_files):
             self.path(i).unlink(missing_ok=True)
+
+
+class RotatingCsvWriter(FileRotation):
+    """CSV files `prefix.csv`, `prefix.1.csv` ... `prefix.<max_files-1>.csv` (oldest last).
+
+    Each file starts with the header row. A file is rotated once it has reached `max_bytes`,
+    so no file exceeds `max_bytes` by more than one row. An existing `prefix.csv` from an
+    earlier run is rotated away at open, so every run starts a fresh file.
+    """
+
+    def __init__(self, directory: str | os.PathLike[str], prefix: str, columns: Sequence[str],
+                 max_bytes: int, max_files: int) -> None:
+        self.columns = _check_columns("RotatingCsvWriter", columns)
+        super().__init__(directory, prefix, ".csv", max_bytes, max_files, owner="RotatingCsvWriter")
+        self._header = ",".join(self.columns) + "\n"
+        self.rows_written = 0
+        self.rotate_stale()
+        self._open_new()
+
+    def _open_new(self) -> None:
+        self._file = open(self.path(0), "w", encoding="ascii", newline="")
+        self._file.write(self._header)
+        self._size = len(self._header)
 
     def write_rows(self, rows: Iterable[Sequence[float]]) -> int:
         """Append rows, rotating as needed; flushed to the OS before returning."""

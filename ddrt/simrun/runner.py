@@ -58,8 +58,10 @@ class TelemetryStream:
     with the run's length."""
 
     def __init__(self, path: Path, csv_path: str | FsPath | None = None, keep: bool = False,
-                 chunk: int = CHUNK_ROWS, columns: tuple[str, ...] = SIM_COLUMNS) -> None:
+                 chunk: int = CHUNK_ROWS, columns: tuple[str, ...] = SIM_COLUMNS,
+                 sink: Callable[[np.ndarray], None] | None = None) -> None:
         self.columns = columns
+        self.sink = sink  # also handed each chunk (an MCAP recording)
         self.buf = np.empty((max(1, int(chunk)), len(columns)))
         self.n = 0  # rows in the buffer
         self.tracking = TrackingAccumulator(path)
@@ -82,6 +84,8 @@ class TelemetryStream:
         arr = self.buf[:n]
         if self._fh is not None:
             self._fh.write(format_rows(arr))
+        if self.sink is not None:
+            self.sink(arr)
         c = _COL
         self.tracking.add(arr[:, [c["x"], c["y"]]], arr[:, [c["x_est"], c["y_est"]]],
                           wrap_angles(arr[:, c["theta_ref"]] - arr[:, c["theta"]]), arr[:, c["saturated"]],
@@ -164,19 +168,26 @@ def run_sim(cfg: Config, path: Path, *, duration: float | None = None, seed: int
             start: tuple[float, float, float] | None = None,
             progress: Callable[[float, float], None] | None = None,
             telemetry: str | FsPath | None = None, keep_rows: bool | None = None,
-            chunk_rows: int = CHUNK_ROWS) -> SimResult:
+            chunk_rows: int = CHUNK_ROWS, mcap: str | FsPath | None = None) -> SimResult:
     """Calibrate at rest, follow `path` to its end (or `duration` s), return the metrics.
 
     `telemetry`: a CSV file the rows are streamed to, a chunk at a time, during the run.
-    `keep_rows`: keep the rows in memory too (default: only when no file is written)."""
+    `keep_rows`: keep the rows in memory too (default: only when no file is written).
+    `mcap`: also record the run on the Foxglove channels (ddrt/viz/record.py; needs the extra)."""
     keep = telemetry is None if keep_rows is None else bool(keep_rows)
     pose = start or cfg.start or path.start_pose
+    recording = None
+    if mcap is not None:
+        from ddrt.viz.record import SimRecording
+
+        recording = SimRecording(mcap, SIM_COLUMNS, fault=lambda: loop.fault)
+        recording.path(path.x, path.y)
     hal = open_hal(cfg, start=pose, seed=seed)
     try:
         robot = hal.robot  # the truth, for telemetry only
         loop = ControlLoop(cfg, hal)
         wall0 = time.perf_counter()
-        stream = TelemetryStream(path, telemetry, keep, chunk_rows)
+        stream = TelemetryStream(path, telemetry, keep, chunk_rows, sink=recording.chunk if recording else None)
         n = 0  # rows in the buffer, counted here (the hot loop) and handed to the stream
         try:
             loop.calibrate(hal.sleep_until, hal.now)
@@ -222,6 +233,8 @@ def run_sim(cfg: Config, path: Path, *, duration: float | None = None, seed: int
             stream.close()
     finally:
         hal.close()
+        if recording is not None:
+            recording.close()
     metrics = stream.metrics(path, loop)
     metrics["wall_s"] = time.perf_counter() - wall0
     metrics["realtime_factor"] = metrics["sim_duration_s"] / wall_loop if wall_loop > 0 else float("inf")
