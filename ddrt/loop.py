@@ -17,6 +17,7 @@ from ddrt.core.adapt import DynamicsAdapter
 from ddrt.config import Config
 from ddrt.core.control import Command, DynamicController, KinematicController, make_controller
 from ddrt.core.types import Setpoint
+from ddrt.core.envelope import resolve_limits
 from ddrt.core.estimator import Estimator, calibrate_gyro
 from ddrt.core.model import Dynamics
 from ddrt.core.motor import Motor
@@ -52,9 +53,11 @@ class ControlLoop:
         self.dyn = Dynamics.from_params(cfg.robot)
         self.seed_dyn = Dynamics.from_params(cfg.robot, seed_report=True)
         self.motor = Motor(cfg.robot_motor)
+        # The limits in numbers: the config's caps, null ones from what the motors give.
+        self.limits = resolve_limits(cfg.limits, cfg.robot, cfg.robot_motor)
         self.estimator = Estimator(self.dyn, self.motor, cfg.estimator, hal.info, cfg.robot.r_3, self.period)
         self.controller: DynamicController | KinematicController = make_controller(
-            cfg.controller.mode, self.dyn, self.seed_dyn, self.motor, cfg.controller, cfg.limits, self.period)
+            cfg.controller.mode, self.dyn, self.seed_dyn, self.motor, cfg.controller, self.limits.limits, self.period)
         self.reference: PathReference | None = None
         self.path: Path | None = None
         self.setpoint = Setpoint()
@@ -94,10 +97,12 @@ class ControlLoop:
                        if self.adapter is not None else None)
         else:
             dyn, seed_dyn, motor, adapter = self.dyn, self.seed_dyn, self.motor, self.adapter
+        limits = resolve_limits(cfg.limits, cfg.robot, cfg.robot_motor)
         # Swap (nothing below raises for values that passed validation).
         self.estimator.reconfigure(cfg.estimator, cfg.robot.r_3,
                                    self.estimator.dyn if not model_changed else dyn, motor)
-        self.controller.retune(cfg.controller, cfg.limits)
+        self.controller.retune(cfg.controller, limits.limits)
+        self.limits = limits
         if model_changed:
             self.dyn, self.seed_dyn, self.motor = dyn, seed_dyn, motor
             self.controller.set_model(seed_dyn if cfg.controller.mode == "seed" else dyn, motor)

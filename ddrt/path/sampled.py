@@ -145,6 +145,8 @@ class Path:
         self.u, self.v, self.omega, self.t = p.u, p.v, p.omega, p.t
         self.acc_u, self.a, self.alpha = p.acc_u, p.a, p.alpha
         self.pivot_sample: list[bool] = p.pivot_sample
+        # The motor envelope's bounds on every interval (None for a path built without a robot).
+        self.constraints = p.constraints
 
     # -- lookups ------------------------------------------------------------------------------
     def index(self, sigma: float) -> int:
