@@ -345,7 +345,7 @@ class LimitsConfig:
     duty_max: float = applies(LIVE, 1.0)
     torque_max_nm: float | None = applies(LIVE, None)
     max_path_error_m: float = applies(LIVE, 0.3)  # farther than this from the reference: stop following (fault)
-    feedback_headroom: float = 0.2  # fraction of the voltage (and torque) the profile leaves to feedback
+    feedback_headroom: float = 0.25  # fraction of the voltage (and torque) the profile leaves to feedback
 
     def validate(self, where: str) -> None:
         caps = {k: getattr(self, k) for k in ("v_max", "accel", "torque_max_nm") if getattr(self, k) is not None}

@@ -35,7 +35,7 @@ class Envelope:
 
     dyn: Dynamics
     motor: MotorParams
-    headroom: float = 0.2  # fraction of the voltage (and of the torque limit) kept for feedback
+    headroom: float = 0.25  # fraction of the voltage (and of the torque limit) kept for feedback
     duty_max: float = 1.0
     torque_max_nm: float | None = None  # the user's cap on |tau|; None: the stall torque
 

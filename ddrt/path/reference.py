@@ -16,6 +16,11 @@ from ddrt.path.sampled import Path
 from ddrt.path.pursuit import PurePursuit
 
 
+# A robot this close to a turn in place when the schedule has begun the turn counts as arrived
+# at its corner (pure pursuit's own tolerance, 1 mm, assumes it arrives).
+CORNER_TOL_M = 0.003
+
+
 class PathReference:
     """Nearest-point geometry plus a governed time schedule along the speed profile."""
 
@@ -62,6 +67,8 @@ class PathReference:
             self._update_stopping(near, sp, step)
             return
         t_next = self.t_sched + step
+        if not self.time_indexed and not near.pivot:
+            near = self._onto_pivot(x, y, theta, near, t_next)
         if self.time_indexed:
             self.t_sched = t_next
             sched = path.at_time(t_next)
@@ -94,6 +101,22 @@ class PathReference:
             sp.omega_d = sched.v * near.kappa
             sp.alpha_d = 0.0 if held else sched.alpha  # d(v kappa)/dt: a kappa + v^2 dkappa/ds
         self.done = near.done and self.t_sched >= path.duration
+
+    def _onto_pivot(self, x: float, y: float, theta: float, near, t_next: float):
+        """A robot that stopped just short of a turn in place (it braked harder than it could
+        follow) while the schedule has begun the turn: take it as arrived at the corner."""
+        path = self.path
+        end = path.piece_end[path.index(near.sigma)]
+        if not 0.0 < end - near.sigma <= CORNER_TOL_M:
+            return near
+        j = path.index(end)
+        if not path.seg_pivot[j] or path.sigma[j] != end or t_next <= path.t[j]:
+            return near
+        self.pursuit.reset(end)
+        near = self.pursuit.update(x, y, theta)
+        self.sigma = near.sigma
+        self.cross_track = near.cross_track
+        return near
 
     def _update_stopping(self, near, sp: Setpoint, dt: float) -> None:
         decel = self._stop_decel or 1.0

@@ -1,0 +1,260 @@
+"""The speed profile from the motors, checked by physics: the torques the dynamic model needs
+along a profiled path stay within what the motors give at every sample (an independent check
+with ddrt.core.model.inverse_dynamics and ddrt.core.motor.Motor), no sample could go faster,
+mirror images give the same profile, a heavier robot is slower, headroom 0 reaches the motors'
+limits; limits above the motors' are reported; the build stays fast."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ddrt.config import load_config
+from ddrt.core.envelope import Envelope, resolve_limits
+from ddrt.core.model import Dynamics, inverse_dynamics, wheel_rates
+from ddrt.core.motor import Motor
+from ddrt.path import load_path
+from ddrt.path.spec import speed_limits
+
+ROOT = Path(__file__).resolve().parents[1]
+SIM = ROOT / "configs" / "sim.yaml"
+PATHS = ROOT / "configs" / "paths"
+DERIVED = {"limits": {"v_max": None, "accel": None, "torque_max_nm": None}}
+
+# Robots: the seed robot with its limits derived from its motors; a heavy, slow one whose
+# centre of mass is off to the side on unequal wheels; a light, quick one on a strong motor.
+ROBOTS = {
+    "seed": DERIVED,
+    "heavy_asymmetric": {**DERIVED, "robot": {
+        "m_p": 9.0, "d_yc": 0.02, "d_xc": 0.06, "I_p": 0.08, "r_L": 0.048, "r_R": 0.052, "L": 0.12, "R": 0.10,
+        "motor": {"supply_v": 24.0, "resistance_ohm": 6.0, "k_nm_per_a": 0.9, "viscous_nms": 0.002,
+                  "coulomb_nm": 0.06}}},
+    "light_quick": {**DERIVED, "robot": {
+        "m_p": 0.3, "m_L": 0.25, "m_R": 0.25, "m_3": 0.1, "I_p": 1.2e-3, "I_wL": 1.5e-4, "I_wR": 1.5e-4,
+        "motor": {"supply_v": 7.4, "resistance_ohm": 2.0, "k_nm_per_a": 0.12, "viscous_nms": 0.0003,
+                  "coulomb_nm": 0.008}}},
+}
+# The kinematic caps opened wide, so the motors are the only limit.
+WIDE = {"limits": {"lateral_accel": 1e3, "omega_max": 25.0, "alpha_max": 1e4}, "sensors": {"gyro_range_dps": 2000}}
+SPECS = {
+    "figure8": {"shape": "figure_eight", "width": 1.2, "height": 0.6, "speed": 3.0},
+    "rectangle": {"shape": "rectangle", "width": 1.2, "height": 0.8, "direction": "ccw"},
+    "s_curve": PATHS / "s_curve.yaml",
+    "sparse": PATHS / "waypoints_sparse.csv",
+    "circle": {"shape": "circle", "radius": 0.25, "laps": 1.5, "direction": "cw"},
+}
+
+
+def _cfg(robot: str, headroom: float | None = None, extra: dict | None = None):
+    over = {k: dict(v) if isinstance(v, dict) else v for k, v in ROBOTS[robot].items()}
+    if headroom is not None:
+        over["limits"] = dict(over["limits"], feedback_headroom=headroom)
+    for k, v in (extra or {}).items():
+        over[k] = dict(over.get(k, {}), **v)
+    return load_config(SIM, over)
+
+
+def _path(cfg, spec):
+    return load_path(spec, speed_limits(cfg), paths=cfg.paths)
+
+
+def envelope_use(cfg, path) -> tuple[float, float]:
+    """Largest |duty| / duty_max and |tau| / torque limit over every sample, each interval's
+    acceleration at its first sample (what the Path reports there), from the model and the
+    motor directly."""
+    robot = cfg.robot
+    motor = Motor(cfg.robot_motor)
+    m = cfg.robot_motor
+    t_cap = m.k_nm_per_a * cfg.limits.duty_max * m.supply_v / m.resistance_ohm
+    if cfg.limits.torque_max_nm is not None:
+        t_cap = min(t_cap, cfg.limits.torque_max_nm)
+    arr = path.arrays()
+    v, w, a, al = arr["v"], arr["omega"], arr["a"], arr["alpha"]
+    duty = tau = 0.0
+    for i in range(len(v) - 1):
+        tl, tr = inverse_dynamics(robot, (float(v[i]), float(w[i])), (float(a[i]), float(al[i])))
+        wl, wr, _ = wheel_rates(robot, float(v[i]), float(w[i]))
+        dl, _ = motor.duty_for_torque(tl, wl)
+        dr, _ = motor.duty_for_torque(tr, wr)
+        duty = max(duty, abs(dl), abs(dr))
+        tau = max(tau, abs(tl), abs(tr))
+    return duty / cfg.limits.duty_max, tau / t_cap
+
+
+@pytest.mark.parametrize("robot", sorted(ROBOTS))
+@pytest.mark.parametrize("spec", sorted(SPECS))
+def test_profiled_torques_and_voltages_stay_within_the_envelope(robot: str, spec: str) -> None:
+    for extra in (None, WIDE):
+        cfg = _cfg(robot, extra=extra)
+        h = cfg.limits.feedback_headroom
+        path = _path(cfg, SPECS[spec])
+        duty, tau = envelope_use(cfg, path)
+        assert duty <= (1.0 - h) * (1.0 + 1e-9), (duty, h)
+        assert tau <= (1.0 - h) * (1.0 + 1e-9), (tau, h)
+    # With the kinematic caps opened wide the profile uses what the motors give: somewhere a
+    # wheel is at the envelope.
+    assert max(duty, tau) >= (1.0 - h) * (1.0 - 1e-6), (duty, tau)
+
+
+@pytest.mark.parametrize("robot", sorted(ROBOTS))
+def test_headroom_zero_reaches_the_motors_limits(robot: str) -> None:
+    cfg = _cfg(robot, headroom=0.0)
+    duty, tau = envelope_use(cfg, _path(cfg, SPECS["rectangle"]))
+    assert max(duty, tau) == pytest.approx(1.0, abs=1e-6)
+    assert duty <= 1.0 + 1e-9 and tau <= 1.0 + 1e-9
+    # A larger headroom is a slower profile.
+    fast = _path(cfg, SPECS["figure8"]).duration
+    slow = _path(_cfg(robot, headroom=0.5), SPECS["figure8"]).duration
+    assert slow > fast
+
+
+def _excess(cfg, u: np.ndarray, path, i: int) -> float:
+    """How far interval i (speeds u[i], u[i + 1]) is beyond the envelope or the profile's own
+    caps, as a fraction of the bound (> 0: beyond), computed from the model and the motor."""
+    robot = cfg.robot
+    motor = Motor(cfg.robot_motor)
+    lim = speed_limits(cfg)
+    env = lim.envelope
+    arr = path.arrays()
+    s, k, piv, turn = arr["sigma"], arr["kappa"], arr["seg_pivot"], arr["turn"]
+    b = path.pivot_radius
+    ds = s[i + 1] - s[i]
+    u0, u1 = u[i], u[i + 1]
+    acc = (u1 * u1 - u0 * u0) / (2.0 * ds)
+    dt = 2.0 * ds / (u0 + u1)
+    if piv[i]:
+        v, w0, w1, a = 0.0, turn[i] * u0 / b, turn[i] * u1 / b, 0.0
+    else:
+        v, w0, w1, a = u0, u0 * k[i], u1 * k[i + 1], acc
+    alpha = (w1 - w0) / dt
+    tl, tr = inverse_dynamics(robot, (v, w0), (a, alpha))
+    wl, wr, _ = wheel_rates(robot, v, w0)
+    h = cfg.limits.feedback_headroom
+    worst = -math.inf
+    for tau, ws in ((tl, wl), (tr, wr)):
+        duty, _ = motor.duty_for_torque(tau, ws)
+        worst = max(worst, abs(duty) / ((1.0 - h) * cfg.limits.duty_max) - 1.0,
+                    abs(tau) / env.torque_bound_nm - 1.0)
+    worst = max(worst, u0 / lim.v_max - 1.0)
+    return worst
+
+
+@pytest.mark.parametrize("robot", sorted(ROBOTS))
+@pytest.mark.parametrize("spec", ["figure8", "rectangle"])
+def test_no_sample_can_be_raised_without_leaving_the_envelope(robot: str, spec: str) -> None:
+    """Time-optimal: raising any one sample's speed (by 1e-6 of u^2) breaks a bound on the
+    interval before it or the one after it (the kinematic caps opened wide: the motors and
+    the top speed are the only limits)."""
+    cfg = _cfg(robot, extra=WIDE)
+    path = _path(cfg, SPECS[spec])
+    u = path.arrays()["u"].copy()
+    n = len(u)
+    moving = [i for i in range(1, n - 1) if u[i] > 0.0]
+    for i in (i for i in range(1, n - 1) if u[i] > 0.0):
+        assert _excess(cfg, u, path, i - 1) <= 1e-9 and _excess(cfg, u, path, i) <= 1e-9, i
+    rng = np.random.default_rng(7)
+    picked = rng.choice(moving, size=min(400, len(moving)), replace=False)
+    for i in sorted(picked):
+        raised = u.copy()
+        raised[i] = u[i] * math.sqrt(1.0 + 1e-6)
+        excess = max(_excess(cfg, raised, path, i - 1), _excess(cfg, raised, path, i))
+        assert excess > 0.0, (i, float(path.sigma[i]), float(u[i]))
+
+
+def _mirror_points(points: list[tuple[float, float]]) -> list[list[float]]:
+    return [[x, -y] for x, y in points]
+
+
+def test_mirror_images_give_the_same_profile() -> None:
+    """The mirrored robot on the mirrored path has the profile of the robot on the path; a
+    robot that is its own mirror image drives a path and its mirror image alike."""
+    cfg = _cfg("heavy_asymmetric")
+    pts = [(0.0, 0.0), (0.8, 0.0), (1.2, 0.3), (1.0, 0.9), (0.2, 0.7), (-0.2, 1.2)]
+    p = mirrored = None
+    p = _path(cfg, {"points": [list(q) for q in pts]})
+    r = cfg.robot.mirrored()
+    names = r.__dataclass_fields__
+    mirror_robot = {n: getattr(r, n) for n in names}
+    cfg_m = load_config(SIM, {**{k: v for k, v in ROBOTS["heavy_asymmetric"].items() if k != "robot"},
+                              "robot": dict(mirror_robot, motor=ROBOTS["heavy_asymmetric"]["robot"]["motor"])})
+    mirrored = _path(cfg_m, {"points": _mirror_points(pts)})
+    np.testing.assert_allclose(mirrored.arrays()["u"], p.arrays()["u"], rtol=1e-9, atol=1e-12)
+    assert mirrored.duration == pytest.approx(p.duration, rel=1e-9)
+    seed = _cfg("seed")
+    ccw = _path(seed, {"shape": "rectangle", "width": 1.2, "height": 0.8, "direction": "ccw"})
+    cw = _path(seed, {"shape": "rectangle", "width": 1.2, "height": 0.8, "direction": "cw"})
+    sym = Dynamics.from_params(seed.robot)
+    assert sym.mbar == 0.0
+    np.testing.assert_allclose(cw.arrays()["u"], ccw.arrays()["u"], rtol=1e-9, atol=1e-12)
+
+
+def test_a_heavier_robot_is_slower() -> None:
+    base = _cfg("seed")
+    r = base.robot
+    heavy = load_config(SIM, {**DERIVED, "robot": {"m_p": r.m_p + 4.0, "I_p": r.I_p * 3.0}})
+    for spec, slower in (("figure8", 1.02), ("rectangle", 1.02), ("sparse", 1.002)):  # sparse: its waypoints cap 0.3 m/s
+        light_path = _path(base, SPECS[spec])
+        heavy_path = _path(heavy, SPECS[spec])
+        assert heavy_path.duration > slower * light_path.duration, spec
+        assert np.all(heavy_path.arrays()["u"] <= light_path.arrays()["u"] * (1 + 1e-9) + 1e-12), spec
+
+
+def test_derived_limits_follow_the_motors() -> None:
+    cfg = _cfg("seed")
+    res = resolve_limits(cfg.limits, cfg.robot, cfg.robot_motor)
+    m = cfg.robot_motor
+    stall = m.k_nm_per_a * m.supply_v / m.resistance_ohm
+    assert res.limits.torque_max_nm == pytest.approx(stall)
+    # Top speed: the no-load wheel speed at the headroom's voltage, friction included.
+    h = cfg.limits.feedback_headroom
+    w = res.profile_v_max / min(cfg.robot.r_L, cfg.robot.r_R)
+    net = Motor(m).torque(1.0 - h, w)
+    assert net == pytest.approx(0.0, abs=1e-9)
+    assert res.limits.v_max == pytest.approx(Envelope(Dynamics.from_params(cfg.robot), m, headroom=0.0).top_speed())
+    # The seed robot's configs keep their own caps: the user's numbers, below the motors'.
+    seed = load_config(SIM)
+    assert resolve_limits(seed.limits, seed.robot, seed.robot_motor).limits.v_max == 1.0
+    assert speed_limits(seed).v_max == 1.0 and speed_limits(seed).accel == 1.0
+
+
+def test_limits_above_the_motors_are_reported_naming_the_key() -> None:
+    cfg = load_config(SIM, {"limits": {"v_max": 5.0, "accel": 50.0, "torque_max_nm": 9.0}})
+    path = _path(cfg, SPECS["rectangle"])
+    text = "\n".join(path.warnings)
+    for key in ("limits.v_max", "limits.accel", "limits.torque_max_nm"):
+        assert key in text, text
+    duty, tau = envelope_use(cfg, path)
+    assert duty <= (1.0 - cfg.limits.feedback_headroom) * (1 + 1e-9)
+    # A limit below the motors' is the user's to choose, and said nothing about.
+    quiet = load_config(SIM, {"limits": {"v_max": 0.5, "accel": 0.5}})
+    p = _path(quiet, SPECS["rectangle"])
+    assert p.warnings == [] and max(p.v) <= 0.5 + 1e-12 and max(p.a) <= 0.5 + 1e-12
+    # A path's own speed above what the motors give is clamped and reported.
+    fast = _path(_cfg("seed"), {"shape": "line", "length": 3.0, "speed": 9.0})
+    assert any("speed" in w and "limits.v_max" in w for w in fast.warnings), fast.warnings
+
+
+def test_a_100k_sample_path_builds_well_under_two_seconds() -> None:
+    cfg = _cfg("seed")
+    lim = speed_limits(cfg)
+    spec = {"shape": "figure_eight", "width": 1.2, "height": 0.6, "laps": 55}
+    t0 = time.process_time()
+    path = load_path(spec, lim, paths=cfg.paths)
+    cpu = time.process_time() - t0
+    assert len(path.sigma) >= 100_000
+    assert cpu < 1.5, cpu
+
+
+def test_profile_without_a_robot_is_unchanged() -> None:
+    """A path built with no robot in mind keeps the constant-acceleration profile."""
+    from ddrt.path import SpeedLimits
+
+    path = load_path(PATHS / "figure8_fast.yaml", SpeedLimits())
+    a = np.asarray(path.a)
+    assert a.max() == pytest.approx(1.0) and a.min() == pytest.approx(-1.0)
+    assert path.constraints is None
