@@ -168,11 +168,16 @@ class Run:
 def _run(job: tuple[Robot, str, str]) -> tuple[tuple[str, str, str], Run]:
     import logging
 
-    logging.getLogger("ddrt").setLevel(logging.CRITICAL)
-    robot, path, variant = job
-    cfg = config_of(robot, path, variant)
-    p = resolve_path(cfg)
-    m = run_sim(cfg, p).metrics
+    logger = logging.getLogger("ddrt")
+    level = logger.level
+    logger.setLevel(logging.CRITICAL)  # a run that faults logs it; the fault is in the record
+    try:
+        robot, path, variant = job
+        cfg = config_of(robot, path, variant)
+        p = resolve_path(cfg)
+        m = run_sim(cfg, p).metrics
+    finally:
+        logger.setLevel(level)
     run = Run(robot.name, path, variant, float(m["rms_tracking_m"]), float(m["rms_cross_track_m"]),
               float(m["saturated_fraction"]), bool(m["completed"]), str(m.get("fault") or ""),
               float(m["sim_duration_s"]), len(getattr(p, "warnings", [])))

@@ -22,7 +22,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from bench import accuracy, adaptation, io_bound, loop_timing, startup, tick_cost
+from bench import accuracy, adaptation, io_bound, loop_timing, population, startup, tick_cost
 from ddrt.config import load_config
 from ddrt.path.spec import resolve_path
 from ddrt.simrun.runner import run_sim
@@ -40,6 +40,7 @@ SECTIONS = (
     "5. Start-up and memory",
     "6. The physical bound",
     "7. Adaptive dynamics and calibration",
+    "8. A population of robots",
 )
 
 
@@ -58,10 +59,11 @@ class BenchOptions:
     import_modules: tuple[str, ...] = startup.MODULES
     import_repeats: int = 3
     sim_rss_duration_s: float | None = None
+    robots: int = population.ROBOTS
 
 
 FULL = BenchOptions()
-QUICK = BenchOptions(seeds=(1,), ticks=20_000, loop_duration_s=5.0)
+QUICK = BenchOptions(seeds=(1,), ticks=20_000, loop_duration_s=5.0, robots=4)
 
 
 @dataclass
@@ -76,6 +78,7 @@ class Results:
     startup: startup.Startup
     bound: io_bound.IoBound
     adapt: adaptation.AdaptationResult
+    robots: population.PopulationResult | None = None
     wall_s: dict[str, float] = field(default_factory=dict)
 
 
@@ -150,11 +153,12 @@ def measure_all(opts: BenchOptions, command: str, say: Callable[[str], None] = _
                                                               opts.workers, opts.scenarios, progress))
     adapt = timed("adaptation", lambda: adaptation.measure_adaptation(SCENARIO_DIR, opts.seeds, opts.workers,
                                                                       opts.scenarios))
+    robots = timed("population", lambda: population.measure_population(opts.robots, opts.workers))
     machine["load average at the end"] = (load_average() + " (other work on this machine shows in the maxima "
                                           "and the loop timing)")
     return Results(options=opts, command=command, machine=machine, accuracy=acc,  # type: ignore[arg-type]
                    ticks=ticks, loop=loop, speed=speed, startup=st, bound=io_bound.io_bound(),  # type: ignore[arg-type]
-                   adapt=adapt, wall_s=walls)  # type: ignore[arg-type]
+                   adapt=adapt, robots=robots, wall_s=walls)  # type: ignore[arg-type]
 
 
 # --------------------------------------------------------------------------- the document
@@ -229,6 +233,9 @@ def render_document(r: Results) -> str:
     lines += io_bound.render(r.bound, r.ticks.compute.p50_us, r.ticks.compute.p99_us, r.ticks.period_s)
     lines += ["", _header(7), ""]
     lines += adaptation.render(r.adapt)
+    if r.robots is not None:
+        lines += ["", _header(8), ""]
+        lines += population.render(r.robots)
     return "\n".join(lines) + "\n"
 
 

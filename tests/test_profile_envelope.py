@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -175,7 +174,6 @@ def test_mirror_images_give_the_same_profile() -> None:
     robot that is its own mirror image drives a path and its mirror image alike."""
     cfg = _cfg("heavy_asymmetric")
     pts = [(0.0, 0.0), (0.8, 0.0), (1.2, 0.3), (1.0, 0.9), (0.2, 0.7), (-0.2, 1.2)]
-    p = mirrored = None
     p = _path(cfg, {"points": [list(q) for q in pts]})
     r = cfg.robot.mirrored()
     names = r.__dataclass_fields__
@@ -258,3 +256,106 @@ def test_profile_without_a_robot_is_unchanged() -> None:
     a = np.asarray(path.a)
     assert a.max() == pytest.approx(1.0) and a.min() == pytest.approx(-1.0)
     assert path.constraints is None
+
+
+# --------------------------------------------------------------------------- the controlled stop
+
+
+def _ride(ref, path, sp, ticks: int, dt: float = 0.005) -> list[tuple[float, float, float]]:
+    """Drive a perfect robot along the reference for `ticks`: (v_d, a_d, sigma) each tick."""
+    out = []
+    for _ in range(ticks):
+        s = ref._stop_sigma if ref.stopping else path.at_time(ref.t_sched).sigma
+        p = path.at(s)
+        ref.update(p.x, p.y, p.theta, sp, dt)
+        out.append((sp.v_d, sp.a_d, ref._stop_sigma if ref.stopping else path.at_time(ref.t_sched).sigma))
+    return out
+
+
+def test_a_controlled_stop_brakes_no_harder_than_the_motors_and_never_outruns_the_profile() -> None:
+    from ddrt.core.types import Setpoint
+    from ddrt.path.reference import PathReference
+
+    # A heavy robot on weak brakes (high resistance): its envelope brakes well below 50 m/s^2.
+    cfg = _cfg("heavy_asymmetric")
+    env = speed_limits(cfg).envelope
+    path = _path(cfg, {"shape": "line", "length": 4.0})
+    ref = PathReference(path, 0.05, 0.3, 0.005)
+    sp = Setpoint()
+    _ride(ref, path, sp, 300)  # 1.5 s: at speed
+    v_before = sp.v_d
+    assert v_before > 0.5
+    ref.request_stop(50.0)
+    rows = _ride(ref, path, sp, 2000)
+    vs = [v_before] + [r[0] for r in rows]
+    assert vs[-1] == 0.0 and ref.done
+    for k in range(1, len(vs)):
+        if vs[k - 1] > 0.0 and vs[k] > 0.0:
+            decel = (vs[k - 1] - vs[k]) / 0.005
+            assert decel <= env.decel_at(vs[k - 1]) * (1 + 1e-9) + 1e-9, k
+    assert max((vs[k - 1] - vs[k]) / 0.005 for k in range(1, len(vs))) < 50.0
+    # A gentle stop just before a turn in place follows the profile down to the corner.
+    seed = _cfg("seed")
+    rect = _path(seed, {"shape": "rectangle", "width": 1.2, "height": 0.8, "direction": "ccw"})
+    ref = PathReference(rect, 0.05, 0.3, 0.005)
+    t_corner = next(rect.t[i] for i in range(len(rect.t)) if rect.seg_pivot[i])
+    _ride(ref, rect, sp, int(0.8 * t_corner / 0.005))
+    ref.request_stop(0.01)
+    rows = _ride(ref, rect, sp, 4000)
+    for v, _, s in rows:
+        assert v <= rect.at(s).v + 1e-9
+    assert rows[-1][0] == 0.0 and rows[-1][2] <= rect.sigma[rect.seg_pivot.index(True)] + 1e-6
+
+
+# --------------------------------------------------------------------------- a reload that changes the robot
+
+
+def _loop(cfg):
+    from ddrt.loop import ControlLoop
+    from hal.registry import open_hal
+
+    hal = open_hal(cfg, start=(0.0, 0.0, 0.0))
+    loop = ControlLoop(cfg, hal)
+    loop.calibrate(hal.sleep_until, hal.now)
+    return loop, hal
+
+
+def _tick(loop, hal, n: int) -> None:
+    for _ in range(n):
+        hal.sleep_until(hal.now() + loop.period)
+        loop.tick()
+        if loop.state != "following":
+            break
+
+
+def test_a_heavier_robot_on_reload_re_profiles_the_rest_of_the_path() -> None:
+    from ddrt.config import with_overrides
+
+    cfg = load_config(SIM, {**DERIVED, "estimator": {"calibration_s": 0.05}})
+    loop, hal = _loop(cfg)
+    path = _path(cfg, {"shape": "rectangle", "width": 1.2, "height": 0.8, "direction": "ccw"})
+    loop.follow(path, (0.0, 0.0, 0.0))
+    _tick(loop, hal, 150)
+    assert loop.state == "following"
+    t_sched = loop.reference.t_sched
+    before = path.at_time(t_sched)
+    # Lighter: the profile is still within the motors: nothing changes.
+    lighter = with_overrides(cfg, {"robot": {"m_p": 0.9 * cfg.robot.m_p}})
+    loop.reconfigure(lighter)
+    assert loop.path is path and loop.reprofiled == ""
+    heavy = with_overrides(cfg, {"robot": {"m_p": cfg.robot.m_p + 3.0, "I_p": 3.0 * cfg.robot.I_p}})
+    loop.reconfigure(heavy)
+    new = loop.path
+    assert new is not path and loop.reference.path is new and loop.reference.pursuit.path is new
+    assert "re-profiled" in loop.reprofiled
+    first = path.index(path.at_time(t_sched).sigma) + 1
+    # What the schedule is reading does not move; the rest is slower, within the new motors.
+    assert new.u[:first + 1] == path.u[:first + 1] and new.t[:first + 1] == path.t[:first + 1]
+    now = new.at_time(t_sched)
+    assert (now.sigma, now.v) == pytest.approx((before.sigma, before.v), abs=1e-12)
+    assert new.duration > path.duration
+    assert path.envelope_excess(speed_limits(heavy).envelope, first) > 1e-3
+    assert new.envelope_excess(speed_limits(heavy).envelope, first) <= 1e-9
+    _tick(loop, hal, int(new.duration / loop.period) + 400)
+    assert loop.state == "stopped", loop.fault
+    hal.close()

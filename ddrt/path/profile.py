@@ -427,8 +427,10 @@ def _sup(quads: list[tuple[float, float, float, float]], ymax: float) -> float |
     return y
 
 
-def _envelope_passes(con: Constraints, cap: np.ndarray) -> tuple[np.ndarray, int]:
-    """u^2 per sample: the velocity limit, then the backward (controllable set) and forward passes."""
+def _envelope_passes(con: Constraints, cap: np.ndarray, start: float | None = None) -> tuple[np.ndarray, int]:
+    """u^2 per sample: the velocity limit, then the backward (controllable set) and forward passes.
+
+    `start`: the first sample's speed, kept even where it lies above what the robot can brake from."""
     n = len(cap)
     capv = _velocity_limit(con, cap)
     capv[-1] = cap[-1]
@@ -451,6 +453,9 @@ def _envelope_passes(con: Constraints, cap: np.ndarray) -> tuple[np.ndarray, int
     # ---- forward: the largest u_{i+1} <= ub[i + 1] reachable from u_i.
     u = ub.copy()
     bad = np.flatnonzero(~con.within(ub[:-1], ub[1:])).tolist()
+    if start is not None and start != ub[0]:
+        u[0] = start
+        bad = [0] + [j for j in bad if j > 0]
     fallbacks = 0
     i = 0
     while i < n - 1:
@@ -471,18 +476,9 @@ def _envelope_passes(con: Constraints, cap: np.ndarray) -> tuple[np.ndarray, int
     return u * u, fallbacks
 
 
-def speed_profile(sigma: Sequence[float], kappa: Sequence[float], seg_pivot: Sequence[bool],
-                  turn: Sequence[float], v_cap: np.ndarray, limits: SpeedLimits, pivot_radius: float,
-                  envelope: "Envelope | None" = None) -> Profile:
-    """The time-optimal profile under `limits` for samples at progress `sigma` (see the module doc).
-
-    `envelope` (default `limits.envelope`) adds the motors' torque envelope."""
-    lim, b = limits, pivot_radius
-    env = lim.envelope if envelope is None else envelope
-    s = np.asarray(sigma, dtype=float)
-    kap = np.asarray(kappa, dtype=float)
-    piv = np.asarray(seg_pivot, dtype=bool)
-    turn_arr = np.asarray(turn, dtype=float)
+def _caps(s: np.ndarray, kap: np.ndarray, piv: np.ndarray, v_cap: np.ndarray, lim: SpeedLimits,
+          b: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per-sample speed caps, per-interval acceleration caps, and which samples lie in pivots."""
     ds = np.diff(s)
     n = len(s)
     absk = np.abs(kap)
@@ -509,15 +505,77 @@ def speed_profile(sigma: Sequence[float], kappa: Sequence[float], seg_pivot: Seq
     cap[0] = cap[-1] = 0.0
     acc_lim[piv] = b * lim.alpha_max
     dec_lim[piv] = b * lim.alpha_max
+    return cap, acc_lim, dec_lim, in_piv
+
+
+def speed_profile(sigma: Sequence[float], kappa: Sequence[float], seg_pivot: Sequence[bool],
+                  turn: Sequence[float], v_cap: np.ndarray, limits: SpeedLimits, pivot_radius: float,
+                  envelope: "Envelope | None" = None, keep: "tuple[int, np.ndarray] | None" = None) -> Profile:
+    """The time-optimal profile under `limits` for samples at progress `sigma` (see the module doc).
+
+    `envelope` (default `limits.envelope`) adds the motors' torque envelope. `keep` = (first,
+    u): samples up to `first` keep the progress rates u (a profile being followed), and the
+    profile from there on starts at u[first] (braking as hard as the passes ask when the
+    robot is already faster than the limits can brake from)."""
+    lim, b = limits, pivot_radius
+    env = lim.envelope if envelope is None else envelope
+    s = np.asarray(sigma, dtype=float)
+    kap = np.asarray(kappa, dtype=float)
+    piv = np.asarray(seg_pivot, dtype=bool)
+    turn_arr = np.asarray(turn, dtype=float)
+    ds = np.diff(s)
+    cap, acc_lim, dec_lim, in_piv = _caps(s, kap, piv, np.asarray(v_cap, dtype=float), lim, b)
+    first, u_start = 0, None
+    if keep is not None:
+        first = int(keep[0])
+        u_old = np.asarray(keep[1], dtype=float)
+        if not 0 <= first < len(s) - 1:
+            raise ValueError(f"speed_profile: keep from sample {first} of {len(s)}")
+        u_start = float(u_old[first])
     constraints = None
     if env is None:
+        tail = cap[first:].copy()
+        if u_start is not None:
+            tail[0] = u_start
         # Forward (accel) then backward (decel) pass, on w = u^2: w[i+1] = min(cap^2, w[i] + 2 acc ds).
-        w = _limited_rise(cap * cap, 2.0 * acc_lim * ds)
-        w = _limited_rise(w[::-1], (2.0 * dec_lim * ds)[::-1])[::-1]
+        w = _limited_rise(tail * tail, 2.0 * acc_lim[first:] * ds[first:])
+        w = _limited_rise(w[::-1], (2.0 * dec_lim[first:] * ds[first:])[::-1])[::-1]
+        if u_start is not None:
+            w[0] = u_start * u_start
     else:
         constraints = Constraints(env, s, kap, piv, turn_arr, b, acc_lim, dec_lim)
-        w, _ = _envelope_passes(constraints, cap)
+        if first == 0 and u_start is None:
+            w, _ = _envelope_passes(constraints, cap)
+        else:
+            tail_con = Constraints(env, s[first:], kap[first:], piv[first:], turn_arr[first:], b,
+                                   acc_lim[first:], dec_lim[first:])
+            tail = cap[first:].copy()
+            tail[0] = u_start
+            w, _ = _envelope_passes(tail_con, tail, start=u_start)
+    if first:
+        w = np.concatenate((u_old[:first] ** 2, w))
     return _finish(s, kap, piv, turn_arr, b, w, in_piv, constraints)
+
+
+def envelope_excess(sigma: Sequence[float], kappa: Sequence[float], seg_pivot: Sequence[bool],
+                    turn: Sequence[float], u: np.ndarray, limits: SpeedLimits, pivot_radius: float,
+                    envelope: "Envelope", first: int = 0) -> float:
+    """How far the profile u goes beyond `envelope` (and the acceleration caps of `limits`) on the
+    intervals from `first` on, as a fraction of the bound exceeded (<= 0: within)."""
+    s = np.asarray(sigma, dtype=float)
+    kap = np.asarray(kappa, dtype=float)
+    piv = np.asarray(seg_pivot, dtype=bool)
+    _, acc_lim, dec_lim, _ = _caps(s, kap, piv, np.full(len(s), np.inf), limits, pivot_radius)
+    con = Constraints(envelope, s[first:], kap[first:], piv[first:], np.asarray(turn, dtype=float)[first:],
+                      pivot_radius, acc_lim[first:], dec_lim[first:])
+    uu = np.asarray(u, dtype=float)[first:]
+    if len(uu) < 2:
+        return -math.inf
+    worst = -math.inf
+    for b0 in range(0, len(uu) - 1, 1 << 16):
+        b1 = min(b0 + (1 << 16), len(uu) - 1)
+        worst = max(worst, float(con.violation(uu[b0:b1], uu[b0 + 1:b1 + 1], b0).max()))
+    return worst
 
 
 def _finish(s: np.ndarray, kap: np.ndarray, piv: np.ndarray, turn_arr: np.ndarray, b: float, w: np.ndarray,

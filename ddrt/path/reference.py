@@ -120,12 +120,21 @@ class PathReference:
 
     def _update_stopping(self, near, sp: Setpoint, dt: float) -> None:
         decel = self._stop_decel or 1.0
-        v = self._stop_v - decel * dt
-        a = -decel
+        v0 = self._stop_v
+        env = self.path.limits.envelope
+        if env is not None and v0 > 0.0:
+            # No harder than the motors brake here (within the profile's headroom).
+            decel = min(decel, max(env.decel_at(v0, near.kappa), 1e-3))
+        v = v0 - decel * dt
+        if v > 0.0:
+            # Never faster than the path's own profile ahead (it slows for curves and comes to
+            # rest before every turn in place).
+            ahead = self.path.at(self._stop_sigma + 0.5 * (v0 + v) * dt).v
+            v = min(v, ahead)
         if v <= 0.0:
             v = 0.0
-            a = 0.0
-        self._stop_sigma += 0.5 * (self._stop_v + v) * dt
+        a = 0.0 if v <= 0.0 else ((v - v0) / dt if dt > 0.0 else -decel)
+        self._stop_sigma += 0.5 * (v0 + v) * dt
         self._stop_v = v
         sp.x_d, sp.y_d, sp.theta_d = near.x_d, near.y_d, near.theta_d
         sp.path_frame = True

@@ -45,14 +45,19 @@ Index arrays (read-only Python lists, for the pursuit's hot path; n samples, n -
 from __future__ import annotations
 
 import bisect
+import copy
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ddrt.core.wrap import wrap_angle
 from ddrt.path.geometry import _Geometry, _Piece
-from ddrt.path.profile import SpeedLimits, speed_profile
+from ddrt.path.profile import SpeedLimits, envelope_excess, speed_profile
+
+if TYPE_CHECKING:
+    from ddrt.core.envelope import Envelope
 
 __all__ = ["PathPoint", "Path", "distances_to_polyline"]
 
@@ -88,6 +93,7 @@ class Path:
         cap = np.full(len(sig), min(v_cap, limits.v_max))
         if geo.cap_sigma is not None and geo.cap_value is not None:
             cap = np.minimum(cap, np.interp(sig, geo.cap_sigma, geo.cap_value))
+        self._v_cap = cap
         self._profile(cap)
         self.length: float = self.sigma[-1]
         self.duration: float = self.t[-1]
@@ -136,9 +142,10 @@ class Path:
         self._np.update(sigma=arr["s"], x=arr["x"], y=arr["y"], theta=arr["theta"], kappa=arr["kappa"],
                         seg_pivot=np.asarray(seg_pivot, dtype=bool), turn=np.asarray(turn, dtype=float))
 
-    def _profile(self, v_cap: np.ndarray) -> None:
+    def _profile(self, v_cap: np.ndarray, keep: tuple[int, np.ndarray] | None = None) -> None:
         a = self._np
-        p = speed_profile(a["sigma"], a["kappa"], a["seg_pivot"], a["turn"], v_cap, self.limits, self.pivot_radius)
+        p = speed_profile(a["sigma"], a["kappa"], a["seg_pivot"], a["turn"], v_cap, self.limits, self.pivot_radius,
+                          keep=keep)
         self._np.update(p.arrays)
         for array in self._np.values():
             array.flags.writeable = False  # shared by every caller of arrays()
@@ -147,6 +154,25 @@ class Path:
         self.pivot_sample: list[bool] = p.pivot_sample
         # The motor envelope's bounds on every interval (None for a path built without a robot).
         self.constraints = p.constraints
+
+    def reprofiled(self, limits: SpeedLimits, first: int) -> "Path":
+        """The same path with its profile from sample `first` on rebuilt under `limits` (a new
+        robot model while the path is followed): samples up to `first` and the speed there are
+        kept, so a schedule before `first` reads the same times and speeds."""
+        new = copy.copy(self)
+        new._np = {k: v for k, v in self._np.items() if k in ("sigma", "x", "y", "theta", "kappa", "seg_pivot", "turn")}
+        new.limits = limits
+        new._profile(self._v_cap, keep=(first, self._np["u"]))
+        new.duration = new.t[-1]
+        new.warnings = list(self.warnings)
+        return new
+
+    def envelope_excess(self, envelope: "Envelope", first: int = 0) -> float:
+        """How far this path's profile from sample `first` on goes beyond `envelope`, as a fraction
+        of the bound exceeded (<= 0: within): is it still what that robot can drive?"""
+        a = self._np
+        return envelope_excess(a["sigma"], a["kappa"], a["seg_pivot"], a["turn"], a["u"], self.limits,
+                               self.pivot_radius, envelope, first)
 
     # -- lookups ------------------------------------------------------------------------------
     def index(self, sigma: float) -> int:
