@@ -131,8 +131,6 @@ class Profile:
 # units). The acceleration caps: (y^2 - x^2) ia <= 1 and (x^2 - y^2) id <= 1 (ia = 1 / (2 ds A)).
 _TOL = 1e-10  # a bound is met when it is exceeded by less than this fraction of itself
 _CHUNK = 4096  # intervals per chunk of plain-float coefficients for the sample-by-sample steps
-ROW_NAMES = ("torque_l+", "torque_l-", "voltage_l+", "voltage_l-",
-             "torque_r+", "torque_r-", "voltage_r+", "voltage_r-", "accel", "decel")
 
 
 class Constraints:
@@ -189,6 +187,10 @@ class Constraints:
         if chunk is None:
             chunk = self._chunks[c] = self.W[c * _CHUNK:(c + 1) * _CHUNK].tolist()
         return chunk[i - c * _CHUNK]
+
+    def release(self) -> None:
+        """Drop the plain-float chunks (a pass's working copy; 1.3 MB per 4096 intervals)."""
+        self._chunks.clear()
 
     # -- vectorised checks ----------------------------------------------------------------
     def violation(self, x: np.ndarray, y: np.ndarray, i0: int = 0, decel_only: bool = False) -> np.ndarray:
@@ -473,6 +475,7 @@ def _envelope_passes(con: Constraints, cap: np.ndarray, start: float | None = No
             if y >= ymax:
                 break
             u[i] = y
+    con.release()
     return u * u, fallbacks
 
 
