@@ -486,7 +486,10 @@ def _caps(s: np.ndarray, kap: np.ndarray, piv: np.ndarray, v_cap: np.ndarray, li
     n = len(s)
     absk = np.abs(kap)
     with np.errstate(divide="ignore"):
-        cap = np.minimum(v_cap, np.sqrt(lim.lateral_accel / absk))
+        # A cap that is not a finite number (a waypoint speed of 1e308 interpolated overflows)
+        # is no cap beyond v_max.
+        v_cap = np.where(np.isfinite(v_cap), np.maximum(v_cap, 0.0), np.inf)
+        cap = np.minimum(np.minimum(v_cap, lim.v_max), np.sqrt(lim.lateral_accel / absk))
         cap = np.minimum(cap, lim.omega_max / absk)
         dk = np.abs(np.diff(kap)) / ds
         dk[piv] = 0.0
