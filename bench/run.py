@@ -22,7 +22,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from bench import accuracy, adaptation, ctl_flood, io_bound, loop_timing, paths_as_given, startup, tick_cost
+from bench import accuracy, adaptation, ctl_flood, io_bound, loop_timing, paths_as_given, population, startup, tick_cost
 from ddrt.config import load_config
 from ddrt.path.spec import resolve_path
 from ddrt.simrun.runner import run_sim
@@ -42,6 +42,7 @@ SECTIONS = (
     "7. Adaptive dynamics and calibration",
     "8. The control socket under abuse",
     "9. Paths as people hand them over",
+    "10. A population of robots",
 )
 
 
@@ -64,10 +65,11 @@ class BenchOptions:
     ctl_estops: int = ctl_flood.ESTOPS
     paths_cases: tuple[str, ...] | None = None  # None: every case of bench/paths_as_given.py
     paths_long: tuple[int, ...] = (10_000, 100_000)  # points of the long recordings timed
+    robots: int = population.ROBOTS
 
 
 FULL = BenchOptions()
-QUICK = BenchOptions(seeds=(1,), ticks=20_000, loop_duration_s=5.0)
+QUICK = BenchOptions(seeds=(1,), ticks=20_000, loop_duration_s=5.0, robots=4)
 
 
 @dataclass
@@ -84,6 +86,7 @@ class Results:
     adapt: adaptation.AdaptationResult
     ctl: list[ctl_flood.FloodRow] = field(default_factory=list)
     paths: paths_as_given.PathsResult | None = None
+    robots: population.PopulationResult | None = None
     wall_s: dict[str, float] = field(default_factory=dict)
 
 
@@ -160,11 +163,12 @@ def measure_all(opts: BenchOptions, command: str, say: Callable[[str], None] = _
     adapt = timed("adaptation", lambda: adaptation.measure_adaptation(SCENARIO_DIR, opts.seeds, opts.workers,
                                                                       opts.scenarios))
     paths = timed("paths as given", lambda: paths_as_given.measure(opts.paths_cases, opts.seeds[0], opts.paths_long))
+    robots = timed("population", lambda: population.measure_population(opts.robots, opts.workers))
     machine["load average at the end"] = (load_average() + " (other work on this machine shows in the maxima "
                                           "and the loop timing)")
     return Results(options=opts, command=command, machine=machine, accuracy=acc,  # type: ignore[arg-type]
                    ticks=ticks, loop=loop, speed=speed, startup=st, bound=io_bound.io_bound(),  # type: ignore[arg-type]
-                   adapt=adapt, ctl=ctl, paths=paths, wall_s=walls)  # type: ignore[arg-type]
+                   adapt=adapt, ctl=ctl, paths=paths, robots=robots, wall_s=walls)  # type: ignore[arg-type]
 
 
 # --------------------------------------------------------------------------- the document
@@ -243,6 +247,8 @@ def render_document(r: Results) -> str:
     lines += ctl_flood.render(r.ctl)
     lines += ["", _header(9), ""]
     lines += paths_as_given.render(r.paths) if r.paths is not None else ["Not measured in this run."]
+    lines += ["", _header(10), ""]
+    lines += population.render(r.robots) if r.robots is not None else ["Not measured in this run."]
     return "\n".join(lines) + "\n"
 
 

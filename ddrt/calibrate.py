@@ -143,8 +143,9 @@ def excitation_path(cfg: Config, width: float, height: float, max_s: float = 30.
                          f"{0.3 + 2 * margin:.2f} x {0.15 + 2 * margin:.2f} m)")
     if h > 0.5 * w:  # Gerono's lemniscate gets a cusp-like waist when taller than half its width
         h = 0.5 * w
-    v = min(cfg.limits.v_max, 0.8) if speed is None else speed
     from ddrt.path.spec import speed_limits
+
+    v = min(speed_limits(cfg).v_max, 0.8) if speed is None else speed
 
     spec = {"shape": "figure_eight", "width": w, "height": h, "speed": v}
     one = load_path(spec, speed_limits(cfg), paths=cfg.paths)
@@ -308,7 +309,7 @@ def odometry_run(cfg: Config, hal: Hal, distance: float = 1.0, turns: float = 1.
     loop, clock = _start(cfg, hal)
     from ddrt.path.spec import speed_limits
 
-    line = load_path({"shape": "line", "length": distance, "speed": min(0.3, cfg.limits.v_max)}, speed_limits(cfg),
+    line = load_path({"shape": "line", "length": distance, "speed": min(0.3, speed_limits(cfg).v_max)}, speed_limits(cfg),
                      paths=cfg.paths)
     true0 = _truth(hal)
     loop.follow(line, (0.0, 0.0, 0.0))

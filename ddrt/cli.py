@@ -76,9 +76,10 @@ def _cmd_path(args: argparse.Namespace) -> int:
         cfg = load_config(args.config)
         limits, paths = speed_limits(cfg), cfg.paths
     else:
+        # No robot to derive v_max and accel from (null by default): the seed configs' 1 m/s
+        # and 1 m/s^2 (SpeedLimits' defaults), no motor envelope.
         d = LimitsConfig()
-        limits = SpeedLimits(v_max=d.v_max, accel=d.accel, lateral_accel=d.lateral_accel, omega_max=d.omega_max,
-                             alpha_max=d.alpha_max)
+        limits = SpeedLimits(lateral_accel=d.lateral_accel, omega_max=d.omega_max, alpha_max=d.alpha_max)
         paths = PathsConfig()
     path = load_path(args.file, limits, paths=paths)
     report = path_report(path, args.file)

@@ -28,14 +28,16 @@ from __future__ import annotations
 import logging
 import math
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
 from ddrt.core.adapt import DynamicsAdapter
 from ddrt.config import Config
+from ddrt.config.sections import LimitsConfig
 from ddrt.core.control import Command, DynamicController, KinematicController, make_controller
 from ddrt.core.drive import DriveReference, check_command
 from ddrt.core.types import Setpoint
+from ddrt.core.envelope import resolve_limits
 from ddrt.core.estimator import Estimator, calibrate_gyro
 from ddrt.core.model import Dynamics
 from ddrt.core.motor import Motor
@@ -45,6 +47,10 @@ from ddrt.path.start import JOIN_APPROACH_RAD, StartReference, needs_join, start
 from hal.base import Hal, HalError, HalTimeoutError, Sample
 
 log = logging.getLogger("ddrt.loop")
+
+# A path with more samples left than this keeps its profile when a reload changes the robot
+# (re-profiling 20 000 samples, 40 m at 2 mm, takes 0.05-0.1 s: ten to twenty ticks at 200 Hz).
+REPROFILE_MAX_SAMPLES = 20_000
 
 # Codes are the index (telemetry's `state` column): new states go at the end.
 STATES = ("idle", "following", "stopping", "stopped", "estop", "fault", "holding", "driving")
@@ -107,9 +113,11 @@ class ControlLoop:
         self.dyn = Dynamics.from_params(cfg.robot)
         self.seed_dyn = Dynamics.from_params(cfg.robot, seed_report=True)
         self.motor = Motor(cfg.robot_motor)
+        # The limits in numbers: the config's caps, null ones from what the motors give.
+        self.limits = resolve_limits(cfg.limits, cfg.robot, cfg.robot_motor)
         self.estimator = Estimator(self.dyn, self.motor, cfg.estimator, hal.info, cfg.robot.r_3, self.period)
         self.controller: DynamicController | KinematicController = make_controller(
-            cfg.controller.mode, self.dyn, self.seed_dyn, self.motor, cfg.controller, cfg.limits, self.period)
+            cfg.controller.mode, self.dyn, self.seed_dyn, self.motor, cfg.controller, self.limits.limits, self.period)
         self.reference: PathReference | StartReference | DriveReference | None = None
         self.path: Path | None = None
         self.setpoint = Setpoint()
@@ -131,6 +139,7 @@ class ControlLoop:
         if cfg.controller.adaptation.enabled and cfg.controller.mode == "dynamic":
             self.adapter = DynamicsAdapter(self.dyn, self.motor, cfg.controller.adaptation, self.period)
         self._adapt_active = False
+        self.reprofiled = ""  # what the last reload did to the path being followed
         self.on_tick: Callable[["ControlLoop"], None] | None = None
         self.recovery = RecoveryCounters()
         self._hold: _Hold | None = None
@@ -162,12 +171,14 @@ class ControlLoop:
                        if self.adapter is not None else None)
         else:
             dyn, seed_dyn, motor, adapter = self.dyn, self.seed_dyn, self.motor, self.adapter
+        limits = resolve_limits(cfg.limits, cfg.robot, cfg.robot_motor)
         # Swap (nothing below raises for values that passed validation).
         self.estimator.reconfigure(cfg.estimator, cfg.robot.r_3,
                                    self.estimator.dyn if not model_changed else dyn, motor)
-        self.controller.retune(cfg.controller, cfg.limits)
+        self.controller.retune(cfg.controller, limits.limits)
+        self.limits = limits
         if isinstance(self.reference, DriveReference):
-            self.reference.configure(cfg.limits, cfg.drive, cfg.daemon.command_timeout_s)
+            self.reference.configure(self.drive_limits(), cfg.drive, cfg.daemon.command_timeout_s)
         if model_changed:
             self.dyn, self.seed_dyn, self.motor = dyn, seed_dyn, motor
             self.controller.set_model(seed_dyn if cfg.controller.mode == "seed" else dyn, motor)
@@ -176,6 +187,43 @@ class ControlLoop:
             self._adapt_active = False
         self.cfg = cfg
         self._set_bounds(cfg)
+        if model_changed:
+            self._reprofile()
+
+    def _reprofile(self) -> None:
+        """A new robot model: if the rest of the path being followed asks more than its motors
+        give (beyond the profile's headroom), rebuild the rest of the profile for it.
+
+        The schedule's interval and everything before it keep their speeds and times, so the
+        reference does not jump; the path's own limits (and the headroom it was built with)
+        stay, only the model changes. A path with more than REPROFILE_MAX_SAMPLES samples left
+        keeps its profile (rebuilding it would hold up the loop); the next path uses the new
+        model whatever happens here."""
+        self.reprofiled = ""
+        ref, path = self.reference, self.path
+        if (path is None or not isinstance(ref, PathReference) or ref.path is not path or self.state != "following"
+                or path.limits.envelope is None):
+            return
+        env = replace(path.limits.envelope, dyn=self.dyn, motor=self.motor.params)
+        first = path.index(path.at_time(ref.t_sched).sigma) + 1
+        left = len(path.sigma) - first
+        if left < 2:
+            return
+        if left > REPROFILE_MAX_SAMPLES:
+            self.reprofiled = (f"the path being followed has {left} samples left, more than {REPROFILE_MAX_SAMPLES} "
+                               "to re-profile between two ticks: it keeps its profile; the next path uses the new model")
+            log.warning("reload: %s", self.reprofiled)
+            return
+        excess = path.envelope_excess(env, first)
+        if excess <= 1e-9:
+            return
+        new = path.reprofiled(replace(path.limits, envelope=env), first)
+        ref.path = new
+        ref.pursuit.path = new
+        self.path = new
+        self.reprofiled = (f"the rest of the path asked up to {excess:.1%} beyond the new robot's motors: re-profiled "
+                           f"from progress {path.sigma[first]:.3f} m ({path.duration:.2f} -> {new.duration:.2f} s)")
+        log.info("reload: %s", self.reprofiled)
 
     # ------------------------------------------------------------------ start-up
 
@@ -279,6 +327,12 @@ class ControlLoop:
         return (self.state == "stopped" and ref is not None and ref.done
                 and not getattr(ref, "stopping", False))
 
+    def drive_limits(self) -> LimitsConfig:
+        """The velocity mode's limits in numbers: the config's, null ones from the motors;
+        its top speed the one the profile plans to (within limits.feedback_headroom), so the
+        inner loop keeps room to correct at full speed."""
+        return replace(self.limits.limits, v_max=self.limits.profile_v_max)
+
     def drive(self, v: object, omega: object, source: str = "") -> tuple[float, float, tuple[str, ...]]:
         """Hold the velocities (v, omega) until the next command, a stop, or
         daemon.command_timeout_s without one (ddrt/core/drive.py); returns them as limited
@@ -286,7 +340,7 @@ class ControlLoop:
         value that is no plausible velocity (naming it), with controller.mode seed, and while holding, following or
         stopping a path (a drive does not take over a path: stop it first); RuntimeError in
         estop or fault (reset first)."""
-        v_lim, w_lim, clamped = check_command(v, omega, self.cfg.limits)
+        v_lim, w_lim, clamped = check_command(v, omega, self.drive_limits())
         if self.cfg.controller.mode == "seed":
             # Its weak fixed inner gains hold a speed only with the outer law's pose feedback
             # (measured: 0.17 m/s for a 0.3 m/s command); it is there to compare paths.
@@ -303,7 +357,7 @@ class ControlLoop:
         ref = self.reference
         if state != "driving" or not isinstance(ref, DriveReference):
             d = self.cfg
-            ref = DriveReference(d.limits, d.drive, d.daemon.command_timeout_s, self.period)
+            ref = DriveReference(self.drive_limits(), d.drive, d.daemon.command_timeout_s, self.period)
             self.follow_reference(ref)
             self.state = "driving"
             log.info("driving (%s): v %.3f m/s, omega %.3f rad/s", source or "a command", v_lim, w_lim)
@@ -317,7 +371,7 @@ class ControlLoop:
             self.reference.request_stop(self.cfg.daemon.stop_decel)
             self.state = "stopping"
         elif self.state == "driving" and self.reference is not None:
-            self.reference.request_stop(self.cfg.limits.accel)
+            self.reference.request_stop(self.limits.limits.accel)
         elif self.state == "holding" and self._hold is not None:
             self._hold.resume_to = "stopping"
 
@@ -533,8 +587,8 @@ class ControlLoop:
     def _hold_decel(self) -> float:
         """The hardest braking the path's limits allow (the speed profile's own)."""
         if self.path is not None:
-            return self.path.limits.decel_eff
-        return self.cfg.limits.accel
+            return self.path.limits.decel_eff  # may be inf: the stop then brakes as the motors allow
+        return self.limits.limits.accel
 
     def _zero_hold(self) -> None:
         self._zero_motors()
@@ -568,8 +622,9 @@ class ControlLoop:
         if h.fresh >= RECOVER_FRESH_TICKS and at_rest:
             self._end_hold()
             return
-        lim = self.cfg.limits
-        limit_s = self.cfg.estimator.fault_latch_s + 2.0 * lim.v_max / self._hold_decel() + 1.0
+        lim = self.limits.limits  # numbers, even where the config's are null
+        decel = min(self._hold_decel(), lim.accel)
+        limit_s = self.cfg.estimator.fault_latch_s + 2.0 * lim.v_max / decel + 1.0
         if held_s > limit_s:
             self.recovery.latched += 1
             self.enter_fault(f"{h.cause}: the hold did not end within {limit_s:.1f} s "

@@ -94,7 +94,7 @@ TINY = run.BenchOptions(seeds=(1,), lookaheads=(0.03, 0.12), scenarios=("s_curve
                         loop_rates=(), loop_duration_s=1.0, speed_scenarios=("s_curve",),
                         import_modules=("yaml",), import_repeats=1, sim_rss_duration_s=1.0,
                         ctl_counts=(32,), ctl_estops=5,
-                        paths_cases=("figure_eight_361",), paths_long=(2000,))
+                        paths_cases=("figure_eight_361",), paths_long=(2000,), robots=1)
 
 
 @pytest.fixture(scope="module")
@@ -161,6 +161,9 @@ def test_document_has_every_section(tiny_results: run.Results, tmp_path) -> None
     assert tiny_results.startup.loop_loads == {"yaml": True}
     assert "| 32 | idle | 5/5 |" in doc and "| 32 | dribbling | 5/5 |" in doc  # every estop answered
     assert "| figure_eight_361 |" in doc and "| 2000 |" in doc  # paths as given
+    robots = tiny_results.robots
+    assert robots is not None and len(robots.robots) == 1 and len(robots.runs) == 6
+    assert "| dynamic | " in doc and "| kinematic | " in doc and "bench/population.py" in doc
     out = tmp_path / "BENCHMARKS.md"
     out.write_text(doc)
     assert out.read_text().count("\n## ") == len(run.SECTIONS)
@@ -172,3 +175,25 @@ def test_quick_preset_is_smaller_than_full() -> None:
     assert run.FULL.loop_duration_s == 30.0 and run.QUICK.loop_duration_s == 5.0
     assert tuple(run.FULL.loop_rates) == (100, 200, 500, 1000)
     assert run.FULL.workers == 2
+
+
+def test_population_robots_are_physically_consistent() -> None:
+    """bench/population.py: a fixed seed gives the same robots; each is a valid config within the
+    stated ranges, its belief and truth a few percent apart."""
+    from bench import population
+    from ddrt.path.spec import speed_limits
+
+    a, b = population.population(40), population.population(40)
+    assert [r.sections for r in a] == [r.sections for r in b]
+    for r in a:
+        assert 1.0 <= r.mass <= 19.0 and 6.0 <= r.supply_v <= 24.0
+        cfg = population.config_of(r, "figure8", "dynamic")
+        robot, plant = cfg.robot, cfg.plant
+        total = robot.m_p + robot.m_L + robot.m_R + robot.m_3
+        assert total == pytest.approx(r.mass)
+        for name in ("m_p", "I_p", "L", "r_L", "H"):
+            assert abs(getattr(plant, name) / getattr(robot, name) - 1.0) <= 0.05 + 1e-12, (r.name, name)
+        assert abs(plant.r_3 / robot.r_3 - 1.0) <= 1e-3 + 1e-12
+        assert cfg.sim.command_latency_s > 0.0 and cfg.sim.sensor_latency_s > 0.0
+        assert cfg.limits.v_max is None and cfg.limits.accel is None  # every other key at default
+        assert 0.3 < speed_limits(cfg).v_max < 2.5

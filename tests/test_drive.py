@@ -70,6 +70,9 @@ def test_a_smaller_decel_is_honoured_and_a_larger_one_is_not() -> None:
 
 # ---------------------------------------------------------------- the command's values
 
+# The seed robot's explicit limits (null ones are derived from the motors by the loop).
+SEED_LIMITS = LimitsConfig(v_max=1.0, accel=1.0, torque_max_nm=1.0)
+
 
 @pytest.mark.parametrize(("v", "omega", "field", "why"), [
     ("1", 0.0, "v", "expected a number"), (True, 0.0, "v", "expected a number"), (0.0, False, "omega", "number"),
@@ -79,11 +82,11 @@ def test_a_smaller_decel_is_honoured_and_a_larger_one_is_not() -> None:
 ])
 def test_garbage_values_are_refused_naming_the_field(v: Any, omega: Any, field: str, why: str) -> None:
     with pytest.raises(ValueError, match=rf"^{field}: .*{why}"):
-        check_command(v, omega, LimitsConfig())
+        check_command(v, omega, SEED_LIMITS)
 
 
 def test_values_beyond_the_limits_are_clamped_and_said_so() -> None:
-    lim = LimitsConfig()
+    lim = SEED_LIMITS
     assert check_command(0.3, -1, lim) == (0.3, -1.0, ())
     assert check_command(-2.5, 7.0, lim) == (-lim.v_max, lim.omega_max, ("v", "omega"))
     assert check_command(REFUSE_FACTOR * lim.v_max, 0, lim)[0] == lim.v_max  # the bound itself is clamped
@@ -441,3 +444,21 @@ def test_ctl_drive_for_resends_at_10_hz_then_stops() -> None:
     out = drive_for(lambda p: refused.append(p) or {"ok": False, "error": "x"}, 0.3, 0.0, 1.0,
                     clock=lambda: 0.0, sleep=lambda s: None)
     assert refused == [{"cmd": "drive", "v": 0.3, "omega": 0.0}] and out["ok"] is False  # no stop sent
+
+
+def test_with_limits_left_to_the_motors_drive_keeps_to_what_they_give_with_headroom() -> None:
+    """limits.v_max and accel null: the velocity mode takes the numbers from the motors (the
+    profile's top speed, inside limits.feedback_headroom), clamps a faster command to it and
+    the robot gets there unsaturated."""
+    r = Robot(limits={"v_max": None, "accel": None, "torque_max_nm": None})
+    try:
+        loop = r.loop
+        top = loop.limits.profile_v_max
+        assert math.isfinite(top) and 0.3 < top < loop.limits.limits.v_max
+        v, w, clamped = loop.drive(1.5 * top, 0.0)
+        assert (v, clamped) == (top, ("v",))
+        r.ticks(int(6.0 / loop.period), drive=(1.5 * top, 0.0))
+        assert r.true_v()[0] == pytest.approx(top, rel=0.03)
+        assert abs(loop.duty_l) < loop.cfg.limits.duty_max and abs(loop.duty_r) < loop.cfg.limits.duty_max
+    finally:
+        r.close()

@@ -9,7 +9,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Literal, Mapping
 
-from ddrt.core.model import RobotParams
+from ddrt.core.envelope import Envelope
+from ddrt.core.model import Dynamics, RobotParams
 from ddrt.core.sensors import GYRO_RANGES_DPS
 from ddrt.core.motor import MotorParams
 from ddrt.config.schema import (
@@ -355,25 +356,34 @@ class PursuitConfig:
 
 @dataclass(frozen=True)
 class LimitsConfig:
-    """Hard limits: the speed profile respects the motion ones, the controller the rest."""
+    """Hard limits: the speed profile respects the motion ones, the controller the rest.
+
+    v_max, accel and torque_max_nm are optional caps: null takes what the robot's motors give
+    (ddrt/core/envelope.py); a value can only lower that, and one above it is reported."""
 
     APPLY: ClassVar[str] = NEXT_PATH  # the speed profile and the controller's acceleration clamps are set per path
 
-    v_max: float = 1.0
-    accel: float = 1.0
+    v_max: float | None = None
+    accel: float | None = None
     lateral_accel: float = 1.5
     omega_max: float = 3.0  # well inside the gyro's range (250 deg/s = 4.36 rad/s)
     alpha_max: float = 20.0
     duty_max: float = applies(LIVE, 1.0)
-    torque_max_nm: float = applies(LIVE, 1.0)
+    torque_max_nm: float | None = applies(LIVE, None)
     max_path_error_m: float = applies(LIVE, 0.3)  # farther than this from the reference: stop following (fault)
+    feedback_headroom: float = 0.25  # fraction of the voltage (and torque) the profile leaves to feedback
 
     def validate(self, where: str) -> None:
-        positive(where, v_max=self.v_max, accel=self.accel, lateral_accel=self.lateral_accel,
-                 omega_max=self.omega_max, alpha_max=self.alpha_max, duty_max=self.duty_max,
-                 torque_max_nm=self.torque_max_nm, max_path_error_m=self.max_path_error_m)
+        caps = {k: getattr(self, k) for k in ("v_max", "accel", "torque_max_nm") if getattr(self, k) is not None}
+        positive(where, lateral_accel=self.lateral_accel, omega_max=self.omega_max, alpha_max=self.alpha_max,
+                 duty_max=self.duty_max, max_path_error_m=self.max_path_error_m, **caps)
         if self.duty_max > 1.0:
             raise ConfigError(f"{where}.duty_max: must be <= 1, got {self.duty_max}")
+        if not 0.0 <= self.feedback_headroom <= MAX_HEADROOM:
+            raise ConfigError(f"{where}.feedback_headroom: must be in [0, {MAX_HEADROOM}], got {self.feedback_headroom}")
+
+
+MAX_HEADROOM = 0.8  # limits.feedback_headroom: beyond it the profile has almost nothing to plan with
 
 
 @dataclass(frozen=True)
@@ -532,6 +542,12 @@ class Config:
 
     def validate(self, where: str = "") -> None:
         """Rules across sections (each section checked its own when it was built)."""
+        env = Envelope(Dynamics.from_params(self.robot), self.robot_motor, headroom=self.limits.feedback_headroom,
+                       duty_max=self.limits.duty_max)
+        if not env.voltage_bound_nm > self.robot_motor.coulomb_nm:
+            raise ConfigError(
+                f"robot.motor: at {1.0 - self.limits.feedback_headroom:.0%} of limits.duty_max x supply_v "
+                "(limits.feedback_headroom) the motors cannot overcome their own Coulomb friction (coulomb_nm)")
         gyro_limit = GYRO_MARGIN * math.radians(self.sensors.gyro_range_dps)
         if self.limits.omega_max > gyro_limit:
             raise ConfigError(

@@ -23,6 +23,11 @@ from ddrt.path.sampled import Path
 from ddrt.path.pursuit import PurePursuit
 
 
+# A robot this close to a turn in place when the schedule has begun the turn counts as arrived
+# at its corner (pure pursuit's own tolerance, 1 mm, assumes it arrives).
+CORNER_TOL_M = 0.003
+
+
 class PathReference:
     """Nearest-point geometry plus a governed time schedule along the speed profile."""
 
@@ -103,6 +108,8 @@ class PathReference:
         if self._ramp and self._update_ramp(near, sp, step):
             return
         t_next = self.t_sched + step
+        if not self.time_indexed and not near.pivot:
+            near = self._onto_pivot(x, y, theta, near, t_next)
         if self.time_indexed:
             self.t_sched = t_next
             sched = path.at_time(t_next)
@@ -149,14 +156,17 @@ class PathReference:
         i = self.path.index(s)
         return self.path.dynamics(i, s)[4]
 
-    def _ramp_accel(self, i: int) -> float:
-        """The profile's acceleration limit on interval i (progress units per s^2)."""
+    def _ramp_accel(self, i: int, u: float) -> float:
+        """The acceleration limit on interval i at progress rate u (progress units per s^2): the
+        profile's caps and, for a path built for a robot, what its motors give at that speed
+        (limits.accel may be unbounded then: the motors are the limit)."""
         p = self.path
         lim = p.limits
         if p.seg_pivot[i]:
-            return p.pivot_radius * lim.alpha_max
-        k = max(abs(p.kappa[i]), abs(p.kappa[i + 1]))
-        return min(lim.accel, 0.5 * lim.alpha_max / k) if k > 0.0 else lim.accel
+            b = p.pivot_radius
+            return b * lim.turn_accel_at(p.turn[i] * u / b)
+        k0, k1 = p.kappa[i], p.kappa[i + 1]
+        return lim.accel_at(u, k0 if abs(k0) >= abs(k1) else k1)
 
     def _update_ramp(self, near, sp: Setpoint, dt: float) -> bool:
         """The schedule after `resume`: from rest at the profile's acceleration until it
@@ -164,7 +174,7 @@ class PathReference:
         p = self.path
         s = self._ramp_s
         i, u_prof = self._rate_at(s)
-        acc = self._ramp_accel(i)
+        acc = self._ramp_accel(i, self._ramp_u)
         u_new = self._ramp_u + acc * dt
         if u_new >= u_prof:
             self._ramp = False  # merged: the profile from here on (at_time is exact)
@@ -204,14 +214,39 @@ class PathReference:
         self.done = False
         return True
 
+    def _onto_pivot(self, x: float, y: float, theta: float, near, t_next: float):
+        """A robot that stopped just short of a turn in place (it braked harder than it could
+        follow) while the schedule has begun the turn: take it as arrived at the corner."""
+        path = self.path
+        end = path.piece_end[path.index(near.sigma)]
+        if not 0.0 < end - near.sigma <= CORNER_TOL_M:
+            return near
+        j = path.index(end)
+        if not path.seg_pivot[j] or path.sigma[j] != end or t_next <= path.t[j]:
+            return near
+        self.pursuit.reset(end)
+        near = self.pursuit.update(x, y, theta)
+        self.sigma = near.sigma
+        self.cross_track = near.cross_track
+        return near
+
     def _update_stopping(self, near, sp: Setpoint, dt: float) -> None:
         decel = self._stop_decel or 1.0
-        v = self._stop_v - decel * dt
-        a = -decel
+        v0 = self._stop_v
+        env = self.path.limits.envelope
+        if env is not None and v0 > 0.0:
+            # No harder than the motors brake here (within the profile's headroom).
+            decel = min(decel, max(env.decel_at(v0, near.kappa), 1e-3))
+        v = v0 - decel * dt
+        if v > 0.0:
+            # Never faster than the path's own profile ahead (it slows for curves and comes to
+            # rest before every turn in place).
+            ahead = self.path.at(self._stop_sigma + 0.5 * (v0 + v) * dt).v
+            v = min(v, ahead)
         if v <= 0.0:
             v = 0.0
-            a = 0.0
-        self._stop_sigma += 0.5 * (self._stop_v + v) * dt
+        a = 0.0 if v <= 0.0 else ((v - v0) / dt if dt > 0.0 else -decel)
+        self._stop_sigma += 0.5 * (v0 + v) * dt
         self._stop_v = v
         sp.x_d, sp.y_d, sp.theta_d = near.x_d, near.y_d, near.theta_d
         sp.path_frame = True

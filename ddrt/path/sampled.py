@@ -51,15 +51,19 @@ Index arrays (read-only Python lists, for the pursuit's hot path; n samples, n -
 from __future__ import annotations
 
 import bisect
+import copy
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ddrt.core.wrap import wrap_angle
 from ddrt.path.geometry import _Geometry, _Piece
-from ddrt.path.profile import SpeedLimits, speed_profile
+from ddrt.path.profile import SpeedLimits, envelope_excess, speed_profile
+
+if TYPE_CHECKING:
+    from ddrt.core.envelope import Envelope
 
 __all__ = ["PathPoint", "Path", "distances_to_polyline"]
 
@@ -154,15 +158,38 @@ class Path:
         self._np.update(sigma=arr["s"], x=arr["x"], y=arr["y"], theta=arr["theta"], kappa=arr["kappa"],
                         seg_pivot=np.asarray(seg_pivot, dtype=bool), turn=np.asarray(turn, dtype=float))
 
-    def _profile(self, v_cap: np.ndarray) -> None:
+    def _profile(self, v_cap: np.ndarray, keep: tuple[int, np.ndarray] | None = None) -> None:
         a = self._np
-        p = speed_profile(a["sigma"], a["kappa"], a["seg_pivot"], a["turn"], v_cap, self.limits, self.pivot_radius)
+        p = speed_profile(a["sigma"], a["kappa"], a["seg_pivot"], a["turn"], v_cap, self.limits, self.pivot_radius,
+                          keep=keep)
         self._np.update(p.arrays)
         for array in self._np.values():
             array.flags.writeable = False  # shared by every caller of arrays()
         self.u, self.v, self.omega, self.t = p.u, p.v, p.omega, p.t
         self.acc_u, self.a, self.alpha = p.acc_u, p.a, p.alpha
         self.pivot_sample: list[bool] = p.pivot_sample
+        # The envelope's per-interval coefficients (p.constraints, 80 bytes a sample) are not
+        # kept: they were for building, and the path worker ships a Path's scalars in a header
+        # of at most 16 MiB. envelope_excess and reprofiled rebuild what they need.
+
+    def reprofiled(self, limits: SpeedLimits, first: int) -> "Path":
+        """The same path with its profile from sample `first` on rebuilt under `limits` (a new
+        robot model while the path is followed): samples up to `first` and the speed there are
+        kept, so a schedule before `first` reads the same times and speeds."""
+        new = copy.copy(self)
+        new._np = {k: v for k, v in self._np.items() if k in ("sigma", "x", "y", "theta", "kappa", "seg_pivot", "turn", "v_cap")}
+        new.limits = limits
+        new._profile(self._np["v_cap"], keep=(first, self._np["u"]))
+        new.duration = new.t[-1]
+        new.warnings = list(self.warnings)
+        return new
+
+    def envelope_excess(self, envelope: "Envelope", first: int = 0) -> float:
+        """How far this path's profile from sample `first` on goes beyond `envelope`, as a fraction
+        of the bound exceeded (<= 0: within): is it still what that robot can drive?"""
+        a = self._np
+        return envelope_excess(a["sigma"], a["kappa"], a["seg_pivot"], a["turn"], a["u"], self.limits,
+                               self.pivot_radius, envelope, first)
 
     # -- lookups ------------------------------------------------------------------------------
     def index(self, sigma: float) -> int:

@@ -304,7 +304,7 @@ def _finish(geo: _Geometry, lim: SpeedLimits, v_cap: float, opt: _Options,
                         f"paths.max_duration_s = {paths.max_duration_s:g} s (a speed or acceleration too low?)")
     if cond is not None and cond.mode != WAYPOINTS:
         notes.append(f"{where}: {cond.summary()}")
-    path.warnings = notes
+    path.warnings = [*lim.notes, *notes]
     path.conditioning = cond
     return path
 
@@ -341,9 +341,17 @@ def load_path(source: str | os.PathLike[str] | Mapping[str, Any], limits: SpeedL
 
 
 def speed_limits(cfg: "Config") -> SpeedLimits:
+    """The config's motion limits for the speed profile, with the robot's motor envelope.
+
+    limits.v_max and limits.accel may be null (what the motors give); a value above what
+    they give is noted (`SpeedLimits.notes`, which every path built with them reports)."""
+    from ddrt.core.envelope import resolve_limits
+
     lim = cfg.limits
-    return SpeedLimits(v_max=lim.v_max, accel=lim.accel, lateral_accel=lim.lateral_accel,
-                       omega_max=lim.omega_max, alpha_max=lim.alpha_max)
+    res = resolve_limits(lim, cfg.robot, cfg.robot_motor)
+    return SpeedLimits(v_max=res.profile_v_max, accel=math.inf if lim.accel is None else lim.accel,
+                       lateral_accel=lim.lateral_accel, omega_max=lim.omega_max, alpha_max=lim.alpha_max,
+                       envelope=res.envelope, notes=res.notes)
 
 
 def resolve_path(cfg: "Config", path_arg: str | None = None) -> Path:

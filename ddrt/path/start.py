@@ -162,7 +162,7 @@ class StartReference:
                 self._release_v = JOIN_SPEED_MARGIN
                 sp.omega_cap = sp.y_cap = math.inf
         elif self.phase == "release":
-            accel = self.limits.accel
+            accel = self.limits.accel_at(max(sp.v_d, 0.0))  # finite: the motors bound it
             self._release_v += RELEASE_ACCEL_FRACTION * accel * step
             if self._release_v >= self.limits.v_max:
                 self.phase = "follow"

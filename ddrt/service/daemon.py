@@ -602,7 +602,7 @@ class Daemon:
             # refuses unknown ones and clamps limits above the config's (reported below).
             source = {k: v for k, v in req.items() if k not in ("cmd", "id", "pose")}
             if "points" in source:
-                source.setdefault("speed", min(0.3, self.cfg.limits.v_max))
+                source.setdefault("speed", min(0.3, speed_limits(self.cfg).v_max))
         else:
             return {"ok": False, "error": "follow: give path (a file), points ([[x, y], ...]) or shape"}
         pose = req.get("pose")
