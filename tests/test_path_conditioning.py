@@ -309,6 +309,22 @@ def test_active_limits_name_the_binding_cap() -> None:
     assert rep.share_length["omega"] > 0.8
 
 
+def test_where_the_motors_set_the_speed_the_report_says_so() -> None:
+    """limits left to the motors: the start (speeding up from rest as hard as the motors give)
+    is 'motors: accel', nothing is 'other'; with a limit well under the motors' (the seed's
+    0.3 m/s^2 here) the same stretch is the config's 'accel' and the motors are never named."""
+    shape = {"shape": "line", "length": 3.0, "speed": 0.6}
+    cfg = load_config(SIM, {"limits": {"v_max": None, "accel": None, "torque_max_nm": None}})
+    rep = path_report(load_path(shape, speed_limits(cfg)), "line")
+    assert rep.share_length["motors: accel"] > 0.003 and rep.share_length["motors: braking"] > 0.003
+    assert rep.share_length["other"] == 0.0 and rep.share_length["accel"] == 0.0
+    assert rep.stretches[0].label in ("rest", "motors: accel") and rep.stretches[1].label == "motors: accel"
+    slow = load_config(SIM, {"limits": {"accel": 0.3}})
+    rep = path_report(load_path(shape, speed_limits(slow)), "line")
+    assert rep.share_length["accel"] > 0.1
+    assert all(rep.share_length[k] == 0.0 for k in ("motors: speed", "motors: accel", "motors: braking", "other"))
+
+
 def test_ddrt_path_reports_and_plots(tmp_path, capsys) -> None:
     case = pg.teach_and_repeat()
     f = _csv(tmp_path, case)

@@ -15,7 +15,16 @@ from the path's arrays and names, per sample, the one that binds:
   accel        speeding up at the acceleration limit (min(accel, alpha_max / (2 |kappa|)))
   decel        braking at the deceleration limit (for the next cap, a pivot or the end)
   rest         standing: the ends and both sides of a turn in place
+  motors: speed    the motors' torque envelope (ddrt/core/envelope.py) at a steady rate:
+                   what the wheels' motors give at that speed, within limits.feedback_headroom
+  motors: accel    speeding up as hard as the motors give
+  motors: braking  braking as hard as the motors give
   other        a limit this module does not know (none today)
+
+The motors' labels are found by elimination: the profile's bounds are the caps above and, when
+the path was built for a robot, its motors' envelope; a sample that none of the config's limits
+explains is held by the envelope (the profile is time-optimal, so every sample is held by
+something), and the sign of its acceleration says which way.
 
 `--plot` draws the input points against the reference, and the speed profile under its caps.
 """
@@ -33,7 +42,9 @@ from ddrt.path.sampled import Path, distances_to_polyline
 
 __all__ = ["LABELS", "PathReport", "active_limits", "path_report", "report_text", "write_plot"]
 
-LABELS = ("speed", "point cap", "lateral", "omega", "curv. rate", "pivot omega", "accel", "decel", "rest", "other")
+LABELS = ("speed", "point cap", "lateral", "omega", "curv. rate", "pivot omega", "accel", "decel", "rest",
+          "motors: speed", "motors: accel", "motors: braking", "other")
+_STEADY_ACC = 1e-3  # m/s^2 (progress units): below it the rate is held, not rising or falling
 _REL = 1e-6
 
 
@@ -91,6 +102,17 @@ def active_limits(path: Path) -> np.ndarray:
     free = ~at_cap
     out[free & rising] = LABELS.index("accel")
     out[free & ~rising & falling] = LABELS.index("decel")
+    if getattr(lim, "envelope", None) is not None:
+        left = out == LABELS.index("other")
+        after = np.zeros(n)
+        after[:-1] = acc
+        before = np.zeros(n)
+        before[1:] = acc
+        up = after > _STEADY_ACC
+        down = (after < -_STEADY_ACC) | (before < -_STEADY_ACC)
+        out[left & up] = LABELS.index("motors: accel")
+        out[left & ~up & down] = LABELS.index("motors: braking")
+        out[left & ~up & ~down] = LABELS.index("motors: speed")
     out[u <= 0.0] = LABELS.index("rest")
     return out
 
@@ -207,7 +229,7 @@ def report_text(r: PathReport, max_stretches: int = 24) -> str:
     lines.append("speed set by  (share of length, of time)")
     for name in LABELS:
         if r.share_length[name] > 0.0 or r.share_time[name] > 0.0:
-            lines.append(f"  {name:<12s} {100 * r.share_length[name]:6.1f} %  {100 * r.share_time[name]:6.1f} %")
+            lines.append(f"  {name:<16s} {100 * r.share_length[name]:6.1f} %  {100 * r.share_time[name]:6.1f} %")
     lines.append("where         (progress in m)")
     shown = r.stretches
     if len(shown) > max_stretches:
