@@ -8,6 +8,8 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
+from ddrt.service.protocol import COMMANDS
+
 
 FOLLOW_TIMEOUT_S = 120.0
 
@@ -257,7 +259,7 @@ def build_parser() -> argparse.ArgumentParser:
     ctl.add_argument("--timeout", type=float, default=None,
                      help=f"seconds to wait for the reply (default 2; {FOLLOW_TIMEOUT_S:g} for follow)")
     ctl.add_argument("command_name", metavar="COMMAND",
-                     choices=("status", "follow", "drive", "stop", "estop", "reset", "gains", "reload"))
+                     choices=COMMANDS)
     ctl.add_argument("args", nargs="*", help="follow: the path file; drive: V (m/s) and OMEGA (rad/s)")
     ctl.add_argument("--for", dest="for_s", type=float, metavar="S",
                      help="drive: re-send the command at 10 Hz for S seconds, then stop")

@@ -44,6 +44,7 @@ from ddrt.config.schema import ConfigError
 from ddrt.service.sdnotify import Notifier
 from ddrt.path.spec import path_source, speed_limits
 from ddrt.service.pathworker import Build, BuildJob, PathWorker, build_path, describe
+from ddrt.service.protocol import COMMANDS, NEVER_REFUSED, PRIORITY
 from ddrt.service.telemetry import RotatingCsvWriter, TelemetryLogger, TelemetryRing
 from ddrt.service.timing import RateScheduler, TimingStats, percentile
 from hal.base import HalError
@@ -80,11 +81,6 @@ class _PendingFollow:
 
 PREPARE_SAMPLES = 1 << 14  # lateness samples kept while a path is prepared (82 s at 200 Hz)
 
-COMMANDS = ("status", "follow", "drive", "stop", "estop", "reset", "gains", "reload")
-# Served before other clients' requests; each supersedes the listed commands sent before it
-# and still waiting (so an estop cannot be undone by a reset that was queued ahead of it).
-PRIORITY = {"estop": ("follow", "reset", "drive"), "stop": ("follow", "drive")}
-NEVER_REFUSED = ("estop",)  # no rate limit, no shared queue bound
 
 
 class Daemon:
@@ -533,6 +529,15 @@ class Daemon:
             loop.estop("estop requested over the control socket")
             cancelled = self._cancel_follow("cancelled by estop")
             return {"ok": True, "state": loop.state, **cancelled}
+        if cmd == "resume":
+            # After a hold ended stopped (daemon.on_recover: wait): the path from where the
+            # robot stands, the schedule ramping up from rest.
+            try:
+                loop.resume()
+            except ValueError as exc:
+                return {"ok": False, "error": f"resume: {exc} (only a path interrupted by a hold, "
+                                              "with daemon.on_recover: wait, is resumed)"}
+            return {"ok": True, "state": loop.state}
         if cmd == "reset":
             loop.reset()
             return {"ok": True, "state": loop.state}

@@ -1,0 +1,10 @@
+"""The control socket's commands: one list for the daemon that serves them and the CLI that
+sends them (importing this costs nothing, so `ddrt ctl --help` stays fast)."""
+
+from __future__ import annotations
+
+COMMANDS = ("status", "follow", "drive", "stop", "resume", "estop", "reset", "gains", "reload")
+# Served before other clients' requests; each supersedes the listed commands sent before it
+# and still waiting (so an estop cannot be undone by a reset that was queued ahead of it).
+PRIORITY = {"estop": ("follow", "reset", "drive", "resume"), "stop": ("follow", "drive", "resume")}
+NEVER_REFUSED = ("estop",)  # no rate limit, no shared queue bound
