@@ -149,7 +149,9 @@ class PathReference:
         cusp the robot has not reached)? It waits at the cusp until the robot arrives."""
         p = self.path
         i = p.index(sched.sigma)
-        return not sched.pivot and not p.seg_pivot[i] and p.direction[i] != d_near
+        j = p.index(self.sigma)
+        return (sched.sigma > self.sigma and not p.seg_pivot[i] and not p.seg_pivot[j]
+                and p.direction[i] != d_near)
 
     # ------------------------------------------------------------------ resuming from rest
 
