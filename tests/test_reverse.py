@@ -177,3 +177,12 @@ def test_random_marked_reverse_paths_load_or_fail_cleanly(cfg) -> None:
             assert path.at(c).v == 0.0
         assert np.all(np.isfinite(a["t"])) and math.isfinite(path.duration)
     assert loaded > 150
+
+
+def test_ddrt_path_reports_the_cusps(cfg, tmp_path) -> None:
+    from ddrt.path.report import path_report, report_text
+
+    f = tmp_path / "three_point.csv"
+    f.write_text(THREE_POINT)
+    text = report_text(path_report(load_path(f, speed_limits(cfg), paths=cfg.paths), str(f)))
+    assert "cusps: 2 (0.424 m driven in reverse)" in text and text.count("cusp at") == 2

@@ -48,7 +48,7 @@ The reported deviation (`Conditioning.deviation_m`) is the largest distance from
 point to the reference.
 
 Reversals: in samples a corner that turns by 150 degrees or more is a cusp (the recording
-drove back the way it came). ddrt drives forward only, so such a path is refused naming the
+drove back the way it came). Unless its points are marked as reached in reverse (spec.py), it is refused naming the
 line; a turn in place there is a different motion, which the file would have to say
 (split it into two paths there).
 """
