@@ -285,7 +285,7 @@ BAD_CSV = [
     ("non_numeric.csv", "x,y\n0,0\n1,abc\n", "line 3", "not a number"),
     ("nan.csv", "x,y\n0,0\nnan,1\n", "line 3", "finite"),
     ("inf.csv", "x,y\n0,0\n1,inf\n", "line 3", "finite"),
-    ("negative_speed.csv", "x,y,v\n0,0,0.2\n1,0,-0.3\n", "line 3", "speed"),
+    ("zero_speed.csv", "x,y,v\n0,0,0.2\n1,0,0\n", "line 3", "nonzero"),  # negative: reverse (test_reverse.py)
     ("columns.csv", "x,y\n0,0\n1,0,3\n", "line 3", "columns"),
     ("one_point.csv", "x,y\n# comment\n0.5,0.5\n0.5,0.5\n", "fewer than 2", "distinct"),
     ("empty.csv", "", "line 1", "header"),

@@ -251,7 +251,7 @@ def test_a_reversal_is_refused_naming_the_line(tmp_path) -> None:
     with pytest.raises(PathError) as exc:
         load_path(f, LIM)
     msg = str(exc.value)
-    assert "reverse.csv: line " in msg and "reverses" in msg and "forward only" in msg
+    assert "reverse.csv: line " in msg and "reverses" in msg and "reached in reverse (a negative v)" in msg
     line = int(msg.split("line ")[1].split(":")[0])
     assert abs(line - (len(there) + 1)) <= 8  # at the turn (header is line 1)
     grid = tmp_path / "back.csv"

@@ -194,8 +194,11 @@ class DynamicController(_Controller):
         # Kanayama's heading feedback vanishes with v_d; below HOLD_SPEED a heading-hold term
         # fades in so the robot keeps its heading while turning in place or at rest. Above
         # it the law is Kanayama's alone, whose convergence is fixed in distance, not time.
-        k_th = v_d * o.k_theta
-        if not self.seed_method and (sp.pivot or v_d < HOLD_SPEED):
+        # |v_d|: reversing, Kanayama's Lyapunov function still decreases (-K_x x_e^2 -
+        # |v_d| K_theta sin^2(th_e) / K_y) when the heading term keeps its sign and the lateral
+        # one (v_d K_y y_e) takes v_d's.
+        k_th = abs(v_d) * o.k_theta
+        if not self.seed_method and (sp.pivot or abs(v_d) < HOLD_SPEED):
             k_th += self.heading_gain * (1.0 if sp.pivot else 1.0 - abs(v_d) / HOLD_SPEED)
         w_c = sp.omega_d + v_d * o.k_y * y_e + k_th * math.sin(th_e)
         if sp.pivot and not self.seed_method:
@@ -279,7 +282,7 @@ class KinematicController(_Controller):
         else:
             v_c = sp.v_d + 10.0 * sp.along_err
             w_c = v_c * sp.pp_curvature
-            if sp.v_d < 1e-3:
+            if abs(sp.v_d) < 1e-3:
                 w_c += self.heading_gain * math.sin(th_e)
         vm = lim.v_max if lim.v_max < sp.v_cap else sp.v_cap
         wm = lim.omega_max if lim.omega_max < sp.omega_cap else sp.omega_cap

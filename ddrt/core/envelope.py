@@ -114,10 +114,10 @@ class Envelope:
         sign = -1.0 if v >= 0.0 else 1.0
         return self.rate_limit(v, v * kappa, sign, sign * kappa)
 
-    def accel_at(self, v: float, kappa: float = 0.0) -> float:
-        """Largest acceleration (m/s^2, > 0: |v| growing) along a curve of curvature `kappa` at
-        speed v; at v = 0 the direction is forward (the model is symmetric in v)."""
-        sign = 1.0 if v >= 0.0 else -1.0
+    def accel_at(self, v: float, kappa: float = 0.0, direction: float = 1.0) -> float:
+        """Largest acceleration (m/s^2, > 0: |v| growing) along the robot's curvature `kappa` at
+        speed v; at v = 0 towards `direction` (+1 forward, -1 reversing)."""
+        sign = (1.0 if v > 0.0 else -1.0) if v != 0.0 else (1.0 if direction >= 0.0 else -1.0)
         return self.rate_limit(v, v * kappa, sign, sign * kappa)
 
     def turn_accel_at(self, omega: float) -> float:

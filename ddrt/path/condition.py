@@ -52,7 +52,7 @@ point to the reference (for a grid plan, along the grid's axes: at most half a c
 the reference crosses every planned cell).
 
 Reversals: in samples a corner that turns by 150 degrees or more is a cusp (the recording
-drove back the way it came). ddrt drives forward only, so such a path is refused naming the
+drove back the way it came). Unless its points are marked as reached in reverse (spec.py), it is refused naming the
 line; a turn in place there is a different motion, which the file would have to say
 (split it into two paths there).
 """
@@ -758,14 +758,14 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, 
             if abs(turn) >= math.radians(REVERSAL_DEG):
                 raise ConditionError(
                     f"{where}: {names[k]}: the path reverses here (it turns {math.degrees(abs(turn)):.0f} degrees "
-                    f"within {scale * 100:.0f} cm): ddrt drives forward only; split the path at this point into two")
+                    f"within {scale * 100:.0f} cm): mark the points reached in reverse (a negative v) or split the path here")
     else:
         d = np.diff(p, axis=0)
         back = np.flatnonzero(np.einsum("ij,ij->i", d[1:], d[:-1]) < -0.999 * seg[1:] * seg[:-1])
         if len(back):
             k = int(back[0]) + 1
             raise ConditionError(f"{where}: {names[k]}: the plan steps back the way it came (a reversal): "
-                                 "ddrt drives forward only; split the path at this point into two")
+                                 "mark the points reached in reverse (a negative v) or split the path here")
     noise = max(_estimate_noise(p, knot), NOISE_FLOOR_M)
     axis = grid_axis(p) if mode == GRID else None
     info.noise_m = noise
@@ -790,8 +790,8 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, 
         except _Cusp as exc:
             k = a + exc.index
             raise ConditionError(f"{where}: {names[k]}: the points turn back on themselves here (the smoothed "
-                                 "curve stops and reverses): ddrt drives forward only; split the path at this "
-                                 "point into two") from None
+                                 "curve stops and reverses): mark the points reached in reverse (a negative v) "
+                                 "or split the path here") from None
         except ConditionError as exc:
             if str(exc).startswith(where):
                 raise
@@ -804,7 +804,7 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, 
             if abs(turn) >= math.radians(REVERSAL_DEG) and mode == SAMPLES:
                 raise ConditionError(
                     f"{where}: {names[a]}: the path reverses here (it turns {math.degrees(abs(turn)):.0f} degrees): "
-                    "ddrt drives forward only; split the path at this point into two")
+                    "mark the points reached in reverse (a negative v) or split the path here")
             if abs(turn) > 1e-9:
                 c = fixes[j]
                 assert c is not None

@@ -29,10 +29,20 @@ class _Piece:
     kappa: np.ndarray
     pivot: bool = False
     turn: float = 0.0
+    reverse: bool = False  # driven backwards: theta is the robot's heading (tangent + pi), kappa its curvature
 
     @property
     def length(self) -> float:
         return float(self.s[-1])
+
+
+def reversed_piece(pc: _Piece) -> _Piece:
+    """The same samples driven backwards: the robot faces away from the direction of travel
+    (theta + pi), and its curvature d(theta)/d(forward distance) changes sign (forward
+    distance shrinks as progress grows), so omega = v kappa holds for the negative v."""
+    if pc.pivot:
+        return _Piece(pc.s, pc.x, pc.y, pc.theta + math.pi, pc.kappa, True, pc.turn)
+    return _Piece(pc.s, pc.x, pc.y, pc.theta + math.pi, -pc.kappa, False, 0.0, True)
 
 
 def _count(length: float, step: float) -> int:

@@ -81,14 +81,15 @@ class SpeedLimits:
     # Never less than this (m/s^2): a schedule that speeds up never stalls on a rounding zero.
     _MIN_ACCEL = 1e-3
 
-    def accel_at(self, v: float, kappa: float = 0.0) -> float:
-        """The hardest speeding-up (m/s^2, finite) allowed at speed v along curvature kappa: the
-        accel cap, alpha_max / (2 |kappa|) as the profile has it, and the motors' envelope.
-        For schedules that leave the profile (a resume ramp, the start stage's release)."""
+    def accel_at(self, v: float, kappa: float = 0.0, direction: float = 1.0) -> float:
+        """The hardest speeding-up (m/s^2 of |v|, finite) allowed at speed v along the robot's
+        curvature kappa (`direction` -1: reversing, for v = 0): the accel cap, alpha_max /
+        (2 |kappa|) as the profile has it, and the motors' envelope. For schedules that leave
+        the profile (a resume ramp, the start stage's release)."""
         k = abs(kappa)
         a = min(self.accel, 0.5 * self.alpha_max / k) if k > 0.0 else self.accel
         if self.envelope is not None:
-            a = min(a, max(self.envelope.accel_at(v, kappa), self._MIN_ACCEL))
+            a = min(a, max(self.envelope.accel_at(v, kappa, direction), self._MIN_ACCEL))
         return a if math.isfinite(a) else self._MIN_ACCEL
 
     def turn_accel_at(self, omega: float) -> float:
@@ -161,40 +162,46 @@ class Constraints:
     """
 
     def __init__(self, env: "Envelope", s: np.ndarray, kap: np.ndarray, piv: np.ndarray, turn: np.ndarray,
-                 b: float, acc_lim: np.ndarray, dec_lim: np.ndarray) -> None:
+                 b: float, acc_lim: np.ndarray, dec_lim: np.ndarray, direction: np.ndarray | None = None) -> None:
         self.env = env
         self.th = env.torque_bound_nm
         self.vh = env.voltage_bound_nm
         self.kv = env.emf_damping
         self.tc = env.motor.coulomb_nm
         self.ws = env.motor.coulomb_smoothing_rad_s
+        d = np.ones(len(s) - 1) if direction is None else np.asarray(direction, dtype=float)
         self.W = self._coefficients(env, np.diff(s), kap, piv.astype(float), np.asarray(turn, dtype=float), b,
-                                    acc_lim, dec_lim)
+                                    acc_lim, dec_lim, d)
         self._chunks: dict[int, list[list[float]]] = {}
 
     @staticmethod
     def _coefficients(env: "Envelope", ds: np.ndarray, kap: np.ndarray, p: np.ndarray, turn: np.ndarray, b: float,
-                      acc_lim: np.ndarray, dec_lim: np.ndarray) -> np.ndarray:
+                      acc_lim: np.ndarray, dec_lim: np.ndarray, sgn: np.ndarray) -> np.ndarray:
         d = env.dyn
-        k0, k1 = kap[:-1], kap[1:]
         q = 1.0 - p
+        sgn = np.where(p > 0.0, 1.0, sgn)
+        # kappa is the robot's curvature; on a reversing interval (sgn = -1) v = -u and
+        # omega = kappa v = (sgn kappa) u: with k = sgn kappa (the travel curvature) omega and
+        # alpha are as forward, and the terms in v and a (m_k a, mbar a, m_x v omega, the wheels'
+        # v) take the sign.
+        k0, k1 = sgn * kap[:-1], sgn * kap[1:]
         dk = q * (k1 - k0) / ds
         inv2 = 0.5 / ds
         tb = p * turn / b
         # Generalised forces per unit of y^2, x y and x^2 (docs/model.md: H eta' + h). Driving:
         # v = x, omega = kappa_i x, a = (y^2 - x^2) / (2 ds), alpha = kappa_{i+1} a + dk (x^2 + x y) / 2
         # (what the Path reports: (omega_{i+1} - omega_i) / dt); a pivot: v = 0, omega = turn x / b.
-        fv_a = q * (d.m_k + d.mbar * k1) + d.mbar * tb
-        fw_a = q * (d.mbar + d.I * k1) + d.I * tb
+        fv_a = q * (d.m_k * sgn + d.mbar * k1) + d.mbar * tb
+        fw_a = q * (d.mbar * sgn + d.I * k1) + d.I * tb
         fv = (fv_a * inv2, 0.5 * d.mbar * dk, q * (0.5 * d.mbar * dk - d.m_x * k0 * k0) - p * d.m_x / (b * b) - fv_a * inv2)
-        fw = (fw_a * inv2, 0.5 * d.I * dk, q * (0.5 * d.I * dk + d.m_x * k0) - fw_a * inv2)
+        fw = (fw_a * inv2, 0.5 * d.I * dk, q * (0.5 * d.I * dk + d.m_x * sgn * k0) - fw_a * inv2)
         track = d.L + d.R
         W = np.empty((len(ds), 10))
         for j in range(3):
             W[:, j] = d.r_L / track * (d.R * fv[j] - fw[j])
             W[:, 4 + j] = d.r_R / track * (d.L * fv[j] + fw[j])
-        W[:, 3] = q * (1.0 - d.L * k0) / d.r_L - tb * d.L / d.r_L
-        W[:, 7] = q * (1.0 + d.R * k0) / d.r_R + tb * d.R / d.r_R
+        W[:, 3] = q * (sgn - d.L * k0) / d.r_L - tb * d.L / d.r_L
+        W[:, 7] = q * (sgn + d.R * k0) / d.r_R + tb * d.R / d.r_R
         with np.errstate(divide="ignore"):
             W[:, 8] = np.where(np.isfinite(acc_lim), inv2 / acc_lim, 0.0)
             W[:, 9] = np.where(np.isfinite(dec_lim), inv2 / dec_lim, 0.0)
@@ -500,7 +507,7 @@ def _envelope_passes(con: Constraints, cap: np.ndarray, start: float | None = No
 
 
 def _caps(s: np.ndarray, kap: np.ndarray, piv: np.ndarray, v_cap: np.ndarray, lim: SpeedLimits,
-          b: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+          b: float, direction: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per-sample speed caps, per-interval acceleration caps, and which samples lie in pivots."""
     ds = np.diff(s)
     n = len(s)
@@ -528,6 +535,8 @@ def _caps(s: np.ndarray, kap: np.ndarray, piv: np.ndarray, v_cap: np.ndarray, li
     edge[:-1] |= piv & ~np.concatenate(([False], piv[:-1]))  # first sample of a pivot
     edge[1:] |= piv & ~np.concatenate((piv[1:], [False]))  # last sample of a pivot
     cap[edge] = 0.0
+    if direction is not None and len(direction) > 1:
+        cap[1:-1][direction[1:] != direction[:-1]] = 0.0  # a cusp: at rest where the direction flips
     cap[0] = cap[-1] = 0.0
     acc_lim[piv] = b * lim.alpha_max
     dec_lim[piv] = b * lim.alpha_max
@@ -536,13 +545,16 @@ def _caps(s: np.ndarray, kap: np.ndarray, piv: np.ndarray, v_cap: np.ndarray, li
 
 def speed_profile(sigma: Sequence[float], kappa: Sequence[float], seg_pivot: Sequence[bool],
                   turn: Sequence[float], v_cap: np.ndarray, limits: SpeedLimits, pivot_radius: float,
-                  envelope: "Envelope | None" = None, keep: "tuple[int, np.ndarray] | None" = None) -> Profile:
+                  envelope: "Envelope | None" = None, keep: "tuple[int, np.ndarray] | None" = None,
+                  direction: "np.ndarray | None" = None) -> Profile:
     """The time-optimal profile under `limits` for samples at progress `sigma` (see the module doc).
 
     `envelope` (default `limits.envelope`) adds the motors' torque envelope. `keep` = (first,
     u): samples up to `first` keep the progress rates u (a profile being followed), and the
     profile from there on starts at u[first] (braking as hard as the passes ask when the
-    robot is already faster than the limits can brake from)."""
+    robot is already faster than the limits can brake from). `direction` (per interval, -1 where
+    the path is driven backwards, default all +1): the profile rests at every cusp and v, a and
+    omega take the sign (ddrt/path/sampled.py's docstring)."""
     lim, b = limits, pivot_radius
     env = lim.envelope if envelope is None else envelope
     s = np.asarray(sigma, dtype=float)
@@ -550,7 +562,8 @@ def speed_profile(sigma: Sequence[float], kappa: Sequence[float], seg_pivot: Seq
     piv = np.asarray(seg_pivot, dtype=bool)
     turn_arr = np.asarray(turn, dtype=float)
     ds = np.diff(s)
-    cap, acc_lim, dec_lim, in_piv = _caps(s, kap, piv, np.asarray(v_cap, dtype=float), lim, b)
+    dirs = np.ones(len(ds)) if direction is None else np.asarray(direction, dtype=float)
+    cap, acc_lim, dec_lim, in_piv = _caps(s, kap, piv, np.asarray(v_cap, dtype=float), lim, b, dirs)
     first, u_start = 0, None
     if keep is not None:
         first = int(keep[0])
@@ -569,31 +582,32 @@ def speed_profile(sigma: Sequence[float], kappa: Sequence[float], seg_pivot: Seq
         if u_start is not None:
             w[0] = u_start * u_start
     else:
-        constraints = Constraints(env, s, kap, piv, turn_arr, b, acc_lim, dec_lim)
+        constraints = Constraints(env, s, kap, piv, turn_arr, b, acc_lim, dec_lim, dirs)
         if first == 0 and u_start is None:
             w, _ = _envelope_passes(constraints, cap)
         else:
             tail_con = Constraints(env, s[first:], kap[first:], piv[first:], turn_arr[first:], b,
-                                   acc_lim[first:], dec_lim[first:])
+                                   acc_lim[first:], dec_lim[first:], dirs[first:])
             tail = cap[first:].copy()
             tail[0] = u_start
             w, _ = _envelope_passes(tail_con, tail, start=u_start)
     if first:
         w = np.concatenate((u_old[:first] ** 2, w))
-    return _finish(s, kap, piv, turn_arr, b, w, in_piv, constraints)
+    return _finish(s, kap, piv, turn_arr, b, w, in_piv, constraints, dirs)
 
 
 def envelope_excess(sigma: Sequence[float], kappa: Sequence[float], seg_pivot: Sequence[bool],
                     turn: Sequence[float], u: np.ndarray, limits: SpeedLimits, pivot_radius: float,
-                    envelope: "Envelope", first: int = 0) -> float:
+                    envelope: "Envelope", first: int = 0, direction: "np.ndarray | None" = None) -> float:
     """How far the profile u goes beyond `envelope` (and the acceleration caps of `limits`) on the
     intervals from `first` on, as a fraction of the bound exceeded (<= 0: within)."""
     s = np.asarray(sigma, dtype=float)
     kap = np.asarray(kappa, dtype=float)
     piv = np.asarray(seg_pivot, dtype=bool)
+    dirs = np.ones(len(s) - 1) if direction is None else np.asarray(direction, dtype=float)
     _, acc_lim, dec_lim, _ = _caps(s, kap, piv, np.full(len(s), np.inf), limits, pivot_radius)
     con = Constraints(envelope, s[first:], kap[first:], piv[first:], np.asarray(turn, dtype=float)[first:],
-                      pivot_radius, acc_lim[first:], dec_lim[first:])
+                      pivot_radius, acc_lim[first:], dec_lim[first:], dirs[first:])
     uu = np.asarray(u, dtype=float)[first:]
     if len(uu) < 2:
         return -math.inf
@@ -605,7 +619,7 @@ def envelope_excess(sigma: Sequence[float], kappa: Sequence[float], seg_pivot: S
 
 
 def _finish(s: np.ndarray, kap: np.ndarray, piv: np.ndarray, turn_arr: np.ndarray, b: float, w: np.ndarray,
-            in_piv: np.ndarray, constraints: "Constraints | None") -> Profile:
+            in_piv: np.ndarray, constraints: "Constraints | None", dirs: np.ndarray | None = None) -> Profile:
     """Times, speeds and accelerations of the profile u^2 = w."""
     ds = np.diff(s)
     n = len(s)
@@ -620,14 +634,17 @@ def _finish(s: np.ndarray, kap: np.ndarray, piv: np.ndarray, turn_arr: np.ndarra
     t_arr = np.concatenate(([0.0], np.cumsum(2.0 * ds / us)))
     acc_arr = (u_arr[1:] * u_arr[1:] - u_arr[:-1] * u_arr[:-1]) / (2.0 * ds)
     # Per-sample v and omega. A pivot's edge samples are rest points (v = omega = 0).
-    v_arr = np.where(in_piv, 0.0, u_arr)
+    if dirs is None:
+        dirs = np.ones(n - 1)
+    sgn = np.concatenate((dirs, dirs[-1:]))  # a sample takes its own interval's direction (u = 0 at cusps)
+    v_arr = np.where(in_piv, 0.0, sgn * u_arr)
     # In a pivot, a sample takes the turn of its own interval, the last sample its left one's.
     j = np.arange(n)
     own = np.zeros(n, dtype=bool)
     own[:-1] = piv
     j = np.where(own, j, j - 1).clip(0, max(n - 2, 0))
-    omega_arr = np.where(in_piv, turn_arr[j] * u_arr / b, u_arr * kap)
-    a_arr = np.where(piv, 0.0, acc_arr)
+    omega_arr = np.where(in_piv, turn_arr[j] * u_arr / b, v_arr * kap)
+    a_arr = np.where(piv, 0.0, dirs * acc_arr)
     alpha_arr = (omega_arr[1:] - omega_arr[:-1]) / (t_arr[1:] - t_arr[:-1])
     u, v, omega, t = u_arr.tolist(), v_arr.tolist(), omega_arr.tolist(), t_arr.tolist()
     acc_u, a, alpha = acc_arr.tolist(), a_arr.tolist(), alpha_arr.tolist()

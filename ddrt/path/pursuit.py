@@ -8,6 +8,11 @@ branch where the path passes near itself (a figure-eight's crossing). A pivot ha
 samples at one point, so xy cannot tell how far it has gone: inside a pivot, progress follows
 the robot's heading (how far it has turned), and the xy walk never crosses into a pivot.
 
+Reversing (a piece with `Path.direction` -1): the projection runs along the direction of
+travel, which is the robot's heading reversed, and pure pursuit's look-ahead point lies
+behind the robot; its curvature 2 y_goal_body / dist^2 is then the robot's own (omega = v
+kappa with v < 0). The look-ahead stops at a cusp.
+
 Starting from rest: the profile is 0 where the path starts and on both sides of every pivot,
 and a reference taken strictly at the projection would hold a robot at rest there forever
 (v_d = 0 while the projection cannot move). Where the profile accelerates, the speeds are
@@ -140,12 +145,15 @@ class PurePursuit:
                 s = end
             self._settle(s)
             return
-        # Driving: walk on while the robot lies beyond the normal at the interval's end.
-        tx, ty = p.tx, p.ty
-        g0 = (x - xs[i]) * tx[i] + (y - ys[i]) * ty[i]
+        # Driving: walk on while the robot lies beyond the normal at the interval's end. The
+        # direction of travel is the heading times the interval's direction (-1 reversing); the
+        # walk never crosses a cusp (the robot arrives there, as at a pivot, see below).
+        tx, ty, dirs = p.tx, p.ty, p.direction
+        d = dirs[i]
+        g0 = d * ((x - xs[i]) * tx[i] + (y - ys[i]) * ty[i])
         while True:
-            g1 = (x - xs[i + 1]) * tx[i + 1] + (y - ys[i + 1]) * ty[i + 1]
-            if g1 >= 0.0 and i < last and not piv[i + 1] and sig[i + 1] < limit:
+            g1 = d * ((x - xs[i + 1]) * tx[i + 1] + (y - ys[i + 1]) * ty[i + 1])
+            if g1 >= 0.0 and i < last and not piv[i + 1] and dirs[i + 1] == d and sig[i + 1] < limit:
                 i += 1
                 g0 = g1
                 continue
@@ -183,6 +191,10 @@ class PurePursuit:
         v, w, a, al, _ = dyn
         c, sn = math.cos(thd), math.sin(thd)
         ct = -sn * (x - xd) + c * (y - yd)
-        gx, gy, ppk = _goal(p, s + self.lookahead_m, x, y, theta)
+        ahead = s + self.lookahead_m
+        end = p.piece_end[i]
+        if ahead > end and end < p.length and p.direction[p.index(end)] != p.direction[i]:
+            ahead = end  # not past a cusp: beyond it the path comes back
+        gx, gy, ppk = _goal(p, ahead, x, y, theta)
         done = p.length - s <= self.arrive_tol_m
         return Reference(s, xd, yd, thd, v, w, a, al, 0.0 if pivot else k, ct, gx, gy, ppk, pivot, done)

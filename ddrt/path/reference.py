@@ -59,7 +59,7 @@ class PathReference:
                 self._ramp = False
             else:
                 point = self.path.at_time(self.t_sched)
-                self._stop_v = 0.0 if point.pivot else point.v
+                self._stop_v = 0.0 if point.pivot else abs(point.v)
                 self._stop_sigma = point.sigma
             self._stop_decel = decel
 
@@ -122,7 +122,8 @@ class PathReference:
             self.done = t_next >= path.duration and near.done
             return
         sched = path.at_time(t_next)
-        if sched.sigma <= near.sigma + self.max_lead:
+        d_near = path.direction[path.index(near.sigma)]
+        if sched.sigma <= near.sigma + self.max_lead and not self._past_cusp(sched, d_near):
             self.t_sched = t_next
             held = False
         else:
@@ -133,7 +134,7 @@ class PathReference:
         sp.kappa = near.kappa
         sp.v_d = sched.v
         sp.a_d = 0.0 if held else sched.a
-        sp.along_err = sched.sigma - near.sigma
+        sp.along_err = d_near * (sched.sigma - near.sigma)  # along the robot's heading
         sp.pivot = sched.pivot or near.pivot
         if sched.pivot:
             sp.omega_d = sched.omega
@@ -142,6 +143,15 @@ class PathReference:
             sp.omega_d = sched.v * near.kappa
             sp.alpha_d = 0.0 if held else sched.alpha  # d(v kappa)/dt: a kappa + v^2 dkappa/ds
         self.done = near.done and self.t_sched >= path.duration
+
+    def _past_cusp(self, sched, d_near: float) -> bool:
+        """Would the schedule be driving the other way than the robot's piece (it has passed a
+        cusp the robot has not reached)? It waits at the cusp until the robot arrives."""
+        p = self.path
+        i = p.index(sched.sigma)
+        j = p.index(self.sigma)
+        return (sched.sigma > self.sigma and not p.seg_pivot[i] and not p.seg_pivot[j]
+                and p.direction[i] != d_near)
 
     # ------------------------------------------------------------------ resuming from rest
 
@@ -166,7 +176,8 @@ class PathReference:
             b = p.pivot_radius
             return b * lim.turn_accel_at(p.turn[i] * u / b)
         k0, k1 = p.kappa[i], p.kappa[i + 1]
-        return lim.accel_at(u, k0 if abs(k0) >= abs(k1) else k1)
+        d = p.direction[i]
+        return lim.accel_at(d * u, k0 if abs(k0) >= abs(k1) else k1, d)
 
     def _update_ramp(self, near, sp: Setpoint, dt: float) -> bool:
         """The schedule after `resume`: from rest at the profile's acceleration until it
@@ -189,6 +200,7 @@ class PathReference:
         pivot = p.seg_pivot[i]
         u = self._ramp_u
         a = 0.0 if held else acc
+        d = p.direction[i]
         if self.time_indexed:
             x, y, th, k = p.geometry(i, s)
             sp.x_d, sp.y_d, sp.theta_d = x, y, th
@@ -199,17 +211,17 @@ class PathReference:
             sp.x_d, sp.y_d, sp.theta_d = near.x_d, near.y_d, near.theta_d
             sp.kappa = near.kappa
             sp.path_frame = True
-            sp.along_err = s - near.sigma
+            sp.along_err = d * (s - near.sigma)
         if pivot:
             sp.v_d = 0.0
             sp.a_d = 0.0
             sp.omega_d = p.turn[i] * u / p.pivot_radius
             sp.alpha_d = p.turn[i] * a / p.pivot_radius
         else:
-            sp.v_d = u
-            sp.a_d = a
-            sp.omega_d = u * sp.kappa
-            sp.alpha_d = a * sp.kappa
+            sp.v_d = d * u
+            sp.a_d = d * a
+            sp.omega_d = sp.v_d * sp.kappa
+            sp.alpha_d = sp.a_d * sp.kappa
         sp.pivot = pivot
         self.done = False
         return True
@@ -231,17 +243,19 @@ class PathReference:
         return near
 
     def _update_stopping(self, near, sp: Setpoint, dt: float) -> None:
+        """The stop's speed is a magnitude (progress rate); reversing, v_d and a_d take the sign."""
         decel = self._stop_decel or 1.0
         v0 = self._stop_v
         env = self.path.limits.envelope
+        d = self.path.direction[self.path.index(self._stop_sigma)]
         if env is not None and v0 > 0.0:
             # No harder than the motors brake here (within the profile's headroom).
-            decel = min(decel, max(env.decel_at(v0, near.kappa), 1e-3))
+            decel = min(decel, max(env.decel_at(d * v0, near.kappa), 1e-3))
         v = v0 - decel * dt
         if v > 0.0:
             # Never faster than the path's own profile ahead (it slows for curves and comes to
-            # rest before every turn in place).
-            ahead = self.path.at(self._stop_sigma + 0.5 * (v0 + v) * dt).v
+            # rest before every turn in place and every cusp).
+            ahead = abs(self.path.at(self._stop_sigma + 0.5 * (v0 + v) * dt).v)
             v = min(v, ahead)
         if v <= 0.0:
             v = 0.0
@@ -251,10 +265,11 @@ class PathReference:
         sp.x_d, sp.y_d, sp.theta_d = near.x_d, near.y_d, near.theta_d
         sp.path_frame = True
         sp.kappa = near.kappa
-        sp.v_d = v
-        sp.a_d = a
-        sp.omega_d = v * near.kappa
-        sp.alpha_d = a * near.kappa
-        sp.along_err = max(-self.max_lead, min(self.max_lead, self._stop_sigma - near.sigma)) if v > 0 else 0.0
+        sp.v_d = d * v
+        sp.a_d = d * a
+        sp.omega_d = sp.v_d * near.kappa
+        sp.alpha_d = sp.a_d * near.kappa
+        lead = max(-self.max_lead, min(self.max_lead, self._stop_sigma - near.sigma))
+        sp.along_err = d * lead if v > 0 else 0.0
         sp.pivot = False
         self.done = v == 0.0

@@ -145,6 +145,8 @@ class PathReport:
     stretches: list[Stretch]
     labels: np.ndarray = field(repr=False)
     warnings: list[str] = field(default_factory=list)
+    cusps: list[tuple[float, float, float]] = field(default_factory=list)  # (sigma, x, y) where it reverses
+    reverse_m: float = 0.0  # length driven backwards
 
 
 def pivot_runs(path: Path) -> list[tuple[int, int]]:
@@ -205,7 +207,9 @@ def path_report(path: Path, source: str) -> PathReport:
         tolerance_m=None if c is None or c.mode == "waypoints" else c.tolerance_m,
         deviation_m=path.deviation_m, deviation_at="" if c is None or c.mode == "waypoints" else c.names[c.worst],
         corridor_m=_corridor(path), share_length=share_l, share_time=share_t, stretches=stretches, labels=labels,
-        warnings=list(path.warnings))
+        warnings=list(path.warnings), cusps=[(c, path.at(c).x, path.at(c).y)
+                                             for c in path.cusps],
+        reverse_m=float(np.sum(np.diff(s)[(a["direction"] < 0) & ~a["seg_pivot"]])))
 
 
 def report_text(r: PathReport, max_stretches: int = 24) -> str:
@@ -215,7 +219,10 @@ def report_text(r: PathReport, max_stretches: int = 24) -> str:
     radius = f" (radius {1.0 / r.kappa_max:.3g} m)" if r.kappa_max > 0 else ""
     lines.append(f"curvature     max {r.kappa_max:.3g} /m at {r.kappa_max_at_m:.3f} m{radius}")
     lines.append(f"corners       {len(r.pivots)} turned in place" + (f", {r.blends} blended" if r.mode == "waypoints" else "")
-                 + "; cusps: none (a path that reverses is refused)")
+                 + f"; cusps: {len(r.cusps) or 'none'}"
+                 + (f" ({r.reverse_m:.3f} m driven in reverse)" if r.reverse_m > 0 else ""))
+    for sig, x, y in r.cusps[:12]:
+        lines.append(f"              cusp at {sig:8.3f} m ({x:.3f}, {y:.3f}): at rest, the direction reverses")
     for sig, x, y, turn in r.pivots[:12]:
         lines.append(f"              at {sig:8.3f} m ({x:.3f}, {y:.3f}): {math.degrees(turn):+.1f} deg")
     if len(r.pivots) > 12:

@@ -35,6 +35,14 @@ omega = turn * u / b (an angular trapezoid limited by omega_max and alpha_max).
 Conventions: theta is continuous (unwrapped) along the path and starts in (-pi, pi]; consumers
 should wrap their heading errors. kappa is 0 inside pivots (d theta / ds is undefined there).
 
+Reversing: a piece marked `reverse` is driven backwards. theta is the robot's heading (the
+direction of travel + pi) and kappa the robot's curvature d(theta)/d(forward distance), the
+negative of the travel curvature, so v = -u < 0, omega = v kappa and a = dv/dt hold as for a
+forward piece; u and progress still grow. The profile comes to rest at every cusp (where the
+direction flips), `cusps` lists them, `direction[i]` is -1.0 on reversing intervals (+1.0
+elsewhere, pivots included). tx, ty stay (cos theta, sin theta): the robot's heading, not the
+direction of travel (pure pursuit multiplies by `direction`).
+
 Index arrays (read-only Python lists, for the pursuit's hot path; n samples, n - 1 intervals):
   sigma, x, y, theta, kappa, u, v, omega, t     per sample
   tx, ty                                        per sample: unit tangent (cos theta, sin theta)
@@ -124,6 +132,7 @@ class Path:
         cols: dict[str, list[np.ndarray]] = {k: [] for k in ("s", "x", "y", "theta", "kappa")}
         seg_pivot: list[bool] = []
         turn: list[float] = []
+        direction: list[float] = []
         piece_end: list[float] = []
         base = 0.0
         for j, pc in enumerate(pieces):
@@ -137,6 +146,7 @@ class Path:
                 cols[k].append(getattr(pc, k)[sl])
             n = len(pc.s) - 1
             seg_pivot += [pc.pivot] * n
+            direction += [-1.0 if pc.reverse and not pc.pivot else 1.0] * n
             turn += [pc.turn] * n
             base += pc.length
             piece_end += [base] * n
@@ -155,13 +165,16 @@ class Path:
         self.seg_pivot: list[bool] = seg_pivot
         self.turn: list[float] = turn
         self.piece_end: list[float] = piece_end
+        self.direction: list[float] = direction
+        self.cusps: list[float] = _cusps(self.sigma, seg_pivot, direction)
         self._np.update(sigma=arr["s"], x=arr["x"], y=arr["y"], theta=arr["theta"], kappa=arr["kappa"],
-                        seg_pivot=np.asarray(seg_pivot, dtype=bool), turn=np.asarray(turn, dtype=float))
+                        seg_pivot=np.asarray(seg_pivot, dtype=bool), turn=np.asarray(turn, dtype=float),
+                        direction=np.asarray(direction, dtype=float))
 
     def _profile(self, v_cap: np.ndarray, keep: tuple[int, np.ndarray] | None = None) -> None:
         a = self._np
         p = speed_profile(a["sigma"], a["kappa"], a["seg_pivot"], a["turn"], v_cap, self.limits, self.pivot_radius,
-                          keep=keep)
+                          keep=keep, direction=a["direction"])
         self._np.update(p.arrays)
         for array in self._np.values():
             array.flags.writeable = False  # shared by every caller of arrays()
@@ -177,7 +190,7 @@ class Path:
         robot model while the path is followed): samples up to `first` and the speed there are
         kept, so a schedule before `first` reads the same times and speeds."""
         new = copy.copy(self)
-        new._np = {k: v for k, v in self._np.items() if k in ("sigma", "x", "y", "theta", "kappa", "seg_pivot", "turn", "v_cap")}
+        new._np = {k: v for k, v in self._np.items() if k in ("sigma", "x", "y", "theta", "kappa", "seg_pivot", "turn", "direction", "v_cap")}
         new.limits = limits
         new._profile(self._np["v_cap"], keep=(first, self._np["u"]))
         new.duration = new.t[-1]
@@ -189,7 +202,7 @@ class Path:
         of the bound exceeded (<= 0: within): is it still what that robot can drive?"""
         a = self._np
         return envelope_excess(a["sigma"], a["kappa"], a["seg_pivot"], a["turn"], a["u"], self.limits,
-                               self.pivot_radius, envelope, first)
+                               self.pivot_radius, envelope, first, direction=a["direction"])
 
     # -- lookups ------------------------------------------------------------------------------
     def index(self, sigma: float) -> int:
@@ -221,7 +234,7 @@ class Path:
         if self.seg_pivot[i]:
             w = self.turn[i] * u / self.pivot_radius
             return 0.0, w, 0.0, self.alpha[i], self.t[i] + tau
-        return u, self.omega[i] + self.alpha[i] * tau, self.a[i], self.alpha[i], self.t[i] + tau
+        return self.direction[i] * u, self.omega[i] + self.alpha[i] * tau, self.a[i], self.alpha[i], self.t[i] + tau
 
     def _point(self, i: int, s: float, dyn: tuple[float, float, float, float, float]) -> PathPoint:
         x, y, th, k = self.geometry(i, s)
@@ -255,6 +268,20 @@ class Path:
         """Geometric distance from (x, y) to the path's polyline (vectorised; not for the hot path)."""
         arr = self.arrays()
         return float(distances_to_polyline(np.c_[arr["x"], arr["y"]], np.array([[x, y]], dtype=float))[0])
+
+
+def _cusps(sigma: list[float], seg_pivot: list[bool], direction: list[float]) -> list[float]:
+    """Progress of every cusp: where the driving direction reverses (at a sample, or across a
+    turn in place; the robot is at rest there either way)."""
+    out: list[float] = []
+    last = 0.0  # direction of the last driving interval
+    for i, (piv, d) in enumerate(zip(seg_pivot, direction)):
+        if piv:
+            continue
+        if last and d != last:
+            out.append(sigma[i])
+        last = d
+    return out
 
 
 def distances_to_polyline(poly: np.ndarray, xy: np.ndarray, near_index: np.ndarray | None = None,

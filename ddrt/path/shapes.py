@@ -51,6 +51,7 @@ class PathCommon:
     start: tuple[float, ...] | None = None  # [x, y, theta]; a line also takes [x, y] (its origin)
     name: str | None = None
     description: str | None = None
+    reverse: bool = False  # the whole path driven backwards (points/file: as if every v were negated)
 
     START_SIZES: ClassVar[tuple[int, ...]] = (3,)
     SIZE_KEY: ClassVar[str] = "length"  # the key a too-large path is blamed on
@@ -299,8 +300,9 @@ class PointsSpec(PathCommon):
         for j, item in enumerate(self.points):
             if len(item) not in (2, 3):
                 raise ConfigError(f"points[{j}]: expected [x, y] or [x, y, v], got {list(item)}")
-            if len(item) == 3 and not item[2] > 0.0:
-                raise ConfigError(f"points[{j}]: speed must be > 0, got {item[2]!r}")
+            if len(item) == 3 and (item[2] == 0.0 or item[2] != item[2]):
+                raise ConfigError(f"points[{j}]: speed must be nonzero (> 0 forward, < 0 reaching this point "
+                                  f"in reverse), got {item[2]!r}")
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -26,7 +26,8 @@ from ddrt.config.yamlio import read_text, read_yaml, shorten
 from ddrt.path.condition import (
     WAYPOINTS, ConditionError, ConditionOptions, Conditioning, classify, condition_polyline,
 )
-from ddrt.path.geometry import _Geometry, _Options
+from ddrt.core.wrap import wrap_angle
+from ddrt.path.geometry import _Geometry, _Options, _Piece, _pivot, reversed_piece
 from ddrt.path.profile import SpeedLimits
 from ddrt.path.sampled import Path
 from ddrt.path.shapes import (
@@ -45,6 +46,8 @@ class PathError(ValueError):
 
 # Minimum length of a path (m): shorter, it is a point the robot cannot follow.
 MIN_PATH_LENGTH_M = 0.001
+# At a cusp whose two headings differ by more than this the robot turns in place there.
+CUSP_TURN_TOL_RAD = 1e-4
 
 # The config key each path limit lowers (the config has one acceleration, for braking too).
 _CONFIG_KEY = {"speed": "limits.v_max", "accel": "limits.accel", "decel": "limits.accel",
@@ -83,7 +86,8 @@ def _merge_points(rows: list[tuple[float, float, float]],
     kept: list[str] = []
     for (x, y, v), name in zip(rows, names):
         if out and math.hypot(x - out[-1][0], y - out[-1][1]) < 1e-9:
-            out[-1] = (out[-1][0], out[-1][1], min(out[-1][2], v))
+            # The lower cap; the direction the robot reaches the point in is the first one's.
+            out[-1] = (out[-1][0], out[-1][1], math.copysign(min(abs(out[-1][2]), abs(v)), out[-1][2]))
         else:
             out.append((x, y, v))
             kept.append(name)
@@ -122,8 +126,9 @@ def _read_csv(filename: str, paths: PathsConfig) -> tuple[list[tuple[float, floa
             v = math.inf
             if len(vals) == 3:
                 v = vals[2]
-                if v <= 0.0:
-                    raise PathError(f"{filename}: line {lineno}: column 'v': speed must be > 0, got {shorten(cells[2])}")
+                if v == 0.0:
+                    raise PathError(f"{filename}: line {lineno}: column 'v': speed must be nonzero (> 0 forward, "
+                                    f"< 0 reaching this point in reverse), got {shorten(cells[2])}")
             if max(abs(vals[0]), abs(vals[1])) > paths.max_extent_m:
                 raise PathError(f"{filename}: line {lineno}: ({vals[0]:.6g}, {vals[1]:.6g}) is beyond "
                                 f"paths.max_extent_m = {paths.max_extent_m:g} m from the origin")
@@ -142,6 +147,9 @@ def _waypoint_geometry(rows: list[tuple[float, float, float]], has_v: bool, wher
     """A polyline's geometry: waypoints as they are, samples of a curve smoothed (condition.py).
     Errors about one point name `where` and the point's name; about the whole, `budget_where`."""
     pts, kept = _merge_points(rows, names)
+    runs = _direction_runs(pts)
+    if len(runs) > 1 or runs[0][2] < 0.0:
+        return _reversing_geometry(pts, kept, runs, has_v, where, opt, paths, tolerance, budget_where)
     whole = where if budget_where is None else budget_where
     if len(pts) < 2:
         only = f" (every point equals the one at {kept[0]})" if kept and len(rows) > 1 else ""
@@ -155,11 +163,82 @@ def _waypoint_geometry(rows: list[tuple[float, float, float]], has_v: bool, wher
     else:  # a smoothed curve is no longer than its points' polyline (and pivots are few)
         length = float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
         _check_samples(1.05 * length / opt.step + 2.0 * len(pts) ** 0.5, whole, paths, opt)
-    caps = np.array([p[2] for p in pts]) if has_v else None
+    caps = np.array([abs(p[2]) for p in pts]) if has_v else None  # the sign marks direction only
     try:
         return condition_polyline(xy, caps, opt, copt, where, kept)
     except ConditionError as exc:
         raise PathError(str(exc)) from None
+
+
+def _direction_runs(pts: list[tuple[float, float, float]]) -> list[tuple[int, int, float]]:
+    """(first point, last point, direction) of each run of segments driven one way. The segment
+    to point k is driven in reverse when point k's v is negative (the robot reaches it backwards)."""
+    dirs = [-1.0 if pts[k][2] < 0.0 else 1.0 for k in range(1, len(pts))] or [1.0]
+    runs: list[tuple[int, int, float]] = []
+    a = 0
+    for k in range(1, len(dirs) + 1):
+        if k == len(dirs) or dirs[k] != dirs[a]:
+            runs.append((a, k, dirs[a]))
+            a = k
+    return runs
+
+
+def _reversing_geometry(pts: list[tuple[float, float, float]], names: list[str], runs: list[tuple[int, int, float]],
+                        has_v: bool, where: str, opt: _Options, paths: PathsConfig, tolerance: float | None,
+                        budget_where: str | None) -> tuple[_Geometry, Conditioning]:
+    """A polyline with runs driven in reverse: each run read as its own polyline (so a reversal
+    inside a run is still refused naming its point), its pieces turned round, joined at each
+    cusp (a turn in place there when the headings differ). Speed caps are |v|."""
+    pieces: list[_Piece] = []
+    cap_s: list[np.ndarray] = []
+    cap_v: list[np.ndarray] = []
+    conds: list[tuple[int, Conditioning]] = []
+    sigma = 0.0
+    for a, b, d in runs:
+        sub = [(x, y, abs(v)) for x, y, v in pts[a:b + 1]]
+        geo, cond = _waypoint_geometry(sub, has_v, where, opt, paths, names[a:b + 1], tolerance, budget_where)
+        run = [reversed_piece(pc) for pc in geo.pieces] if d < 0.0 else geo.pieces
+        if pieces:
+            # A smoothed run need not end exactly on its last point: the next one is moved onto
+            # it (by less than the tolerance), so the two meet at one cusp.
+            dx, dy = float(pieces[-1].x[-1] - run[0].x[0]), float(pieces[-1].y[-1] - run[0].y[0])
+            if dx or dy:
+                for pc in run:
+                    pc.x, pc.y = pc.x + dx, pc.y + dy
+                cond.deviation_m += math.hypot(dx, dy)
+            turn = wrap_angle(float(run[0].theta[0]) - float(pieces[-1].theta[-1]))
+            if abs(turn) > CUSP_TURN_TOL_RAD:
+                pieces.append(_pivot(float(run[0].x[0]), float(run[0].y[0]), float(pieces[-1].theta[-1]), turn,
+                                     opt.pivot_radius, opt.step))
+                sigma += pieces[-1].length
+        if geo.cap_sigma is not None and geo.cap_value is not None:
+            cap_s.append(sigma + geo.cap_sigma)
+            cap_v.append(geo.cap_value)
+        pieces += run
+        sigma += sum(pc.length for pc in run)
+        conds.append((a, cond))
+    out = _Geometry(pieces)
+    if cap_s:
+        out.cap_sigma = np.maximum.accumulate(np.concatenate(cap_s))
+        out.cap_value = np.concatenate(cap_v)
+    return out, _joined_conditioning(pts, names, conds, [a for a, _, _ in runs[1:]])
+
+
+def _joined_conditioning(pts: list[tuple[float, float, float]], names: list[str],
+                         conds: list[tuple[int, Conditioning]], cusps: list[int]) -> Conditioning:
+    """One Conditioning for the runs of a reversing polyline (indices into all its points)."""
+    first = next((c for _, c in conds if c.mode != WAYPOINTS), conds[0][1])
+    worst_a, worst = max(conds, key=lambda ac: ac[1].deviation_m)
+    corners = tuple(replace(k, index=k.index + a) for a, c in conds for k in c.corners)
+    xy = np.array([(p[0], p[1]) for p in pts], dtype=float)
+    seg = np.hypot(*np.diff(xy, axis=0).T)
+    out = Conditioning(first.mode, first.tolerance_m, xy, names, deviation_m=worst.deviation_m,
+                       worst=worst_a + worst.worst, noise_m=max(c.noise_m for _, c in conds),
+                       grid_cell_m=first.grid_cell_m, smoothing_m=tuple(e for _, c in conds for e in c.smoothing_m),
+                       corners=corners, spacing_m=float(np.median(seg)) if len(seg) else 0.0,
+                       iterations=sum(c.iterations for _, c in conds))
+    out.extra["cusps"] = [names[k] for k in cusps]
+    return out
 
 
 def _check_samples(estimate: float, where: str, paths: PathsConfig, opt: _Options) -> None:
@@ -199,7 +278,7 @@ def _clamped_limits(spec: PathCommon, limits: SpeedLimits, where: str,
 
 
 def _note_point_caps(caps: list[float], v_max: float, where: str, notes: list[str]) -> None:
-    over = [v for v in caps if math.isfinite(v) and v > v_max]
+    over = [abs(v) for v in caps if math.isfinite(v) and abs(v) > v_max]
     if over:
         notes.append(f"{where}: {len(over)} waypoint speed(s) up to {max(over):g} are above the config's "
                      f"{v_max:g} (limits.v_max); clamped to it")
@@ -252,6 +331,8 @@ def _from_mapping(m: Any, limits: SpeedLimits, where: str, base_dir: str | None,
             except ConfigError as exc:
                 raise _path_error(exc, where) from None
             rows.append((item[0], item[1], item[2] if len(item) == 3 else math.inf))
+        if spec.reverse:
+            rows = [(x, y, -v) for x, y, v in rows]
         has_v = any(len(item) == 3 for item in spec.points)
         _note_point_caps([r[2] for r in rows], limits.v_max, f"{where}: key 'points'", notes)
         names = [f"key 'points[{j}]'" for j in range(len(rows))]
@@ -265,6 +346,8 @@ def _from_mapping(m: Any, limits: SpeedLimits, where: str, base_dir: str | None,
             fname = os.path.join(base_dir, fname)
         try:
             rows, has_v, lines = _read_csv(fname, paths)
+            if spec.reverse:
+                rows = [(x, y, -v) for x, y, v in rows]
             geo, cond = _waypoint_geometry(rows, has_v, fname, opt, paths, lines, spec.tolerance)
         except PathError as exc:
             raise PathError(f"{where}: key 'file': {exc}") from None
@@ -277,6 +360,8 @@ def _from_mapping(m: Any, limits: SpeedLimits, where: str, base_dir: str | None,
             geo = spec.geometry(opt)
         except ValueError as exc:
             raise PathError(f"{where}: {exc}") from None
+        if spec.reverse:
+            geo.pieces = [reversed_piece(pc) for pc in geo.pieces]
     if geo.cap_value is not None:
         geo.cap_value = np.minimum(geo.cap_value, v_cap)
     return _finish(geo, lim, v_cap, opt, spec.pose(), where, paths, notes, cond)

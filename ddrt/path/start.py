@@ -151,7 +151,7 @@ class StartReference:
         self.inner.update(x, y, theta, sp, dt)
         if self.phase == "join":
             lim = self.limits
-            v_cap = min(max(sp.v_d, 0.0) + JOIN_SPEED_MARGIN, self.v_join)
+            v_cap = min(abs(sp.v_d) + JOIN_SPEED_MARGIN, self.v_join)
             self._cap = v_cap
             sp.v_cap = v_cap
             sp.omega_cap = min(lim.omega_max, lim.lateral_accel / v_cap)
@@ -162,14 +162,14 @@ class StartReference:
                 self._release_v = JOIN_SPEED_MARGIN
                 sp.omega_cap = sp.y_cap = math.inf
         elif self.phase == "release":
-            accel = self.limits.accel_at(max(sp.v_d, 0.0))  # finite: the motors bound it
+            accel = self.limits.accel_at(sp.v_d)  # finite: the motors bound it
             self._release_v += RELEASE_ACCEL_FRACTION * accel * step
             if self._release_v >= self.limits.v_max:
                 self.phase = "follow"
                 self.inner.max_lead = self._lead
                 sp.v_cap = math.inf
             else:
-                self._cap = min(max(sp.v_d, 0.0) + self._release_v, self._cap + accel * step)
+                self._cap = min(abs(sp.v_d) + self._release_v, self._cap + accel * step)
                 sp.v_cap = self._cap
 
     # -- the turn in place ---------------------------------------------------------------------

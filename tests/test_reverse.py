@@ -1,0 +1,188 @@
+"""Paths driven in reverse: cusps, negative speed end to end, marked and unmarked reversals.
+
+The three-point turn is a CSV whose negative `v` marks the points reached backwards; the
+parallel park is a YAML `points:` list of samples of a curve (smoothed) with negative speeds on
+the reversing leg, which meets the forward leg in line (a cusp with no turn in place).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ddrt.config import load_config
+from ddrt.path.spec import PathError, load_path, speed_limits
+from ddrt.simrun.runner import run_sim
+from tests.test_profile_envelope import _cfg, _path, envelope_use
+
+ROOT = Path(__file__).resolve().parents[1]
+SIM = ROOT / "configs" / "sim.yaml"
+
+THREE_POINT = """x,y,v
+0,0,0.3
+0.6,0,0.3
+0.3,0.3,-0.25
+0.9,0.45,0.3
+"""
+
+
+def _parallel_park() -> dict:
+    """Forward 1 m along x, then back into a slot 0.3 m to the right along a smooth S (samples
+    every 1 cm), the robot facing +x throughout."""
+    fwd = [[0.01 * k, 0.0, 0.3] for k in range(0, 101)]
+    back = []
+    for k in range(1, 61):
+        x = 1.0 - 0.01 * k
+        f = (1.0 - x) / 0.6
+        back.append([x, -0.3 * (3 * f * f - 2 * f ** 3), -0.2])
+    return {"points": fwd + back}
+
+
+@pytest.fixture(scope="module")
+def cfg():
+    return load_config(SIM)
+
+
+def _run(cfg, path):
+    r = run_sim(cfg, path, seed=1, keep_rows=True)
+    return r, r.metrics
+
+
+def _check_drive(path, r, m) -> None:
+    assert m["completed"], m
+    assert m["rms_cross_track_m"] < 3e-3 and m["final_pos_err_m"] < 3e-3, m
+    assert m["saturated_fraction"] < 0.01, m
+    sig, v_ref, v = r.column("sigma"), r.column("v_ref"), r.column("v")
+    d = np.asarray(path.direction)
+    piv = np.asarray(path.seg_pivot)
+    i = np.clip(np.searchsorted(path.sigma, sig, side="right") - 1, 0, len(d) - 1)
+    rev = (d[i] < 0) & ~piv[i]
+    assert rev.sum() > 100  # it did drive backwards
+    # Where the path says reverse the reference speed is never forward, and the robot drove backwards.
+    assert np.all(v_ref[rev] <= 1e-9)
+    assert np.mean(v[rev] < 0.0) > 0.9 and v[rev].min() < -0.15
+    assert np.all(v_ref[(d[i] > 0) & ~piv[i]] >= -1e-9)
+    for c in path.cusps:  # at rest at every cusp, in the profile and in the run
+        assert path.at(c).v == 0.0
+        near = np.abs(sig - c) < 2e-3
+        assert near.any() and np.abs(v[near]).min() < 0.02
+
+
+def test_a_three_point_turn_from_a_csv_is_driven_backwards_where_it_says(cfg, tmp_path) -> None:
+    f = tmp_path / "three_point.csv"
+    f.write_text(THREE_POINT)
+    path = load_path(f, speed_limits(cfg), paths=cfg.paths)
+    assert len(path.cusps) == 2
+    assert min(path.v) < -0.2 and max(path.v) > 0.25
+    r, m = _run(cfg, path)
+    _check_drive(path, r, m)
+
+
+def test_a_parallel_park_yaml_reverses_in_line_and_parks(cfg) -> None:
+    path = load_path(_parallel_park(), speed_limits(cfg), paths=cfg.paths)
+    assert len(path.cusps) == 1
+    # In line: at most the few degrees by which the two smoothed legs' end tangents differ.
+    turned = sum(b - a for a, b, p in zip(path.sigma, path.sigma[1:], path.seg_pivot) if p) / path.pivot_radius
+    assert turned < math.radians(5.0)
+    i = path.index(path.cusps[0])
+    assert abs(path.theta[i] - path.theta[0]) < 0.05  # the robot keeps facing +x
+    r, m = _run(cfg, path)
+    _check_drive(path, r, m)
+    assert abs(r.column("x")[-1] - 0.4) < 3e-3 and abs(r.column("y")[-1] + 0.3) < 3e-3
+
+
+def test_a_path_driven_in_reverse_matches_its_mirror_image_driven_forward(cfg) -> None:
+    """A ccw circle driven backwards is (v, omega) -> (-v, -omega) of the cw circle driven
+    forwards: the model differs only in its quadratic terms (m_x omega^2, m_x v omega), so the
+    errors match closely."""
+    base = {"shape": "circle", "radius": 0.4, "laps": 1.0, "speed": 0.4}
+    back = load_path({**base, "direction": "ccw", "reverse": True}, speed_limits(cfg), paths=cfg.paths)
+    fwd = load_path({**base, "direction": "cw"}, speed_limits(cfg), paths=cfg.paths)
+    assert back.duration == pytest.approx(fwd.duration, rel=0.02)
+    assert max(back.v) <= 0.0 and min(fwd.v) >= 0.0
+    _, mb = _run(cfg, back)
+    _, mf = _run(cfg, fwd)
+    assert mb["completed"] and mf["completed"]
+    for key in ("rms_cross_track_m", "rms_tracking_m"):
+        assert abs(mb[key] - mf[key]) <= max(0.3 * mf[key], 3e-5), (key, mb[key], mf[key])
+
+
+@pytest.mark.parametrize("robot", ["seed", "heavy_asymmetric"])
+def test_a_reversed_profile_keeps_the_motors_within_their_envelope(robot: str) -> None:
+    """Inverse dynamics and the motor model at every sample of a reversed path, independent of
+    the profile's own coefficients: the duty within 1 - headroom, and the envelope used."""
+    c = _cfg(robot)
+    path = _path(c, {"shape": "figure_eight", "width": 1.2, "height": 0.6, "speed": 3.0, "reverse": True})
+    assert max(path.v) <= 0.0
+    duty, tau = envelope_use(c, path)
+    h = c.limits.feedback_headroom
+    assert duty <= (1.0 - h) * (1 + 1e-6) and tau <= (1.0 - h) * (1 + 1e-6)
+    assert max(duty, tau) > 0.9 * (1.0 - h)  # the motors, not some other cap, set the speed somewhere
+
+
+def test_an_unmarked_reversal_names_the_file_and_line(cfg, tmp_path) -> None:
+    rows = ["x,y"] + [f"{0.01 * k:.3f},0" for k in range(0, 51)] + [f"{0.5 - 0.01 * k:.3f},0.001" for k in range(1, 40)]
+    f = tmp_path / "out_and_back.csv"
+    f.write_text("\n".join(rows) + "\n")
+    with pytest.raises(PathError) as exc:
+        load_path(f, speed_limits(cfg), paths=cfg.paths)
+    text = str(exc.value)
+    assert "out_and_back.csv" in text and "line " in text and "reverse" in text
+    # Marked, the same points load and reverse at the turn.
+    marked = ["x,y,v"] + [r + ",0.3" for r in rows[1:52]] + [r + ",-0.3" for r in rows[52:]]
+    f.write_text("\n".join(marked) + "\n")
+    path = load_path(f, speed_limits(cfg), paths=cfg.paths)
+    assert len(path.cusps) == 1 and min(path.v) < 0.0
+
+
+def test_a_zero_speed_is_refused_naming_the_line(cfg, tmp_path) -> None:
+    f = tmp_path / "z.csv"
+    f.write_text("x,y,v\n0,0,0.2\n1,0,0\n")
+    with pytest.raises(PathError, match=r"z.csv: line 3: column 'v': speed must be nonzero"):
+        load_path(f, speed_limits(cfg), paths=cfg.paths)
+
+
+def test_random_marked_reverse_paths_load_or_fail_cleanly(cfg) -> None:
+    """Fuzz: random polylines with random runs marked reverse either load (signs and cusps as
+    marked) or fail with a PathError; nothing else escapes."""
+    rng = np.random.default_rng(13)
+    lim = speed_limits(cfg)
+    loaded = 0
+    for trial in range(300):
+        n = int(rng.integers(2, 9))
+        pts = np.cumsum(rng.normal(0.0, 0.3, (n, 2)), axis=0)
+        if rng.random() < 0.3:  # dense, noisy samples now and then
+            t = np.linspace(0.0, 1.0, int(rng.integers(20, 120)))[:, None]
+            pts = np.hstack([t, 0.2 * np.sin(3 * t)]) + rng.normal(0.0, 0.001, (len(t), 2))
+        signs = np.where(rng.random(len(pts)) < 0.4, -1.0, 1.0)
+        speeds = rng.uniform(0.05, 0.6, len(pts)) * signs
+        spec = {"points": [[float(x), float(y), float(v)] for (x, y), v in zip(pts, speeds)]}
+        if rng.random() < 0.2:
+            spec["reverse"] = True
+        try:
+            path = load_path(spec, lim, paths=cfg.paths)
+        except PathError as exc:
+            assert "points" in str(exc) or "path" in str(exc), str(exc)
+            continue
+        loaded += 1
+        a = path.arrays()
+        d, piv, u = a["direction"], a["seg_pivot"], a["u"]
+        v = a["v"]
+        drive = ~piv
+        assert np.all(v[:-1][drive & (d < 0)] <= 0.0) and np.all(v[:-1][drive & (d > 0)] >= 0.0)
+        for c in path.cusps:
+            assert path.at(c).v == 0.0
+        assert np.all(np.isfinite(a["t"])) and math.isfinite(path.duration)
+    assert loaded > 150
+
+
+def test_ddrt_path_reports_the_cusps(cfg, tmp_path) -> None:
+    from ddrt.path.report import path_report, report_text
+
+    f = tmp_path / "three_point.csv"
+    f.write_text(THREE_POINT)
+    text = report_text(path_report(load_path(f, speed_limits(cfg), paths=cfg.paths), str(f)))
+    assert "cusps: 2 (0.424 m driven in reverse)" in text and text.count("cusp at") == 2
