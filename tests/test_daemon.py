@@ -25,6 +25,7 @@ import sys
 import tempfile
 import threading
 import time
+import contextlib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -222,6 +223,17 @@ def start_daemon(*args: str, notify: bool = False, env_extra: dict[str, str] | N
         shutil.rmtree(workdir, ignore_errors=True)
         raise
     return DaemonProc(proc, workdir, config, sock, telemetry_dir, stats, stderr_file, t_start, listener)
+
+
+@contextlib.contextmanager
+def ready_daemon(*args: str, **sections: Any) -> Iterator[DaemonProc]:
+    """A daemon started as start_daemon does, past its calibration, closed afterwards."""
+    d = start_daemon(*args, **sections)
+    try:
+        d.wait_ready()
+        yield d
+    finally:
+        d.close()
 
 
 def max_step(rows: list[dict[str, float]]) -> float:
@@ -571,12 +583,8 @@ def test_sigterm_leaves_a_record_of_zeroed_motors(recording: Recording) -> None:
 
 @pytest.fixture(scope="module")
 def idle_daemon() -> Iterator[DaemonProc]:
-    d = start_daemon()
-    try:
-        d.wait_ready()
+    with ready_daemon() as d:
         yield d
-    finally:
-        d.close()
 
 
 @pytest.fixture()

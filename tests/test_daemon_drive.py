@@ -12,19 +12,15 @@ from collections.abc import Iterator
 import pytest
 
 from ddrt.loop import STATE_CODE
-from test_daemon import DaemonProc, ctl, raw_exchange, start_daemon, wait_for
+from test_daemon import DaemonProc, ctl, raw_exchange, ready_daemon, wait_for
 
 SETTLE_S = 15.0  # driving to rest on a loaded host (1.6 s of simulated braking at most)
 
 
 @pytest.fixture(scope="module")
 def drive_daemon() -> Iterator[DaemonProc]:
-    d = start_daemon()
-    try:
-        d.wait_ready()
+    with ready_daemon() as d:
         yield d
-    finally:
-        d.close()
 
 
 @pytest.fixture()

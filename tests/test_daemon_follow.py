@@ -23,7 +23,7 @@ from typing import Any
 import pytest
 
 from ddrt.service.ctlsocket import request
-from test_daemon import DaemonProc, start_daemon, wait_for
+from test_daemon import DaemonProc, ready_daemon, start_daemon, wait_for
 
 HUGE_CIRCLE = {"shape": "circle", "radius": 300.0, "speed": 0.3, "pose": [0.0, 0.0, 0.0]}  # 942 000 samples
 STALL_BOUND_S = 0.1  # the worst tick while a path is prepared; main stalled 1.2 to 143 s
@@ -33,12 +33,8 @@ ANSWER_BOUND_S = 1.0  # estop / stop / status round trip from a client (10 ms is
 
 @pytest.fixture(scope="module")
 def follow_daemon() -> Iterator[DaemonProc]:
-    d = start_daemon(paths={"max_file_bytes": 2_000_000})
-    try:
-        d.wait_ready()
+    with ready_daemon(paths={"max_file_bytes": 2_000_000}) as d:
         yield d
-    finally:
-        d.close()
 
 
 @pytest.fixture()
