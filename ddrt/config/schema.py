@@ -8,11 +8,11 @@ caller only has to prefix the file name.
 from __future__ import annotations
 
 import dataclasses
-import math
 import types
 import typing
 from typing import Any, Collection, Literal, Mapping, TypeVar, get_args, get_origin, get_type_hints
 
+from ddrt.core.numbers import finite_float
 from ddrt.config.yamlio import shorten
 
 T = TypeVar("T")
@@ -77,14 +77,10 @@ def _convert(tp: Any, value: Any, where: str) -> Any:
             raise ConfigError(f"{where}: out of range, got {shorten(value)}")
         return value
     if tp is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{where}: expected a number, got {shorten(value)}")
         try:
-            number = float(value)
-        except OverflowError:  # an integer beyond the float range
-            raise ConfigError(f"{where}: too large for a number, got {shorten(value)}") from None
-        if not math.isfinite(number):
-            raise ConfigError(f"{where}: must be finite, got {shorten(value)}")
+            number = finite_float(value, where, shorten(value))
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
         if number != 0.0 and not FLOAT_MIN <= abs(number) <= FLOAT_MAX:
             raise ConfigError(f"{where}: out of range, got {number:g} (a number is 0 or between "
                               f"{FLOAT_MIN:g} and {FLOAT_MAX:g} in magnitude)")

@@ -28,6 +28,7 @@ from __future__ import annotations
 import logging
 import math
 
+from ddrt.core.numbers import finite_float
 from ddrt.config import DriveConfig, LimitsConfig
 from ddrt.core.ramp import Ramp
 from ddrt.core.types import Setpoint
@@ -45,15 +46,7 @@ def check_command(v: object, omega: object, limits: LimitsConfig) -> tuple[float
     out = []
     clamped = []
     for value, (name, unit, key) in zip((v, omega), FIELDS):
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            shown = repr(value) if len(repr(value)) <= 40 else repr(value)[:37] + "..."
-            raise ValueError(f"{name}: expected a number in {unit}, got {type(value).__name__} {shown}")
-        try:
-            x = float(value)
-        except OverflowError:  # an int beyond the float range
-            raise ValueError(f"{name}: {str(value)[:20]}... {unit} is not a speed") from None
-        if not math.isfinite(x):
-            raise ValueError(f"{name}: must be finite, got {x}")
+        x = finite_float(value, name, unit=unit)
         lim = getattr(limits, key)
         if abs(x) > REFUSE_FACTOR * lim:
             raise ValueError(f"{name}: {x:g} {unit} is more than {REFUSE_FACTOR:g} x limits.{key} "

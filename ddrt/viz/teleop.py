@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 from typing import Any
+
+from ddrt.core.numbers import finite_float
 
 TOPICS = ("/teleop", "/cmd_vel")
 MAX_BYTES = 4096
@@ -41,12 +42,7 @@ def _component(doc: dict[str, Any], part: str, axis: str) -> float:
     if not isinstance(vec, dict):
         raise ValueError(f"{part}: expected an object, got {type(vec).__name__}")
     value = vec.get(axis, 0.0)
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ValueError(f"{part}.{axis}: expected a number, got {type(value).__name__}")
-    number = float(value) if abs(value) < 1e300 else math.inf
-    if not math.isfinite(number):
-        raise ValueError(f"{part}.{axis}: must be finite, got {value!r}")
-    return number
+    return finite_float(value, f"{part}.{axis}")
 
 
 class DropLog:
