@@ -11,7 +11,13 @@ includes it as a section. Every input is generated here with a fixed seed:
   recorded at random spacing of 5-30 mm with 2 mm of noise, 0.6 m/s;
 - rectangle_recorded: a 1.2 m x 0.8 m rectangle recorded every 1 cm with 1 mm of noise
   (genuine 90 degree corners: they must stay turns in place), 0.3 m/s;
-- waypoints_sparse: configs/paths/waypoints_sparse.csv (must not change).
+- waypoints_sparse: configs/paths/waypoints_sparse.csv (must not change);
+- three_point_*, parallel_park_*: manoeuvres with two cusps (bench/cusp_inputs.py), recorded
+  every 1 cm with 1.5 mm of noise or as exact waypoints every ~0.3 m, negative v on the
+  reverse legs, 0.3 m/s. Each cusp is a stop: the ideal time adds v / limits.accel per cusp
+  (braking to rest and starting again), and the exact curve's own profile (or, for
+  waypoints, the waypoints' own, turns in place included) makes the same stops; the larger
+  of the two is the ideal.
 
 Each is written as an x,y,v CSV, loaded as `ddrt sim --path` would (configs/sim.yaml) and
 run on the simulated robot (`run_sim`, seed 1). Reported: the time against
