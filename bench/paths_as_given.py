@@ -11,7 +11,13 @@ includes it as a section. Every input is generated here with a fixed seed:
   recorded at random spacing of 5-30 mm with 2 mm of noise, 0.6 m/s;
 - rectangle_recorded: a 1.2 m x 0.8 m rectangle recorded every 1 cm with 1 mm of noise
   (genuine 90 degree corners: they must stay turns in place), 0.3 m/s;
-- waypoints_sparse: configs/paths/waypoints_sparse.csv (must not change).
+- waypoints_sparse: configs/paths/waypoints_sparse.csv (must not change);
+- three_point_*, parallel_park_*: manoeuvres with two cusps (bench/cusp_inputs.py), recorded
+  every 1 cm with 1.5 mm of noise or as exact waypoints every ~0.3 m, negative v on the
+  reverse legs, 0.3 m/s. Each cusp is a stop: the ideal time adds v / limits.accel per cusp
+  (braking to rest and starting again), and the exact curve's own profile (or, for
+  waypoints, the waypoints' own, turns in place included) makes the same stops; the larger
+  of the two is the ideal.
 
 Each is written as an x,y,v CSV, loaded as `ddrt sim --path` would (configs/sim.yaml) and
 run on the simulated robot (`run_sim`, seed 1). Reported: the time against
@@ -39,6 +45,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from bench.cusp_inputs import Manoeuvre, parallel_park, three_point_turn
 from ddrt.config import load_config
 from ddrt.path.geometry import _Geometry, _Piece
 from ddrt.path.sampled import Path, distances_to_polyline
@@ -68,6 +75,8 @@ class Case:
     kind: str  # "samples" (true-pose target 3 mm) or "grid" (15 mm from the staircase) or "waypoints"
     exact: Path | None = None  # the underlying curve as a path (same limits), when known
     csv: FsPath | None = None  # an existing file instead of xy
+    v: np.ndarray | None = None  # signed speed per point (negative: reached in reverse); else `speed`
+    cusps: int = 0  # of the manoeuvre (each a stop the exact curve's profile makes too)
 
 
 # --------------------------------------------------------------------------- inputs
@@ -245,6 +254,25 @@ def long_recording(n: int = 100_000, seed: int = 5, spacing: float = 0.01, noise
     return np.column_stack((x, y)) + rng.normal(0.0, noise, (n, 2))
 
 
+def _cusp_case(name: str, m: Manoeuvre, speed: float, seed: int, waypoints: bool) -> Case:
+    """A manoeuvre as a recording (every 1 cm, 1.5 mm noise) or as waypoints (each leg's ends
+    and a point every ~0.3 m along it, exact); negative v on the reverse legs."""
+    exact = Path(m.exact_path_geometry(), speed_limits(load_config(SIM_CONFIG)), v_cap=speed,
+                 pivot_radius=load_config(SIM_CONFIG).paths.pivot_radius_m)
+    if not waypoints:
+        xy, v = m.recording(np.random.default_rng(seed), speed)
+        return Case(name, xy, speed, m.xy(), "samples", exact, v=v, cusps=m.cusps)
+    pts, vs = [m.xy()[0]], [speed]
+    for k, d in enumerate(m.directions):
+        sel = np.flatnonzero(m.leg == k)
+        n = max(1, int(round((m.s[sel[-1]] - m.s[sel[0]]) / 0.3)))
+        for j in np.linspace(0, len(sel) - 1, n + 1)[1:].round().astype(int):
+            pts.append(m.xy()[sel[j]])
+            vs.append(speed * d)
+    xy = np.array(pts)
+    return Case(name, xy, speed, _dense(xy), "waypoints", None, v=np.array(vs), cusps=m.cusps)
+
+
 CASES: dict[str, Callable[[], Case]] = {
     "circle_1cm": circle_recording,
     "figure_eight_361": figure_eight_export,
@@ -253,14 +281,20 @@ CASES: dict[str, Callable[[], Case]] = {
     "teach_repeat": teach_and_repeat,
     "rectangle_recorded": rectangle_recording,
     "waypoints_sparse": sparse_waypoints,
+    "three_point_recorded": lambda: _cusp_case("three_point_recorded", three_point_turn(), 0.3, 7, False),
+    "three_point_waypoints": lambda: _cusp_case("three_point_waypoints", three_point_turn(), 0.3, 7, True),
+    "parallel_park_recorded": lambda: _cusp_case("parallel_park_recorded", parallel_park(), 0.3, 8, False),
+    "parallel_park_waypoints": lambda: _cusp_case("parallel_park_waypoints", parallel_park(), 0.3, 8, True),
 }
 
 
-def write_csv(fname: FsPath, xy: np.ndarray, speed: float) -> None:
+def write_csv(fname: FsPath, xy: np.ndarray, speed: float | np.ndarray) -> None:
+    """x,y,v rows; `speed` one value or one (signed) per point."""
+    v = np.broadcast_to(np.asarray(speed, dtype=float), (len(xy),))
     with open(fname, "w", encoding="utf-8") as fh:
         fh.write("x,y,v\n")
-        for x, y in xy:
-            fh.write(f"{x:.6f},{y:.6f},{speed:g}\n")
+        for (x, y), s in zip(xy, v):
+            fh.write(f"{x:.6f},{y:.6f},{s:g}\n")
 
 
 # --------------------------------------------------------------------------- measuring
@@ -369,13 +403,18 @@ def measure_case(case: Case, seed: int = 1, directory: str | None = None, exact:
     with tempfile.TemporaryDirectory(dir=directory) as tmp:
         fname = case.csv if case.csv is not None else FsPath(tmp) / f"{case.name}.csv"
         if case.csv is None:
-            write_csv(fname, case.xy, case.speed)
+            write_csv(fname, case.xy, case.speed if case.v is None else case.v)
         t0 = time.process_time()
         path = load_path(str(fname), lim, paths=cfg.paths)
         load_ms = 1000.0 * (time.process_time() - t0)
     cond = getattr(path, "conditioning", None)
     length = float(np.sum(np.hypot(*np.diff(case.curve, axis=0).T)))
-    ideal = max(length / case.speed, case.exact.duration if case.exact is not None else 0.0)
+    # Each cusp is a stop: braking to rest and starting again at limits.accel costs v / a over
+    # driving through. The exact curve's own profile makes those stops too (at every limit);
+    # waypoints are their own exact curve, pivots included.
+    stops = case.cusps * case.speed / cfg.limits.accel if cfg.limits.accel else 0.0
+    own = case.exact.duration if case.exact is not None else (path.duration if case.kind == "waypoints" and case.cusps else 0.0)
+    ideal = max(length / case.speed + stops, own)
     run = _run(cfg, path, seed, case.curve)
     ex = _run(cfg, case.exact, seed, case.curve) if exact and case.exact is not None else None
     piv = path.arrays()["seg_pivot"]

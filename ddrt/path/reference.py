@@ -121,8 +121,10 @@ class PathReference:
             sp.pivot = sched.pivot
             self.done = t_next >= path.duration and near.done
             return
-        sched = path.at_time(t_next)
         d_near = path.direction[path.index(near.sigma)]
+        self._onto_cusp(near.sigma, d_near)
+        t_next = self.t_sched + step
+        sched = path.at_time(t_next)
         if sched.sigma <= near.sigma + self.max_lead and not self._past_cusp(sched, d_near):
             self.t_sched = t_next
             held = False
@@ -143,6 +145,20 @@ class PathReference:
             sp.omega_d = sched.v * near.kappa
             sp.alpha_d = 0.0 if held else sched.alpha  # d(v kappa)/dt: a kappa + v^2 dkappa/ds
         self.done = near.done and self.t_sched >= path.duration
+
+    def _onto_cusp(self, s_near: float, d_near: float) -> None:
+        """Pursuit takes a robot within its arrival tolerance of a cusp as arrived, and from then
+        on projects it on the leg beyond; a schedule still braking onto the cusp would then be
+        a forward speed in the reverse leg's frame. Within CORNER_TOL_M of the cusp, the
+        schedule is taken to it (at rest), as at a turn in place."""
+        p = self.path
+        now = p.at_time(self.t_sched)
+        if now.pivot or now.sigma >= s_near:
+            return
+        i = p.index(now.sigma)
+        end = p.piece_end[i]
+        if p.direction[i] != d_near and end <= s_near and end - now.sigma <= CORNER_TOL_M:
+            self.t_sched = max(self.t_sched, self._time_at(end))
 
     def _past_cusp(self, sched, d_near: float) -> bool:
         """Would the schedule be driving the other way than the robot's piece (it has passed a

@@ -27,6 +27,7 @@ from ddrt.path.condition import (
     WAYPOINTS, ConditionError, ConditionOptions, Conditioning, classify, condition_polyline,
 )
 from ddrt.core.wrap import wrap_angle
+from ddrt.path.cusp import CUSP_BLEND_MAX_RAD, bend_end, bend_start, blend_length, blend_offset
 from ddrt.path.geometry import _Geometry, _Options, _Piece, _pivot, reversed_piece
 from ddrt.path.profile import SpeedLimits
 from ddrt.path.sampled import Path
@@ -207,6 +208,8 @@ def _reversing_geometry(pts: list[tuple[float, float, float]], names: list[str],
                     pc.x, pc.y = pc.x + dx, pc.y + dy
                 cond.deviation_m += math.hypot(dx, dy)
             turn = wrap_angle(float(run[0].theta[0]) - float(pieces[-1].theta[-1]))
+            if abs(turn) > CUSP_TURN_TOL_RAD and _blend_cusp(pieces[-1], run[0], turn, conds[-1][1], cond):
+                turn = 0.0
             if abs(turn) > CUSP_TURN_TOL_RAD:
                 pieces.append(_pivot(float(run[0].x[0]), float(run[0].y[0]), float(pieces[-1].theta[-1]), turn,
                                      opt.pivot_radius, opt.step))
@@ -222,6 +225,22 @@ def _reversing_geometry(pts: list[tuple[float, float, float]], names: list[str],
         out.cap_sigma = np.maximum.accumulate(np.concatenate(cap_s))
         out.cap_value = np.concatenate(cap_v)
     return out, _joined_conditioning(pts, names, conds, [a for a, _, _ in runs[1:]])
+
+
+def _blend_cusp(end: _Piece, start: _Piece, turn: float, before: Conditioning, after: Conditioning) -> bool:
+    """Bend two smoothed runs onto one heading at their cusp when the difference is within what
+    their points allow (ddrt/path/cusp.py); False (nothing changed) otherwise."""
+    if before.mode == WAYPOINTS or after.mode == WAYPOINTS or abs(turn) > CUSP_BLEND_MAX_RAD:
+        return False
+    la, lb = blend_length(end), blend_length(start)
+    ea, eb = blend_offset(la, 0.5 * turn), blend_offset(lb, 0.5 * turn)
+    if before.deviation_m + ea > before.tolerance_m or after.deviation_m + eb > after.tolerance_m:
+        return False
+    bend_end(end, 0.5 * turn, la)
+    bend_start(start, -0.5 * turn, lb)
+    before.deviation_m += ea
+    after.deviation_m += eb
+    return True
 
 
 def _joined_conditioning(pts: list[tuple[float, float, float]], names: list[str],
