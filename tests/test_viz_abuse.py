@@ -52,3 +52,114 @@ def test_an_sdk_that_is_installed_but_does_not_import_is_a_clear_error_not_a_tra
     assert "daemon.foxglove.enabled: true needs the foxglove-sdk package, which is installed but does not import" \
         in out.stderr
     assert "Traceback" not in out.stderr
+
+
+# ---------------------------------------------------------------- parameters
+
+
+class _Param:
+    """What the SDK hands the listener: a name and get_value()."""
+
+    def __init__(self, name: str, value: object) -> None:
+        self.name, self._value = name, value
+
+    def get_value(self) -> object:
+        return self._value
+
+
+@pytest.fixture()
+def viz_rig(tmp_path: Path):
+    """A VizService (no server, no MCAP) on an in-process Daemon whose loop runs on the
+    unpaced simulated robot: the parameter path from the SDK's thread to between_ticks."""
+    from test_drive import DaemonRig
+
+    from ddrt.viz.service import VizService
+
+    rig = DaemonRig(tmp_path)
+    svc = VizService(rig.d, 40, truth=False, mcap_dir=None)
+    rig.d.viz = svc
+    try:
+        yield rig, svc
+    finally:
+        svc.close()
+        rig.d.hal.close()
+
+
+@needs_sdk
+def test_a_set_parameters_flood_is_refused_before_planning_and_the_loop_never_plans(viz_rig, monkeypatch) -> None:
+    """2000 setParameters as fast as a client can send them: at most SET_BURST plus
+    SET_RATE_HZ a second are planned (each plan is ~1.5 ms of CPU under the GIL), the rest
+    refused as busy with a bounded number of log lines; the loop thread only puts plans in
+    force, it never plans (before: every set planned on the SDK thread and again on the loop
+    thread between two ticks, 306 missed ticks at 200 Hz and half the ticks at 1 kHz under
+    a sustained flood, 17 000 log lines in 10 s)."""
+    import logging
+    import threading
+
+    import ddrt.service.daemon as daemon_mod
+    import ddrt.viz.params as params_mod
+    import ddrt.viz.service as service_mod
+
+    rig, svc = viz_rig
+    d = rig.d
+    planned_on: list[str] = []
+    real_plan = params_mod.plan_reload
+    real_daemon_plan = daemon_mod.plan_reload
+
+    def spy(where: str, real):
+        def plan(*a, **k):
+            planned_on.append(where + ":" + threading.current_thread().name)
+            return real(*a, **k)
+        return plan
+
+    monkeypatch.setattr(params_mod, "plan_reload", spy("sdk", real_plan))
+    monkeypatch.setattr(daemon_mod, "plan_reload", spy("loop", real_daemon_plan))
+    records: list[logging.LogRecord] = []
+    handler = logging.Handler()
+    handler.emit = records.append  # type: ignore[method-assign]
+    logging.getLogger("ddrt").addHandler(handler)
+    try:
+        import time
+
+        t0 = time.monotonic()
+        for i in range(2000):
+            svc.set_parameters([_Param("controller.inner.kp", 20.0 + i % 10)])
+            if i % 50 == 0:
+                svc.between_ticks()
+                rig.ticks(1)
+        elapsed = time.monotonic() - t0
+        for _ in range(10):
+            svc.between_ticks()
+    finally:
+        logging.getLogger("ddrt").removeHandler(handler)
+    burst, rate = getattr(service_mod, "SET_BURST", 4), getattr(service_mod, "SET_RATE_HZ", 10.0)
+    sdk_plans = [p for p in planned_on if p.startswith("sdk")]
+    assert 1 <= len(sdk_plans) <= burst + rate * elapsed + 1, (len(sdk_plans), elapsed)
+    assert not [p for p in planned_on if p.startswith("loop")], planned_on  # the loop only applied
+    assert d.reloads["applied"] == len(sdk_plans) and d.reloads["rejected"] == 0
+    assert d.cfg.controller.inner.kp == d.loop.cfg.controller.inner.kp  # what was applied last is in force
+    assert len(records) <= 2 * len(sdk_plans) + 10, len(records)  # a flood is not a flood of log lines
+    assert any("more than 10 parameter sets a second" in r.getMessage() for r in records)
+
+
+@needs_sdk
+def test_queued_parameter_sets_each_apply_in_order_without_replanning_on_the_loop(viz_rig, monkeypatch) -> None:
+    import ddrt.service.daemon as daemon_mod
+
+    rig, svc = viz_rig
+    d = rig.d
+    loop_plans: list[int] = []
+    real = daemon_mod.plan_reload
+    monkeypatch.setattr(daemon_mod, "plan_reload", lambda *a, **k: (loop_plans.append(1), real(*a, **k))[1])
+    for name, value in (("controller.inner.kp", 33.0), ("controller.inner.ki", 90.0), ("controller.outer.k_y", 300.0)):
+        assert svc.set_parameters([_Param(name, value)])[0].get_value() == value
+    for _ in range(3):
+        svc.between_ticks()
+    c = d.cfg.controller
+    assert (c.inner.kp, c.inner.ki, c.outer.k_y) == (33.0, 90.0, 300.0) and loop_plans == []
+    # A reload between the set and the loop taking it: planned again there, over the reload.
+    assert svc.set_parameters([_Param("controller.inner.kp", 31.0)])[0].get_value() == 31.0
+    d.apply_overrides({"controller": {"inner": {"kd": 0.5}}}, "test")
+    loop_plans.clear()
+    svc.between_ticks()
+    assert loop_plans == [1] and (d.cfg.controller.inner.kp, d.cfg.controller.inner.kd) == (31.0, 0.5)
