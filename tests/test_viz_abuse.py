@@ -163,3 +163,95 @@ def test_queued_parameter_sets_each_apply_in_order_without_replanning_on_the_loo
     loop_plans.clear()
     svc.between_ticks()
     assert loop_plans == [1] and (d.cfg.controller.inner.kp, d.cfg.controller.inner.kd) == (31.0, 0.5)
+
+
+# ---------------------------------------------------------------- MCAP files that cannot be written
+
+
+@needs_sdk
+@pytest.mark.parametrize("target", ["directory", "missing", "full"])
+def test_sim_mcap_to_a_path_that_cannot_be_written_names_the_flag_without_a_traceback(tmp_path: Path,
+                                                                                      target: str) -> None:
+    """A directory, a parent that cannot be made, a full disk (/dev/full): `ddrt sim --mcap`
+    says which flag and file and why, exit 1. Before: 'Is a directory (os error 21)' without
+    the flag or the file, and on a full disk a traceback after the whole run (the SDK logs a
+    warning for every message after the failure and raises only at close)."""
+    path = {"directory": str(tmp_path), "missing": "/proc/ddrt-nope/run.mcap", "full": "/dev/full"}[target]
+    if target == "full" and not Path("/dev/full").exists():
+        pytest.skip("no /dev/full")
+    out = subprocess.run([sys.executable, "-m", "ddrt.cli", "sim", str(SIM), "--duration", "5", "--out",
+                          str(tmp_path / "sim"), "--mcap", path, "--quiet"], cwd=REPO, capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 1, out.stderr
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"ddrt: error: --mcap {path}: "), out.stderr
+    why = {"directory": "is a directory", "missing": "cannot write it", "full": "No space left on device"}[target]
+    assert why in lines[0]
+
+
+class _FakeWriter:
+    def __init__(self, path: str, fail: list[bool]) -> None:
+        Path(path).write_bytes(b"\x89MCAP0\r\n")
+        self.fail = fail
+        self.closed = False
+
+    def flush(self) -> None:
+        if self.fail[0]:
+            raise RuntimeError("FoxgloveError: MCAP error: I/O error from writing (simulated: no space left)")
+
+    def close(self) -> None:
+        self.closed = True
+        if self.fail[0]:
+            raise RuntimeError("FoxgloveError: MCAP error: attempted another write after a write method failed")
+
+
+@needs_sdk
+def test_daemon_mcap_on_a_full_disk_logs_once_keeps_going_and_records_again_when_there_is_room(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
+    """Measured before the fix on a 300 kB tmpfs: the publisher logged 'foxglove publisher:
+    RuntimeError ...' 30 times a second for as long as the disk stayed full (the flush was
+    retried on every publish), the SDK a warning per message. Now: one error, the file cut
+    short moved aside, a new file tried every RETRY_S, one line when it writes again."""
+    import logging
+
+    import ddrt.viz.mcapfile as mcapfile
+
+    fail = [False]
+    writers: list[_FakeWriter] = []
+
+    class Fg:
+        @staticmethod
+        def open_mcap(path: str, **_: object) -> _FakeWriter:
+            writers.append(_FakeWriter(path, fail))
+            return writers[-1]
+
+    now = [1000.0]
+    monkeypatch.setattr(mcapfile.time, "monotonic", lambda: now[0])
+    rot = mcapfile.RotatingMcap(Fg, None, str(tmp_path), "telemetry", 10_000_000, 5, flush_s=1.0)
+    try:
+        caplog.set_level(logging.INFO, logger="ddrt.viz")
+        for _ in range(20):
+            now[0] += 0.02
+            rot.check()
+        fail[0] = True
+        for _ in range(3000):  # 60 s of a full disk at the publisher's 50 Hz
+            now[0] += 0.02
+            rot.check()
+        errors = [r for r in caplog.records if r.levelno >= logging.ERROR]
+        assert len(errors) == 1 and "writing" in errors[0].getMessage() and "no space left" in errors[0].getMessage()
+        assert (tmp_path / "telemetry.1.mcap").exists()  # the file cut short, kept
+        assert 5 <= len(writers) <= 1 + 60 / mcapfile.RETRY_S + 1  # a retry every RETRY_S, not every publish
+        fail[0] = False
+        for _ in range(int(mcapfile.RETRY_S / 0.02) + 100):
+            now[0] += 0.02
+            rot.check()
+        assert rot._writer is not None and any("again" in r.getMessage() for r in caplog.records)
+        # The SDK's own warnings after a failure: the first passes, the flood does not.
+        sdk = logging.getLogger(mcapfile.SinkErrors.LOGGER)
+        before = len(caplog.records)
+        caplog.set_level(logging.WARNING, logger=mcapfile.SinkErrors.LOGGER)
+        for _ in range(5000):
+            sdk.warning("error logging message: McapError(AttemptedWriteAfterFailure)")
+        assert len(caplog.records) - before <= 3
+    finally:
+        rot.close()
