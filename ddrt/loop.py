@@ -37,7 +37,7 @@ from ddrt.config.sections import LimitsConfig
 from ddrt.core.control import Command, DynamicController, KinematicController, make_controller
 from ddrt.core.drive import DriveReference, check_command
 from ddrt.core.types import Setpoint
-from ddrt.core.envelope import resolve_limits
+from ddrt.core.envelope import ResolvedLimits, resolve_limits
 from ddrt.core.estimator import Estimator, calibrate_gyro
 from ddrt.core.model import Dynamics
 from ddrt.core.motor import Motor
@@ -99,6 +99,11 @@ COLUMNS = (
 STATE_CODE = {name: float(i) for i, name in enumerate(STATES)}
 
 
+def _drive_limits(resolved: ResolvedLimits) -> LimitsConfig:
+    """ControlLoop.drive_limits for given resolved limits."""
+    return replace(resolved.limits, v_max=resolved.profile_v_max)
+
+
 def _no_stamp() -> None:
     """The tick's stage stamp outside benchmarks: nothing."""
 
@@ -145,6 +150,7 @@ class ControlLoop:
         self._hold: _Hold | None = None
         self._hold_times: deque[float] = deque()  # sample times at which holds began
         self._read_error = ""  # the HAL's timeout, while reads keep timing out
+        self._limits_after_braking: LimitsConfig | None = None  # the controller's, once a drive is within them
         self._set_bounds(cfg)
 
     def _set_bounds(self, cfg: Config) -> None:
@@ -175,10 +181,21 @@ class ControlLoop:
         # Swap (nothing below raises for values that passed validation).
         self.estimator.reconfigure(cfg.estimator, cfg.robot.r_3,
                                    self.estimator.dyn if not model_changed else dyn, motor)
-        self.controller.retune(cfg.controller, limits.limits)
+        ctrl = limits.limits
+        self._limits_after_braking = None
+        ref = self.reference
+        if isinstance(ref, DriveReference):
+            ref.configure(_drive_limits(limits), cfg.drive, cfg.daemon.command_timeout_s)
+            if ref.over(ctrl.v_max, ctrl.omega_max):
+                # Lower top speeds while the robot is faster: the ramp brakes it to them within
+                # the limits; the controller's clamps, cut at once, would brake it as hard as
+                # the inner loop can (5 m/s^2 from 0.8 to 0.3 m/s, measured). They take the new
+                # limits once the setpoint is within them (_drive).
+                self._limits_after_braking = ctrl
+                ctrl = replace(ctrl, v_max=max(ctrl.v_max, abs(ref.v.value)),
+                               omega_max=max(ctrl.omega_max, abs(ref.w.value)))
+        self.controller.retune(cfg.controller, ctrl)
         self.limits = limits
-        if isinstance(self.reference, DriveReference):
-            self.reference.configure(self.drive_limits(), cfg.drive, cfg.daemon.command_timeout_s)
         if model_changed:
             self.dyn, self.seed_dyn, self.motor = dyn, seed_dyn, motor
             self.controller.set_model(seed_dyn if cfg.controller.mode == "seed" else dyn, motor)
@@ -290,6 +307,7 @@ class ControlLoop:
         self._check_start(path, pose)
         if pose is not None:
             self.estimator.set_pose(pose)
+        self._take_deferred_limits()
         self.reference = reference
         self.path = path
         sp = self.setpoint
@@ -331,7 +349,7 @@ class ControlLoop:
         """The velocity mode's limits in numbers: the config's, null ones from the motors;
         its top speed the one the profile plans to (within limits.feedback_headroom), so the
         inner loop keeps room to correct at full speed."""
-        return replace(self.limits.limits, v_max=self.limits.profile_v_max)
+        return _drive_limits(self.limits)
 
     def drive(self, v: object, omega: object, source: str = "") -> tuple[float, float, tuple[str, ...]]:
         """Hold the velocities (v, omega) until the next command, a stop, or
@@ -397,6 +415,7 @@ class ControlLoop:
         """Leave estop/fault: back to idle, motors still at zero."""
         self._zero_motors()
         self.controller.reset()
+        self._take_deferred_limits()
         self.reference = None
         self.estimator.health.fault = ""
         self.fault = ""
@@ -495,6 +514,9 @@ class ControlLoop:
         sp = self.setpoint
         stamp()
         ref.update(est.x, est.y, est.theta, sp, est.dt)  # type: ignore[union-attr]
+        if (after := self._limits_after_braking) is not None and not (
+                isinstance(ref, DriveReference) and ref.over(after.v_max, after.omega_max)):
+            self._take_deferred_limits()  # braked down to a reload's lower top speeds
         stamp()
         cmd = self.controller.update(est.x, est.y, est.theta, est.v, est.omega, sp)
         stamp()
@@ -521,6 +543,11 @@ class ControlLoop:
                 self.cmd = cmd
                 if cmd.saturated:
                     self.saturated_ticks += 1
+
+    def _take_deferred_limits(self) -> None:
+        if self._limits_after_braking is not None:
+            self.controller.set_limits(self._limits_after_braking)
+            self._limits_after_braking = None
 
     def _write_zero(self) -> None:
         try:

@@ -121,6 +121,10 @@ class _Controller:
         """Swap the model (the adaptive law's estimate) between ticks."""
         self.dyn = dyn
 
+    def set_limits(self, limits: LimitsConfig) -> None:
+        """New limits alone (no gains), between ticks."""
+        self.limits = limits
+
     def set_model(self, dyn: Dynamics, motor: Motor) -> None:
         """A new robot description (a reload): the dynamic and the motor model, between ticks."""
         self.dyn = dyn
@@ -144,6 +148,9 @@ class DynamicController(_Controller):
         self.pid_w = _Pid(inner, on_error=seed_method)
         self._pids = (self.pid_v, self.pid_w)
         self.cmd = Command()
+        self._set_limits(limits)
+
+    def set_limits(self, limits: LimitsConfig) -> None:
         self._set_limits(limits)
 
     def _set_limits(self, limits: LimitsConfig) -> None:

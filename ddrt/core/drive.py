@@ -80,10 +80,18 @@ class DriveReference:
         self._decel: float | None = None
 
     def configure(self, limits: LimitsConfig, drive: DriveConfig, timeout_s: float) -> None:
-        """New limits between two ticks (a reload): the ramps go on from where they are."""
+        """New limits between two ticks (a reload): the ramps go on from where they are, and
+        the command being held is clamped to the new top speeds, so a lower limits.v_max or
+        omega_max brakes the robot to it along the ramp (within the accelerations and jerks)."""
         self.v.set_limits(limits.accel, drive.jerk_max)
         self.w.set_limits(limits.alpha_max, drive.angular_jerk_max)
         self.timeout_s = timeout_s
+        v, w = self.target
+        self.target = (max(-limits.v_max, min(limits.v_max, v)), max(-limits.omega_max, min(limits.omega_max, w)))
+
+    def over(self, v_max: float, omega_max: float) -> bool:
+        """Is the ramped setpoint still beyond these top speeds (braking down to new limits)?"""
+        return abs(self.v.value) > v_max or abs(self.w.value) > omega_max
 
     def command(self, v: float, omega: float, commanded: tuple[float, float], source: str = "") -> None:
         """Hold (v, omega) (already checked and clamped) from the next tick; restarts the timeout."""

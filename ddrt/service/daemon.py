@@ -163,10 +163,17 @@ class Daemon:
             return False
         return True
 
-    def apply_overrides(self, overrides: dict[str, Any], who: str) -> dict[str, Any]:
-        """A reload of a few keys (Foxglove parameters): planned and applied as a reload is."""
+    def apply_overrides(self, overrides: dict[str, Any], who: str,
+                        planned: tuple[Config, ReloadPlan] | None = None) -> dict[str, Any]:
+        """A reload of a few keys (Foxglove parameters): planned and applied as a reload is.
+        `planned` is (the config it was planned over, the plan), made off the loop thread: put
+        in force as it is while that config is still the running one (planning costs ~1.5 ms,
+        applying ~30 us), planned again here if a reload came in between."""
         try:
-            plan = plan_reload(self.cfg, with_overrides(self.cfg, overrides))
+            if planned is not None and planned[0] is self.cfg:
+                plan = planned[1]
+            else:
+                plan = plan_reload(self.cfg, with_overrides(self.cfg, overrides))
             self._apply(plan)
         except (ConfigError, ValueError, TypeError, ArithmeticError) as exc:
             return self._reject(f"{who}: {exc}")

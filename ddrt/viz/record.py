@@ -12,6 +12,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ddrt.viz.mcapfile import SinkErrors
 from ddrt.viz.optional import foxglove
 
 
@@ -31,8 +32,16 @@ class SimRecording:
         self._row_idx = [index["t"]] + [index[c] for c in COLUMNS[1:]]
         self._truth_idx = [index[c.removeprefix("true_")] for c in TRUTH]
         self._fault = fault
-        os.makedirs(os.path.dirname(os.path.abspath(file)), exist_ok=True)
-        self.writer: Any = fg.open_mcap(os.fspath(file), allow_overwrite=True, context=self.context)
+        self.file = os.fspath(file)
+        if os.path.isdir(self.file):
+            raise IsADirectoryError(f"--mcap {self.file}: is a directory; give a file name, "
+                                    f"e.g. {os.path.join(self.file, 'run.mcap')}")
+        try:
+            os.makedirs(os.path.dirname(os.path.abspath(self.file)), exist_ok=True)
+            self.writer: Any = fg.open_mcap(self.file, allow_overwrite=True, context=self.context)
+        except OSError as exc:
+            raise OSError(f"--mcap {self.file}: cannot write it: {exc.strerror or exc}") from None
+        self.errors = SinkErrors(every=0).attach()  # the first failure ends the run (chunk), in its own words
 
     def path(self, xs: Any, ys: Any) -> None:
         self.channels.publish_path(xs, ys, 0)
@@ -44,6 +53,15 @@ class SimRecording:
         publish = self.channels.publish_tick
         for row, truth in zip(rows, truths):
             publish(row, max(0, int(round(row[0] * 1e9))), truth, None, self._fault)
+        if self.errors.count:
+            raise OSError(f"--mcap {self.file}: the recording could not be written: {self.errors.first}")
 
     def close(self) -> None:
-        self.writer.close()
+        """Finish the file (its summary). The SDK's writer keeps a failed write (a full disk)
+        to itself until here: OSError naming the flag and the file."""
+        errors = self.errors
+        errors.detach()
+        try:
+            self.writer.close()
+        except (OSError, RuntimeError) as exc:
+            raise OSError(f"--mcap {self.file}: the recording could not be written: {errors.first or exc}") from None

@@ -9,8 +9,10 @@ Threads and what each may do:
   The SDK queues each client's messages (bounded, oldest dropped), so a slow or stuck
   client costs the publisher nothing either.
 - The SDK's threads call the listener: a parameter set is validated there (the reload
-  plan, ddrt/viz/params.py) and queued; the loop thread applies it through the daemon's
-  reload path between two ticks. Teleop messages are parsed there and the latest one is
+  plan, ddrt/viz/params.py) and the plan queued; the loop thread puts it in force through
+  the daemon's reload path between two ticks (re-planned there only if the config changed
+  meanwhile). Sets beyond SET_BURST at once or SET_RATE_HZ sustained are refused as busy
+  before any planning: a client flooding setParameters costs neither the loop nor the GIL. Teleop messages are parsed there and the latest one is
   handed to the loop thread. Nothing a client sends raises out of a callback.
 """
 
@@ -31,6 +33,8 @@ from ddrt.viz.teleop import TOPICS as TELEOP_TOPICS, DropLog, parse_twist
 
 log = logging.getLogger("ddrt.viz")
 PENDING_SETS = 4  # parameter sets waiting for the loop; more are refused as busy
+SET_RATE_HZ = 10.0  # parameter sets planned per second, sustained (each plan costs ~1.5 ms of CPU)
+SET_BURST = 4  # and at once
 
 
 class VizHost(Protocol):
@@ -38,7 +42,8 @@ class VizHost(Protocol):
 
     cfg: Config
 
-    def apply_overrides(self, overrides: Mapping[str, Any], who: str) -> dict[str, Any]: ...
+    def apply_overrides(self, overrides: Mapping[str, Any], who: str,
+                        planned: tuple[Config, Any] | None = None) -> dict[str, Any]: ...
 
     def on_teleop(self, v: float, omega: float) -> None: ...
 
@@ -112,7 +117,12 @@ class VizService:
         self._offset = time.time() - time.monotonic()  # monotonic tick time -> epoch for Foxglove
         self._paths: deque[tuple[Any, Any]] = deque(maxlen=2)
         self._last_path: tuple[Any, Any] | None = None
-        self._sets: deque[dict[str, Any]] = deque()
+        self._sets: deque[tuple[dict[str, Any], Any]] = deque()  # (changes, (base config, plan))
+        self._set_lock = threading.Lock()  # the SDK may call back from several threads
+        self._set_tokens = float(SET_BURST)
+        self._set_refill = time.monotonic()
+        self.busy = DropLog(what="foxglove: parameters refused, values kept")
+        self._values: tuple[Config, dict[str, float]] | None = None  # the running config's gains
         self._teleop: tuple[float, float] | None = None
         self._teleop_seq = 0
         self._teleop_taken = 0
@@ -168,8 +178,8 @@ class VizService:
             if cmd is not None:
                 self.host.on_teleop(cmd[0], cmd[1])
         if self._sets:
-            changes = self._sets.popleft()
-            reply = self.host.apply_overrides(gains.overrides_for(changes, self.keys), "foxglove parameters")
+            changes, planned = self._sets.popleft()
+            reply = self.host.apply_overrides(gains.overrides_for(changes, self.keys), "foxglove parameters", planned)
             if not reply.get("ok"):
                 log.warning("foxglove: parameters %s not applied, values kept: %s",
                             ", ".join(changes), reply.get("error"))
@@ -182,7 +192,11 @@ class VizService:
     # ------------------------------------------------------------------ SDK threads
 
     def parameters(self, names: list[str] | None = None) -> list[Any]:
-        current = gains.values(self.host.cfg, self.keys)
+        cfg = self.host.cfg
+        cached = self._values
+        if cached is None or cached[0] is not cfg:  # read off the config once per reload (~70 us)
+            cached = self._values = (cfg, gains.values(cfg, self.keys))
+        current = cached[1]
         fg = self.fg
         chosen = [n for n in (names or self.keys) if n in current]
         return [fg.Parameter(n, value=current[n], type=fg.ParameterType.Float64) for n in chosen]
@@ -190,18 +204,40 @@ class VizService:
     def set_parameters(self, requested: list[Any]) -> list[Any]:
         """Validate a set whole (as a reload would); queue it for the loop, or refuse it."""
         names = [p.name for p in requested]
-        try:
-            changes = {p.name: p.get_value() for p in requested}
-            plan = gains.plan_for(self.host.cfg, changes, self.keys)
-            if len(self._sets) >= PENDING_SETS:
-                raise ConfigError(f"busy: {PENDING_SETS} parameter sets are waiting for the loop")
-        except (ConfigError, ValueError, TypeError, ArithmeticError) as exc:
-            log.warning("foxglove: parameters %s refused, values kept: %s", ", ".join(map(str, names)), exc)
-            return self.parameters(names)
-        self._sets.append(changes)
+        with self._set_lock:
+            busy = self._busy()
+            if busy:
+                self.busy.drop(f"{', '.join(map(str, names))}: {busy}")
+                return self.parameters(names)
+            try:
+                changes = {p.name: p.get_value() for p in requested}
+                # Over what will be running when the loop takes it: the last waiting set's result.
+                try:
+                    base = self._sets[-1][1][1].in_force
+                except IndexError:
+                    base = self.host.cfg
+                plan = gains.plan_for(base, changes, self.keys)
+            except (ConfigError, ValueError, TypeError, ArithmeticError) as exc:
+                log.warning("foxglove: parameters %s refused, values kept: %s", ", ".join(map(str, names)), exc)
+                return self.parameters(names)
+            self._sets.append((changes, (base, plan)))
         new = gains.values(plan.in_force, self.keys)
         fg = self.fg
         return [fg.Parameter(n, value=new[n], type=fg.ParameterType.Float64) for n in names if n in new]
+
+    def _busy(self) -> str:
+        """Why a parameter set is refused before it is planned ('' when it may be): sets
+        waiting for the loop, or beyond SET_BURST at once and SET_RATE_HZ sustained (a
+        token bucket; a person at a parameter panel sends far fewer)."""
+        if len(self._sets) >= PENDING_SETS:
+            return f"busy: {PENDING_SETS} parameter sets are waiting for the loop"
+        now = time.monotonic()
+        self._set_tokens = min(float(SET_BURST), self._set_tokens + (now - self._set_refill) * SET_RATE_HZ)
+        self._set_refill = now
+        if self._set_tokens < 1.0:
+            return f"busy: more than {SET_RATE_HZ:g} parameter sets a second"
+        self._set_tokens -= 1.0
+        return ""
 
     def teleop(self, data: bytes) -> None:
         try:

@@ -49,11 +49,11 @@ class DropLog:
     """Warn about the first few refused messages, then one line per `every` (a flood of garbage
     must not become a flood of log lines)."""
 
-    def __init__(self, first: int = 5, every: int = 1000) -> None:
-        self.first, self.every = first, every
+    def __init__(self, first: int = 5, every: int = 1000, what: str = "foxglove teleop: message dropped") -> None:
+        self.first, self.every, self.what = first, every, what
         self.count = 0
 
     def drop(self, why: str) -> None:
         self.count += 1
         if self.count <= self.first or self.count % self.every == 0:
-            log.warning("foxglove teleop: message dropped (%d so far): %s", self.count, why)
+            log.warning("%s (%d so far): %s", self.what, self.count, why)
