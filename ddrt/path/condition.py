@@ -780,8 +780,12 @@ class EndPin:
 
 def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, copt: ConditionOptions,
                        where: str, names: Sequence[str],
-                       ends: tuple[EndPin | None, EndPin | None] = (None, None)) -> tuple[_Geometry, Conditioning]:
+                       ends: tuple[EndPin | None, EndPin | None] = (None, None),
+                       noise: float | None = None) -> tuple[_Geometry, Conditioning]:
     """The geometry of a polyline of distinct points (module docstring); caps per point or None.
+
+    `noise`: the points' noise when it is known better than from these points alone (one run
+    of a recording that reverses: the recording's, pooled over its runs); else estimated.
 
     `ends`: smoothed samples whose first or last leg starts or ends at a given point with a
     given tangent (a cusp shared with the run before or after it); ignored for waypoints.
@@ -826,7 +830,7 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, 
             k = int(back[0]) + 1
             raise ConditionError(f"{where}: {names[k]}: the plan steps back the way it came (a reversal): "
                                  "mark the points reached in reverse (a negative v) or split the path here")
-    noise = max(_estimate_noise(p, knot), NOISE_FLOOR_M)
+    noise = max(_estimate_noise(p, knot) if noise is None else noise, NOISE_FLOOR_M)
     axis = grid_axis(p) if mode == GRID else None
     info.noise_m = noise
     pinned = ends[0] is not None or ends[1] is not None
