@@ -245,16 +245,20 @@ def test_random_marked_reverse_manoeuvres_are_driven_end_to_end() -> None:
     """~50 random three-point turns, parking manoeuvres and zig-zags (bench/cusp_inputs.py),
     recorded with 1-2 mm of noise at 5-15 mm spacing and marked with negative v on the reverse
     legs, loaded and driven: each completes or is refused at load with a PathError, and the
-    driven ones stay within a few mm of the curve the samples came from."""
+    driven ones meet issue 13's targets: the true pose within 3 mm RMS of the curve the
+    samples came from on every run, the reference within the tolerance of every input point
+    (the runs share each cusp, ddrt/path/cusp.py, so nothing is shifted onto it), and no turn
+    in place where the curve has none."""
     from bench.cusp_inputs import random_manoeuvre
     from bench.paths_as_given import curve_distance
     from ddrt.path.spec import PathError
 
     cfg = _cfg()
     lim = speed_limits(cfg)
+    tol = cfg.paths.tolerance_m
     rng = np.random.default_rng(2024)
-    driven = refused = 0
-    worst: list[tuple[float, float]] = []  # (true RMS from the curve, final position error)
+    driven = refused = shared = cusps = 0
+    worst: list[float] = []  # true RMS from the curve
     for trial in range(50):
         m = random_manoeuvre(rng)
         speed = float(rng.uniform(0.15, 0.4))
@@ -266,17 +270,22 @@ def test_random_marked_reverse_manoeuvres_are_driven_end_to_end() -> None:
             refused += 1
             continue
         assert len(path.cusps) == m.cusps, trial
+        cusps += m.cusps
+        shared += path.conditioning.extra["cusps_shared"]
+        a = path.arrays()
+        assert path.deviation_m <= tol, (trial, path.deviation_m)
+        assert not np.any(a["seg_pivot"]), trial  # the curve turns nowhere in place
         r = run_sim(cfg, path, seed=trial, keep_rows=True)
         met = r.metrics
         assert met["completed"], (trial, met)
-        assert met["saturated_fraction"] <= 0.02, (trial, met)
+        assert met["saturated_fraction"] <= 0.01, (trial, met)
         d = curve_distance(m.xy(), np.column_stack((r.column("x"), r.column("y"))))
         rms = float(np.sqrt(np.mean(d ** 2)))
-        worst.append((rms, met["final_pos_err_m"]))
-        # The controller tracks its reference to ~0.1 mm; what is left is the reference: each run
-        # is smoothed on its own and its free ends near a cusp sit a few mm off (measured: median
-        # 1.8 mm, worst 4.5 mm over these 50).
-        assert rms < 5e-3, (trial, rms)
+        worst.append(rms)
+        # Measured: median 0.71 mm, worst 1.39 mm over these 50 (each run fitted alone and
+        # shifted onto the previous one's end: median 1.77 mm, worst 4.51 mm, 3 above 3 mm).
+        assert rms <= 3e-3, (trial, rms)
         driven += 1
     assert driven >= 45, (driven, refused)
-    assert float(np.median([w[0] for w in worst])) < 2.5e-3
+    assert shared >= 0.9 * cusps, (shared, cusps)
+    assert float(np.median(worst)) < 1.5e-3

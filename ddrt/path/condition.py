@@ -68,7 +68,8 @@ import numpy as np
 from ddrt.path.geometry import _Geometry, _line, _Options, _Piece, _pivot, _polyline
 from ddrt.path.turnspeed import turn_caps
 
-__all__ = ["ConditionOptions", "Conditioning", "ConditionError", "classify", "condition_polyline"]
+__all__ = ["ConditionOptions", "Conditioning", "ConditionError", "EndPin", "classify", "condition_polyline",
+           "knot_spacing", "point_noise"]
 
 WAYPOINTS, SAMPLES, GRID = "waypoints", "samples", "grid"
 REVERSAL_DEG = 150.0  # a corner this sharp in samples is a cusp: the path reverses
@@ -299,7 +300,8 @@ _PEN = (1.0, -3.0, 3.0, -1.0)  # a third difference
 class _LegFit:
     """Penalised least squares of one leg's points; the data part is assembled once."""
 
-    def __init__(self, p: np.ndarray, u: np.ndarray, w: np.ndarray, knot: float) -> None:
+    def __init__(self, p: np.ndarray, u: np.ndarray, w: np.ndarray, knot: float,
+                 slopes: tuple[np.ndarray | None, np.ndarray | None] = (None, None)) -> None:
         length = float(u[-1])
         n_int = max(1, int(math.ceil(length / knot - 1e-9)))
         self.spline = _Spline(length / n_int, n_int, length)
@@ -307,6 +309,9 @@ class _LegFit:
         self.nc = n_int + 3
         self.j, self.t = self.spline.locate(u)
         self.b = _basis(self.t, 0)
+        # dr/du held at the start and the end (a shared cusp's heading): a term as heavy as a
+        # fixed point's, on (c[2] - c[0]) / 2h at u = 0 and (c[-1] - c[-3]) / 2h at u = length.
+        self.slopes = slopes
         self.set_weights(w.copy())
 
     def set_weights(self, w: np.ndarray) -> None:
@@ -324,6 +329,21 @@ class _LegFit:
         for a in range(4):
             rx += np.bincount(j + a, weights=w * b[a] * self.p[:, 0], minlength=nc)[:nc]
             ry += np.bincount(j + a, weights=w * b[a] * self.p[:, 1], minlength=nc)[:nc]
+        h = self.spline.knot
+        # As heavy as the fixed end point beside it (the largest weight): a slope error e moves
+        # the curve by about h e.
+        heavy = float(w.max()) * h * h
+        g = 0.5 / h
+        for i0, slope in ((0, self.slopes[0]), (nc - 3, self.slopes[1])):
+            if slope is None:
+                continue
+            diags[0][i0] += heavy * g * g
+            diags[0][i0 + 2] += heavy * g * g
+            diags[2][i0] -= heavy * g * g
+            rx[i0] -= heavy * g * slope[0]
+            rx[i0 + 2] += heavy * g * slope[0]
+            ry[i0] -= heavy * g * slope[1]
+            ry[i0 + 2] += heavy * g * slope[1]
         return diags, rx, ry
 
     def solve(self, lam: np.ndarray) -> _Spline:
@@ -531,10 +551,12 @@ SEARCH_POINTS = 4000  # a longer leg chooses its smoothing on windows of this ma
 
 
 def _choose_smoothing(q: np.ndarray, u: np.ndarray, w: np.ndarray, fixed: np.ndarray, knot: float,
-                      noise: float) -> tuple[float, int]:
+                      noise: float, slopes: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
+                      ) -> tuple[float, int]:
     """The largest smoothing length on a sqrt(2) ladder whose RMS lateral residual is within
     DISCREPANCY noise sigmas (bisection); a long leg takes the smallest over three windows
-    (the choice is about the noise, which a window shows as well as the whole)."""
+    (the choice is about the noise, which a window shows as well as the whole). `slopes`:
+    the leg's held end tangents (a leg short enough to be chosen whole)."""
     n = len(q)
     if n > SEARCH_POINTS:
         starts = np.linspace(0, n - SEARCH_POINTS, 3).astype(int).tolist()
@@ -544,7 +566,7 @@ def _choose_smoothing(q: np.ndarray, u: np.ndarray, w: np.ndarray, fixed: np.nda
             e, f = _choose_smoothing(q[sl], u[sl] - u[a], w[sl], fixed[sl], knot, noise)
             best, fits = min(best, e), fits + f
         return best, fits
-    fit = _LegFit(q, u, w, knot)
+    fit = _LegFit(q, u, w, knot, slopes)
     nrow = fit.nc - 3
     kn = fit.spline.knot
     ell_lo = 1.5 * kn
@@ -588,8 +610,12 @@ def _cell_distance(sp: _Spline, q: np.ndarray, uf: np.ndarray, axis: float) -> n
 
 def _fit_leg(p: np.ndarray, fix0: np.ndarray | None, fix1: np.ndarray | None, tol: float, noise: float,
              knot: float, opt: _Options, names: Sequence[str], offset: int, where: str,
-             wrap: tuple[np.ndarray, np.ndarray] | None = None, cell_axis: float | None = None) -> _Leg:
+             wrap: tuple[np.ndarray, np.ndarray] | None = None, cell_axis: float | None = None,
+             slope0: np.ndarray | None = None, slope1: np.ndarray | None = None) -> _Leg:
     """One leg between corners (or the path's ends): the smoothing spline of the module doc.
+
+    `slope0`, `slope1`: dr/du (u the points' chord length) held at a fixed start or end: the
+    heading and pace of a cusp shared with the next run (ddrt/path/cusp.py).
 
     `cell_axis`: a grid plan's axis direction; the corridor is then each point's cell (the
     distance is taken along the grid's axes, at the point's foot), not a disc round it.
@@ -619,11 +645,13 @@ def _fit_leg(p: np.ndarray, fix0: np.ndarray | None, fix1: np.ndarray | None, to
     w[fixed] = _FIX_WEIGHT * float(w.max())
     fixed[:core.start] = True
     fixed[core.stop:] = True
-    fit = _LegFit(q, u, w, knot)
+    held = (slope0 if fix0 is not None and wrap is None else None,
+            slope1 if fix1 is not None and wrap is None else None)
+    fit = _LegFit(q, u, w, knot, held)
     nrow = fit.nc - 3
     kn = fit.spline.knot
     ell_min = 0.5 * kn
-    ell, fits = _choose_smoothing(q, u, w, fixed, knot, noise)
+    ell, fits = _choose_smoothing(q, u, w, fixed, knot, noise, held)
     lam = np.full(nrow, fit.lam(ell))
     lam_min = fit.lam(ell_min)
     reach = int(math.ceil(ell / kn)) + 3
@@ -723,9 +751,45 @@ def _cap_turns(geo: _Geometry, info: Conditioning) -> None:
     geo.cap_sigma, geo.cap_value = ts, tv
 
 
+def knot_spacing(spacing: float, tol: float, cell: float | None) -> float:
+    """The spline's knot spacing: the points' spacing, but no closer than half the tolerance
+    (finer detail than that is noise to be removed, and denser knots only cost time); a grid
+    plan's cell."""
+    return cell if cell is not None else max(spacing, 0.5 * tol, 1e-4)
+
+
+def point_noise(pts: np.ndarray, copt: ConditionOptions) -> tuple[str, float]:
+    """(mode, estimated lateral noise) of a polyline of distinct points, as condition_polyline
+    finds them (for a cusp's estimate from two runs' points, ddrt/path/cusp.py)."""
+    p = np.asarray(pts, dtype=float)
+    mode, tol, cell = classify(p, copt)
+    if mode == WAYPOINTS:
+        return mode, 0.0
+    spacing = float(np.median(np.hypot(*np.diff(p, axis=0).T)))
+    return mode, max(_estimate_noise(p, knot_spacing(spacing, tol, cell)), NOISE_FLOOR_M)
+
+
+@dataclass(frozen=True, slots=True)
+class EndPin:
+    """A fitted polyline's start or end held at `point`, with dr/du = `slope` there (u the
+    points' chord length: |slope| is the pace of the points' progress per chord, about 1)."""
+
+    point: np.ndarray
+    slope: np.ndarray
+
+
 def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, copt: ConditionOptions,
-                       where: str, names: Sequence[str]) -> tuple[_Geometry, Conditioning]:
-    """The geometry of a polyline of distinct points (module docstring); caps per point or None."""
+                       where: str, names: Sequence[str],
+                       ends: tuple[EndPin | None, EndPin | None] = (None, None),
+                       noise: float | None = None) -> tuple[_Geometry, Conditioning]:
+    """The geometry of a polyline of distinct points (module docstring); caps per point or None.
+
+    `noise`: the points' noise when it is known better than from these points alone (one run
+    of a recording that reverses: the recording's, pooled over its runs); else estimated.
+
+    `ends`: smoothed samples whose first or last leg starts or ends at a given point with a
+    given tangent (a cusp shared with the run before or after it); ignored for waypoints.
+    The point at that end is then measured against the pinned point for the deviation."""
     p = np.asarray(pts, dtype=float)
     seg = np.hypot(*np.diff(p, axis=0).T)
     spacing = float(np.median(seg)) if len(seg) else 0.0
@@ -742,17 +806,17 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, 
             info.extra["blends"] = int(np.sum(~sharp & (np.abs(turn) > 1e-9)))
         return geo, info
     u = _chord_param(p)
-    # Knots at the points' spacing, but no closer than half the tolerance (finer detail than
-    # that is noise to be removed, and denser knots only cost time).
-    knot = max(spacing, 0.5 * tol, 1e-4)
-    if cell is not None:
-        knot = cell
+    knot = knot_spacing(spacing, tol, cell)
     rough = _raw_noise(p)
     scale = max(5.0 * tol, 20.0 * rough, 3.0 * spacing)
     threshold = math.radians(opt.corner_pivot_deg)
     if mode == GRID:
         threshold = max(threshold, math.radians(GRID_PIVOT_DEG))
     corners = _find_corners(p, u, scale, threshold)
+    # Within a corner scale of a pinned end the points were found smooth by the cusp's own fit
+    # (ddrt/path/cusp.py): a turn found there is the end's short chord on noise.
+    corners = [(k, t) for k, t in corners
+               if not (ends[0] is not None and u[k] < scale) and not (ends[1] is not None and u[-1] - u[k] < scale)]
     if mode == SAMPLES:
         for k, turn in corners:
             if abs(turn) >= math.radians(REVERSAL_DEG):
@@ -766,13 +830,16 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, 
             k = int(back[0]) + 1
             raise ConditionError(f"{where}: {names[k]}: the plan steps back the way it came (a reversal): "
                                  "mark the points reached in reverse (a negative v) or split the path here")
-    noise = max(_estimate_noise(p, knot), NOISE_FLOOR_M)
+    noise = max(_estimate_noise(p, knot) if noise is None else noise, NOISE_FLOOR_M)
     axis = grid_axis(p) if mode == GRID else None
     info.noise_m = noise
-    wrap = _loop_wrap(p, knot, scale, threshold, tol, spacing) if not corners else None
+    pinned = ends[0] is not None or ends[1] is not None
+    wrap = _loop_wrap(p, knot, scale, threshold, tol, spacing) if not corners and not pinned else None
     info.extra["closed_loop"] = wrap is not None
     cuts = [0] + [k for k, _ in corners] + [len(p) - 1]
-    fixes: list[np.ndarray | None] = [None] + [_refine_corner(p, u, k, scale, tol) for k, _ in corners] + [None]
+    fixes: list[np.ndarray | None] = ([None if ends[0] is None else ends[0].point]
+                                      + [_refine_corner(p, u, k, scale, tol) for k, _ in corners]
+                                      + [None if ends[1] is None else ends[1].point])
     pieces: list[_Piece] = []
     sig_pts = np.zeros(len(p))
     devs = np.zeros(len(p))
@@ -786,7 +853,8 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, 
         a, b = cuts[j], cuts[j + 1]
         try:
             leg = _fit_leg(p[a:b + 1], fixes[j], fixes[j + 1], tol, noise, knot, opt, names, a, where, wrap,
-                           axis)
+                           axis, ends[0].slope if j == 0 and ends[0] is not None else None,
+                           ends[1].slope if j == len(cuts) - 2 and ends[1] is not None else None)
         except _Cusp as exc:
             k = a + exc.index
             raise ConditionError(f"{where}: {names[k]}: the points turn back on themselves here (the smoothed "

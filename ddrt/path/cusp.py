@@ -1,4 +1,26 @@
-"""Joining two smoothed runs at a cusp on one heading, instead of a needless turn in place.
+"""Joining two smoothed runs at a cusp: one point and one heading estimated from both runs'
+samples (`estimate_cusp`), each run then fitted ending there; and, where that cannot be
+done, bending two separately fitted runs onto one heading (`bend_end`, `bend_start`).
+
+The shared cusp. At a real cusp the robot stops and drives on the other way with the heading
+it had: the runs meet at one point with one tangent line, and both lie behind the point
+along it (the motion reverses). So near the cusp, in a frame with x along the tangent
+(towards the cusp) and y across it, both runs' points are y = c0 + c1 x + (each run's own)
+a2 x^2 + a3 x^3 for x <= 0: a linear least-squares fit with the offset c0 and slope c1
+shared. The frame is turned by the fitted slope and moved by the fitted offset until both
+are nil (three passes); the point keeps the recorded cusp sample's place along the tangent
+(the along-track noise is as large either way, and it bends nothing). The window (the
+points within `w` of the cusp sample along each run) is the largest on a sqrt(2) ladder
+whose residual RMS (per degree of freedom) stays within the runs' noise times
+DISCREPANCY, as the smoothing spline's own choice (condition.py): long enough to average
+the noise, short enough that a cubic still is the curve. Each run is then fitted with its
+end held at that point and its end tangent on that heading (condition.EndPin), so the runs
+meet without the shift and bend below, and the cusp sample's distance from the point counts
+in the reported deviation like any other point's.
+
+Bending (where a run is waypoints, has too few points, or its pinned fit cannot stay within
+the tolerance: the runs are then fitted each on its own and the later one shifted onto the
+earlier one's end).
 
 At a real cusp (a three-point turn, a parking manoeuvre) the robot stops and drives on the
 other way with the heading it had: both runs have the same tangent there. Each run of a
@@ -21,9 +43,12 @@ import math
 
 import numpy as np
 
+from dataclasses import dataclass
+
 from ddrt.path.geometry import _Piece
 
-__all__ = ["CUSP_BLEND_MAX_RAD", "CUSP_BLEND_M", "blend_offset", "bend_end", "bend_start"]
+__all__ = ["CUSP_BLEND_MAX_RAD", "CUSP_BLEND_M", "SharedCusp", "blend_offset", "bend_end", "bend_start",
+           "estimate_cusp"]
 
 # Larger differences are a turn the user meant (or data that cannot say): turned in place.
 CUSP_BLEND_MAX_RAD = math.radians(12.0)
@@ -72,3 +97,114 @@ def bend_end(pc: _Piece, beta: float, length: float) -> None:
 def bend_start(pc: _Piece, beta: float, length: float) -> None:
     """Turn the piece's first tangent by beta (rad), its start point fixed."""
     _bend(pc, pc.s - pc.s[0], 1.0, beta, length)
+
+
+# ------------------------------------------------------------------------ the shared cusp
+
+CUSP_DISCREPANCY = 1.1  # residual RMS allowed, in noise sigmas (as condition.DISCREPANCY)
+CUSP_MIN_SIDE = 5  # points each run needs in the window besides the cusp sample
+CUSP_WINDOW_MAX_M = 0.6  # longest window tried (and at most half of either run)
+
+
+@dataclass(frozen=True, slots=True)
+class SharedCusp:
+    """Where two runs meet at a cusp, estimated from both runs' points."""
+
+    point: np.ndarray  # (2,)
+    heading: float  # the arriving run's direction of travel there (rad); the leaving run's + pi
+    pace_in: float  # progress along the tangent per chord length of the arriving run's points
+    pace_out: float  # and of the leaving run's
+    window_m: float
+    rms_m: float  # residual RMS of the fit (per degree of freedom)
+
+    @property
+    def direction(self) -> np.ndarray:
+        return np.array([math.cos(self.heading), math.sin(self.heading)])
+
+
+def _chord_from_cusp(p: np.ndarray) -> np.ndarray:
+    """Chord length from p[0] along the points."""
+    return np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T))))
+
+
+def _fit_window(a: np.ndarray, b: np.ndarray, degree: int) -> tuple[np.ndarray, np.ndarray, float, np.ndarray] | None:
+    """(point, unit tangent towards the cusp, residual RMS per degree of freedom, (X^T X)^-1 of
+    the shared offset and slope) of the shared fit with each run's own terms x^2 .. x^degree;
+    a[0] = b[0] is the cusp sample, a and b lead away from it along each run."""
+    c = a[0]
+    pts = np.concatenate((a, b[1:]))
+    side_b = np.concatenate((np.zeros(len(a)), np.ones(len(b) - 1)))
+    t = c - pts[1:].mean(axis=0)
+    norm = math.hypot(*t)
+    if not norm > 0.0:
+        return None
+    t = t / norm
+    o = c.copy()
+    rss = 0.0
+    design = np.zeros((0, 0))
+    for _ in range(3):
+        n = np.array([-t[1], t[0]])
+        x = (pts - o) @ t
+        y = (pts - o) @ n
+        cols = [np.ones_like(x), x]
+        for k in range(2, degree + 1):
+            cols += [(1.0 - side_b) * x ** k, side_b * x ** k]
+        design = np.column_stack(cols)
+        coef, *_ = np.linalg.lstsq(design, y, rcond=None)
+        if not np.all(np.isfinite(coef)):
+            return None
+        rss = float(np.sum((design @ coef - y) ** 2))
+        o = o + coef[0] * n
+        t = t + coef[1] * n
+        t = t / math.hypot(*t)
+    dof = len(pts) - design.shape[1]
+    try:
+        cov = np.linalg.inv(design.T @ design)[:2, :2]
+    except np.linalg.LinAlgError:
+        return None
+    return o, t, math.sqrt(rss / dof), cov
+
+
+def _pace(p: np.ndarray, point: np.ndarray, t: np.ndarray) -> float:
+    """Progress away from the cusp along -t per chord length of the points p (p[0] the cusp)."""
+    u = _chord_from_cusp(p)
+    x = (point - p) @ t
+    den = float(u @ u)
+    return float(np.clip((x @ u) / den, 0.5, 1.0)) if den > 0.0 else 1.0
+
+
+def estimate_cusp(arrive: np.ndarray, leave: np.ndarray, noise: float) -> SharedCusp | None:
+    """The cusp shared by a run arriving at arrive[-1] and one leaving from leave[0] (the same
+    sample), from both runs' points (module docstring); None when either run has too few
+    points near the cusp, or no window's fit matches the noise."""
+    a = np.asarray(arrive, dtype=float)[::-1]
+    b = np.asarray(leave, dtype=float)
+    if len(a) < CUSP_MIN_SIDE + 1 or len(b) < CUSP_MIN_SIDE + 1 or not np.array_equal(a[0], b[0]):
+        return None
+    ua, ub = _chord_from_cusp(a), _chord_from_cusp(b)
+    top = min(CUSP_WINDOW_MAX_M, 0.5 * float(ua[-1]), 0.5 * float(ub[-1]))
+    # The shortest window that holds the points a fit needs on both sides.
+    start = max(float(ua[CUSP_MIN_SIDE]), float(ub[CUSP_MIN_SIDE]))
+    best: SharedCusp | None = None
+    best_var = math.inf
+    w = start
+    while w <= top * (1.0 + 1e-9):
+        sa, sb = a[ua <= w], b[ub <= w]
+        for degree in (1, 2, 3):
+            got = _fit_window(sa, sb, degree)
+            if got is None:
+                continue
+            point, t, rms, cov = got
+            # A residual RMS over k degrees of freedom scatters by about 1 / sqrt(2 k) of sigma:
+            # a short window's is allowed that much more (else chance alone refuses it).
+            dof = len(sa) + len(sb) - 1 - (2 * degree)
+            if dof < 3 or rms > (CUSP_DISCREPANCY + 1.0 / math.sqrt(2.0 * dof)) * noise:
+                continue
+            # Of the fits the noise allows, the one whose tangent line is surest where the
+            # runs bend onto it (the variance of its offset CUSP_BLEND_M behind the cusp).
+            var = float(cov[0, 0] - 2.0 * CUSP_BLEND_M * cov[0, 1] + CUSP_BLEND_M ** 2 * cov[1, 1])
+            if var < best_var:
+                best_var = var
+                best = SharedCusp(point, math.atan2(t[1], t[0]), _pace(sa, point, t), _pace(sb, point, t), w, rms)
+        w *= math.sqrt(2.0)
+    return best

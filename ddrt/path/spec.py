@@ -24,10 +24,12 @@ from ddrt.config.schema import ConfigError, build
 from ddrt.config.sections import PathsConfig
 from ddrt.config.yamlio import read_text, read_yaml, shorten
 from ddrt.path.condition import (
-    WAYPOINTS, ConditionError, ConditionOptions, Conditioning, classify, condition_polyline,
+    WAYPOINTS, ConditionError, ConditionOptions, Conditioning, EndPin, classify, condition_polyline, point_noise,
 )
 from ddrt.core.wrap import wrap_angle
-from ddrt.path.cusp import CUSP_BLEND_MAX_RAD, bend_end, bend_start, blend_length, blend_offset
+from ddrt.path.cusp import (
+    CUSP_BLEND_MAX_RAD, SharedCusp, bend_end, bend_start, blend_length, blend_offset, estimate_cusp,
+)
 from ddrt.path.geometry import _Geometry, _Options, _Piece, _pivot, reversed_piece
 from ddrt.path.profile import SpeedLimits
 from ddrt.path.sampled import Path
@@ -142,11 +144,21 @@ def _read_csv(filename: str, paths: PathsConfig) -> tuple[list[tuple[float, floa
     return rows, len(header) == 3, lines
 
 
+def _condition_options(paths: PathsConfig, tolerance: float | None) -> ConditionOptions:
+    return ConditionOptions(paths.tolerance_m if tolerance is None else tolerance, paths.waypoint_spacing_m,
+                            tolerance is not None)
+
+
 def _waypoint_geometry(rows: list[tuple[float, float, float]], has_v: bool, where: str, opt: _Options,
                        paths: PathsConfig, names: list[str], tolerance: float | None = None,
-                       budget_where: str | None = None) -> tuple[_Geometry, Conditioning]:
+                       budget_where: str | None = None,
+                       ends: tuple[EndPin | None, EndPin | None] = (None, None),
+                       noise: float | None = None) -> tuple[_Geometry, Conditioning]:
     """A polyline's geometry: waypoints as they are, samples of a curve smoothed (condition.py).
-    Errors about one point name `where` and the point's name; about the whole, `budget_where`."""
+    Errors about one point name `where` and the point's name; about the whole, `budget_where`.
+    `ends`: a run's start or end held at a cusp shared with the next run; if the fit cannot
+    hold it within the tolerance, the run is fitted free (`Conditioning.extra["pinned"]`
+    says which ends were held). `noise`: the points' noise if known (condition_polyline)."""
     pts, kept = _merge_points(rows, names)
     runs = _direction_runs(pts)
     if len(runs) > 1 or runs[0][2] < 0.0:
@@ -155,8 +167,7 @@ def _waypoint_geometry(rows: list[tuple[float, float, float]], has_v: bool, wher
     if len(pts) < 2:
         only = f" (every point equals the one at {kept[0]})" if kept and len(rows) > 1 else ""
         raise PathError(f"{where}: {kept[0] + ': ' if kept else ''}fewer than 2 distinct points ({len(pts)}){only}")
-    copt = ConditionOptions(paths.tolerance_m if tolerance is None else tolerance, paths.waypoint_spacing_m,
-                            tolerance is not None)
+    copt = _condition_options(paths, tolerance)
     xy = np.array([(p[0], p[1]) for p in pts], dtype=float)
     mode = classify(xy, copt)[0]
     if mode == WAYPOINTS:
@@ -165,10 +176,19 @@ def _waypoint_geometry(rows: list[tuple[float, float, float]], has_v: bool, wher
         length = float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
         _check_samples(1.05 * length / opt.step + 2.0 * len(pts) ** 0.5, whole, paths, opt)
     caps = np.array([abs(p[2]) for p in pts]) if has_v else None  # the sign marks direction only
+    if mode != WAYPOINTS and (ends[0] is not None or ends[1] is not None):
+        try:
+            geo, cond = condition_polyline(xy, caps, opt, copt, where, kept, ends, noise)
+            cond.extra["pinned"] = (ends[0] is not None, ends[1] is not None)
+            return geo, cond
+        except ConditionError:
+            pass  # the shared cusp is not within the tolerance of this run's points: fit it free
     try:
-        return condition_polyline(xy, caps, opt, copt, where, kept)
+        geo, cond = condition_polyline(xy, caps, opt, copt, where, kept, noise=noise)
     except ConditionError as exc:
         raise PathError(str(exc)) from None
+    cond.extra["pinned"] = (False, False)
+    return geo, cond
 
 
 def _direction_runs(pts: list[tuple[float, float, float]]) -> list[tuple[int, int, float]]:
@@ -189,17 +209,30 @@ def _reversing_geometry(pts: list[tuple[float, float, float]], names: list[str],
                         budget_where: str | None) -> tuple[_Geometry, Conditioning]:
     """A polyline with runs driven in reverse: each run read as its own polyline (so a reversal
     inside a run is still refused naming its point), its pieces turned round, joined at each
-    cusp (a turn in place there when the headings differ). Speed caps are |v|."""
+    cusp. Where both runs are smoothed samples the cusp is estimated once from both runs'
+    points and each run fitted ending there on its heading (ddrt/path/cusp.py); otherwise a
+    turn in place joins them where the headings differ. The runs are one recording, with one
+    noise: each is smoothed for the noise pooled over all (a short run's own estimate is
+    unsure, and too low a one leaves noise in its curvature). Speed caps are |v|."""
+    shared, noise = _shared_cusps(pts, runs, paths, tolerance)
     pieces: list[_Piece] = []
     cap_s: list[np.ndarray] = []
     cap_v: list[np.ndarray] = []
     conds: list[tuple[int, Conditioning]] = []
     sigma = 0.0
-    for a, b, d in runs:
+    held = 0
+    for r, (a, b, d) in enumerate(runs):
         sub = [(x, y, abs(v)) for x, y, v in pts[a:b + 1]]
-        geo, cond = _waypoint_geometry(sub, has_v, where, opt, paths, names[a:b + 1], tolerance, budget_where)
+        before = shared[r - 1] if r > 0 else None
+        after = shared[r] if r < len(shared) else None
+        ends = (None if before is None else EndPin(before.point, -before.pace_out * before.direction),
+                None if after is None else EndPin(after.point, after.pace_in * after.direction))
+        geo, cond = _waypoint_geometry(sub, has_v, where, opt, paths, names[a:b + 1], tolerance, budget_where, ends,
+                                       noise)
         run = [reversed_piece(pc) for pc in geo.pieces] if d < 0.0 else geo.pieces
         if pieces:
+            if conds[-1][1].extra.get("pinned", (False, False))[1] and cond.extra["pinned"][0]:
+                held += 1
             # A smoothed run need not end exactly on its last point: the next one is moved onto
             # it (by less than the tolerance), so the two meet at one cusp.
             dx, dy = float(pieces[-1].x[-1] - run[0].x[0]), float(pieces[-1].y[-1] - run[0].y[0])
@@ -224,7 +257,33 @@ def _reversing_geometry(pts: list[tuple[float, float, float]], names: list[str],
     if cap_s:
         out.cap_sigma = np.maximum.accumulate(np.concatenate(cap_s))
         out.cap_value = np.concatenate(cap_v)
-    return out, _joined_conditioning(pts, names, conds, [a for a, _, _ in runs[1:]])
+    joined = _joined_conditioning(pts, names, conds, [a for a, _, _ in runs[1:]])
+    joined.extra["cusps_shared"] = held
+    return out, joined
+
+
+# A run needs this many points for its own noise estimate to count in the pooled one.
+NOISE_POOL_MIN_POINTS = 8
+
+
+def _shared_cusps(pts: list[tuple[float, float, float]], runs: list[tuple[int, int, float]], paths: PathsConfig,
+                  tolerance: float | None) -> tuple[list[SharedCusp | None], float | None]:
+    """Each cusp's point and heading from the points of both runs that meet there, where both
+    are smoothed samples (ddrt/path/cusp.py; None where either is waypoints or too short),
+    and the noise pooled over the smoothed runs (the RMS of their estimates, weighted by
+    their points; None if no run has enough points for one)."""
+    copt = _condition_options(paths, tolerance)
+    xys = [np.array([(p[0], p[1]) for p in pts[a:b + 1]], dtype=float) for a, b, _ in runs]
+    found = [point_noise(xy, copt) if len(xy) >= 4 else (WAYPOINTS, 0.0) for xy in xys]
+    pool = [(len(xy), nz) for xy, (mode, nz) in zip(xys, found)
+            if mode != WAYPOINTS and len(xy) >= NOISE_POOL_MIN_POINTS]
+    noise = (math.sqrt(sum(n * nz * nz for n, nz in pool) / sum(n for n, _ in pool))) if pool else None
+    out: list[SharedCusp | None] = []
+    for r in range(len(runs) - 1):
+        (ma, na), (mb, nb) = found[r], found[r + 1]
+        out.append(None if WAYPOINTS in (ma, mb)
+                   else estimate_cusp(xys[r], xys[r + 1], max(na, nb) if noise is None else noise))
+    return out, noise
 
 
 def _blend_cusp(end: _Piece, start: _Piece, turn: float, before: Conditioning, after: Conditioning) -> bool:
