@@ -99,7 +99,7 @@ def analyse(p: dict[str, list[tuple[float, ...]]]) -> dict[str, Any]:
         if started - deadline > LATE_S:
             k = bisect.bisect_right(starts, deadline) - 1
             under = pubs[k] if k >= 0 and pubs[k][1] > deadline else None
-            late.append({"late_ms": (started - deadline) * 1e3, "skipped": skipped,
+            late.append({"t_s": deadline - ticks[0][0], "late_ms": (started - deadline) * 1e3, "skipped": skipped,
                          "loop_runqueue_ms": (wait - ticks[i - 1][3]) * 1e3,
                          "publish_cpu_ms": under[2] * 1e3 if under else None,
                          "publish_runqueue_ms": under[3] * 1e3 if under else None})
@@ -120,7 +120,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--client", type=float, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.client is not None:
-        time.sleep(3.0)  # the daemon's start-up
+        time.sleep(float(os.environ.get("DDRT_GIL_CLIENT_DELAY_S", "3.0")))  # the daemon's start-up
         asyncio.run(_client(PORT, time.monotonic() + args.client))
         return 0
     r = analyse(probe(not args.off, args.duration, args.normal_publisher))

@@ -127,7 +127,7 @@ def run_one(enabled: bool, duration: float) -> dict[str, Any]:
                 proc.kill()
         stats = json.loads(stats_path.read_text())
     return {"enabled": enabled, "exit_code": stats["exit_code"], "ticks": stats["ticks"], "missed": stats["missed"],
-            "compute_us": stats["compute_us"], "lateness_us": stats["lateness_us"],
+            "overruns": stats["overruns"], "compute_us": stats["compute_us"], "lateness_us": stats["lateness_us"],
             "maxrss_mb": stats["maxrss_kb"] / 1024.0, "cpu_s": stats["cpu_s"], "client": client}
 
 
@@ -210,7 +210,9 @@ def render_section(r: dict[str, Any]) -> list[str]:
         f"+{TARGET_TICK_P99_US:g}", delta=r["tick_p99_delta_us"])
     row("tick compute max (us)", c0["max"], c1["max"], "")
     row("lateness p99 (us)", l0["p99"], l1["p99"], "")
-    lines.append(f"| missed ticks | {off['missed']} | {on['missed']} | {on['missed'] - off['missed']:+d} | 0 |")
+    row("lateness max (us)", l0["max"], l1["max"], "")
+    lines.append(f"| missed ticks (in how many late wake-ups) | {off['missed']} ({off.get('overruns', '?')}) | "
+                 f"{on['missed']} ({on.get('overruns', '?')}) | {on['missed'] - off['missed']:+d} | 0 |")
     row("peak RSS (MB)", off["maxrss_mb"], on["maxrss_mb"], f"+{TARGET_RSS_MB:g}", fmt="{:.1f}")
     row("CPU (s)", off["cpu_s"], on["cpu_s"], "", fmt="{:.1f}")
     cl = on["client"]
@@ -218,7 +220,8 @@ def render_section(r: dict[str, Any]) -> list[str]:
     lines += ["", f"The client received {cl['counts'].get('/state', 0)} /state messages for {on['ticks']} ticks "
               f"(per topic: {', '.join(f'{k} {v}' for k, v in sorted(cl['counts'].items()))}); view age p50 "
               f"{a['p50']:.1f} ms, p99 {a['p99']:.1f} ms, max {a['max']:.1f} ms (target <= {TARGET_AGE_MS:g} ms). "
-              f"VizRing.put: {r['put_us']:.2f} us."]
+              f"VizRing.put: {r['put_us']:.2f} us. Whether a missed tick is the machine or the publisher holding "
+              "the GIL: `python -m bench.foxglove_gil` (docs/foxglove.md, \"What it costs the loop\")."]
     m = r.get("mcap")
     if m:
         c, x = m["csv"], m["mcap"]

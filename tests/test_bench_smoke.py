@@ -167,7 +167,7 @@ def test_document_has_every_section(tiny_results: run.Results, tmp_path) -> None
     assert robots is not None and len(robots.robots) == 1 and len(robots.runs) == 6
     assert "| dynamic | " in doc and "| kinematic | " in doc and "bench/population.py" in doc
     assert "### The velocity mode" in doc and "| drive | " in doc
-    assert ("| missed ticks |" in doc) == (tiny_results.live.foxglove is not None)
+    assert ("| missed ticks (in" in doc) == (tiny_results.live.foxglove is not None)
     out = tmp_path / "BENCHMARKS.md"
     out.write_text(doc)
     assert out.read_text().count("\n## ") == len(run.SECTIONS)
@@ -231,7 +231,8 @@ def test_foxglove_section_quick_measures_both_runs_and_the_recording() -> None:
     m = fx["mcap"]
     assert m["mcap"]["mcap_mb"] > 0.0 and m["csv"]["mcap_mb"] is None and m["csv"]["ticks"] == m["mcap"]["ticks"]
     text = "\n".join(run.render_live(live))
-    for row in ("| tick compute p99 (us), on + VizRing.put |", "| missed ticks |", "| peak RSS (MB) |",
+    for row in ("| tick compute p99 (us), on + VizRing.put |", "| missed ticks (in how many late wake-ups) |",
+                "| peak RSS (MB) |",
                 "| with --mcap |", "### The velocity mode"):
         assert row in text, row
 
