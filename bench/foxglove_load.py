@@ -16,6 +16,9 @@ one added call (`VizRing.put`, after the timed part) is timed on its own. Target
 up by at most 5 us, RSS up by at most 40 MB, no missed tick, view age max < 100 ms.
 
     python -m bench.foxglove_load [--duration S] [--json FILE]
+
+`measure_mcap` adds what recording costs `ddrt sim`: its wall time and files with and without
+`--mcap`. `section` and `render_section` are BENCHMARKS.md's section on both (bench/run.py).
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ import asyncio
 import json
 import os
 import re
+import shlex
 import statistics
 import subprocess
 import sys
@@ -123,7 +127,7 @@ def run_one(enabled: bool, duration: float) -> dict[str, Any]:
                 proc.kill()
         stats = json.loads(stats_path.read_text())
     return {"enabled": enabled, "exit_code": stats["exit_code"], "ticks": stats["ticks"], "missed": stats["missed"],
-            "compute_us": stats["compute_us"], "lateness_us": stats["lateness_us"],
+            "overruns": stats["overruns"], "compute_us": stats["compute_us"], "lateness_us": stats["lateness_us"],
             "maxrss_mb": stats["maxrss_kb"] / 1024.0, "cpu_s": stats["cpu_s"], "client": client}
 
 
@@ -147,6 +151,91 @@ def measure(duration: float) -> dict[str, Any]:
     return {"duration_s": duration, "off": off, "on": on, "put_us": put,
             "tick_p99_delta_us": on["compute_us"]["p99"] - off["compute_us"]["p99"] + put,
             "rss_delta_mb": on["maxrss_mb"] - off["maxrss_mb"]}
+
+
+def measure_mcap(scenario: str = "figure8_fast", duration: float | None = None,
+                 repeats: int = 2) -> dict[str, Any]:
+    """`ddrt sim` on one scenario with the daemon runs' path (PATH) with and without `--mcap`
+    (best wall time of `repeats`), and the sizes of its telemetry.csv and the MCAP file."""
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    out: dict[str, Any] = {"scenario": scenario, "path": str(PATH.relative_to(REPO))}
+    with tempfile.TemporaryDirectory(prefix="ddrt-mcap-", dir="/tmp") as tmp:
+        for mcap in (False, True):
+            cmd = [sys.executable, "-m", "ddrt.cli", "sim", str(REPO / "configs" / "scenarios" / f"{scenario}.yaml"),
+                   "--path", str(PATH), "--quiet", "--out", tmp] + (["--duration", str(duration)] if duration else [])
+            cmd += ["--mcap", f"{tmp}/run.mcap"] if mcap else []
+            walls = []
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                done = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True)
+                if done.returncode not in (0, 1):  # 1: the path not completed (a --duration shorter than it)
+                    raise RuntimeError(f"{shlex.join(cmd)}: exit {done.returncode}\n{done.stderr}")
+                walls.append(time.perf_counter() - t0)
+            metrics = json.loads(FsPath(tmp, "metrics.json").read_text())
+            out["mcap" if mcap else "csv"] = {
+                "wall_s": min(walls), "sim_s": metrics["sim_duration_s"], "ticks": metrics["ticks"],
+                "csv_mb": FsPath(tmp, "telemetry.csv").stat().st_size / 1e6,
+                "mcap_mb": FsPath(tmp, "run.mcap").stat().st_size / 1e6 if mcap else None}
+    return out
+
+
+def section(duration: float, mcap_duration: float | None, repeats: int) -> dict[str, Any]:
+    r = measure(duration)
+    r["mcap"] = measure_mcap(duration=mcap_duration, repeats=repeats)
+    return r
+
+
+def render_section(r: dict[str, Any]) -> list[str]:
+    """BENCHMARKS.md's rows: off against on, the targets beside the numbers."""
+    off, on = r["off"], r["on"]
+    lines = [
+        f"Two fresh `ddrt run` daemons on the simulated robot at 200 Hz, one after the other, {r['duration_s']:g} s "
+        "each following five laps of the fast figure-eight (bench/foxglove_load.py): Foxglove off, then on with a "
+        "`websockets` client subscribed to every channel for the whole run. Tick compute and lateness are the "
+        "daemon's own (`--stats-json`); the loop thread's one added call (`VizRing.put`, outside the timed "
+        "tick) is timed on its own and added to the difference. View age: the client's arrival time of each "
+        "/state message minus the tick start in it. Issue 15's targets beside the numbers.",
+        "",
+        "| | Foxglove off | on, client subscribed | on - off | target |",
+        "|---|---|---|---|---|",
+    ]
+    def row(name: str, a: float, b: float, target: str, fmt: str = "{:.0f}", delta: float | None = None) -> None:
+        d = (b - a) if delta is None else delta
+        lines.append(f"| {name} | {fmt.format(a)} | {fmt.format(b)} | {d:+.1f} | {target} |")
+
+    c0, c1, l0, l1 = off["compute_us"], on["compute_us"], off["lateness_us"], on["lateness_us"]
+    lines.append(f"| ticks | {off['ticks']} | {on['ticks']} | | |")
+    row("tick compute p50 (us)", c0["p50"], c1["p50"], "")
+    row("tick compute p99 (us), on + VizRing.put", c0["p99"], c1["p99"] + r["put_us"],
+        f"+{TARGET_TICK_P99_US:g}", delta=r["tick_p99_delta_us"])
+    row("tick compute max (us)", c0["max"], c1["max"], "")
+    row("lateness p99 (us)", l0["p99"], l1["p99"], "")
+    row("lateness max (us)", l0["max"], l1["max"], "")
+    lines.append(f"| missed ticks (in how many late wake-ups) | {off['missed']} ({off.get('overruns', '?')}) | "
+                 f"{on['missed']} ({on.get('overruns', '?')}) | {on['missed'] - off['missed']:+d} | 0 |")
+    row("peak RSS (MB)", off["maxrss_mb"], on["maxrss_mb"], f"+{TARGET_RSS_MB:g}", fmt="{:.1f}")
+    row("CPU (s)", off["cpu_s"], on["cpu_s"], "", fmt="{:.1f}")
+    cl = on["client"]
+    a = cl["age_ms"]
+    lines += ["", f"The client received {cl['counts'].get('/state', 0)} /state messages for {on['ticks']} ticks "
+              f"(per topic: {', '.join(f'{k} {v}' for k, v in sorted(cl['counts'].items()))}); view age p50 "
+              f"{a['p50']:.1f} ms, p99 {a['p99']:.1f} ms, max {a['max']:.1f} ms (target <= {TARGET_AGE_MS:g} ms). "
+              f"VizRing.put: {r['put_us']:.2f} us. Whether a missed tick is the machine or the publisher holding "
+              "the GIL: `python -m bench.foxglove_gil` (docs/foxglove.md, \"What it costs the loop\")."]
+    m = r.get("mcap")
+    if m:
+        c, x = m["csv"], m["mcap"]
+        lines += ["", f"Recording: `ddrt sim configs/scenarios/{m['scenario']}.yaml --path {m['path']} --quiet` "
+                  "with and without "
+                  f"`--mcap FILE` ({c['sim_s']:.1f} simulated s, {c['ticks']} ticks; wall time of the whole command, "
+                  "start-up included, best of the runs):", "",
+                  "| | wall (s) | telemetry.csv (MB) | MCAP (MB) |", "|---|---|---|---|",
+                  f"| without --mcap | {c['wall_s']:.2f} | {c['csv_mb']:.1f} | |",
+                  f"| with --mcap | {x['wall_s']:.2f} | {x['csv_mb']:.1f} | {x['mcap_mb']:.1f} |",
+                  "", f"MCAP adds {x['wall_s'] - c['wall_s']:.2f} s of wall time "
+                  f"({(x['wall_s'] - c['wall_s']) / max(x['ticks'], 1) * 1e6:.0f} us a tick) and "
+                  f"{x['mcap_mb'] / max(x['sim_s'], 1e-9):.2f} MB per simulated second."]
+    return lines
 
 
 def markdown(r: dict[str, Any]) -> str:

@@ -1,8 +1,14 @@
-"""`python -m bench.run [--quick] [--out docs/BENCHMARKS.md]`: regenerate the benchmark report.
+"""`python -m bench.run [--quick] [--out docs/BENCHMARKS.md] [--only N]`: regenerate the benchmark report.
 
 One command measures everything and writes the Markdown; nobody edits BENCHMARKS.md by hand,
 so every number in it can be traced to a run on the machine it names. The timing sections run
 one after another on an otherwise idle process; only the accuracy grid uses a process pool.
+
+`--only N` measures section N alone (those in ONLY: 11) and splices it into the --out file:
+the section's text from its `## N.` heading to the next `## ` heading is replaced (or, when
+the file has no such section, inserted after the last section that precedes it in SECTIONS);
+every other line of the file stays as it was. The spliced section says that it was measured
+alone, with its command, date and load average, since the file's header names the full run.
 """
 
 from __future__ import annotations
@@ -22,7 +28,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from bench import accuracy, adaptation, ctl_flood, io_bound, loop_timing, paths_as_given, population, startup, tick_cost
+from bench import (accuracy, adaptation, ctl_flood, foxglove_load, io_bound, loop_timing, paths_as_given, population,
+                   startup, tick_cost, velocity_mode)
 from ddrt.config import load_config
 from ddrt.path.spec import resolve_path
 from ddrt.simrun.runner import run_sim
@@ -43,6 +50,7 @@ SECTIONS = (
     "8. The control socket under abuse",
     "9. Paths as people hand them over",
     "10. A population of robots",
+    "11. Foxglove live view, MCAP and the velocity mode",
 )
 
 
@@ -66,10 +74,14 @@ class BenchOptions:
     paths_cases: tuple[str, ...] | None = None  # None: every case of bench/paths_as_given.py
     paths_long: tuple[int, ...] = (10_000, 100_000)  # points of the long recordings timed
     robots: int = population.ROBOTS
+    foxglove_duration_s: float = 60.0  # each daemon run, off and on (issue 15: 60 s at 200 Hz)
+    mcap_duration_s: float | None = None  # `ddrt sim` on the scenario, None: to the path's end
+    mcap_repeats: int = 2
 
 
 FULL = BenchOptions()
-QUICK = BenchOptions(seeds=(1,), ticks=20_000, loop_duration_s=5.0, robots=4)
+QUICK = BenchOptions(seeds=(1,), ticks=20_000, loop_duration_s=5.0, robots=4, foxglove_duration_s=4.0,
+                     mcap_duration_s=3.0, mcap_repeats=1)
 
 
 @dataclass
@@ -87,7 +99,17 @@ class Results:
     ctl: list[ctl_flood.FloodRow] = field(default_factory=list)
     paths: paths_as_given.PathsResult | None = None
     robots: population.PopulationResult | None = None
+    live: "LiveView | None" = None
     wall_s: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class LiveView:
+    """Section 11: foxglove_load's section (None with why, without foxglove-sdk) and the velocity mode."""
+
+    foxglove: dict | None
+    missing: str
+    velocity: velocity_mode.VelocityMode
 
 
 # --------------------------------------------------------------------------- machine
@@ -121,6 +143,25 @@ def machine_info() -> dict[str, str]:
 
 
 # --------------------------------------------------------------------------- measuring
+
+
+def foxglove_missing() -> str:
+    """Why section 11's Foxglove part cannot run here ('' when it can)."""
+    import importlib.util
+
+    gone = [m for m in ("foxglove", "websockets") if importlib.util.find_spec(m) is None]
+    return f"not installed: {', '.join(gone)} (pip install 'ddrt[foxglove]' websockets)" if gone else ""
+
+
+def measure_live(opts: BenchOptions) -> LiveView:
+    missing = foxglove_missing()
+    fx = None if missing else foxglove_load.section(opts.foxglove_duration_s, opts.mcap_duration_s, opts.mcap_repeats)
+    return LiveView(fx, missing, velocity_mode.measure(load_config(TICK_CONFIG), min(opts.ticks, 100_000)))
+
+
+def render_live(live: LiveView) -> list[str]:
+    lines = foxglove_load.render_section(live.foxglove) if live.foxglove else [f"Foxglove not measured: {live.missing}."]
+    return lines + ["", "### The velocity mode", ""] + velocity_mode.render(live.velocity)
 
 
 def measure_speed(scenarios: Sequence[str], seeds: Sequence[int]) -> dict[str, list[float]]:
@@ -164,11 +205,13 @@ def measure_all(opts: BenchOptions, command: str, say: Callable[[str], None] = _
                                                                       opts.scenarios))
     paths = timed("paths as given", lambda: paths_as_given.measure(opts.paths_cases, opts.seeds[0], opts.paths_long))
     robots = timed("population", lambda: population.measure_population(opts.robots, opts.workers))
+    live = timed("foxglove and velocity mode", lambda: measure_live(opts))
     machine["load average at the end"] = (load_average() + " (other work on this machine shows in the maxima "
                                           "and the loop timing)")
     return Results(options=opts, command=command, machine=machine, accuracy=acc,  # type: ignore[arg-type]
                    ticks=ticks, loop=loop, speed=speed, startup=st, bound=io_bound.io_bound(),  # type: ignore[arg-type]
-                   adapt=adapt, ctl=ctl, paths=paths, robots=robots, wall_s=walls)  # type: ignore[arg-type]
+                   adapt=adapt, ctl=ctl, paths=paths, robots=robots, live=live,  # type: ignore[arg-type]
+                   wall_s=walls)  # type: ignore[arg-type]
 
 
 # --------------------------------------------------------------------------- the document
@@ -249,7 +292,42 @@ def render_document(r: Results) -> str:
     lines += paths_as_given.render(r.paths) if r.paths is not None else ["Not measured in this run."]
     lines += ["", _header(10), ""]
     lines += population.render(r.robots) if r.robots is not None else ["Not measured in this run."]
+    lines += ["", _header(11), ""]
+    lines += render_live(r.live) if r.live is not None else ["Not measured in this run."]
     return "\n".join(lines) + "\n"
+
+
+# Sections that `--only` can measure alone: number -> (measure, render).
+ONLY: dict[int, tuple[Callable[[BenchOptions], object], Callable[[object], list[str]]]] = {
+    11: (measure_live, render_live),  # type: ignore[dict-item]
+}
+
+
+def splice_section(doc: str, n: int, body: list[str]) -> str:
+    """`doc` with section n's text (heading to the next `## `) replaced by `body`, or inserted
+    after the last earlier section of SECTIONS it has (before the next one) when it has none."""
+    lines = doc.rstrip("\n").split("\n")
+    heads = {line: i for i, line in enumerate(lines) if line.startswith("## ")}
+    new = [_header(n), ""] + body
+    if _header(n) in heads:
+        start = heads[_header(n)]
+        end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")), len(lines))
+        lines[start:end] = new + ([""] if end < len(lines) else [])
+    else:
+        later = [heads[_header(k)] for k in range(n + 1, len(SECTIONS)) if _header(k) in heads]
+        at = min(later) if later else len(lines)
+        lines[at:at] = ([""] if at == len(lines) else []) + new + ([""] if later else [])
+    return "\n".join(lines) + "\n"
+
+
+def measure_only(n: int, opts: BenchOptions, command: str) -> list[str]:
+    measure, render = ONLY[n]
+    load0 = load_average()
+    t0 = time.perf_counter()
+    value = measure(opts)
+    when = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    return [f"Measured alone by `{command}` on {when} in {time.perf_counter() - t0:.0f} s (load average "
+            f"{load0} at start, {load_average()} at the end; the machine is the one above).", ""] + render(value)
 
 
 # --------------------------------------------------------------------------- command line
@@ -260,18 +338,28 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="1 seed, fewer ticks, 5 s loop runs (a smoke run)")
     ap.add_argument("--out", default="docs/BENCHMARKS.md", help="where to write (default: docs/BENCHMARKS.md)")
     ap.add_argument("--workers", type=int, default=2, help="processes for the accuracy grid (default: 2)")
+    ap.add_argument("--only", type=int, metavar="N",
+                    help=f"measure section N alone ({', '.join(map(str, ONLY))}) and splice it into --out")
     args = ap.parse_args(argv)
     if args.workers < 1:
         ap.error(f"--workers: must be at least 1, got {args.workers}")
+    if args.only is not None and args.only not in ONLY:
+        ap.error(f"--only: sections that can be measured alone: {', '.join(map(str, ONLY))}; got {args.only}")
     opts = QUICK if args.quick else FULL
     if args.workers != opts.workers:
         opts = dataclasses.replace(opts, workers=args.workers)
     command = shlex.join(["python", "-m", "bench.run"] + list(argv if argv is not None else sys.argv[1:]))
-    results = measure_all(opts, command)
     out = FsPath(args.out)
     if not out.is_absolute():
         out = REPO / out
     out.parent.mkdir(parents=True, exist_ok=True)
+    if args.only is not None:
+        body = measure_only(args.only, opts, command)
+        old = out.read_text(encoding="utf-8") if out.exists() else "# Benchmarks\n"
+        out.write_text(splice_section(old, args.only, body), encoding="utf-8")
+        _say(f"wrote section {args.only} into {out}")
+        return 0
+    results = measure_all(opts, command)
     out.write_text(render_document(results), encoding="utf-8")
     _say(f"wrote {out}")
     for v in results.accuracy.verdict:

@@ -80,7 +80,7 @@ class StageStamps:
 
 
 def timed_tick(loop: ControlLoop, out: list[array], i: int, stamps: StageStamps | None = None) -> None:
-    """One real `ControlLoop.tick()` of a following loop; each stage's duration into out[k][i] (ns).
+    """One real `ControlLoop.tick()` of a moving loop (following, stopping or driving); each stage's duration into out[k][i] (ns).
 
     The tick stamps itself (`tick(stamps)`): the done/finite checks between control and write
     count in "write", the adapter (if on) in "estimate". A tick that did not run every stage
@@ -93,7 +93,7 @@ def timed_tick(loop: ControlLoop, out: list[array], i: int, stamps: StageStamps 
     state = loop.state
     loop.tick(stamps)
     ns = stamps.ns
-    if len(ns) != len(STAGES) + 1 or loop.state == "fault" or state not in ("following", "stopping"):
+    if len(ns) != len(STAGES) + 1 or loop.state == "fault" or state not in ("following", "stopping", "driving"):
         raise TickBenchError(f"loop not following (state {loop.state}, fault {loop.fault!r})")
     for k in range(len(STAGES)):
         out[k][i] = ns[k + 1] - ns[k]

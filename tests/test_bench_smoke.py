@@ -6,11 +6,12 @@ measures something real and that the report still has every section.
 
 from __future__ import annotations
 
+import dataclasses
 from array import array
 
 import pytest
 
-from bench import accuracy, adaptation, io_bound, run, tick_cost
+from bench import accuracy, adaptation, io_bound, run, tick_cost, velocity_mode
 from ddrt.config import load_config
 from ddrt.loop import ControlLoop
 from ddrt.path.spec import resolve_path
@@ -94,7 +95,8 @@ TINY = run.BenchOptions(seeds=(1,), lookaheads=(0.03, 0.12), scenarios=("s_curve
                         loop_rates=(), loop_duration_s=1.0, speed_scenarios=("s_curve",),
                         import_modules=("yaml",), import_repeats=1, sim_rss_duration_s=1.0,
                         ctl_counts=(32,), ctl_estops=5,
-                        paths_cases=("figure_eight_361",), paths_long=(2000,), robots=1)
+                        paths_cases=("figure_eight_361",), paths_long=(2000,), robots=1,
+                        foxglove_duration_s=2.0, mcap_duration_s=1.0, mcap_repeats=1)
 
 
 @pytest.fixture(scope="module")
@@ -164,6 +166,8 @@ def test_document_has_every_section(tiny_results: run.Results, tmp_path) -> None
     robots = tiny_results.robots
     assert robots is not None and len(robots.robots) == 1 and len(robots.runs) == 6
     assert "| dynamic | " in doc and "| kinematic | " in doc and "bench/population.py" in doc
+    assert "### The velocity mode" in doc and "| drive | " in doc
+    assert ("| missed ticks (in" in doc) == (tiny_results.live.foxglove is not None)
     out = tmp_path / "BENCHMARKS.md"
     out.write_text(doc)
     assert out.read_text().count("\n## ") == len(run.SECTIONS)
@@ -197,3 +201,52 @@ def test_population_robots_are_physically_consistent() -> None:
         assert cfg.sim.command_latency_s > 0.0 and cfg.sim.sensor_latency_s > 0.0
         assert cfg.limits.v_max is None and cfg.limits.accel is None  # every other key at default
         assert 0.3 < speed_limits(cfg).v_max < 2.5
+
+
+# ------------------------------------------------------------------ section 11: Foxglove, MCAP, velocity mode
+
+
+def test_velocity_mode_tick_cost_and_stop_within_the_bound() -> None:
+    r = velocity_mode.measure(load_config(SIM), ticks=2000)
+    assert 0.0 < r.drive.p50_us < 1000.0 and 0.0 < r.follow.p50_us < 1000.0
+    assert [s.jerk_max for s in r.stops] == [load_config(SIM).drive.jerk_max, None]
+    for s in r.stops:
+        assert s.still_s <= s.bound_s + 0.05 and s.travel_m <= s.bound_m + 0.01, s
+        assert s.travel_m > s.bound_m - 0.05  # it drove on through the timeout
+    text = "\n".join(velocity_mode.render(r))
+    assert "| drive | " in text and "| follow | " in text and "| none | " in text
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(bool(run.foxglove_missing()), reason=run.foxglove_missing() or "available")
+def test_foxglove_section_quick_measures_both_runs_and_the_recording() -> None:
+    live = run.measure_live(dataclasses.replace(run.QUICK, ticks=2000))
+    fx = live.foxglove
+    assert fx is not None
+    for name in ("off", "on"):
+        assert fx[name]["exit_code"] == 0 and fx[name]["ticks"] > 0.5 * 200 * run.QUICK.foxglove_duration_s
+    client = fx["on"]["client"]
+    assert client["counts"].get("/state", 0) > 0.5 * fx["on"]["ticks"]  # the client saw the ticks
+    assert 0.0 < client["age_ms"]["p50"] < 1000.0
+    m = fx["mcap"]
+    assert m["mcap"]["mcap_mb"] > 0.0 and m["csv"]["mcap_mb"] is None and m["csv"]["ticks"] == m["mcap"]["ticks"]
+    text = "\n".join(run.render_live(live))
+    for row in ("| tick compute p99 (us), on + VizRing.put |", "| missed ticks (in how many late wake-ups) |",
+                "| peak RSS (MB) |",
+                "| with --mcap |", "### The velocity mode"):
+        assert row in text, row
+
+
+def test_only_splices_one_section_and_keeps_every_other_line() -> None:
+    h = run._header
+    doc = "\n".join(["# Benchmarks", "", "intro", "", h(9), "", "nine", "| a |", "", h(10), "", "ten", ""])
+    inserted = run.splice_section(doc, 11, ["eleven"])
+    assert inserted == doc + "\n" + h(11) + "\n\neleven\n"
+    replaced = run.splice_section(inserted, 11, ["eleven again", "", "more"])
+    assert replaced == doc + "\n" + h(11) + "\n\neleven again\n\nmore\n"
+    middle = run.splice_section(doc, 9, ["new nine"])  # a section followed by another
+    assert middle == doc.replace("nine\n| a |\n", "new nine\n")
+    no_ten = "\n".join(["# Benchmarks", "", h(9), "", "nine", "", h(11), "", "old", ""])
+    assert run.splice_section(no_ten, 10, ["ten"]) == no_ten.replace(h(11), h(10) + "\n\nten\n\n" + h(11))
+    with pytest.raises(SystemExit):
+        run.main(["--only", "3", "--out", "/nonexistent/x.md"])  # only the sections in run.ONLY

@@ -331,6 +331,29 @@ def test_demote_current_thread_leaves_normal_thread_alone() -> None:
     assert gc.isenabled()  # nothing here touched the collector of the test process
 
 
+def test_a_gil_helper_runs_just_below_a_real_time_loop_or_at_normal_priority() -> None:
+    """rt.raise_gil_helper in a fresh thread: SCHED_FIFO 1 under a loop at FIFO >= 2 (or, where
+    that is refused, a warning and SCHED_OTHER); SCHED_OTHER when the loop is not real-time."""
+    import threading
+
+    seen: dict[int, tuple[str | None, int, int]] = {}
+
+    def helper(loop_priority: int) -> None:
+        why = rt.raise_gil_helper(loop_priority)
+        seen[loop_priority] = (why, os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)
+
+    for prio in (0, 10):
+        t = threading.Thread(target=helper, args=(prio,))
+        t.start()
+        t.join()
+    assert seen[0] == (None, os.SCHED_OTHER, 0)
+    why, policy, priority = seen[10]
+    if why is None:
+        assert (policy, priority) == (os.SCHED_FIFO, 1)
+    else:
+        assert "SCHED_FIFO, 1" in why and policy == os.SCHED_OTHER
+
+
 def test_spinning_clock_never_wakes_early_and_rejects_bad_spin():
     import time as _time
 

@@ -4,7 +4,8 @@ Threads and what each may do:
 - The loop thread calls `put` once per tick (VizRing: one struct copy) and, between two
   ticks, `between_ticks` (two attribute checks when nothing is pending), `path_started`.
   It never calls the SDK, never waits on a lock the other threads hold.
-- The publisher thread (`ddrt-foxglove`, normal priority) takes the ring every
+- The publisher thread (`ddrt-foxglove`; SCHED_FIFO 1, below the loop, when the loop is
+  real-time: rt.raise_gil_helper) takes the ring every
   `interval_s`, builds and logs the messages, forwards log records, rotates MCAP files.
   The SDK queues each client's messages (bounded, oldest dropped), so a slow or stuck
   client costs the publisher nothing either.
@@ -251,9 +252,12 @@ class VizService:
     # ------------------------------------------------------------------ publisher thread
 
     def _run(self) -> None:
-        from ddrt.service.rt import demote_current_thread
+        from ddrt.service.rt import raise_gil_helper
 
-        demote_current_thread()
+        # Below the loop but above the machine's other work, so it is not preempted holding the GIL.
+        why = raise_gil_helper(self.host.cfg.daemon.rt_priority)
+        if why:
+            log.warning("foxglove publisher: %s (at normal priority)", why)
         # Phase-locked to the loop: wake a quarter period after a tick started, every
         # `interval_s` worth of ticks, so the batch is encoded while the loop sleeps and the
         # two threads do not fight over the GIL during a tick.
