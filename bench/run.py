@@ -4,7 +4,7 @@ One command measures everything and writes the Markdown; nobody edits BENCHMARKS
 so every number in it can be traced to a run on the machine it names. The timing sections run
 one after another on an otherwise idle process; only the accuracy grid uses a process pool.
 
-`--only N` measures section N alone (those in ONLY: 11) and splices it into the --out file:
+`--only N` measures section N alone (those in ONLY: 9, 11) and splices it into the --out file:
 the section's text from its `## N.` heading to the next `## ` heading is replaced (or, when
 the file has no such section, inserted after the last section that precedes it in SECTIONS);
 every other line of the file stays as it was. The spliced section says that it was measured
@@ -299,6 +299,7 @@ def render_document(r: Results) -> str:
 
 # Sections that `--only` can measure alone: number -> (measure, render).
 ONLY: dict[int, tuple[Callable[[BenchOptions], object], Callable[[object], list[str]]]] = {
+    9: (lambda o: paths_as_given.measure(o.paths_cases, o.seeds[0], o.paths_long), paths_as_given.render),  # type: ignore[dict-item]
     11: (measure_live, render_live),  # type: ignore[dict-item]
 }
 
