@@ -772,10 +772,12 @@ def point_noise(pts: np.ndarray, copt: ConditionOptions) -> tuple[str, float]:
 @dataclass(frozen=True, slots=True)
 class EndPin:
     """A fitted polyline's start or end held at `point`, with dr/du = `slope` there (u the
-    points' chord length: |slope| is the pace of the points' progress per chord, about 1)."""
+    points' chord length: |slope| is the pace of the points' progress per chord, about 1);
+    `slope` None: the point only, the tangent free (a cusp's sample, where no tangent is
+    shared: the run then meets the other at one point, ddrt/path/spec.py)."""
 
     point: np.ndarray
-    slope: np.ndarray
+    slope: np.ndarray | None = None
 
 
 def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, copt: ConditionOptions,
@@ -788,8 +790,9 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, 
     of a recording that reverses: the recording's, pooled over its runs); else estimated.
 
     `ends`: smoothed samples whose first or last leg starts or ends at a given point with a
-    given tangent (a cusp shared with the run before or after it); ignored for waypoints.
-    The point at that end is then measured against the pinned point for the deviation."""
+    given tangent (a cusp shared with the run before or after it) or at a given point alone;
+    ignored for waypoints. The point at that end is then measured against the pinned point
+    for the deviation."""
     p = np.asarray(pts, dtype=float)
     seg = np.hypot(*np.diff(p, axis=0).T)
     spacing = float(np.median(seg)) if len(seg) else 0.0
@@ -813,10 +816,11 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, 
     if mode == GRID:
         threshold = max(threshold, math.radians(GRID_PIVOT_DEG))
     corners = _find_corners(p, u, scale, threshold)
-    # Within a corner scale of a pinned end the points were found smooth by the cusp's own fit
-    # (ddrt/path/cusp.py): a turn found there is the end's short chord on noise.
-    corners = [(k, t) for k, t in corners
-               if not (ends[0] is not None and u[k] < scale) and not (ends[1] is not None and u[-1] - u[k] < scale)]
+    # Within a corner scale of an end pinned with a shared tangent the points were found smooth
+    # by the cusp's own fit (ddrt/path/cusp.py): a turn found there is the end's short chord on noise.
+    held0 = ends[0] is not None and ends[0].slope is not None
+    held1 = ends[1] is not None and ends[1].slope is not None
+    corners = [(k, t) for k, t in corners if not (held0 and u[k] < scale) and not (held1 and u[-1] - u[k] < scale)]
     if mode == SAMPLES:
         for k, turn in corners:
             if abs(turn) >= math.radians(REVERSAL_DEG):

@@ -1,40 +1,49 @@
 """Joining two smoothed runs at a cusp: one point and one heading estimated from both runs'
-samples (`estimate_cusp`), each run then fitted ending there; and, where that cannot be
-done, bending two separately fitted runs onto one heading (`bend_end`, `bend_start`).
+samples (`estimate_cusp`), each run then fitted ending there; and, where the runs meet on two
+headings, bending both onto one (`bend_end`, `bend_start`).
 
 The shared cusp. At a real cusp the robot stops and drives on the other way with the heading
 it had: the runs meet at one point with one tangent line, and both lie behind the point
 along it (the motion reverses). So near the cusp, in a frame with x along the tangent
 (towards the cusp) and y across it, both runs' points are y = c0 + c1 x + (each run's own)
-a2 x^2 + a3 x^3 for x <= 0: a linear least-squares fit with the offset c0 and slope c1
-shared. The frame is turned by the fitted slope and moved by the fitted offset until both
-are nil (three passes); the point keeps the recorded cusp sample's place along the tangent
-(the along-track noise is as large either way, and it bends nothing). The window (the
-points within `w` of the cusp sample along each run) is the largest on a sqrt(2) ladder
-whose residual RMS (per degree of freedom) stays within the runs' noise times
-DISCREPANCY, as the smoothing spline's own choice (condition.py): long enough to average
-the noise, short enough that a cubic still is the curve. Each run is then fitted with its
-end held at that point and its end tangent on that heading (condition.EndPin), so the runs
-meet without the shift and bend below, and the cusp sample's distance from the point counts
-in the reported deviation like any other point's.
+a2 x^2 + ... + ad x^d for x <= 0, d = 1, 2 or 3: a linear least-squares fit with the offset
+c0 and slope c1 shared. The frame is turned by the fitted slope and moved by the fitted
+offset (three passes, leaving both about nil); the point keeps the recorded cusp sample's
+place along the tangent (the along-track noise is as large either way, and it bends nothing).
 
-Bending (where a run is waypoints, has too few points, or its pinned fit cannot stay within
-the tolerance: the runs are then fitted each on its own and the later one shifted onto the
-earlier one's end).
+Which window (the points within `w` of the cusp sample along each run) and which degree:
+every window on a sqrt(2) ladder, from the shortest that holds CUSP_MIN_SIDE points on each
+side besides the cusp sample to CUSP_WINDOW_MAX_M (and half of either run), is fitted with
+each degree; a fit counts if it keeps at least 3 degrees of freedom and its residual RMS
+(per degree of freedom) stays within (CUSP_DISCREPANCY + 1 / sqrt(2 dof)) times the runs'
+noise (1 / sqrt(2 dof): the scatter of an RMS over dof terms, else chance alone refuses a
+short window). Of the fits that count, the one chosen is the one whose tangent line is surest
+where the runs bend onto it: the smallest variance, per unit noise, of its offset
+CUSP_BLEND_M behind the cusp ((X^T X)^-1 of the shared offset and slope). None if no fit
+counts, or either run has too few points.
 
-At a real cusp (a three-point turn, a parking manoeuvre) the robot stops and drives on the
-other way with the heading it had: both runs have the same tangent there. Each run of a
-recording is smoothed on its own, and a smoothing spline's end tangent is the least certain
-part of its fit: on 1-2 mm of noise the two ends came out 3-5 degrees apart, and the loader
-turned that into a turn in place at every cusp (a stop, a yaw acceleration spike, time).
+Each run is then fitted with its end held at that point and its end tangent on that heading
+(condition.EndPin), so the runs meet on one heading, and the cusp sample's distance from the
+point counts in the reported deviation like any other point's. The loader (spec.py) shares
+no cusp whose point lies farther than the tolerance from the cusp sample.
 
-When both runs are smoothed samples (a waypoint's corner is the user's, never ours) and the
-headings differ by at most CUSP_BLEND_MAX_RAD, each run's end is bent to the mean heading:
-a lateral offset e(d) = tan(beta) d (1 - d / l)^2 over the last `l` metres (d from the cusp),
-zero with zero slope at d = l, zero at the cusp, with slope tan(beta) there (beta = half the
-difference, opposite on each side). It moves the curve by at most 4/27 l tan|beta| and adds a
-curvature of at most 4 tan|beta| / l at the cusp, where the robot is at rest. It is used only
-when that offset keeps the run within its tolerance; otherwise the turn in place stays.
+Where a cusp is not shared (a run is waypoints or has too few points, no window's fit
+matches the noise, or a pinned fit cannot keep its points within the tolerance) the runs
+still meet at one point, held by both fits: the cusp sample (or the previous run's end), the
+tangents free (spec.py). Only if no fit can hold that point is a run fitted free and moved
+onto the previous run's end, the move added to its deviation.
+
+Bending. Where the two runs' tangents at the cusp differ (each fitted on its own end), a
+smoothing spline's end tangent being the least certain part of its fit, on 1-2 mm of noise
+they come out 3-5 degrees apart, which would be a turn in place at the cusp (a stop, a yaw
+acceleration spike, time). When both runs are smoothed samples (a waypoint's corner is the
+user's, never ours) and the headings differ by at most CUSP_BLEND_MAX_RAD, each run's end is
+bent to the mean heading: a lateral offset e(d) = tan(beta) d (1 - d / l)^2 over the last `l`
+metres (d from the cusp), zero with zero slope at d = l, zero at the cusp, with slope
+tan(beta) there (beta = half the difference, opposite on each side). It moves the curve by
+at most 4/27 l tan|beta| and adds a curvature of at most 4 tan|beta| / l at the cusp, where
+the robot is at rest. It is used only when that offset, added to the run's deviation, keeps
+it within its tolerance; otherwise the turn in place stays.
 """
 
 from __future__ import annotations

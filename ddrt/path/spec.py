@@ -16,7 +16,7 @@ import math
 import os
 from dataclasses import replace
 from pathlib import Path as FsPath
-from typing import TYPE_CHECKING, Any, Callable, Mapping
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -152,13 +152,15 @@ def _condition_options(paths: PathsConfig, tolerance: float | None) -> Condition
 def _waypoint_geometry(rows: list[tuple[float, float, float]], has_v: bool, where: str, opt: _Options,
                        paths: PathsConfig, names: list[str], tolerance: float | None = None,
                        budget_where: str | None = None,
-                       ends: tuple[EndPin | None, EndPin | None] = (None, None),
+                       tries: Sequence[tuple[EndPin | None, EndPin | None]] = (),
                        noise: float | None = None) -> tuple[_Geometry, Conditioning]:
     """A polyline's geometry: waypoints as they are, samples of a curve smoothed (condition.py).
     Errors about one point name `where` and the point's name; about the whole, `budget_where`.
-    `ends`: a run's start or end held at a cusp shared with the next run; if the fit cannot
-    hold it within the tolerance, the run is fitted free (`Conditioning.extra["pinned"]`
-    says which ends were held). `noise`: the points' noise if known (condition_polyline)."""
+    `tries`: a run's start and end pins (condition.EndPin: a cusp shared with the next run,
+    or the point where the other run meets it), tried in order; if no fit can hold them
+    within the tolerance, the run is fitted free (`Conditioning.extra["ends"]` says which
+    pins were held, `extra["pinned"]` which ends). `noise`: the points' noise if known
+    (condition_polyline)."""
     pts, kept = _merge_points(rows, names)
     runs = _direction_runs(pts)
     if len(runs) > 1 or runs[0][2] < 0.0:
@@ -176,17 +178,21 @@ def _waypoint_geometry(rows: list[tuple[float, float, float]], has_v: bool, wher
         length = float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
         _check_samples(1.05 * length / opt.step + 2.0 * len(pts) ** 0.5, whole, paths, opt)
     caps = np.array([abs(p[2]) for p in pts]) if has_v else None  # the sign marks direction only
-    if mode != WAYPOINTS and (ends[0] is not None or ends[1] is not None):
+    for ends in tries if mode != WAYPOINTS else ():
+        if ends[0] is None and ends[1] is None:
+            continue
         try:
             geo, cond = condition_polyline(xy, caps, opt, copt, where, kept, ends, noise)
-            cond.extra["pinned"] = (ends[0] is not None, ends[1] is not None)
-            return geo, cond
         except ConditionError:
-            pass  # the shared cusp is not within the tolerance of this run's points: fit it free
+            continue  # the pin is not within the tolerance of this run's points: the next, or free
+        cond.extra["ends"] = ends
+        cond.extra["pinned"] = (ends[0] is not None, ends[1] is not None)
+        return geo, cond
     try:
         geo, cond = condition_polyline(xy, caps, opt, copt, where, kept, noise=noise)
     except ConditionError as exc:
         raise PathError(str(exc)) from None
+    cond.extra["ends"] = (None, None)
     cond.extra["pinned"] = (False, False)
     return geo, cond
 
@@ -214,7 +220,7 @@ def _reversing_geometry(pts: list[tuple[float, float, float]], names: list[str],
     turn in place joins them where the headings differ. The runs are one recording, with one
     noise: each is smoothed for the noise pooled over all (a short run's own estimate is
     unsure, and too low a one leaves noise in its curvature). Speed caps are |v|."""
-    shared, noise = _shared_cusps(pts, runs, paths, tolerance)
+    shared, noise, tols = _shared_cusps(pts, runs, paths, tolerance)
     pieces: list[_Piece] = []
     cap_s: list[np.ndarray] = []
     cap_v: list[np.ndarray] = []
@@ -225,13 +231,31 @@ def _reversing_geometry(pts: list[tuple[float, float, float]], names: list[str],
         sub = [(x, y, abs(v)) for x, y, v in pts[a:b + 1]]
         before = shared[r - 1] if r > 0 else None
         after = shared[r] if r < len(shared) else None
-        ends = (None if before is None else EndPin(before.point, -before.pace_out * before.direction),
-                None if after is None else EndPin(after.point, after.pace_in * after.direction))
-        geo, cond = _waypoint_geometry(sub, has_v, where, opt, paths, names[a:b + 1], tolerance, budget_where, ends,
+        # The start meets the previous run's end: at the shared cusp on its heading when that run
+        # ended there, else at that end's point (within the tolerance of this run's first point);
+        # the end at the shared cusp, else at the cusp sample itself. Only if no fit holds them
+        # is the run fitted free and moved onto the previous end (below).
+        starts: list[EndPin | None] = [None]
+        ends_: list[EndPin | None] = [None]
+        if r > 0:
+            prev_end = np.array([pieces[-1].x[-1], pieces[-1].y[-1]], dtype=float)
+            last = conds[-1][1].extra.get("ends", (None, None))[1]
+            starts = []
+            if before is not None and last is not None and last.slope is not None:
+                starts.append(EndPin(before.point, -before.pace_out * before.direction))
+            if math.hypot(*(prev_end - np.array(pts[a][:2]))) <= tols[r]:
+                starts.append(EndPin(prev_end))
+        if r < len(runs) - 1:
+            ends_ = ([] if after is None else [EndPin(after.point, after.pace_in * after.direction)])
+            ends_.append(EndPin(np.array(pts[b][:2], dtype=float)))
+        tries = [(s0, s1) for s0 in starts for s1 in ends_]
+        geo, cond = _waypoint_geometry(sub, has_v, where, opt, paths, names[a:b + 1], tolerance, budget_where, tries,
                                        noise)
         run = [reversed_piece(pc) for pc in geo.pieces] if d < 0.0 else geo.pieces
         if pieces:
-            if conds[-1][1].extra.get("pinned", (False, False))[1] and cond.extra["pinned"][0]:
+            got_end = conds[-1][1].extra.get("ends", (None, None))[1]
+            got_start = cond.extra.get("ends", (None, None))[0]
+            if got_end is not None and got_end.slope is not None and got_start is not None and got_start.slope is not None:
                 held += 1
             # A smoothed run need not end exactly on its last point: the next one is moved onto
             # it (by less than the tolerance), so the two meet at one cusp.
@@ -267,23 +291,30 @@ NOISE_POOL_MIN_POINTS = 8
 
 
 def _shared_cusps(pts: list[tuple[float, float, float]], runs: list[tuple[int, int, float]], paths: PathsConfig,
-                  tolerance: float | None) -> tuple[list[SharedCusp | None], float | None]:
+                  tolerance: float | None) -> tuple[list[SharedCusp | None], float | None, list[float]]:
     """Each cusp's point and heading from the points of both runs that meet there, where both
-    are smoothed samples (ddrt/path/cusp.py; None where either is waypoints or too short),
-    and the noise pooled over the smoothed runs (the RMS of their estimates, weighted by
-    their points; None if no run has enough points for one)."""
+    are smoothed samples (ddrt/path/cusp.py; None where either is waypoints or too short, or
+    the estimated point is farther than the tolerance from the cusp sample), the noise pooled
+    over the smoothed runs (the RMS of their estimates, weighted by their points; None if no
+    run has enough points for one), and each run's tolerance."""
     copt = _condition_options(paths, tolerance)
     xys = [np.array([(p[0], p[1]) for p in pts[a:b + 1]], dtype=float) for a, b, _ in runs]
     found = [point_noise(xy, copt) if len(xy) >= 4 else (WAYPOINTS, 0.0) for xy in xys]
+    tols = [classify(xy, copt)[1] for xy in xys]
     pool = [(len(xy), nz) for xy, (mode, nz) in zip(xys, found)
             if mode != WAYPOINTS and len(xy) >= NOISE_POOL_MIN_POINTS]
     noise = (math.sqrt(sum(n * nz * nz for n, nz in pool) / sum(n for n, _ in pool))) if pool else None
     out: list[SharedCusp | None] = []
     for r in range(len(runs) - 1):
         (ma, na), (mb, nb) = found[r], found[r + 1]
-        out.append(None if WAYPOINTS in (ma, mb)
-                   else estimate_cusp(xys[r], xys[r + 1], max(na, nb) if noise is None else noise))
-    return out, noise
+        cusp = (None if WAYPOINTS in (ma, mb)
+                else estimate_cusp(xys[r], xys[r + 1], max(na, nb) if noise is None else noise))
+        # The cusp sample is measured against the shared point, and a pinned point is not one the
+        # fit can move: a point farther from it than the tolerance is no cusp the runs can share.
+        if cusp is not None and math.hypot(*(cusp.point - xys[r][-1])) > min(tols[r], tols[r + 1]):
+            cusp = None
+        out.append(cusp)
+    return out, noise, tols
 
 
 def _blend_cusp(end: _Piece, start: _Piece, turn: float, before: Conditioning, after: Conditioning) -> bool:
