@@ -253,3 +253,20 @@ def test_tight_tolerance_manoeuvres() -> None:
     for trial, m, xy, v in _manoeuvres(5, 20, (0.005, 0.015), (0.001, 0.002)):
         path = load_csv(xy, v, tolerance=float(rng.uniform(0.004, 0.007)))
         assert_reported_bounds(path, f"tight {trial}")
+
+
+def test_the_report_claims_no_corridor_it_did_not_measure() -> None:
+    """`ddrt path` on a recording joined at cusps: the deviation line gives the reported
+    largest deviation, and no "within X mm of the input polyline" figure (that figure is not
+    computed for joined runs; it used to print 0.00 mm)."""
+    from ddrt.path.report import report_text
+
+    _trial, _m, xy, v = next(_manoeuvres(2024, 1, (0.005, 0.015), (0.001, 0.002)))
+    path = load_csv(xy, v)
+    assert path.cusps
+    text = report_text(path_report(path, "recorded manoeuvre"))
+    line = next(t for t in text.splitlines() if t.startswith("deviation"))
+    assert f"largest {path.deviation_m * 1000:.2f} mm" in line and "of the input polyline" not in line
+    plain = load_csv(*_recording(np.random.default_rng(5)))
+    line = next(t for t in report_text(path_report(plain, "recording")).splitlines() if t.startswith("deviation"))
+    assert "of the input polyline" in line and "within 0.00 mm" not in line

@@ -139,7 +139,7 @@ class PathReport:
     tolerance_m: float | None
     deviation_m: float
     deviation_at: str
-    corridor_m: float  # largest distance of the reference from the input polyline
+    corridor_m: float | None  # largest distance of the reference from the input polyline (None: not known)
     share_length: dict[str, float]
     share_time: dict[str, float]
     stretches: list[Stretch]
@@ -161,11 +161,15 @@ def pivot_runs(path: Path) -> list[tuple[int, int]]:
     return runs
 
 
-def _corridor(path: Path) -> float:
-    """Largest distance of the reference's samples from the input polyline (samples only)."""
+def _corridor(path: Path) -> float | None:
+    """Largest distance of the reference's samples from the input polyline (samples only;
+    None where the conditioning keeps no progress of its points, as for a path joined at
+    cusps, so the report does not claim a figure it did not compute)."""
     c = path.conditioning
-    if c is None or c.mode == "waypoints" or c.point_sigma is None or len(c.points) < 2:
+    if c is None or c.mode == "waypoints" or len(c.points) < 2:
         return 0.0
+    if c.point_sigma is None:
+        return None
     a = path.arrays()
     ps = np.maximum.accumulate(np.asarray(c.point_sigma, dtype=float))
     near = np.clip(np.searchsorted(ps, a["sigma"]) - 1, 0, len(c.points) - 2)
@@ -228,9 +232,10 @@ def report_text(r: PathReport, max_stretches: int = 24) -> str:
     if len(r.pivots) > 12:
         lines.append(f"              ... and {len(r.pivots) - 12} more")
     if r.tolerance_m is not None:
+        within = ("" if r.corridor_m is None
+                  else f"; the reference lies within {r.corridor_m * 1000:.2f} mm of the input polyline")
         lines.append(f"deviation     largest {r.deviation_m * 1000:.2f} mm from the input points (at {r.deviation_at}), "
-                     f"tolerance {r.tolerance_m * 1000:.1f} mm; the reference lies within {r.corridor_m * 1000:.2f} mm "
-                     "of the input polyline")
+                     f"tolerance {r.tolerance_m * 1000:.1f} mm{within}")
     elif r.mode == "waypoints":
         lines.append("deviation     none: straight segments through the waypoints (corners blended or turned in place)")
     lines.append("speed set by  (share of length, of time)")
