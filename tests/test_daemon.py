@@ -1107,3 +1107,19 @@ def test_sigterm_during_calibration_exits_0_with_stats() -> None:
         assert "stopped during start-up calibration" in d.stderr()
     finally:
         d.close()
+
+
+def test_peak_rss_is_the_processs_own_not_its_parents() -> None:
+    """A child started by a process that holds 300 MB reports its own peak memory (tens of MB),
+    not the parent's: ru_maxrss is inherited across fork and exec on Linux, VmHWM is not."""
+    code = ("import numpy as np, subprocess, sys\n"
+            "big = np.ones(300 * 2**20 // 8)\n"
+            "out = subprocess.run([sys.executable, '-c', 'from ddrt.service.daemon import peak_rss_kb; "
+            "import resource; print(peak_rss_kb(), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)'], "
+            "capture_output=True, text=True, check=True).stdout\n"
+            "print(out)\n")
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    own, inherited = map(int, subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                                             check=True, env=env).stdout.split())
+    assert own < 200 * 1024, own
+    assert inherited > 300 * 1024  # what ru_maxrss says: the parent's (the defect this pins)

@@ -466,7 +466,7 @@ class Daemon:
             "compute_us": {"p50": s["compute_p50_us"], "p99": s["compute_p99_us"], "max": s["compute_worst_us"]},
             "lateness_us": {"p50": s["late_p50_us"], "p99": s["late_p99_us"], "max": s["late_worst_us"]},
             "ready_s": self.ready_s,
-            "maxrss_kb": usage.ru_maxrss,
+            "maxrss_kb": peak_rss_kb(),
             "cpu_s": usage.ru_utime + usage.ru_stime,
             "wall_s": time.monotonic() - self.t_start,
             "exit_code": self.exit_code,
@@ -788,6 +788,21 @@ def _stat(path: str) -> tuple[int, int, int] | None:
     return st.st_ino, st.st_size, st.st_mtime_ns
 
 
+def peak_rss_kb() -> int:
+    """This process's peak resident memory (kB): VmHWM, the high-water mark of its own address
+    space. Not ru_maxrss: Linux carries that over from the parent across fork and exec, so a
+    daemon started by a large process (a benchmark holding its results) reported the parent's
+    899 MB as its own."""
+    try:
+        with open("/proc/self/status", "rb") as fh:
+            for line in fh:
+                if line.startswith(b"VmHWM:"):
+                    return int(line.split()[1])
+    except (OSError, ValueError, IndexError):
+        pass
+    return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+
+
 def vars_of(obj: Any) -> dict[str, Any]:
     return {k: getattr(obj, k) for k in obj.__dataclass_fields__}
 
@@ -812,7 +827,7 @@ def run_daemon(config_path: str, socket_path: str | None, duration: float | None
         if stats_json:  # nothing ran: the same keys, empty, and why
             write_stats(stats_json, {"rate_hz": None, "ticks": 0, "missed": 0, "overruns": 0,
                                      "compute_us": None, "lateness_us": None, "ready_s": None,
-                                     "maxrss_kb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
+                                     "maxrss_kb": peak_rss_kb(),
                                      "cpu_s": None, "wall_s": None, "exit_code": 2, "error": str(exc),
                                      "final_duty": None, "final_state": None, "reloads": None})
         return 2
