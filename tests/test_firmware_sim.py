@@ -19,11 +19,11 @@ from pathlib import Path
 import pytest
 
 from ddrt.config import load_config
-from ddrt.loop import COLUMNS, ControlLoop
 from ddrt.path.spec import resolve_path
 from ddrt.simrun.runner import run_sim
-from hal.registry import backend_name, open_hal
+from hal.registry import backend_name
 from firmware_tools import require
+from loop_tools import following, tick_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 FIRMWARE_CFG = ROOT / "configs" / "firmware-sim.yaml"
@@ -62,36 +62,14 @@ def test_closed_loop_through_the_firmware_tracks_like_the_python_model() -> None
     assert fw["max_cross_track_m"] < 2e-3
 
 
-def _following(cfg):
-    path = resolve_path(cfg)
-    hal = open_hal(cfg, start=path.start_pose)
-    loop = ControlLoop(cfg, hal)
-    loop.calibrate(hal.sleep_until, hal.now)
-    loop.follow(path, path.start_pose)
-    return hal, loop
-
-
-def _tick(hal, loop, n):
-    rows = []
-    t = hal.now()
-    for _ in range(n):
-        t += loop.period
-        hal.sleep_until(t)
-        loop.tick()
-        rows.append(dict(zip(COLUMNS, loop.row)))
-        if loop.state == "fault":
-            break
-    return rows
-
-
 def test_a_host_that_stops_talking_is_stopped_by_the_firmware() -> None:
     """The host process dies mid-path: no DRIVE, no STOP. The firmware's DRIVE watchdog
     zeroes its outputs within drive_timeout_ms + 1 ms of the last DRIVE; the motors follow
     after the plant's command latency."""
     cfg = load_config(FIRMWARE_CFG)
-    hal, loop = _following(cfg)
+    hal, loop = following(cfg)
     try:
-        _tick(hal, loop, 100)
+        tick_rows(hal, loop, 100)
         assert loop.state == "following"
         assert hal.robot.applied_duty != (0.0, 0.0)
         t_last = hal.now()  # the last DRIVE went out in the last tick
@@ -116,11 +94,11 @@ def test_a_host_that_stops_talking_is_stopped_by_the_firmware() -> None:
 
 def test_a_firmware_reset_mid_path_is_counted_and_the_count_stays_continuous() -> None:
     cfg = load_config(FIRMWARE_CFG)
-    hal, loop = _following(cfg)
+    hal, loop = following(cfg)
     try:
-        _tick(hal, loop, 150)
+        tick_rows(hal, loop, 150)
         hal.devices.sim.reset()  # the RESET pin: the AVR reboots, outputs off, count 0
-        rows = _tick(hal, loop, 150)
+        rows = tick_rows(hal, loop, 150)
         assert hal.fault_counters["bridge.mcu_resets"] == 1
         assert loop.state == "following", loop.fault
         assert abs(loop.reference.cross_track) < 0.005
@@ -133,9 +111,9 @@ def test_the_lockstep_is_deterministic() -> None:
     """Byte for byte the same run twice: the pty's kernel hand-over is waited for, both ways."""
     def run() -> list[tuple[float, ...]]:
         cfg = load_config(FIRMWARE_CFG)
-        hal, loop = _following(cfg)
+        hal, loop = following(cfg)
         try:
-            return [tuple(r.values()) for r in _tick(hal, loop, 120)] + [hal.robot.pose]
+            return [tuple(r.values()) for r in tick_rows(hal, loop, 120)] + [hal.robot.pose]
         finally:
             hal.close()
 

@@ -14,11 +14,11 @@ from pathlib import Path as FsPath
 import pytest
 
 from ddrt.config import load_config
-from ddrt.loop import COLUMNS, ControlLoop
 from ddrt.path.spec import resolve_path
 from ddrt.simrun.runner import run_sim
 from hal.base import HalValueError, Sample
 from hal.registry import open_hal
+from loop_tools import following, tick_rows
 
 ROOT = FsPath(__file__).resolve().parents[1]
 SCENARIO = ROOT / "configs" / "scenarios" / "figure8_slow.yaml"
@@ -140,31 +140,9 @@ def test_closed_loop_through_real_drivers_matches_sim_backend():
     assert emu["rms_cross_track_m"] < 2e-3
 
 
-def _loop_on_emulated(cfg):
-    path = resolve_path(cfg)
-    hal = open_hal(cfg, start=path.start_pose)
-    loop = ControlLoop(cfg, hal)
-    loop.calibrate(hal.sleep_until, hal.now)
-    loop.follow(path, path.start_pose)
-    return hal, loop
-
-
-def _tick(hal, loop, n):
-    rows = []
-    t = hal.now()
-    for _ in range(n):
-        t += loop.period
-        hal.sleep_until(t)
-        loop.tick()
-        rows.append(dict(zip(COLUMNS, loop.row)))
-        if loop.state == "fault":
-            break
-    return rows
-
-
 def test_corrupted_serial_bytes_are_counted_and_the_loop_keeps_going():
     cfg = load_config(SCENARIO, EMULATED)
-    hal, loop = _loop_on_emulated(cfg)
+    hal, loop = following(cfg)
     import random
 
     rng = random.Random(7)
@@ -176,7 +154,7 @@ def test_corrupted_serial_bytes_are_counted_and_the_loop_keeps_going():
         return bytes(b)
 
     hal.devices.link.to_host_filter = corrupt
-    rows = _tick(hal, loop, 400)
+    rows = tick_rows(hal, loop, 400)
     assert loop.state == "following", loop.fault
     counters = hal.fault_counters
     assert counters["bridge.crc_errors"] + counters["bridge.undecodable"] > 0
@@ -189,11 +167,11 @@ def test_a_silent_microcontroller_ends_in_a_safe_stop():
     # (0.5 s by default, so a 400 ms freeze is survived; tests/test_recovery.py). This test
     # pins the latch itself within 20 ticks, so it asks for a short one.
     cfg = load_config(SCENARIO, {**EMULATED, "estimator": {"fault_latch_s": 0.08}})
-    hal, loop = _loop_on_emulated(cfg)
-    _tick(hal, loop, 200)
+    hal, loop = following(cfg)
+    tick_rows(hal, loop, 200)
     assert loop.state == "following"
     hal.devices.link.to_host_filter = lambda data: b""  # the MCU stops answering
-    rows = _tick(hal, loop, 100)
+    rows = tick_rows(hal, loop, 100)
     assert loop.state == "fault"
     assert "STATE" in loop.fault or "no new data" in loop.fault or "stale" in loop.fault
     assert len(rows) <= 20  # held for a bounded number of ticks, then stopped
@@ -208,8 +186,8 @@ def test_a_silent_microcontroller_ends_in_a_safe_stop():
 
 def test_a_host_that_stops_talking_is_stopped_by_the_mcu_watchdog():
     cfg = load_config(SCENARIO, EMULATED)
-    hal, loop = _loop_on_emulated(cfg)
-    _tick(hal, loop, 200)
+    hal, loop = following(cfg)
+    tick_rows(hal, loop, 200)
     assert hal.robot.applied_duty != (0.0, 0.0)
     t_dead = hal.now()  # the host process dies: no more DRIVE, no STOP
     while hal.robot.applied_duty != (0.0, 0.0) and hal.now() < t_dead + 1.0:
@@ -222,10 +200,10 @@ def test_a_host_that_stops_talking_is_stopped_by_the_mcu_watchdog():
 
 def test_microcontroller_reset_is_reported_and_the_count_stays_continuous():
     cfg = load_config(SCENARIO, EMULATED)
-    hal, loop = _loop_on_emulated(cfg)
-    _tick(hal, loop, 200)
+    hal, loop = following(cfg)
+    tick_rows(hal, loop, 200)
     hal.devices.mcu.reset(hal.now())
-    rows = _tick(hal, loop, 200)
+    rows = tick_rows(hal, loop, 200)
     assert hal.fault_counters["bridge.mcu_resets"] >= 1
     # The MCU zeroed its outputs on reboot; the loop's next DRIVE re-applies them and the
     # stitched count keeps the estimator on the path.
