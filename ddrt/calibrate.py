@@ -22,6 +22,7 @@ from ddrt.core.wrap import wrap_angle
 from ddrt.loop import ControlLoop
 from ddrt.core.model import Dynamics, RobotParams
 from ddrt.path import Path, load_path
+from ddrt.path.start import TurnProfile
 from hal.base import Hal
 
 DEG = math.pi / 180.0
@@ -248,11 +249,7 @@ class SpinReference:
         self.x0, self.y0, self.th0 = pose
         self.angle = angle
         self.sign = 1.0 if angle >= 0.0 else -1.0
-        span = abs(angle)
-        self.w = min(omega_max, math.sqrt(span * alpha_max))
-        self.a = alpha_max
-        self.t_ramp = self.w / alpha_max
-        self.t_end = span / self.w + self.t_ramp
+        self.turn = TurnProfile.plan(abs(angle), omega_max, alpha_max)
         self.period = period_s
         self.t = 0.0
         self.sigma = 0.0
@@ -260,30 +257,16 @@ class SpinReference:
         self.done = False
 
     def request_stop(self, decel: float) -> None:
-        self.t = max(self.t, self.t_end)
-
-    def _profile(self, t: float) -> tuple[float, float, float]:
-        """(angle turned, rate, acceleration) at time t."""
-        w, a, tr, te = self.w, self.a, self.t_ramp, self.t_end
-        if t <= 0.0:
-            return 0.0, 0.0, 0.0
-        if t < tr:
-            return 0.5 * a * t * t, a * t, a
-        if t < te - tr:
-            return 0.5 * a * tr * tr + w * (t - tr), w, 0.0
-        if t < te:
-            r = te - t
-            return abs(self.angle) - 0.5 * a * r * r, a * r, -a
-        return abs(self.angle), 0.0, 0.0
+        self.t = max(self.t, self.turn.t_end)
 
     def update(self, x: float, y: float, theta: float, sp: Setpoint, dt: float | None = None) -> None:
         self.t += self.period if dt is None else dt
-        ang, w, alpha = self._profile(self.t)
+        ang, w, alpha = self.turn.at(self.t)
         s = self.sign
         sp.turn_in_place(self.x0, self.y0, self.th0 + s * ang, s * w, s * alpha)
         self.sigma = ang
         self.cross_track = math.hypot(x - self.x0, y - self.y0)
-        self.done = self.t >= self.t_end
+        self.done = self.t >= self.turn.t_end
 
 
 @dataclass(frozen=True)
@@ -321,7 +304,7 @@ def odometry_run(cfg: Config, hal: Hal, distance: float = 1.0, turns: float = 1.
     spin = SpinReference((x1, y1, th1), angle, min(1.5, cfg.limits.omega_max), min(3.0, cfg.limits.alpha_max),
                          loop.period)
     loop.follow_reference(spin)
-    _drive(loop, clock, spin.t_end + 15.0)
+    _drive(loop, clock, spin.turn.t_end + 15.0)
     _settle(loop, clock)
     th2 = loop.estimator_pose()[2]
     true2 = _truth(hal)

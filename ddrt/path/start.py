@@ -38,13 +38,14 @@ clock whatever the robot does, and capping the robot would only let it fall behi
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 from ddrt.core.types import Setpoint
 from ddrt.core.wrap import wrap_angle
 from ddrt.path.profile import SpeedLimits
 from ddrt.path.reference import PathReference
 
-__all__ = ["StartReference", "start_heading_offset", "needs_join"]
+__all__ = ["StartReference", "TurnProfile", "start_heading_offset", "needs_join"]
 
 TURN_TOL_RAD = math.radians(3.0)
 TURN_GRACE_S = 2.0
@@ -71,6 +72,39 @@ def needs_join(dist_m: float, heading_rad: float) -> bool:
     return dist_m > JOIN_NEEDED_M or abs(heading_rad) > JOIN_NEEDED_RAD
 
 
+@dataclass(frozen=True)
+class TurnProfile:
+    """A turn in place by `span` rad with a trapezoidal yaw rate: up at `alpha`, at most
+    `omega_max`, down at `alpha` (a triangle when the turn is too short to reach it). The one
+    timing law for every turn in place: the start stage's and calibration's spin."""
+
+    span: float  # rad, >= 0
+    alpha: float  # rad/s^2
+    w: float  # peak rate, rad/s
+    t_ramp: float  # s, to reach w
+    t_end: float  # s, the whole turn
+
+    @classmethod
+    def plan(cls, span: float, omega_max: float, alpha: float) -> "TurnProfile":
+        w = min(omega_max, math.sqrt(span * alpha)) if span > 0.0 else 0.0
+        t_ramp = w / alpha
+        return cls(span, alpha, w, t_ramp, span / w + t_ramp if w > 0.0 else 0.0)
+
+    def at(self, t: float) -> tuple[float, float, float]:
+        """(angle turned, rate, acceleration) at time t, all >= 0 but the braking acceleration."""
+        w, a, tr, te = self.w, self.alpha, self.t_ramp, self.t_end
+        if t <= 0.0 or w == 0.0:
+            return 0.0, 0.0, 0.0
+        if t < tr:
+            return 0.5 * a * t * t, a * t, a
+        if t < te - tr:
+            return 0.5 * a * tr * tr + w * (t - tr), w, 0.0
+        if t < te:
+            r = te - t
+            return self.span - 0.5 * a * r * r, a * r, -a
+        return self.span, 0.0, 0.0
+
+
 class StartReference:
     """Turn in place (optional), join at bounded speed, then the path's reference as is.
 
@@ -95,18 +129,14 @@ class StartReference:
         self.x0, self.y0, self.th0 = pose
         self.angle = start_heading_offset(self.path.at(0.0).theta, self.th0)
         self.sign = 1.0 if self.angle >= 0.0 else -1.0
-        span = abs(self.angle)
-        alpha = limits.alpha_max
-        self.w = min(limits.omega_max, math.sqrt(span * alpha)) if span > 0.0 else 0.0
-        self.t_ramp = self.w / alpha
-        self.t_end = span / self.w + self.t_ramp if self.w > 0.0 else 0.0
+        self.turn = TurnProfile.plan(abs(self.angle), limits.omega_max, limits.alpha_max)
         self.t = 0.0
         self._brake: tuple[float, float, float] | None = None  # (angle, rate, time) when a stop came
         self._turn_sigma = 0.0
         self._turn_ct = 0.0
         self._release_v = 0.0
         self._cap = 0.0
-        self.phase = "turn" if turn and span > 0.0 else ("join" if self.join else "follow")
+        self.phase = "turn" if turn and self.turn.span > 0.0 else ("join" if self.join else "follow")
         if self.phase == "join":
             inner.max_lead = min(self._lead, JOIN_LEAD_M)
 
@@ -132,7 +162,7 @@ class StartReference:
     def request_stop(self, decel: float) -> None:
         if self.phase == "turn":
             if self._brake is None:
-                ang, w, _ = self._profile(self.t)
+                ang, w, _ = self.turn.at(self.t)
                 self._brake = (ang, w, self.t)
         else:
             self.inner.request_stop(decel)
@@ -173,23 +203,9 @@ class StartReference:
                 sp.v_cap = self._cap
 
     # -- the turn in place ---------------------------------------------------------------------
-    def _profile(self, t: float) -> tuple[float, float, float]:
-        """(angle turned, rate, acceleration) at time t of the trapezoid."""
-        w, a, tr, te = self.w, self.limits.alpha_max, self.t_ramp, self.t_end
-        if t <= 0.0 or w == 0.0:
-            return 0.0, 0.0, 0.0
-        if t < tr:
-            return 0.5 * a * t * t, a * t, a
-        if t < te - tr:
-            return 0.5 * a * tr * tr + w * (t - tr), w, 0.0
-        if t < te:
-            r = te - t
-            return abs(self.angle) - 0.5 * a * r * r, a * r, -a
-        return abs(self.angle), 0.0, 0.0
-
     def _turn_rate(self) -> float:
         if self._brake is None:
-            return self._profile(self.t)[1]
+            return self.turn.at(self.t)[1]
         _, w0, t0 = self._brake
         return max(0.0, w0 - self.limits.alpha_max * (self.t - t0))
 
@@ -197,7 +213,7 @@ class StartReference:
         """Fill `sp` for the turn; False once it is over (and the path should take over)."""
         a = self.limits.alpha_max
         if self._brake is None:
-            ang, w, alpha = self._profile(self.t)
+            ang, w, alpha = self.turn.at(self.t)
         else:
             ang0, w0, t0 = self._brake
             w = self._turn_rate()
@@ -210,7 +226,7 @@ class StartReference:
         self._turn_ct = math.hypot(x - self.x0, y - self.y0)
         if self._brake is not None:
             return True
-        if self.t < self.t_end:
+        if self.t < self.turn.t_end:
             return True
         left = abs(wrap_angle(self.th0 + s * abs(self.angle) - theta))
-        return left > TURN_TOL_RAD and self.t < self.t_end + TURN_GRACE_S
+        return left > TURN_TOL_RAD and self.t < self.turn.t_end + TURN_GRACE_S
