@@ -11,6 +11,7 @@ import pytest
 import yaml
 
 from ddrt.path import Path, PathError, SpeedLimits, load_path
+from ddrt.path.report import pivot_runs
 
 CONFIGS = FsPath(__file__).resolve().parent.parent / "configs" / "paths"
 EXAMPLES = sorted(p.name for p in CONFIGS.iterdir() if p.suffix in (".yaml", ".csv"))
@@ -19,19 +20,6 @@ LIM = SpeedLimits()
 
 def _load(name: str, limits: SpeedLimits = LIM) -> Path:
     return load_path(CONFIGS / name, limits)
-
-
-def _pivot_runs(path: Path) -> list[tuple[int, int]]:
-    """(first sample, last sample) of each pivot."""
-    piv = path.seg_pivot
-    runs, start = [], None
-    for i, flag in enumerate(piv + [False]):
-        if flag and start is None:
-            start = i
-        elif not flag and start is not None:
-            runs.append((start, i))
-            start = None
-    return runs
 
 
 def _effective_limits(name: str) -> tuple[SpeedLimits, float]:
@@ -176,7 +164,7 @@ def test_seed_circle_timing() -> None:
 
 def test_square_pivots_follow_the_seed_schedule() -> None:
     path = _load("seed_square.yaml")
-    runs = _pivot_runs(path)
+    runs = pivot_runs(path)
     assert len(runs) == 3
     arr = path.arrays()
     for first, last in runs:
@@ -194,7 +182,7 @@ def test_square_pivots_follow_the_seed_schedule() -> None:
 def test_rectangle_pivots_turn_by_the_corner_angle_cw() -> None:
     path = load_path({"shape": "rectangle", "width": 1.2, "height": 0.8, "direction": "cw", "speed": 0.25}, LIM)
     arr = path.arrays()
-    runs = _pivot_runs(path)
+    runs = pivot_runs(path)
     corners = [(1.2, 0.0), (1.2, -0.8), (0.0, -0.8)]
     assert len(runs) == 3
     for (first, last), (cx, cy) in zip(runs, corners):
@@ -213,7 +201,7 @@ def test_sparse_waypoints_pivot_at_sharp_corners_and_blend_gentle_ones() -> None
     arr = path.arrays()
     assert (arr["x"][0], arr["y"][0]) == (0.0, 0.0)
     assert (arr["x"][-1], arr["y"][-1]) == pytest.approx((0.0, 0.9), abs=1e-9)
-    runs = _pivot_runs(path)
+    runs = pivot_runs(path)
     # Sharp corners: (1.8, 0.2) turns +90 deg, (1.8, 0.8) turns +71.57 deg.
     assert len(runs) == 2
     turns = [arr["theta"][last] - arr["theta"][first] for first, last in runs]
