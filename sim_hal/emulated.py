@@ -124,14 +124,18 @@ class EmulatedRealHal(Hal):
                 devices.close()
 
 
-def open_emulated_real_hal(cfg: Config, start: tuple[float, float, float] = (0.0, 0.0, 0.0),
-                           seed: int | None = None, paced: bool = False, **_: Any) -> EmulatedRealHal:
-    devices = EmulatedDevices(cfg, start, seed, paced)
-    # The same config, its bridge on the emulated microcontroller's registered link.
+def real_hal_on(cfg: Config, devices: Any) -> RealHal:
+    """The real backend built from the same config, its bridge on the devices' link (`url`),
+    its clock and I2C bus theirs; the devices are closed if it cannot be built."""
     hal = replace(cfg.hal, bridge=replace(cfg.hal.bridge, url=devices.url))
     try:
-        real = RealHal.from_config(replace(cfg, hal=hal), clock=devices.time, i2c_bus=devices.i2c)
+        return RealHal.from_config(replace(cfg, hal=hal), clock=devices.time, i2c_bus=devices.i2c)
     except BaseException:
         devices.close()
         raise
-    return EmulatedRealHal(real, devices)
+
+
+def open_emulated_real_hal(cfg: Config, start: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                           seed: int | None = None, paced: bool = False, **_: Any) -> EmulatedRealHal:
+    devices = EmulatedDevices(cfg, start, seed, paced)
+    return EmulatedRealHal(real_hal_on(cfg, devices), devices)

@@ -26,7 +26,6 @@ the same), against the bridge's 50 ms staleness bound.
 
 from __future__ import annotations
 
-from dataclasses import replace
 
 import itertools
 import os
@@ -41,9 +40,8 @@ from typing import Any
 from ddrt.config import Config
 from ddrt.core.wrap import wrap_i32
 from hal.base import HalInitError, HalIOError
-from hal.real import RealHal
 from sim_hal import firmware_build, protocol_simavr
-from sim_hal.emulated import EmulatedRealHal, _PlantGyro
+from sim_hal.emulated import EmulatedRealHal, _PlantGyro, real_hal_on
 from sim_hal.factory import plant_config
 from sim_hal.mpu_emulator import MpuEmulator
 from sim_hal.plant import SimRobot
@@ -454,12 +452,7 @@ def open_firmware_sim_hal(cfg: Config, start: tuple[float, float, float] = (0.0,
     real backend's, with the URL replaced by the harness's port."""
     elf, free_running = _parse_url(cfg.hal.bridge.url or "")
     devices = FirmwareSimDevices(cfg, start, seed, paced, elf=elf, free_running=free_running)
-    hal = replace(cfg.hal, bridge=replace(cfg.hal.bridge, url=devices.url))
-    try:
-        real = RealHal.from_config(replace(cfg, hal=hal), clock=devices.time, i2c_bus=devices.i2c)
-    except BaseException:
-        devices.close()
-        raise
+    real = real_hal_on(cfg, devices)
     # The bridge asks the time for every packet; paced, each ask would bring the plant and
     # the AVR up to the wall clock, a simulation step costs a round trip to the harness, and
     # a burst of asks chases the wall clock instead of catching up with it. It reads the
