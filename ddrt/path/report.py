@@ -64,8 +64,8 @@ def _caps(path: Path) -> dict[str, np.ndarray]:
     rate = np.full(n, np.inf)
     rate[:-1] = np.minimum(rate[:-1], kc)
     rate[1:] = np.minimum(rate[1:], kc)
-    v_cap = a.get("v_cap", np.full(n, path.v_cap if hasattr(path, "v_cap") else lim.v_max))
-    speed = np.full(n, getattr(path, "v_cap", lim.v_max))
+    v_cap = a["v_cap"]
+    speed = np.full(n, path.v_cap)
     point = np.where(v_cap < speed * (1.0 - _REL), v_cap, np.inf)
     in_piv = np.zeros(n, dtype=bool)
     in_piv[:-1] |= piv
@@ -81,7 +81,7 @@ def active_limits(path: Path) -> np.ndarray:
     """Index into LABELS of the limit that sets the speed at each sample."""
     a = path.arrays()
     lim = path.limits
-    u, s, kap, piv, acc = a["u"], a["sigma"], a["kappa"], a["seg_pivot"], a["acc_u"]
+    u, kap, piv, acc = a["u"], a["kappa"], a["seg_pivot"], a["acc_u"]
     n = len(u)
     caps = _caps(path)
     names = list(caps)
@@ -102,7 +102,7 @@ def active_limits(path: Path) -> np.ndarray:
     free = ~at_cap
     out[free & rising] = LABELS.index("accel")
     out[free & ~rising & falling] = LABELS.index("decel")
-    if getattr(lim, "envelope", None) is not None:
+    if lim.envelope is not None:
         left = out == LABELS.index("other")
         after = np.zeros(n)
         after[:-1] = acc
@@ -206,7 +206,7 @@ def path_report(path: Path, source: str) -> PathReport:
     blends = int(c.extra.get("blends", 0)) if c is not None else 0
     summary = "an analytic shape" if c is None else c.summary()
     return PathReport(
-        source=source, length_m=path.length, duration_s=path.duration, v_cap=float(getattr(path, "v_cap", path.limits.v_max)),
+        source=source, length_m=path.length, duration_s=path.duration, v_cap=path.v_cap,
         kappa_max=float(kap[j]), kappa_max_at_m=float(s[j]), pivots=pivots, blends=blends, mode=mode, summary=summary,
         tolerance_m=None if c is None or c.mode == "waypoints" else c.tolerance_m,
         deviation_m=path.deviation_m, deviation_at="" if c is None or c.mode == "waypoints" else c.names[c.worst],
