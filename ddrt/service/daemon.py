@@ -31,6 +31,8 @@ from array import array
 from pathlib import Path as FsPath
 from typing import Any
 
+import numpy as np
+
 from ddrt.service import rt
 from ddrt.service.clock import MonotonicClock
 from ddrt.config import Config, load_config, with_overrides
@@ -46,7 +48,7 @@ from ddrt.path.spec import path_source, speed_limits
 from ddrt.service.pathworker import Build, BuildJob, PathWorker, build_path, describe
 from ddrt.service.protocol import COMMANDS, NEVER_REFUSED, PRIORITY
 from ddrt.service.telemetry import RotatingCsvWriter, TelemetryLogger, TelemetryRing
-from ddrt.service.timing import RateScheduler, TimingStats, percentile
+from ddrt.service.timing import RateScheduler, TimingStats, select_quantiles
 from hal.base import HalError
 from hal.registry import open_hal
 
@@ -73,10 +75,11 @@ class _PendingFollow:
 
     def report(self, missed: int) -> dict[str, Any]:
         """What preparing the path cost the loop: the ticks it ran meanwhile, how late."""
-        late = sorted(self.late)
+        _p50, p99, top = (select_quantiles(np.frombuffer(self.late, dtype=np.float64)) if self.late
+                          else (None, None, None))
         return {"seconds": self.build.elapsed_s, "ticks": self.ticks, "missed_ticks": missed - self.missed0,
-                "late_p99_us": percentile(late, 99.0) * 1e6 if late else None,
-                "late_max_us": late[-1] * 1e6 if late else None}
+                "late_p99_us": p99 * 1e6 if p99 is not None else None,
+                "late_max_us": top * 1e6 if top is not None else None}
 
 
 PREPARE_SAMPLES = 1 << 14  # lateness samples kept while a path is prepared (82 s at 200 Hz)

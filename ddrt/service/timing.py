@@ -149,15 +149,6 @@ class TimingStats:
     def count(self) -> int:
         return self._n
 
-    def window(self) -> tuple[list[float], list[float]]:
-        """The (compute, lateness) samples in the ring, oldest first (copies, seconds)."""
-        n, cap = self._n, self.capacity
-        if n <= cap:
-            return self._compute[:n].tolist(), self._late[:n].tolist()
-        i = n % cap
-        return ((self._compute[i:] + self._compute[:i]).tolist(),
-                (self._late[i:] + self._late[:i]).tolist())
-
     def summary(self) -> dict[str, float | int | None]:
         """Percentiles over the window in microseconds, and counters since start.
 
@@ -175,7 +166,7 @@ class TimingStats:
         n = min(self._n, self.capacity)
         for name, ring in (("compute", self._compute), ("late", self._late)):
             if n:
-                p50, p99, top = _select_quantiles(np.frombuffer(ring, dtype=np.float64, count=n))
+                p50, p99, top = select_quantiles(np.frombuffer(ring, dtype=np.float64, count=n))
                 out[f"{name}_p50_us"] = p50 * 1e6
                 out[f"{name}_p99_us"] = p99 * 1e6
                 out[f"{name}_max_us"] = top * 1e6
@@ -185,9 +176,10 @@ class TimingStats:
         return out
 
 
-def _select_quantiles(data: np.ndarray) -> tuple[float, float, float]:
-    """(p50, p99, max) of unsorted data, numpy.percentile's "linear" definition, by
-    partitioning around the four ranks the two percentiles interpolate between."""
+def select_quantiles(data: np.ndarray) -> tuple[float, float, float]:
+    """(p50, p99, max) of unsorted, non-empty data, numpy.percentile's "linear" definition, by
+    partitioning around the four ranks the two percentiles interpolate between (O(n): cheap
+    enough for the loop thread, where a sort of a full window is not)."""
     n = len(data)
     ranks: list[int] = []
     fracs: list[float] = []
