@@ -153,6 +153,10 @@ def foxglove_missing() -> str:
     return f"not installed: {', '.join(gone)} (pip install 'ddrt[foxglove]' websockets)" if gone else ""
 
 
+def measure_paths(opts: BenchOptions) -> object:
+    return paths_as_given.measure(opts.paths_cases, opts.seeds[0], opts.paths_long)
+
+
 def measure_live(opts: BenchOptions) -> LiveView:
     missing = foxglove_missing()
     fx = None if missing else foxglove_load.section(opts.foxglove_duration_s, opts.mcap_duration_s, opts.mcap_repeats)
@@ -203,7 +207,7 @@ def measure_all(opts: BenchOptions, command: str, say: Callable[[str], None] = _
                                                               opts.workers, opts.scenarios, progress))
     adapt = timed("adaptation", lambda: adaptation.measure_adaptation(SCENARIO_DIR, opts.seeds, opts.workers,
                                                                       opts.scenarios))
-    paths = timed("paths as given", lambda: paths_as_given.measure(opts.paths_cases, opts.seeds[0], opts.paths_long))
+    paths = timed("paths as given", lambda: measure_paths(opts))
     robots = timed("population", lambda: population.measure_population(opts.robots, opts.workers))
     live = timed("foxglove and velocity mode", lambda: measure_live(opts))
     machine["load average at the end"] = (load_average() + " (other work on this machine shows in the maxima "
@@ -299,7 +303,7 @@ def render_document(r: Results) -> str:
 
 # Sections that `--only` can measure alone: number -> (measure, render).
 ONLY: dict[int, tuple[Callable[[BenchOptions], object], Callable[[object], list[str]]]] = {
-    9: (lambda o: paths_as_given.measure(o.paths_cases, o.seeds[0], o.paths_long), paths_as_given.render),  # type: ignore[dict-item]
+    9: (measure_paths, paths_as_given.render),  # type: ignore[dict-item]
     11: (measure_live, render_live),  # type: ignore[dict-item]
 }
 
