@@ -506,31 +506,57 @@ def _envelope_passes(con: Constraints, cap: np.ndarray, start: float | None = No
     return u * u, fallbacks
 
 
-def _caps(s: np.ndarray, kap: np.ndarray, piv: np.ndarray, v_cap: np.ndarray, lim: SpeedLimits,
-          b: float, direction: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per-sample speed caps, per-interval acceleration caps, and which samples lie in pivots."""
+@dataclass(frozen=True)
+class CapTerms:
+    """The profile's limits from the geometry, one array per limit so that `ddrt path` can name
+    the one that binds (ddrt/path/report.py) from the same numbers the profile used. Per
+    sample: lateral acceleration, yaw rate, yaw acceleration from the change of curvature (the
+    smaller of a sample's two intervals); per interval: the acceleration and braking caps."""
+
+    lateral: np.ndarray  # sqrt(lateral_accel / |kappa|)
+    omega: np.ndarray  # omega_max / |kappa|
+    curv_rate: np.ndarray  # sqrt(alpha_max / (2 |dkappa/ds|)), pivots excluded
+    acc_lim: np.ndarray  # min(accel, alpha_max / (2 |kappa|)); b alpha_max in a pivot
+    dec_lim: np.ndarray  # the same with the braking limit
+    in_piv: np.ndarray  # samples that are part of a turn in place
+
+
+def cap_terms(s: np.ndarray, kap: np.ndarray, piv: np.ndarray, lim: SpeedLimits, b: float) -> CapTerms:
     ds = np.diff(s)
     n = len(s)
     absk = np.abs(kap)
-    with np.errstate(divide="ignore"):
-        # A cap that is not a finite number (a waypoint speed of 1e308 interpolated overflows)
-        # is no cap beyond v_max.
-        v_cap = np.where(np.isfinite(v_cap), np.maximum(v_cap, 0.0), np.inf)
-        cap = np.minimum(np.minimum(v_cap, lim.v_max), np.sqrt(lim.lateral_accel / absk))
-        cap = np.minimum(cap, lim.omega_max / absk)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lateral = np.sqrt(lim.lateral_accel / absk)
+        omega = lim.omega_max / absk
         dk = np.abs(np.diff(kap)) / ds
         dk[piv] = 0.0
         kcap = np.sqrt(0.5 * lim.alpha_max / dk)
         kmax = np.maximum(absk[1:], absk[:-1])
         acc_lim = np.minimum(lim.accel, 0.5 * lim.alpha_max / kmax)
         dec_lim = np.minimum(lim.decel_eff, 0.5 * lim.alpha_max / kmax)
-    cap[:-1] = np.minimum(cap[:-1], kcap)
-    cap[1:] = np.minimum(cap[1:], kcap)
-    # Pivot samples: angular speed cap; rest points on both sides of each pivot.
+    rate = np.full(n, np.inf)
+    rate[:-1] = np.minimum(rate[:-1], kcap)
+    rate[1:] = np.minimum(rate[1:], kcap)
     in_piv = np.zeros(n, dtype=bool)
     in_piv[:-1] |= piv
     in_piv[1:] |= piv
-    cap[in_piv] = b * lim.omega_max
+    acc_lim[piv] = b * lim.alpha_max
+    dec_lim[piv] = b * lim.alpha_max
+    return CapTerms(lateral, omega, rate, acc_lim, dec_lim, in_piv)
+
+
+def _caps(s: np.ndarray, kap: np.ndarray, piv: np.ndarray, v_cap: np.ndarray, lim: SpeedLimits,
+          b: float, direction: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per-sample speed caps, per-interval acceleration caps, and which samples lie in pivots."""
+    n = len(s)
+    t = cap_terms(s, kap, piv, lim, b)
+    # A cap that is not a finite number (a waypoint speed of 1e308 interpolated overflows)
+    # is no cap beyond v_max.
+    v_cap = np.where(np.isfinite(v_cap), np.maximum(v_cap, 0.0), np.inf)
+    cap = np.minimum(np.minimum(v_cap, lim.v_max), t.lateral)
+    cap = np.minimum(np.minimum(cap, t.omega), t.curv_rate)
+    # Pivot samples: angular speed cap; rest points on both sides of each pivot.
+    cap[t.in_piv] = b * lim.omega_max
     edge = np.zeros(n, dtype=bool)
     edge[:-1] |= piv & ~np.concatenate(([False], piv[:-1]))  # first sample of a pivot
     edge[1:] |= piv & ~np.concatenate((piv[1:], [False]))  # last sample of a pivot
@@ -538,9 +564,7 @@ def _caps(s: np.ndarray, kap: np.ndarray, piv: np.ndarray, v_cap: np.ndarray, li
     if direction is not None and len(direction) > 1:
         cap[1:-1][direction[1:] != direction[:-1]] = 0.0  # a cusp: at rest where the direction flips
     cap[0] = cap[-1] = 0.0
-    acc_lim[piv] = b * lim.alpha_max
-    dec_lim[piv] = b * lim.alpha_max
-    return cap, acc_lim, dec_lim, in_piv
+    return cap, t.acc_lim, t.dec_lim, t.in_piv
 
 
 def speed_profile(sigma: Sequence[float], kappa: Sequence[float], seg_pivot: Sequence[bool],

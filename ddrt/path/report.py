@@ -3,8 +3,8 @@
 Length, duration, curvature, corners, how the points were read (waypoints, samples of a
 curve, a grid plan: ddrt/path/condition.py), the reference's largest deviation from them, and
 which limit sets the speed where. The profile (ddrt/path/profile.py) caps the progress rate
-per sample, then limits it by acceleration and braking; this module recomputes the same caps
-from the path's arrays and names, per sample, the one that binds:
+per sample, then limits it by acceleration and braking; this module takes the same caps
+from the same function (`cap_terms`) and names, per sample, the one that binds:
 
   speed        the path's speed (its own `speed:` or limits.v_max)
   point cap    a waypoint's or a CSV row's `v`, or a grid plan's turn speed (ddrt/path/turnspeed.py)
@@ -38,6 +38,7 @@ from pathlib import Path as FsPath
 
 import numpy as np
 
+from ddrt.path.profile import CapTerms, cap_terms
 from ddrt.path.sampled import Path, distances_to_polyline
 
 __all__ = ["LABELS", "PathReport", "active_limits", "path_report", "report_text", "write_plot"]
@@ -48,32 +49,21 @@ _STEADY_ACC = 1e-3  # m/s^2 (progress units): below it the rate is held, not ris
 _REL = 1e-6
 
 
-def _caps(path: Path) -> dict[str, np.ndarray]:
-    """The per-sample caps of the profile, by name (inf where a cap does not apply)."""
+def _terms(path: Path) -> CapTerms:
     a = path.arrays()
-    lim, b = path.limits, path.pivot_radius
-    s, kap, piv = a["sigma"], a["kappa"], a["seg_pivot"]
-    n = len(s)
-    absk = np.abs(kap)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        lat = np.sqrt(lim.lateral_accel / absk)
-        om = lim.omega_max / absk
-        dk = np.abs(np.diff(kap)) / np.diff(s)
-        dk[piv] = 0.0
-        kc = np.sqrt(0.5 * lim.alpha_max / dk)
-    rate = np.full(n, np.inf)
-    rate[:-1] = np.minimum(rate[:-1], kc)
-    rate[1:] = np.minimum(rate[1:], kc)
-    v_cap = a["v_cap"]
-    speed = np.full(n, path.v_cap)
+    return cap_terms(a["sigma"], a["kappa"], a["seg_pivot"], path.limits, path.pivot_radius)
+
+
+def _caps(path: Path, terms: CapTerms | None = None) -> dict[str, np.ndarray]:
+    """The per-sample caps of the profile, by name (inf where a cap does not apply)."""
+    t = _terms(path) if terms is None else terms
+    v_cap = path.arrays()["v_cap"]
+    speed = np.full(len(v_cap), path.v_cap)
     point = np.where(v_cap < speed * (1.0 - _REL), v_cap, np.inf)
-    in_piv = np.zeros(n, dtype=bool)
-    in_piv[:-1] |= piv
-    in_piv[1:] |= piv
-    caps = {"speed": speed, "point cap": point, "lateral": lat, "omega": om, "curv. rate": rate}
+    caps = {"speed": speed, "point cap": point, "lateral": t.lateral, "omega": t.omega, "curv. rate": t.curv_rate}
     for name in caps:
-        caps[name] = np.where(in_piv, np.inf, caps[name])
-    caps["pivot omega"] = np.where(in_piv, b * lim.omega_max, np.inf)
+        caps[name] = np.where(t.in_piv, np.inf, caps[name])
+    caps["pivot omega"] = np.where(t.in_piv, path.pivot_radius * path.limits.omega_max, np.inf)
     return caps
 
 
@@ -81,9 +71,10 @@ def active_limits(path: Path) -> np.ndarray:
     """Index into LABELS of the limit that sets the speed at each sample."""
     a = path.arrays()
     lim = path.limits
-    u, kap, piv, acc = a["u"], a["kappa"], a["seg_pivot"], a["acc_u"]
+    u, acc = a["u"], a["acc_u"]
     n = len(u)
-    caps = _caps(path)
+    terms = _terms(path)
+    caps = _caps(path, terms)
     names = list(caps)
     stack = np.vstack([caps[k] for k in names])
     static = stack.min(axis=0)
@@ -91,10 +82,7 @@ def active_limits(path: Path) -> np.ndarray:
     out = np.full(n, LABELS.index("other"))
     at_cap = u >= static * (1.0 - 1e-6)
     out[at_cap] = [LABELS.index(names[j]) for j in which[at_cap]]
-    kmax = np.maximum(np.abs(kap[1:]), np.abs(kap[:-1]))
-    with np.errstate(divide="ignore"):
-        acc_lim = np.where(piv, path.pivot_radius * lim.alpha_max, np.minimum(lim.accel, 0.5 * lim.alpha_max / kmax))
-        dec_lim = np.where(piv, path.pivot_radius * lim.alpha_max, np.minimum(lim.decel_eff, 0.5 * lim.alpha_max / kmax))
+    acc_lim, dec_lim = terms.acc_lim, terms.dec_lim
     rising = np.zeros(n, dtype=bool)
     rising[1:] = acc >= acc_lim * (1.0 - 1e-3)
     falling = np.zeros(n, dtype=bool)
