@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from hal.mpu6050 import GYRO_ZOUT_H
-from hal.protocol import DUTY_FULL_SCALE, Drive, Packet, State, encode_frame, encode_packet
+from hal.wire import DUTY_FULL_SCALE, Drive, Packet, State, encode_frame, encode_packet
 
 I2C_BITS_PER_BYTE = 9  # 8 data bits + ACK/NACK
 UART_BITS_PER_BYTE = 10  # start + 8 data + stop (8N1)
@@ -61,7 +61,7 @@ class SerialFrames:
 
 
 def tick_frames() -> SerialFrames:
-    """Lengths measured by encoding representative packets with hal.protocol's own encoder."""
+    """Lengths measured by encoding representative packets with hal.wire's own encoder."""
     drive = Packet(17, Drive(duty_l=DUTY_FULL_SCALE // 3, duty_r=-DUTY_FULL_SCALE // 4, timeout_ms=50))
     state = Packet(42, State(t_us=123_456_789, count=-98_765, flags=0x02, ack_seq=17))
     d_wire = encode_frame(drive)

@@ -41,7 +41,7 @@ from typing import Any, Sequence
 
 from bench.adaptation import _pooled
 from ddrt.config import config_from_mapping
-from ddrt.core.model import RobotParams
+from ddrt.params.robot import RobotParams
 from ddrt.path.spec import resolve_path
 from ddrt.simrun.runner import run_sim
 

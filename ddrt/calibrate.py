@@ -20,7 +20,8 @@ from ddrt.config import Config
 from ddrt.core.types import Setpoint
 from ddrt.core.wrap import wrap_angle
 from ddrt.loop import ControlLoop
-from ddrt.core.model import Dynamics, RobotParams
+from ddrt.core.model import Dynamics
+from ddrt.params.robot import RobotParams
 from ddrt.path import Path, load_path
 from ddrt.path.start import TurnProfile
 from hal.base import Hal
@@ -40,7 +41,7 @@ def _clock(hal: Hal) -> Any:
     monotonic clock."""
     if hal.owns_time:
         return hal
-    from ddrt.service.clock import MonotonicClock
+    from ddrt.runtime.clock import MonotonicClock
 
     return MonotonicClock()
 

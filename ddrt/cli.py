@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from ddrt.service.protocol import COMMANDS
+from ddrt.service.commands import COMMANDS
 
 
 FOLLOW_TIMEOUT_S = 120.0

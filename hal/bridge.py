@@ -17,9 +17,9 @@ from typing import Any
 
 from ddrt.core.types import Clock
 from ddrt.core.wrap import wrap_i32
-from ddrt.service.clock import MonotonicClock
+from ddrt.runtime.clock import MonotonicClock
 from hal.base import HalError, HalInitError, HalIOError, HalTimeoutError, check_duty
-from hal.protocol import (
+from hal.wire import (
     DELIMITER, DUTY_FULL_SCALE, FLAG_BAD_FRAME, FLAG_WATCHDOG, PROTOCOL_VERSION,
     TIMEOUT_MS_MAX, TIMEOUT_MS_MIN, Drive, FrameDecoder, Hello, HelloReply, Message, Packet,
     State, Stop, encode_frame, seq_gap,

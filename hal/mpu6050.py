@@ -14,7 +14,7 @@ import math
 import time
 from typing import Any, Callable, Protocol
 
-from ddrt.core.sensors import GYRO_RANGES_DPS, gyro_lsb_per_rad_s
+from ddrt.params.gyro_scale import GYRO_RANGES_DPS, gyro_lsb_per_rad_s
 from hal.base import HalInitError, HalIOError, HalTimeoutError, HalValueError
 
 __all__ = [
@@ -36,7 +36,7 @@ WHO_AM_I_VALUE = 0x68
 PWR_SLEEP = 0x40
 PWR_CLKSEL_PLL_XGYRO = 0x01  # steadier than the internal 8 MHz oscillator
 FS_SEL_SHIFT = 3
-# Full-scale range (deg/s) -> FS_SEL: the ranges of ddrt.core.sensors in ascending order are
+# Full-scale range (deg/s) -> FS_SEL: the ranges of ddrt.params.gyro_scale in ascending order are
 # FS_SEL 0..3 (register 27); their sensitivities are that module's table.
 GYRO_FS_SEL: dict[int, int] = {rng: fs_sel for fs_sel, rng in enumerate(GYRO_RANGES_DPS)}
 # Gyro group delay (s) by DLPF_CFG 0..6 (Register Map rev 4.2, register 26): the

@@ -19,7 +19,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any, Callable, Mapping, Protocol, Sequence
 
 from ddrt.core.types import Clock
-from ddrt.service.clock import MonotonicClock
+from ddrt.runtime.clock import MonotonicClock
 from hal.base import (
     Hal, HalError, HalInfo, HalIOError, HalTimeoutError, Sample,
 )

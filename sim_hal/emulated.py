@@ -16,7 +16,7 @@ from typing import Any
 from ddrt.config import Config
 from hal.base import Hal, Sample
 from hal.real import RealHal
-from sim_hal import protocol_ddrtsim
+from sim_hal.serial_urls import protocol_ddrtsim
 from sim_hal.factory import plant_config
 from sim_hal.mcu_emulator import McuEmulator
 from sim_hal.mpu_emulator import MpuEmulator

@@ -6,7 +6,7 @@ from typing import Any
 
 from ddrt.config import Config
 from sim_hal.plant import PlantConfig, SimRobot
-from sim_hal.sim_hal import SimHal
+from sim_hal.backend import SimHal
 
 
 def plant_config(cfg: Config, seed: int | None = None) -> PlantConfig:

@@ -40,7 +40,8 @@ from typing import Any
 from ddrt.config import Config
 from ddrt.core.wrap import wrap_i32
 from hal.base import HalInitError, HalIOError
-from sim_hal import firmware_build, protocol_simavr
+from sim_hal import firmware_build
+from sim_hal.serial_urls import protocol_simavr
 from sim_hal.emulated import EmulatedRealHal, _PlantGyro, real_hal_on
 from sim_hal.factory import plant_config
 from sim_hal.mpu_emulator import MpuEmulator

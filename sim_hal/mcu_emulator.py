@@ -22,7 +22,7 @@ import tty
 from typing import Callable, Protocol
 
 from ddrt.core.wrap import wrap_i32
-from hal.protocol import (
+from hal.wire import (
     DUTY_FULL_SCALE, FLAG_BAD_FRAME, FLAG_OUTPUTS_ON, FLAG_WATCHDOG, PROTOCOL_VERSION, Drive,
     FrameDecoder, Hello, HelloReply, Message, Packet, State, Stop, encode_frame,
 )

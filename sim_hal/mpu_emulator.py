@@ -13,7 +13,7 @@ import math
 from collections import Counter
 from typing import Callable, Protocol
 
-from ddrt.core.sensors import GYRO_LSB_PER_DPS
+from ddrt.params.gyro_scale import GYRO_LSB_PER_DPS
 from hal.mpu6050 import (
     GYRO_CONFIG, GYRO_FS_SEL, GYRO_ZOUT_H, PWR_MGMT_1, PWR_SLEEP, WHO_AM_I, WHO_AM_I_VALUE,
 )

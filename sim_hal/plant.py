@@ -21,11 +21,12 @@ from collections import deque
 from dataclasses import dataclass, fields, replace
 from typing import Any, Mapping
 
-from ddrt.core.model import Dynamics, RobotParams
-from ddrt.core.motor import MotorParams
-from ddrt.core.sensors import GYRO_LSB_PER_DPS, gyro_lsb_per_rad_s
+from ddrt.core.model import Dynamics
+from ddrt.params.robot import RobotParams
+from ddrt.params.motor import MotorParams
+from ddrt.params.gyro_scale import GYRO_LSB_PER_DPS, gyro_lsb_per_rad_s
 
-from sim_hal import sensors
+from sim_hal import raw_readings
 
 _DEG_PER_RAD = 180.0 / math.pi
 _EPS_T = 1e-12  # times closer than this count as equal (float rounding of k * step)
@@ -147,7 +148,7 @@ class SimRobot:
 
         # Gyro: state in deg/s after the low-pass, started where it would have settled.
         self._gyro_lsb_per_dps = GYRO_LSB_PER_DPS[cfg.gyro_range_dps]
-        self._gyro_a = sensors.lowpass_coefficient(cfg.gyro_dlpf_hz, cfg.step_hz)
+        self._gyro_a = raw_readings.lowpass_coefficient(cfg.gyro_dlpf_hz, cfg.step_hz)
         self._gyro_sigma = cfg.gyro_noise_dps_rthz * math.sqrt(cfg.step_hz / 2.0)
         self._gyro_f = cfg.gyro_bias_dps
 
@@ -199,11 +200,11 @@ class SimRobot:
     def read_encoder(self) -> int:
         """Front encoder count as the hardware counter holds it (signed 32-bit, wrapping)."""
         phi3 = self._ring_phi3[self._ring_index()]
-        return sensors.encoder_count(phi3, self.cfg.encoder_counts_per_rev, self.cfg.encoder_offset_counts)
+        return raw_readings.encoder_count(phi3, self.cfg.encoder_counts_per_rev, self.cfg.encoder_offset_counts)
 
     def read_gyro_raw(self) -> int:
         """Gyro z as the int16 the MPU-6050 reports at its configured range (bias included)."""
-        return sensors.gyro_raw(self._ring_gyro[self._ring_index()], self._gyro_lsb_per_dps)
+        return raw_readings.gyro_raw(self._ring_gyro[self._ring_index()], self._gyro_lsb_per_dps)
 
     @property
     def encoder_counts_per_rev(self) -> int:
@@ -221,7 +222,7 @@ class SimRobot:
 
     @property
     def gyro_full_scale_rad_s(self) -> float:
-        return sensors.INT16_MAX / self.gyro_lsb_per_rad_s
+        return raw_readings.INT16_MAX / self.gyro_lsb_per_rad_s
 
     # --- truth, for tests and logs -------------------------------------------------------
 

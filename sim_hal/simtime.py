@@ -1,4 +1,4 @@
-"""Simulated time, as the two backends whose robot lives in it keep it (sim_hal.sim_hal.SimHal,
+"""Simulated time, as the two backends whose robot lives in it keep it (sim_hal.backend.SimHal,
 sim_hal.emulated.EmulatedRealHal).
 
 Unpaced (the default, for CI) sim time moves only when the loop sleeps: `sleep_until`

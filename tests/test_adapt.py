@@ -14,7 +14,8 @@ from ddrt.core.adapt import NAMES, AdaptedDynamics, DynamicsAdapter
 from ddrt.config import AdaptationConfig, ConfigError, load_config, with_overrides
 from ddrt.loop import COLUMNS
 from ddrt.core.model import Dynamics
-from ddrt.core.motor import Motor, MotorParams
+from ddrt.core.motor import Motor
+from ddrt.params.motor import MotorParams
 from ddrt.path.spec import resolve_path
 from ddrt.simrun.runner import run_sim
 

@@ -15,7 +15,7 @@ from bench import accuracy, adaptation, io_bound, run, tick_cost, velocity_mode
 from ddrt.config import load_config
 from ddrt.loop import ControlLoop
 from ddrt.path.spec import resolve_path
-from hal.protocol import Drive, Packet, encode_frame
+from hal.wire import Drive, Packet, encode_frame
 from hal.registry import open_hal
 
 SIM = run.TICK_CONFIG

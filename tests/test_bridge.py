@@ -13,12 +13,12 @@ from typing import Iterator
 
 import pytest
 
-from ddrt.service.clock import MonotonicClock
+from ddrt.runtime.clock import MonotonicClock
 from ddrt.config import Config, config_from_mapping
 from hal.base import HalInitError, HalIOError, HalTimeoutError, HalValueError
 from hal.bridge import Bridge
 from hal.mpu6050 import Mpu6050
-from hal.protocol import (
+from hal.wire import (
     FLAG_BAD_FRAME, FLAG_WATCHDOG, Drive, HelloReply, Packet, State, Stop, encode_frame,
 )
 from hal.real import RealHal

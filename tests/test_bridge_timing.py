@@ -13,7 +13,7 @@ from __future__ import annotations
 import statistics
 
 from hal.bridge import Bridge
-from hal.protocol import HelloReply, Packet, State, encode_frame
+from hal.wire import HelloReply, Packet, State, encode_frame
 
 
 class FakeClock:

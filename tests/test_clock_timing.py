@@ -22,8 +22,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ddrt.service import rt
-from ddrt.service.clock import ManualClock, MonotonicClock
+from ddrt.runtime import rt
+from ddrt.runtime.clock import ManualClock, MonotonicClock
 from ddrt.service.timing import RateScheduler, TimingStats, percentile
 
 SLACK = 0.05  # generous bound on oversleeping on a loaded 2-core CI machine
@@ -244,7 +244,7 @@ def _run_isolated(code: str) -> dict:
 def test_apply_realtime_applies_or_warns_per_step() -> None:
     res = _run_isolated("""
         import json, os, gc
-        from ddrt.service import rt
+        from ddrt.runtime import rt
         cpu = min(os.sched_getaffinity(0))
         warnings = rt.apply_realtime(10, {cpu}, True, 1, gil_switch_interval_s=0.0005)
         import sys
@@ -314,7 +314,7 @@ def test_apply_realtime_rejects_bad_arguments(kwargs: dict, field: str) -> None:
 def test_freeze_gc_in_subprocess() -> None:
     res = _run_isolated("""
         import json, gc
-        from ddrt.service import rt
+        from ddrt.runtime import rt
         junk = [[i] for i in range(10000)]
         rt.freeze_gc()
         print(json.dumps(rt.gc_stats()))
@@ -357,7 +357,7 @@ def test_a_gil_helper_runs_just_below_a_real_time_loop_or_at_normal_priority() -
 def test_spinning_clock_never_wakes_early_and_rejects_bad_spin():
     import time as _time
 
-    from ddrt.service.clock import MonotonicClock as _Clock
+    from ddrt.runtime.clock import MonotonicClock as _Clock
 
     clock = _Clock(spin_s=0.0002)
     late = []

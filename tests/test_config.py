@@ -22,8 +22,8 @@ from ddrt.config import (
     SensorsConfig, SimConfig, SlipConfig, WheelPidGains, config_from_mapping, load_config,
     with_overrides,
 )
-from ddrt.core.model import RobotParams
-from ddrt.core.motor import MotorParams
+from ddrt.params.robot import RobotParams
+from ddrt.params.motor import MotorParams
 from ddrt.config.schema import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]

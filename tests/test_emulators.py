@@ -8,7 +8,7 @@ import math
 
 import pytest
 
-from hal.protocol import (
+from hal.wire import (
     FLAG_BAD_FRAME, FLAG_OUTPUTS_ON, FLAG_WATCHDOG, Drive, FrameDecoder, Hello, HelloReply,
     Packet, State, Stop, Unknown, encode_frame,
 )

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from hal import cobs
 from hal.crc import crc16_ccitt_false
-from hal.protocol import (
+from hal.wire import (
     Drive, FrameDecoder, Hello, HelloReply, Packet, State, Stop, Unknown, decode_packet,
     encode_frame, encode_packet,
 )

@@ -155,7 +155,7 @@ def test_the_free_running_harness_keeps_to_the_wall_clock() -> None:
     clock by itself, and the firmware's bytes come as it sends them."""
     import time
 
-    from hal.protocol import FrameDecoder, State
+    from hal.wire import FrameDecoder, State
     from sim_hal import firmware_build
     from sim_hal.firmware_sim import Simavr
 

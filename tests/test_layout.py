@@ -3,6 +3,11 @@
 - Computation (ddrt/core, ddrt/path) imports no driver, no service, no simulator and not the
   tick: it may import numpy, the standard library, ddrt.core, ddrt.path and ddrt.config.
 - hal/ never imports sim_hal/: the simulator is reached only through the registry's names.
+- hal/ never imports the service (the daemon's package), and viz/ never imports the service
+  either: what both need from the operating system is the runtime layer, ddrt/runtime.
+- ddrt/params and ddrt/runtime are leaves: they import nothing of ddrt but themselves (the
+  runtime its Clock protocol from ddrt.core.types).
+- No import cycle between packages: the package graph (every import, at any depth) is a DAG.
 """
 
 from __future__ import annotations
@@ -55,6 +60,105 @@ def test_hal_never_imports_sim_hal() -> None:
     assert violations("hal", ("sim_hal",)) == []
 
 
+def test_hal_never_imports_the_service_viewer_simulator_or_loop() -> None:
+    assert violations("hal", ("ddrt.service", "ddrt.viz", "ddrt.simrun", "ddrt.loop", "ddrt.cli")) == []
+
+
+def test_viz_never_imports_the_service() -> None:
+    assert violations("ddrt/viz", ("ddrt.service",)) == []
+
+
+def test_params_and_runtime_are_leaves() -> None:
+    ddrt_packages = sorted({package_of(".".join(f.relative_to(REPO).with_suffix("").parts))
+                            for f in (REPO / "ddrt").rglob("*.py")} - {"ddrt"})
+    others = tuple(p for p in ddrt_packages if p != "ddrt.params") + ("hal", "sim_hal", "bench")
+    assert violations("ddrt/params", others) == []
+    allowed_in_runtime = ("ddrt.runtime", "ddrt.core.types")
+    out = [v for v in violations("ddrt/runtime", others) if not v.endswith(allowed_in_runtime)]
+    assert out == []
+
+
+def package_of(module: str) -> str | None:
+    """The package a module belongs to, for the cycle rule: ddrt's sub-packages (and its
+    top-level modules: ddrt.loop, ddrt.cli, ...) one each, hal, sim_hal, bench; None outside."""
+    parts = module.split(".")
+    if parts[0] == "ddrt":
+        return ".".join(parts[:2]) if len(parts) > 1 else "ddrt"
+    return parts[0] if parts[0] in ("hal", "sim_hal", "bench") else None
+
+
+def package_graph(root: Path = REPO, folders: tuple[str, ...] = ("ddrt", "hal", "sim_hal")) -> dict[str, dict[str, str]]:
+    """package -> {imported package: first "file:line imports module" that makes the edge}."""
+    graph: dict[str, dict[str, str]] = {}
+    for folder in folders:
+        for f in sorted((root / folder).rglob("*.py")):
+            rel = f.relative_to(root).with_suffix("").parts
+            src = package_of(".".join(rel[:-1] if rel[-1] == "__init__" else rel))
+            if src is None:
+                continue
+            edges = graph.setdefault(src, {})
+            for line, mod in imported_modules(f, root):
+                dst = package_of(mod)
+                if dst is not None and dst not in (src, "ddrt"):
+                    edges.setdefault(dst, f"{f.relative_to(root)}:{line} imports {mod}")
+    return graph
+
+
+def cycles(graph: dict[str, dict[str, str]]) -> list[list[str]]:
+    """Strongly connected components with more than one package (Tarjan), each sorted."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in graph.get(v, {}):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_no_import_cycle_between_packages() -> None:
+    graph = package_graph()
+    found = cycles(graph)
+    detail = [f"{a} -> {b}: {graph[a][b]}" for c in found for a in c for b in c if b in graph.get(a, {})]
+    assert found == [], f"import cycles between packages: {found}\n" + "\n".join(detail)
+
+
+def test_the_cycle_check_finds_a_cycle_through_three_packages(tmp_path: Path) -> None:
+    # The checker itself: a -> b -> c -> a through function-level imports is one cycle.
+    for pkg, target in (("core", "ddrt.path.x"), ("path", "ddrt.loop"), ("", None)):
+        (tmp_path / "ddrt" / pkg).mkdir(parents=True, exist_ok=True)
+        if target:
+            (tmp_path / "ddrt" / pkg / "x.py").write_text(f"def f():\n    import {target}\n")
+    (tmp_path / "ddrt" / "loop.py").write_text("from ddrt.core import x\n")
+    graph = package_graph(tmp_path, ("ddrt",))
+    assert cycles(graph) == [["ddrt.core", "ddrt.loop", "ddrt.path"]]
+    (tmp_path / "ddrt" / "loop.py").write_text("import math\n")
+    assert cycles(package_graph(tmp_path, ("ddrt",))) == []
+
+
 @pytest.mark.parametrize("folder", ["ddrt/core", "ddrt/path"])
 def test_computation_imports_no_driver_service_simulator_or_loop(folder: str) -> None:
     assert violations(folder, FORBIDDEN_IN_COMPUTATION) == []
@@ -82,8 +186,9 @@ def test_the_package_map_names_every_module() -> None:
     rows = {line.split("|")[1].strip().strip("`"): line for line in doc.splitlines()
             if line.startswith("| `") and line.count("|") >= 4}
     missing = []
-    for pkg in ("ddrt/core/", "ddrt/path/", "ddrt/config/", "ddrt/service/", "ddrt/simrun/", "ddrt/viz/",
-                "hal/", "sim_hal/"):
+    packages = sorted(f"{p.parent.relative_to(REPO)}/" for folder in ("ddrt", "hal", "sim_hal")
+                      for p in (REPO / folder).rglob("__init__.py") if p.parent != REPO / "ddrt")
+    for pkg in packages:
         row = rows.get(pkg)
         assert row is not None, f"docs/design.md has no row for {pkg}"
         for f in sorted((REPO / pkg).glob("*.py")):

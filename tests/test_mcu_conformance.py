@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import pytest
 
-from hal.protocol import (
+from hal.wire import (
     FLAG_BAD_FRAME, FLAG_OUTPUTS_ON, FLAG_WATCHDOG, Drive, FrameDecoder, Hello, HelloReply,
     Packet, State, Stop, Unknown, encode_frame, seq_gap,
 )

@@ -17,8 +17,10 @@ import random
 import numpy as np
 import pytest
 
-from ddrt.core.model import Dynamics, RobotParams, forward_dynamics, inverse_dynamics, wheel_rates
-from ddrt.core.motor import Motor, MotorParams
+from ddrt.core.model import Dynamics, forward_dynamics, inverse_dynamics, wheel_rates
+from ddrt.params.robot import RobotParams
+from ddrt.core.motor import Motor
+from ddrt.params.motor import MotorParams
 
 TABLE_5_1 = dict(
     H=0.115, L=0.108, R=0.108, r_L=0.049, r_R=0.051, r_3=0.052, d_xc=0.026, d_yc=0.0,

@@ -178,7 +178,7 @@ def test_one_range_table_for_driver_simulator_and_config() -> None:
 
     from ddrt.config import load_config
     from ddrt.config.schema import ConfigError
-    from ddrt.core.sensors import GYRO_LSB_PER_DPS, GYRO_RANGES_DPS
+    from ddrt.params.gyro_scale import GYRO_LSB_PER_DPS, GYRO_RANGES_DPS
     from hal.mpu6050 import GYRO_FS_SEL
     from sim_hal.plant import PlantConfig
 

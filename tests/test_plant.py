@@ -9,11 +9,13 @@ import time
 
 import pytest
 
-from ddrt.core.model import RobotParams, forward_dynamics, wheel_rates
-from ddrt.core.motor import Motor, MotorParams
+from ddrt.core.model import forward_dynamics, wheel_rates
+from ddrt.params.robot import RobotParams
+from ddrt.core.motor import Motor
+from ddrt.params.motor import MotorParams
 from ddrt.core.wrap import wrap_i32
 from sim_hal import PlantConfig, SimRobot
-from sim_hal.sensors import encoder_count, gyro_raw
+from sim_hal.raw_readings import encoder_count, gyro_raw
 
 TABLE_5_1 = dict(
     H=0.115, L=0.108, R=0.108, r_L=0.049, r_R=0.051, r_3=0.052, d_xc=0.026, d_yc=0.0,

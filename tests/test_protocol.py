@@ -7,7 +7,7 @@ from hypothesis import given, settings, strategies as st
 
 from hal import cobs
 from hal.crc import crc16_ccitt_false
-from hal.protocol import (
+from hal.wire import (
     MAX_FRAME_LEN, Drive, FrameDecoder, Hello, HelloReply, Packet, ProtocolError, State, Stop,
     Unknown, decode_packet, encode_frame, encode_packet, seq_gap,
 )

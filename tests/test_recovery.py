@@ -18,7 +18,7 @@ import pytest
 
 from ddrt.config import load_config, with_overrides
 from ddrt.loop import RecoveryCounters
-from ddrt.service.clock import ManualClock
+from ddrt.runtime.clock import ManualClock
 from ddrt.service.daemon import Daemon
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -23,7 +23,7 @@ from ddrt.core.model import Dynamics
 from ddrt.loop import ControlLoop
 from ddrt.path import load_path
 from ddrt.path.spec import speed_limits
-from ddrt.service.clock import MonotonicClock
+from ddrt.runtime.clock import MonotonicClock
 from ddrt.service.daemon import Daemon
 from hal.registry import open_hal
 

@@ -7,8 +7,8 @@ import time
 
 import pytest
 
-from ddrt.core.model import RobotParams
-from ddrt.core.motor import MotorParams
+from ddrt.params.robot import RobotParams
+from ddrt.params.motor import MotorParams
 from hal.base import Hal, HalError, HalIOError, HalValueError, Sample
 from sim_hal import PlantConfig, SimHal, SimRobot
 

@@ -17,8 +17,8 @@ from ddrt.config.sections import (
     PursuitConfig, SensorsConfig, SimConfig,
 )
 from ddrt.config.yamlio import read_yaml, shorten
-from ddrt.core.model import RobotParams
-from ddrt.core.motor import MotorParams
+from ddrt.params.robot import RobotParams
+from ddrt.params.motor import MotorParams
 
 # --------------------------------------------------------------------------- loading
 

@@ -12,7 +12,7 @@ import types
 import typing
 from typing import Any, Collection, Literal, Mapping, TypeVar, get_args, get_origin, get_type_hints
 
-from ddrt.core.numbers import finite_float
+from ddrt.params.numbers import finite_float
 from ddrt.config.yamlio import shorten
 
 T = TypeVar("T")

@@ -9,10 +9,9 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Literal, Mapping
 
-from ddrt.core.envelope import Envelope
-from ddrt.core.model import Dynamics, RobotParams
-from ddrt.core.sensors import GYRO_RANGES_DPS
-from ddrt.core.motor import MotorParams
+from ddrt.params.robot import RobotParams
+from ddrt.params.gyro_scale import GYRO_RANGES_DPS
+from ddrt.params.motor import MotorParams
 from ddrt.config.schema import (
     LIVE, NEXT_PATH, RESTART, ConfigError, applies, build, next_path, non_negative, positive, restart,
 )
@@ -542,9 +541,9 @@ class Config:
 
     def validate(self, where: str = "") -> None:
         """Rules across sections (each section checked its own when it was built)."""
-        env = Envelope(Dynamics.from_params(self.robot), self.robot_motor, headroom=self.limits.feedback_headroom,
-                       duty_max=self.limits.duty_max)
-        if not env.voltage_bound_nm > self.robot_motor.coulomb_nm:
+        # The envelope's voltage bound at rest (ddrt/core/envelope.py), from the motor alone.
+        voltage_bound_nm = (1.0 - self.limits.feedback_headroom) * self.limits.duty_max * self.robot_motor.stall_torque_nm
+        if not voltage_bound_nm > self.robot_motor.coulomb_nm:
             raise ConfigError(
                 f"robot.motor: at {1.0 - self.limits.feedback_headroom:.0%} of limits.duty_max x supply_v "
                 "(limits.feedback_headroom) the motors cannot overcome their own Coulomb friction (coulomb_nm)")

@@ -28,7 +28,7 @@ from __future__ import annotations
 import logging
 import math
 
-from ddrt.core.numbers import finite_float
+from ddrt.params.numbers import finite_float
 from ddrt.config import DriveConfig, LimitsConfig
 from ddrt.core.ramp import Ramp
 from ddrt.core.types import Setpoint

@@ -22,8 +22,9 @@ import math
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
-from ddrt.core.model import Dynamics, RobotParams
-from ddrt.core.motor import MotorParams
+from ddrt.core.model import Dynamics
+from ddrt.params.robot import RobotParams
+from ddrt.params.motor import MotorParams
 
 if TYPE_CHECKING:
     from ddrt.config.sections import LimitsConfig
@@ -49,8 +50,7 @@ class Envelope:
     @property
     def stall_torque_nm(self) -> float:
         """Torque at rest at the largest duty, before headroom (N m)."""
-        m = self.motor
-        return m.k_nm_per_a * self.duty_max * m.supply_v / m.resistance_ohm
+        return self.duty_max * self.motor.stall_torque_nm
 
     @property
     def torque_cap_nm(self) -> float:

@@ -16,7 +16,7 @@ class Clock(Protocol):
     """What the loop and the drivers need from a clock: seconds on a monotonic time base, and a
     sleep to an ABSOLUTE deadline that returns the time it woke (never before the deadline).
 
-    ddrt.service.clock.MonotonicClock is the wall clock; a backend whose robot runs in
+    ddrt.runtime.clock.MonotonicClock is the wall clock; a backend whose robot runs in
     simulated time is its own clock (hal.base.Hal.owns_time)."""
 
     def now(self) -> float: ...

@@ -305,7 +305,7 @@ class ControlServer:
         self._sel = selectors.DefaultSelector()
         self._sel.register(self._listener, selectors.EVENT_READ, "listen")
         self._sel.register(self._wake_r, selectors.EVENT_READ, "wake")
-        from ddrt.service.rt import demote_current_thread  # here, not in the thread: no import there
+        from ddrt.runtime.rt import demote_current_thread  # here, not in the thread: no import there
 
         self._demote = demote_current_thread
         self._thread = threading.Thread(target=self._run, name="ddrt-ctl", daemon=True)

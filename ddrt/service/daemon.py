@@ -33,8 +33,8 @@ from typing import Any
 
 import numpy as np
 
-from ddrt.service import rt
-from ddrt.service.clock import MonotonicClock
+from ddrt.runtime import rt
+from ddrt.runtime.clock import MonotonicClock
 from ddrt.config import Config, load_config, with_overrides
 from ddrt.config.policy import ReloadPlan, plan_reload
 from ddrt.service.ctlsocket import ControlServer, Deferred, finite_or_null
@@ -46,7 +46,7 @@ from ddrt.config.schema import ConfigError
 from ddrt.service.sdnotify import Notifier
 from ddrt.path.spec import path_source, speed_limits
 from ddrt.service.pathworker import Build, BuildJob, PathWorker, build_path, describe
-from ddrt.service.protocol import COMMANDS, NEVER_REFUSED, PRIORITY
+from ddrt.service.commands import COMMANDS, NEVER_REFUSED, PRIORITY
 from ddrt.service.telemetry import RotatingCsvWriter, TelemetryLogger, TelemetryRing
 from ddrt.service.timing import RateScheduler, TimingStats, select_quantiles
 from hal.base import HalError

@@ -385,7 +385,7 @@ class PathWorker:
 
     # ----- helper thread ------------------------------------------------------------------
     def _run(self) -> None:
-        from ddrt.service.rt import demote_current_thread
+        from ddrt.runtime.rt import demote_current_thread
 
         demote_current_thread()
         # Nice is per thread on Linux, and a child starts with its parent thread's: the worker

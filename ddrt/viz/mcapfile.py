@@ -1,7 +1,7 @@
 """The daemon's telemetry as rotated MCAP files (daemon.telemetry_format: mcap | both).
 
 An SDK MCAP writer is one more sink on the publisher's Context, so the files hold the live
-channels. Rotation is the CSV files' policy (ddrt.service.telemetry.FileRotation):
+channels. Rotation is the CSV files' policy (ddrt.runtime.rotation.FileRotation):
 `telemetry.mcap`, `telemetry.1.mcap` ...; a file is closed (finished with its summary) and
 rotated once it has reached max_bytes. Chunks are flushed every `flush_s` so a crash loses
 at most that much (`mcap recover` reads a file without its summary).
@@ -16,7 +16,7 @@ import time
 from types import ModuleType
 from typing import Any, Callable
 
-from ddrt.service.telemetry import FileRotation
+from ddrt.runtime.rotation import FileRotation
 
 log = logging.getLogger("ddrt.viz")
 RETRY_S = 10.0  # after a failed write, a new MCAP file is tried this often

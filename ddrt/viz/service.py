@@ -252,7 +252,7 @@ class VizService:
     # ------------------------------------------------------------------ publisher thread
 
     def _run(self) -> None:
-        from ddrt.service.rt import raise_gil_helper
+        from ddrt.runtime.rt import raise_gil_helper
 
         # Below the loop but above the machine's other work, so it is not preempted holding the GIL.
         why = raise_gil_helper(self.host.cfg.daemon.rt_priority)

@@ -13,7 +13,7 @@ import json
 import logging
 from typing import Any
 
-from ddrt.core.numbers import finite_float
+from ddrt.params.numbers import finite_float
 
 TOPICS = ("/teleop", "/cmd_vel")
 MAX_BYTES = 4096

@@ -137,5 +137,5 @@ class Serial(SerialBase):
         return True
 
 
-if "sim_hal" not in serial.protocol_handler_packages:
-    serial.protocol_handler_packages.append("sim_hal")
+if "sim_hal.serial_urls" not in serial.protocol_handler_packages:
+    serial.protocol_handler_packages.append("sim_hal.serial_urls")

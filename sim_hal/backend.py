@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import math
 
-from ddrt.core.model import RobotParams
-from ddrt.core.motor import MotorParams
+from ddrt.params.robot import RobotParams
+from ddrt.params.motor import MotorParams
 from hal.base import Hal, HalInfo, HalIOError, Sample
 from sim_hal.plant import PlantConfig, SimRobot
 from sim_hal.simtime import SimTime

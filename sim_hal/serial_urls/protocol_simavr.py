@@ -120,5 +120,5 @@ def serial_class_for_url(url: str):
     return counts.pty_path, klass
 
 
-if "sim_hal" not in serial.protocol_handler_packages:
-    serial.protocol_handler_packages.append("sim_hal")
+if "sim_hal.serial_urls" not in serial.protocol_handler_packages:
+    serial.protocol_handler_packages.append("sim_hal.serial_urls")
