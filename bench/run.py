@@ -4,7 +4,7 @@ One command measures everything and writes the Markdown; nobody edits BENCHMARKS
 so every number in it can be traced to a run on the machine it names. The timing sections run
 one after another on an otherwise idle process; only the accuracy grid uses a process pool.
 
-`--only N` measures section N alone (those in ONLY: 9, 11) and splices it into the --out file:
+`--only N` measures section N alone (those in ONLY: 1, 9, 10, 11) and splices it into the --out file:
 the section's text from its `## N.` heading to the next `## ` heading is replaced (or, when
 the file has no such section, inserted after the last section that precedes it in SECTIONS);
 every other line of the file stays as it was. The spliced section says that it was measured
@@ -168,6 +168,56 @@ def render_live(live: LiveView) -> list[str]:
     return lines + ["", "### The velocity mode", ""] + velocity_mode.render(live.velocity)
 
 
+@dataclass
+class AccuracySection:
+    """Section 1: the accuracy grid and how many worker processes ran it."""
+
+    accuracy: accuracy.AccuracyResult
+    workers: int
+
+
+def measure_accuracy_section(opts: BenchOptions) -> AccuracySection:
+    acc = accuracy.measure_accuracy(SCENARIO_DIR, opts.seeds, opts.lookaheads, opts.workers, opts.scenarios,
+                                    accuracy.stderr_progress)
+    return AccuracySection(acc, opts.workers)
+
+
+def render_accuracy(section: AccuracySection) -> list[str]:
+    acc = section.accuracy
+    lines = [
+        f"Every scenario in configs/scenarios/ ({len(acc.scenarios)}) with three controllers on the same simulated "
+        f"robot, sensors and noise seeds ({', '.join(map(str, acc.seeds))}): **dynamic** (the three-stage "
+        f"controller), **kinematic** (pure pursuit + wheel-speed PID) at its best single lookahead, "
+        f"{acc.best.lookahead_m:.2f} m, from the sweep below, and **seed** (the seed report's own method, "
+        f"with limits.max_path_error_m widened to {accuracy.SEED_MAX_PATH_ERROR_M:g} m so its error is measured "
+        "rather than stopped). "
+        "true = cross-track error of the true pose, est = of the estimated pose (what the controller can "
+        "correct, and what it is judged by). Cells are the median over seeds with the min–max spread in "
+        "brackets when the seeds differ; time is the simulated time to complete (or to the fault or the time "
+        f"limit of 1.5 x path duration + 10 s); {acc.runs} runs on {section.workers} worker processes, "
+        f"{acc.wall_s:.0f} s wall.",
+        "",
+    ]
+    lines += accuracy.render_table(acc)
+    lines += [
+        "",
+        "### Kinematic lookahead sweep",
+        "",
+        "Median est-pose RMS cross-track (mm) over the seeds, per lookahead. The kept lookahead is the one "
+        "whose worst scenario is best, among those with the fewest scenarios that failed to complete (a run "
+        "that faults early has a small RMS over a short stretch, which must not win).",
+        "",
+    ]
+    lines += accuracy.render_sweep(acc)
+    lines += ["", f"Kept: **{acc.best.lookahead_m:.2f} m**.", "", "### Verdict", ""]
+    lines += [f"- {v}" for v in acc.verdict]
+    return lines
+
+
+def measure_population_section(opts: BenchOptions) -> object:
+    return population.measure_population(opts.robots, opts.workers)
+
+
 def measure_speed(scenarios: Sequence[str], seeds: Sequence[int]) -> dict[str, list[float]]:
     """Closed-loop real-time factor (start-up excluded) of the dynamic controller, per seed."""
     out: dict[str, list[float]] = {}
@@ -239,36 +289,8 @@ def render_document(r: Results) -> str:
         "",
     ]
     lines += [f"- {k}: {v}" for k, v in r.machine.items()]
-    lines += [
-        "",
-        _header(1),
-        "",
-        f"Every scenario in configs/scenarios/ ({len(acc.scenarios)}) with three controllers on the same simulated "
-        f"robot, sensors and noise seeds ({', '.join(map(str, acc.seeds))}): **dynamic** (the three-stage "
-        f"controller), **kinematic** (pure pursuit + wheel-speed PID) at its best single lookahead, "
-        f"{acc.best.lookahead_m:.2f} m, from the sweep below, and **seed** (the seed report's own method, "
-        f"with limits.max_path_error_m widened to {accuracy.SEED_MAX_PATH_ERROR_M:g} m so its error is measured "
-        "rather than stopped). "
-        "true = cross-track error of the true pose, est = of the estimated pose (what the controller can "
-        "correct, and what it is judged by). Cells are the median over seeds with the min–max spread in "
-        "brackets when the seeds differ; time is the simulated time to complete (or to the fault or the time "
-        f"limit of 1.5 x path duration + 10 s); {acc.runs} runs on {o.workers} worker processes, "
-        f"{acc.wall_s:.0f} s wall.",
-        "",
-    ]
-    lines += accuracy.render_table(acc)
-    lines += [
-        "",
-        "### Kinematic lookahead sweep",
-        "",
-        "Median est-pose RMS cross-track (mm) over the seeds, per lookahead. The kept lookahead is the one "
-        "whose worst scenario is best, among those with the fewest scenarios that failed to complete (a run "
-        "that faults early has a small RMS over a short stretch, which must not win).",
-        "",
-    ]
-    lines += accuracy.render_sweep(acc)
-    lines += ["", f"Kept: **{acc.best.lookahead_m:.2f} m**.", "", "### Verdict", ""]
-    lines += [f"- {v}" for v in acc.verdict]
+    lines += ["", _header(1), ""]
+    lines += render_accuracy(AccuracySection(acc, o.workers))
     lines += ["", _header(2), ""]
     lines += tick_cost.render(r.ticks)
     lines += ["", _header(3), ""]
@@ -303,7 +325,9 @@ def render_document(r: Results) -> str:
 
 # Sections that `--only` can measure alone: number -> (measure, render).
 ONLY: dict[int, tuple[Callable[[BenchOptions], object], Callable[[object], list[str]]]] = {
+    1: (measure_accuracy_section, render_accuracy),  # type: ignore[dict-item]
     9: (measure_paths, paths_as_given.render),  # type: ignore[dict-item]
+    10: (measure_population_section, population.render),  # type: ignore[dict-item]
     11: (measure_live, render_live),  # type: ignore[dict-item]
 }
 

@@ -12,6 +12,29 @@ from ddrt.service.commands import COMMANDS
 
 
 FOLLOW_TIMEOUT_S = 120.0
+DEFAULT_SOCKET = "/run/ddrt/ddrt.sock"  # the shipped unit's (configs/robot.yaml's daemon.socket)
+SOCKET_ENV = "DDRT_SOCKET"
+
+
+def control_socket(args: argparse.Namespace) -> tuple[str, str]:
+    """The daemon's socket for `ddrt ctl`, and where it came from (for an error that names what
+    was tried): --socket, else the daemon.socket of --config, else $DDRT_SOCKET, else the
+    system service's."""
+    import os
+
+    if args.socket:
+        return args.socket, "--socket"
+    if args.config:
+        from ddrt.config import load_config
+
+        socket = load_config(args.config).daemon.socket
+        if not socket:
+            raise ValueError(f"{args.config}: daemon.socket is empty: that daemon listens on no control socket")
+        return socket, f"daemon.socket of {args.config}"
+    if os.environ.get(SOCKET_ENV):
+        return os.environ[SOCKET_ENV], f"${SOCKET_ENV}"
+    return DEFAULT_SOCKET, (f"the default; for another daemon give --config CONFIG, --socket PATH or "
+                            f"set {SOCKET_ENV}")
 
 
 def _pose(text: str) -> tuple[float, float, float]:
@@ -20,6 +43,27 @@ def _pose(text: str) -> tuple[float, float, float]:
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected X,Y,THETA (metres, radians), got {text!r}") from None
     return x, y, th
+
+
+def _seconds(text: str) -> float:
+    """A duration argument: a finite number of seconds > 0."""
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0.0):
+        raise argparse.ArgumentTypeError(f"expected a finite number of seconds > 0, got {text!r}")
+    return value
+
+
+def sim_exit_status(metrics: dict, duration_given: bool) -> int:
+    """0 when the run did what was asked: the path completed, or, with --duration, the run
+    lasted that long without a fault or estop; else 1."""
+    if metrics["completed"]:
+        return 0
+    return 0 if duration_given and not metrics.get("fault") and metrics.get("state") not in ("fault", "estop") else 1
 
 
 def _cmd_sim(args: argparse.Namespace) -> int:
@@ -58,7 +102,7 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     print(summary_text(result.metrics))
     print(f"wrote {args.out}/telemetry.csv and {args.out}/metrics.json" + (" and figures" if args.plot else "")
           + (f" and {args.mcap}" if args.mcap else ""))
-    return 0 if result.metrics["completed"] else 1
+    return sim_exit_status(result.metrics, args.duration is not None)
 
 
 def _cmd_path(args: argparse.Namespace) -> int:
@@ -122,10 +166,11 @@ def _cmd_ctl(args: argparse.Namespace) -> int:
         # A follow is answered once its path is built and followed (within the daemon's
         # paths.build_timeout_s); everything else between two ticks.
         timeout = FOLLOW_TIMEOUT_S if args.command_name == "follow" else 2.0
+    socket, source = control_socket(args)
     try:
-        reply = request(args.socket, payload, timeout=timeout)
+        reply = request(socket, payload, timeout=timeout)
     except (OSError, TimeoutError) as exc:
-        print(f"ddrt ctl: cannot reach {args.socket}: {exc}", file=sys.stderr)
+        print(f"ddrt ctl: cannot reach {socket} ({source}): {exc}", file=sys.stderr)
         return 1
     print(json.dumps(reply, indent=2, sort_keys=True))
     return 0 if reply.get("ok") else 1
@@ -153,9 +198,10 @@ def _ctl_drive(args: argparse.Namespace) -> int:
     v = _number(args.args[0], "V (m/s)")
     omega = _number(args.args[1], "OMEGA (rad/s)")
     timeout = args.timeout if args.timeout is not None else 2.0
+    socket, source = control_socket(args)
 
     def send(payload: dict) -> dict:
-        return request(args.socket, payload, timeout=timeout)
+        return request(socket, payload, timeout=timeout)
 
     try:
         if args.for_s is None:
@@ -168,7 +214,7 @@ def _ctl_drive(args: argparse.Namespace) -> int:
             except KeyboardInterrupt:  # drive_for sent the stop on its way out
                 return 130
     except (OSError, TimeoutError) as exc:
-        print(f"ddrt ctl: cannot reach {args.socket}: {exc}", file=sys.stderr)
+        print(f"ddrt ctl: cannot reach {socket} ({source}): {exc}", file=sys.stderr)
         return 1
     print(json.dumps(reply, indent=2, sort_keys=True))
     return 0 if reply.get("ok") else 1
@@ -228,7 +274,8 @@ def build_parser() -> argparse.ArgumentParser:
     sim = sub.add_parser("sim", help="run the closed loop on the simulated robot, as fast as possible")
     sim.add_argument("config", help="YAML config (e.g. configs/sim.yaml)")
     sim.add_argument("--path", help="path file (.csv or .yaml); default: the config's path:")
-    sim.add_argument("--duration", type=float, help="stop after this many simulated seconds")
+    sim.add_argument("--duration", type=_seconds,
+                     help="stop after this many simulated seconds (then exit 0 unless the run faulted)")
     sim.add_argument("--seed", type=int, help="noise seed of the simulated robot")
     sim.add_argument("--start", type=_pose, help="start pose X,Y,THETA (default: the path's start)")
     sim.add_argument("--out", default="out", help="output directory (default: out)")
@@ -248,14 +295,17 @@ def build_parser() -> argparse.ArgumentParser:
     run = sub.add_parser("run", help="the long-running controller (systemd service)")
     run.add_argument("config", help="YAML config (e.g. /etc/ddrt/ddrt.yaml)")
     run.add_argument("--socket", default=None, help="control socket path (e.g. /run/ddrt/ddrt.sock)")
-    run.add_argument("--duration", type=float, help="stop after this many seconds")
+    run.add_argument("--duration", type=_seconds, help="stop after this many seconds")
     run.add_argument("--follow", action="store_true", help="start following the config's path at once")
     run.add_argument("--stats-json", help="write timing statistics to this file at exit")
     run.add_argument("--log-level", default="info", help="debug, info, warning or error")
     run.set_defaults(func=_cmd_run)
 
     ctl = sub.add_parser("ctl", help="talk to a running daemon over its control socket")
-    ctl.add_argument("--socket", default="/run/ddrt/ddrt.sock", help="control socket path")
+    ctl.add_argument("--socket", default=None,
+                     help=f"control socket path (default: --config's daemon.socket, else ${SOCKET_ENV}, "
+                          f"else {DEFAULT_SOCKET})")
+    ctl.add_argument("--config", default=None, help="the daemon's YAML config: its daemon.socket is the socket")
     ctl.add_argument("--timeout", type=float, default=None,
                      help=f"seconds to wait for the reply (default 2; {FOLLOW_TIMEOUT_S:g} for follow)")
     ctl.add_argument("command_name", metavar="COMMAND",
@@ -292,11 +342,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as exc:  # config, path and argument errors: one clear line, no trace
         print(f"ddrt: error: {_one_line(exc)}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # `ddrt path FILE | head`: the reader has what it wanted
+        _silence_stdout()
+        return 0
     except OSError as exc:  # a device that cannot be opened, an output that cannot be written
         print(f"ddrt: error: {_one_line(exc)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         return 130
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null so the interpreter's final flush does not fail again."""
+    import os
+
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
 
 
 def _one_line(exc: BaseException) -> str:

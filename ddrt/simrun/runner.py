@@ -269,8 +269,22 @@ def write_outputs(result: SimResult, out_dir: str | FsPath) -> None:
             for i in range(0, len(table), CHUNK_ROWS):
                 fh.write(format_rows(table[i:i + CHUNK_ROWS]))
     with open(out / "metrics.json", "w") as fh:
-        json.dump(result.metrics, fh, indent=2, sort_keys=True)
+        json.dump(json_ready(result.metrics), fh, indent=2, sort_keys=True, allow_nan=False)
         fh.write("\n")
+
+
+def json_ready(value: Any) -> Any:
+    """`value` with every non-finite float as None (JSON's null) and numpy scalars as Python's:
+    metrics.json is strict JSON, which has no NaN or Infinity."""
+    if isinstance(value, dict):
+        return {k: json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_ready(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
 
 
 def summary_text(m: dict[str, Any]) -> str:

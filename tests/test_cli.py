@@ -1,0 +1,135 @@
+"""The `ddrt` command's own rough edges (issue 22): finding the daemon's socket, `ddrt sim`'s
+--duration and exit status, strict metrics.json, and a closed pipe on stdout."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import pytest
+
+from ddrt import cli
+from ddrt.simrun.runner import json_ready
+
+REPO = Path(__file__).resolve().parents[1]
+SIM = REPO / "configs" / "sim.yaml"
+
+
+def _answer_once(path: str, reply: dict) -> threading.Thread:
+    """A one-shot listener on `path` that reads one request line and sends `reply`."""
+    srv = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    srv.bind(path)
+    srv.listen(1)
+    seen: list[dict] = []
+
+    def serve() -> None:
+        conn, _ = srv.accept()
+        with conn, srv:
+            buf = b""
+            while b"\n" not in buf:
+                buf += conn.recv(4096)
+            seen.append(json.loads(buf))
+            conn.sendall((json.dumps(reply) + "\n").encode())
+
+    t = threading.Thread(target=serve, daemon=True)
+    t.seen = seen  # type: ignore[attr-defined]
+    t.start()
+    return t
+
+
+def test_ctl_finds_the_socket_in_the_config(tmp_path, monkeypatch, capsys) -> None:
+    sock = tmp_path / "d.sock"
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text(f"extends: {SIM}\ndaemon: {{socket: {sock}}}\n")
+    monkeypatch.setenv("DDRT_SOCKET", str(tmp_path / "elsewhere.sock"))  # --config wins over the variable
+    t = _answer_once(str(sock), {"ok": True, "state": "idle"})
+    assert cli.main(["ctl", "--config", str(cfg), "status"]) == 0
+    t.join(5)
+    assert t.seen == [{"cmd": "status"}]  # type: ignore[attr-defined]
+    assert json.loads(capsys.readouterr().out)["state"] == "idle"
+
+
+def test_ctl_takes_the_socket_from_the_environment(tmp_path, monkeypatch, capsys) -> None:
+    sock = tmp_path / "e.sock"
+    monkeypatch.setenv("DDRT_SOCKET", str(sock))
+    t = _answer_once(str(sock), {"ok": True})
+    assert cli.main(["ctl", "status"]) == 0
+    t.join(5)
+    assert t.seen == [{"cmd": "status"}]  # type: ignore[attr-defined]
+
+
+@pytest.mark.parametrize("how, source", [
+    (lambda tmp, env: ["--socket", str(tmp / "none.sock")], "--socket"),
+    (lambda tmp, env: env.setenv("DDRT_SOCKET", str(tmp / "none.sock")) or [], "$DDRT_SOCKET"),
+])
+def test_an_unreachable_socket_is_named_with_where_it_came_from(tmp_path, monkeypatch, capsys, how, source) -> None:
+    monkeypatch.delenv("DDRT_SOCKET", raising=False)
+    argv = ["ctl", *how(tmp_path, monkeypatch), "status"]
+    assert cli.main(argv) == 1
+    err = capsys.readouterr().err
+    assert str(tmp_path / "none.sock") in err and source in err
+
+
+def test_the_default_socket_says_how_to_name_another(monkeypatch) -> None:
+    monkeypatch.delenv("DDRT_SOCKET", raising=False)
+    args = cli.build_parser().parse_args(["ctl", "status"])
+    path, source = cli.control_socket(args)
+    assert path == cli.DEFAULT_SOCKET and "--config" in source and "DDRT_SOCKET" in source
+
+
+def test_a_config_without_a_socket_is_a_clear_error(tmp_path, capsys) -> None:
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text(f"extends: {SIM}\ndaemon: {{socket: null}}\n")
+    assert cli.main(["ctl", "--config", str(cfg), "status"]) == 2
+    assert "daemon.socket" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "nan", "inf", "abc"])
+def test_sim_refuses_a_duration_that_is_not_positive_seconds(value, capsys) -> None:
+    with pytest.raises(SystemExit) as exc:
+        cli.build_parser().parse_args(["sim", str(SIM), "--duration", value])
+    assert exc.value.code == 2
+    assert "--duration" in capsys.readouterr().err
+
+
+def test_sim_with_a_duration_exits_zero_when_it_ran_that_long_without_a_fault(tmp_path) -> None:
+    assert cli.main(["sim", str(SIM), "--duration", "0.5", "--quiet", "--out", str(tmp_path)]) == 0
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["completed"] is False and metrics["ticks"] > 0
+
+
+@pytest.mark.parametrize("metrics, duration_given, status", [
+    ({"completed": True, "fault": "", "state": "stopped"}, False, 0),
+    ({"completed": False, "fault": "", "state": "following"}, False, 1),
+    ({"completed": False, "fault": "", "state": "following"}, True, 0),
+    ({"completed": False, "fault": "path error 0.2 m", "state": "fault"}, True, 1),
+    ({"completed": False, "fault": "", "state": "estop"}, True, 1),
+])
+def test_sim_exit_status(metrics, duration_given, status) -> None:
+    assert cli.sim_exit_status(metrics, duration_given) == status
+
+
+def test_metrics_are_strict_json() -> None:
+    import numpy as np
+
+    m = {"a": float("nan"), "b": [float("inf"), 1.5, np.float64("nan")], "c": {"d": np.float64(2.0)}, "e": "x"}
+    out = json_ready(m)
+    assert out == {"a": None, "b": [None, 1.5, None], "c": {"d": 2.0}, "e": "x"}
+    json.dumps(out, allow_nan=False)  # raises on NaN or Infinity
+
+
+def test_a_closed_pipe_on_stdout_is_not_an_error(tmp_path) -> None:
+    r, w = os.pipe()
+    os.close(r)  # the reader (e.g. `head`) has gone before anything is written
+    try:
+        proc = subprocess.run([sys.executable, "-m", "ddrt.cli", "path", str(REPO / "configs/paths/figure8_slow.yaml")],
+                              stdout=w, stderr=subprocess.PIPE, cwd=REPO, timeout=120, text=True)
+    finally:
+        os.close(w)
+    assert proc.returncode == 0, proc.stderr
+    assert "Broken pipe" not in proc.stderr and "Traceback" not in proc.stderr
