@@ -133,3 +133,17 @@ def test_a_closed_pipe_on_stdout_is_not_an_error(tmp_path) -> None:
         os.close(w)
     assert proc.returncode == 0, proc.stderr
     assert "Broken pipe" not in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_every_missing_robot_key_is_named_at_once(tmp_path, capsys) -> None:
+    import yaml
+
+    data = yaml.safe_load(SIM.read_text())
+    for key in ("r_3", "d_xc", "I_p"):
+        del data["robot"][key]
+    data["path"] = str(REPO / "configs" / "paths" / "figure8_slow.yaml")
+    cfg = tmp_path / "partial.yaml"
+    cfg.write_text(yaml.safe_dump(data))
+    assert cli.main(["sim", str(cfg), "--duration", "0.1", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "robot.r_3, robot.d_xc, robot.I_p: missing (required)" in err and str(cfg) in err

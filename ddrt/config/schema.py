@@ -136,6 +136,7 @@ def build(cls: type[T], mapping: Any, where: str = "", *, ignore: Collection[str
         known = ", ".join(sorted(names | set(ignore)))
         raise ConfigError(f"{_join(where, unknown[0])}: unknown key (known: {known})")
     kwargs: dict[str, Any] = {}
+    missing: list[str] = []  # all of them in one error: a section is not filled in one run per key
     for f in dataclasses.fields(cls):
         if not f.init:
             continue
@@ -143,7 +144,9 @@ def build(cls: type[T], mapping: Any, where: str = "", *, ignore: Collection[str
         if f.name in mapping:
             kwargs[f.name] = _convert(hints[f.name], mapping[f.name], key)
         elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
-            raise ConfigError(f"{key}: missing (required)")
+            missing.append(key)
+    if missing:
+        raise ConfigError(f"{', '.join(missing)}: missing (required)")
     try:
         obj = cls(**kwargs)
     except ConfigError:
