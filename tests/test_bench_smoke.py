@@ -252,3 +252,19 @@ def test_only_splices_one_section_and_keeps_every_other_line() -> None:
     assert run.splice_section(no_ten, 10, ["ten"]) == no_ten.replace(h(11), h(10) + "\n\nten\n\n" + h(11))
     with pytest.raises(SystemExit):
         run.main(["--only", "3", "--out", "/nonexistent/x.md"])  # only the sections in run.ONLY
+
+
+def test_suite_under_load_runs_pytest_beside_hogs_and_stops_at_a_failure(tmp_path, capsys) -> None:
+    from bench import suite_under_load as sul
+
+    ok = sul.main(["--runs", "2", "--hogs", "1", "--log-dir", str(tmp_path), "--",
+                   "tests/test_layout.py::test_hal_never_imports_sim_hal"])
+    out = capsys.readouterr().out
+    assert ok == 0 and out.count("1 passed") == 2 and "all runs passed" in out
+    bad = sul.main(["--runs", "3", "--hogs", "0", "--log-dir", str(tmp_path), "--", "tests/no_such_test.py"])
+    out = capsys.readouterr().out
+    assert bad == 1 and "run 2/3" not in out and "stopped at run 1" in out
+    hogs = sul.start_hogs(2)
+    sul.stop_hogs(hogs)
+    assert all(p.poll() is not None for p in hogs)
+    assert sul.closing_line("x\n===== 3 passed, 1 failed in 2.0s =====\n") == "3 passed, 1 failed in 2.0s"
