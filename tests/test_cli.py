@@ -147,3 +147,19 @@ def test_every_missing_robot_key_is_named_at_once(tmp_path, capsys) -> None:
     assert cli.main(["sim", str(cfg), "--duration", "0.1", "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert "robot.r_3, robot.d_xc, robot.I_p: missing (required)" in err and str(cfg) in err
+
+
+@pytest.mark.parametrize("paths_section, names", [
+    ({}, "paths.max_points = 10000 waypoints"),
+    ({"max_points": 100_000, "max_file_bytes": 1_000_000}, "paths.max_file_bytes"),
+])
+def test_a_csv_too_large_names_the_setting_that_limits_it(tmp_path, paths_section, names) -> None:
+    from ddrt.config.sections import PathsConfig
+    from ddrt.path.spec import PathError, load_path
+    from ddrt.path.profile import SpeedLimits
+
+    f = tmp_path / "big.csv"
+    f.write_text("x,y\n# " + "c" * 1_400_000 + "\n0,0\n1,0\n")
+    with pytest.raises(PathError) as exc:
+        load_path(str(f), SpeedLimits(), paths=PathsConfig(**paths_section))
+    assert names in str(exc.value) and str(f) in str(exc.value)

@@ -185,16 +185,17 @@ def load_yaml_text(text: str, name: str, error: type[Exception]) -> Any:
         loader.dispose()
 
 
-def read_text(path: str | FsPath, error: type[Exception], limit: int = MAX_BYTES) -> str:
+def read_text(path: str | FsPath, error: type[Exception], limit: int = MAX_BYTES, limit_from: str = "") -> str:
     """A file's text; it must be UTF-8 (a leading byte-order mark is allowed) and at most
-    `limit` bytes long."""
+    `limit` bytes long (`limit_from` says which setting makes that limit, for the error)."""
     try:
         with open(path, "rb") as fh:
             data = fh.read(limit + 1)
     except OSError as exc:
         raise error(f"{path}: cannot read: {exc.strerror or exc}") from None
     if len(data) > limit:
-        raise error(f"{path}: larger than {limit} bytes: not a file ddrt reads")
+        raise error(f"{path}: larger than {limit} bytes{f' ({limit_from})' if limit_from else ''}: "
+                    "not a file ddrt reads")
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:

@@ -97,11 +97,21 @@ def _merge_points(rows: list[tuple[float, float, float]],
     return out, kept
 
 
+CSV_BYTES_PER_POINT = 128  # a CSV line "x,y,v" with full-precision floats and room to spare
+CSV_HEADER_BYTES = 65536  # the header, comments and blank lines
+
+
 def _read_csv(filename: str, paths: PathsConfig) -> tuple[list[tuple[float, float, float]], bool, list[str]]:
     """Waypoints (x, y, v cap or inf) from a CSV with header x,y or x,y,v; second item: has v;
     third: each waypoint's line ("line 7")."""
     # At most ~128 bytes a waypoint: the file cannot be larger than its waypoints need.
-    text = read_text(filename, PathError, limit=128 * paths.max_points + 65536)
+    by_points = CSV_BYTES_PER_POINT * paths.max_points + CSV_HEADER_BYTES
+    if by_points < paths.max_file_bytes:
+        limit, limit_from = by_points, (f"paths.max_points = {paths.max_points} waypoints of at most "
+                                        f"{CSV_BYTES_PER_POINT} bytes each")
+    else:
+        limit, limit_from = paths.max_file_bytes, "paths.max_file_bytes"
+    text = read_text(filename, PathError, limit=limit, limit_from=limit_from)
     rows: list[tuple[float, float, float]] = []
     lines: list[str] = []
     header: list[str] | None = None
