@@ -244,27 +244,64 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     else:
         if args.from_sim_truth and cfg.hal.backend != "sim":
             raise ValueError("--from-sim-truth: only with hal.backend: sim")
+        questions = _odometry_questions(args)
+        answers: dict[str, float] = {}
+        if not args.from_sim_truth and not sys.stdin.isatty():
+            # Piped answers are read before the robot moves: an empty stdin stops nothing mid-run.
+            answers = {key: _ask(prompt, key) for key, prompt in questions.items()}
         with open_hal(cfg, start=(0.0, 0.0, 0.0)) as hal:
             run = cal.odometry_run(cfg, hal, args.distance)
         if args.from_sim_truth:
             dist, turn, source = run.true_distance_m, run.true_turn_rad, "simulation truth"
         else:
-            dist = args.measured_distance
-            turn_deg = args.measured_turn_deg
-            if dist is None:
-                dist = float(input(f"Distance the robot actually drove, in metres (commanded {args.distance:g}): "))
-            if turn_deg is None:
-                turn_deg = float(input("Angle the robot actually turned, in degrees (360 if it ended facing "
-                                       "exactly as it started): "))
+            for key, prompt in questions.items():
+                if key not in answers:
+                    answers[key] = _ask(prompt, key)
+            dist = args.measured_distance if args.measured_distance is not None else answers["distance"]
+            turn_deg = args.measured_turn_deg if args.measured_turn_deg is not None else answers["turn"]
             turn, source = math.radians(turn_deg), "measured by hand"
-        assert dist is not None and turn is not None
-        corr = cal.odometry_correction(cfg, run, dist, turn)
+        try:
+            corr = cal.odometry_correction(cfg, run, dist, turn)
+        except cal.CalibrationRunError as exc:
+            raise ValueError(f"calibrate odometry: {exc}") from None
         text = cal.odometry_fragment(cfg, run, corr, dist, turn, source)
     print(text, end="")
     out = args.out or f"calibration-{kind}.yaml"
     Path(out).write_text(text, encoding="utf-8")
     print(f"wrote {out}", file=sys.stderr)
     return 0
+
+
+def _odometry_questions(args: argparse.Namespace) -> dict[str, str]:
+    """The measurements `calibrate odometry` still needs, key -> prompt."""
+    questions = {}
+    if args.measured_distance is None:
+        questions["distance"] = f"Distance the robot actually drove, in metres (commanded {args.distance:g}): "
+    if args.measured_turn_deg is None:
+        questions["turn"] = "Angle the robot actually turned, in degrees (360 if it ended facing exactly as it started): "
+    return questions
+
+
+def _ask(prompt: str, what: str, tries: int = 5) -> float:
+    """A finite number from stdin, asked again (up to `tries` times) after anything else; the
+    end of stdin is a clear error naming the flag that would have given it."""
+    import math
+
+    flag = {"distance": "--measured-distance", "turn": "--measured-turn-deg"}[what]
+    for _ in range(tries):
+        try:
+            text = input(prompt)
+        except EOFError:
+            raise ValueError(f"calibrate odometry: no {what} measurement on stdin (it ended); give it with {flag}") from None
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if math.isfinite(value):
+            return value
+        print(f"  not a number: {text.strip()!r}; type the {what} you measured, e.g. "
+              f"{'1.002' if what == 'distance' else '358.5'}", file=sys.stderr)
+    raise ValueError(f"calibrate odometry: no usable {what} after {tries} tries; give it with {flag}")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -163,3 +163,37 @@ def test_a_csv_too_large_names_the_setting_that_limits_it(tmp_path, paths_sectio
     with pytest.raises(PathError) as exc:
         load_path(str(f), SpeedLimits(), paths=PathsConfig(**paths_section))
     assert names in str(exc.value) and str(f) in str(exc.value)
+
+
+def _stdin(monkeypatch, text: str) -> None:
+    import io
+
+    monkeypatch.setattr(sys, "stdin", io.StringIO(text))  # not a terminal
+
+
+def test_calibrate_odometry_reads_piped_answers_before_it_drives(tmp_path, monkeypatch, capsys) -> None:
+    from ddrt import calibrate
+
+    def must_not_drive(*a, **k):
+        raise AssertionError("drove before it had the measurements")
+
+    monkeypatch.setattr(calibrate, "odometry_run", must_not_drive)
+    _stdin(monkeypatch, "")
+    assert cli.main(["calibrate", "odometry", str(SIM), "--out", str(tmp_path / "c.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert "--measured-distance" in err and "Traceback" not in err
+    _stdin(monkeypatch, "1.0\n")  # the turn is missing
+    assert cli.main(["calibrate", "odometry", str(SIM), "--out", str(tmp_path / "c.yaml")]) == 2
+    assert "--measured-turn-deg" in capsys.readouterr().err
+
+
+def test_calibrate_odometry_asks_again_after_a_typo_and_refuses_a_wild_measurement(tmp_path, monkeypatch,
+                                                                                  capsys) -> None:
+    out = tmp_path / "c.yaml"
+    _stdin(monkeypatch, "abc\n1.0\n\n360\n")
+    assert cli.main(["calibrate", "odometry", str(SIM), "--out", str(out)]) == 0
+    assert "not a number: 'abc'" in capsys.readouterr().err and "r_3:" in out.read_text()
+    _stdin(monkeypatch, "1.5\n360\n")
+    assert cli.main(["calibrate", "odometry", str(SIM), "--out", str(tmp_path / "d.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert "20%" in err and "Traceback" not in err and not (tmp_path / "d.yaml").exists()
