@@ -130,6 +130,9 @@ def footprint_margin(p: RobotParams) -> float:
     return max(p.L, p.R, p.H) + 0.05
 
 
+MIN_EXCITATION_WIDTH_M = 0.3  # a figure-eight narrower than this hardly excites the dynamics
+
+
 def excitation_path(cfg: Config, width: float, height: float, max_s: float = 30.0,
                     speed: float | None = None) -> Path:
     """A figure-eight centred on the start that stays `footprint_margin` inside the area.
@@ -140,7 +143,7 @@ def excitation_path(cfg: Config, width: float, height: float, max_s: float = 30.
     """
     margin = footprint_margin(cfg.robot)
     w, h = width - 2.0 * margin, height - 2.0 * margin
-    if w < 0.3 or h < 0.15:
+    if w < MIN_EXCITATION_WIDTH_M or h < 0.15:
         raise ValueError(f"--area {width}x{height}: too small for the robot (needs at least "
                          f"{0.3 + 2 * margin:.2f} x {0.15 + 2 * margin:.2f} m)")
     if h > 0.5 * w:  # Gerono's lemniscate gets a cusp-like waist when taller than half its width
@@ -151,10 +154,18 @@ def excitation_path(cfg: Config, width: float, height: float, max_s: float = 30.
 
     spec = {"shape": "figure_eight", "width": w, "height": h, "speed": v}
     one = load_path(spec, speed_limits(cfg), paths=cfg.paths)
+    # A free area larger than one lap in max_s needs: use only what it needs (a smaller
+    # figure-eight in its middle), shrinking until a lap fits.
+    for _ in range(20):
+        if one.duration <= max_s or spec["width"] * 0.9 < MIN_EXCITATION_WIDTH_M:
+            break
+        shrink = max(0.5, min(0.9, 0.95 * max_s / one.duration))
+        spec = dict(spec, width=spec["width"] * shrink, height=spec["height"] * shrink)
+        one = load_path(spec, speed_limits(cfg), paths=cfg.paths)
     laps = max(1, int(max_s // one.duration))
     if laps == 1 and one.duration > max_s:
-        raise ValueError(f"one lap takes {one.duration:.1f} s, more than {max_s:.0f} s: give a smaller area "
-                         f"or a higher speed")
+        raise ValueError(f"one lap takes {one.duration:.1f} s even at {spec['width']:.2f} x {spec['height']:.2f} m, "
+                         f"more than --duration {max_s:.0f} s: give a longer duration or a higher speed")
     return load_path(dict(spec, laps=float(laps)), speed_limits(cfg), paths=cfg.paths)
 
 

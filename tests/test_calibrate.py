@@ -69,6 +69,16 @@ def test_excitation_path_stays_inside_the_area() -> None:
     assert path.duration <= 30.0
 
 
+@pytest.mark.parametrize("area, max_s", [(100.0, 30.0), (10.0, 30.0), (40.0, 12.0)])
+def test_a_larger_area_than_needed_uses_what_it_needs(area: float, max_s: float) -> None:
+    cfg = load_config(OFFSET)
+    path = cal.excitation_path(cfg, area, area, max_s)
+    arr = path.arrays()
+    assert path.duration <= max_s
+    assert arr["x"].max() - arr["x"].min() <= area and arr["y"].max() - arr["y"].min() <= area
+    assert path.duration >= 0.5 * max_s  # it still drives most of the time it is given
+
+
 @pytest.mark.parametrize("text", ["2", "2x", "ax1", "0x1", "-1x2", "2x1x3"])
 def test_parse_area_rejects_bad_input(text: str) -> None:
     with pytest.raises(ValueError, match="--area"):
