@@ -20,10 +20,10 @@ from ddrt.service.follow import cancel_follow, start_follow
 if TYPE_CHECKING:
     from ddrt.service.daemon import Daemon
 
-Handler = Callable[["Daemon", dict[str, Any]], "dict[str, Any] | Deferred"]
+CommandHandler = Callable[["Daemon", dict[str, Any]], "dict[str, Any] | Deferred"]
 
 
-def command_table(handlers: Mapping[str, Handler], commands: Iterable[str]) -> dict[str, Handler]:
+def command_table(handlers: Mapping[str, CommandHandler], commands: Iterable[str]) -> dict[str, CommandHandler]:
     """`handlers` as the table, if it answers exactly `commands`; ValueError naming the gaps."""
     names = set(commands)
     missing = sorted(names - set(handlers))
