@@ -1,7 +1,7 @@
 """The control socket under abuse: how long an operator's estop takes to be answered while
 other clients hold connections open, dribble blank lines or flood connect().
 
-The server is the daemon's (ddrt.service.ctlsocket.ControlServer with the daemon's
+The server is the daemon's (ddrt.service.ctlserver.ControlServer with the daemon's
 commands, priorities and never-refused set); a stand-in loop thread polls it every 5 ms, the
 200 Hz tick, with a handler that does no work, so the figure is the socket's own share: the
 wait for the next poll plus the I/O thread. `python -m bench.ctl_flood` prints the table.
@@ -21,8 +21,9 @@ import time
 from dataclasses import dataclass
 from typing import Any, Sequence
 
-from ddrt.service.ctlsocket import ControlServer, request
-from ddrt.service.daemon import COMMANDS, NEVER_REFUSED, PRIORITY
+from ddrt.service.commands import COMMANDS, NEVER_REFUSED, PRIORITY
+from ddrt.service.ctlclient import connect, request
+from ddrt.service.ctlserver import ControlServer
 
 COUNTS = (0, 32, 100, 1000)
 POLL_PERIOD_S = 0.005
@@ -43,22 +44,13 @@ class FloodRow:
 
 
 def _connect(path: str, timeout: float = 5.0) -> socket.socket | None:
-    deadline = time.monotonic() + timeout
-    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    s.settimeout(timeout)
-    while True:
-        try:
-            s.connect(path)
-            s.setblocking(False)
-            return s
-        except BlockingIOError:  # the backlog is full
-            if time.monotonic() > deadline:
-                s.close()
-                return None
-            time.sleep(0.001)
-        except OSError:
-            s.close()
-            return None
+    """A non-blocking client socket, or None if the server did not let it in within `timeout`."""
+    try:
+        s = connect(path, timeout, retry_s=0.001)
+    except OSError:  # the backlog stayed full (TimeoutError), or the server is gone
+        return None
+    s.setblocking(False)
+    return s
 
 
 def _fd_room(n: int) -> bool:
@@ -174,7 +166,7 @@ def _ms(x: float | None) -> str:
 
 def render(rows: Sequence[FloodRow]) -> list[str]:
     lines = [
-        "An operator's `estop` over the control socket (a fresh connection, `ddrt.service.ctlsocket.request`) "
+        "An operator's `estop` over the control socket (a fresh connection, `ddrt.service.ctlclient.request`) "
         f"while other clients abuse it; the daemon's server settings (32 clients, 60 s idle rule, 20 requests/s "
         f"per connection); a stand-in loop polls every {POLL_PERIOD_S * 1e3:g} ms (the 200 Hz tick) with a "
         "handler that does nothing, so this is the socket's own share. idle: connections opened and left silent; "

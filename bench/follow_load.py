@@ -45,7 +45,7 @@ ESTOP_ROUNDS = 3
 PROBE = "gains"
 sys.path.insert(0, str(REPO))
 
-from ddrt.service.ctlsocket import ControlClientError, request  # noqa: E402
+from ddrt.service.ctlclient import ControlClientError, request  # noqa: E402
 
 
 def child_env() -> dict[str, str]:

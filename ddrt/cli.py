@@ -150,7 +150,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_ctl(args: argparse.Namespace) -> int:
-    from ddrt.service.ctlsocket import request
+    from ddrt.service.ctlclient import request
 
     if args.for_s is not None and args.command_name != "drive":
         raise ValueError("ctl: --for is for drive only")
@@ -190,7 +190,7 @@ def _number(text: str, what: str) -> float:
 
 def _ctl_drive(args: argparse.Namespace) -> int:
     """`ddrt ctl drive V W [--for S]`: one drive command, or S seconds of them then a stop."""
-    from ddrt.service.ctlsocket import request
+    from ddrt.service.ctlclient import request
     from ddrt.service.drivecmd import drive_for
 
     if len(args.args) != 2:

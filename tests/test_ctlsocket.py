@@ -15,7 +15,8 @@ from typing import Any
 
 import pytest
 
-from ddrt.service.ctlsocket import ControlClientError, ControlServer, request
+from ddrt.service.ctlclient import ControlClientError, connect, request
+from ddrt.service.ctlserver import ControlServer
 
 COMMANDS = {"status", "stop", "estop", "gains", "boom", "bad"}
 
@@ -403,23 +404,6 @@ def strict(data: bytes) -> Any:
     return json.loads(data, parse_constant=no_constants)
 
 
-def connect(path: str, timeout: float = 5.0) -> socket.socket:
-    """A client socket, connected within `timeout` (a full listen backlog is EAGAIN at once
-    for AF_UNIX with a timeout set: retry until the deadline)."""
-    deadline = time.monotonic() + timeout
-    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    s.settimeout(timeout)
-    while True:
-        try:
-            s.connect(path)
-            return s
-        except BlockingIOError:
-            if time.monotonic() > deadline:
-                s.close()
-                pytest.fail(f"could not connect to {path} within {timeout:g} s: the backlog stayed full")
-            time.sleep(0.002)
-
-
 def _room_for(n: int) -> None:
     """n client sockets in this process need descriptors: raise the soft limit, or skip."""
     import resource
@@ -665,7 +649,7 @@ def test_client_refuses_to_send_nan(sockdir: str) -> None:
 
 _EMFILE_CHILD = r"""
 import os, resource, sys, threading, time
-from ddrt.service.ctlsocket import ControlServer
+from ddrt.service.ctlserver import ControlServer
 srv = ControlServer(sys.argv[1], commands={"status", "estop"}, max_clients=10000)
 stop = threading.Event()
 def loop():

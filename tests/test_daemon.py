@@ -34,7 +34,7 @@ from typing import Any
 import pytest
 import yaml
 
-from ddrt.service.ctlsocket import ControlClientError, request
+from ddrt.service.ctlclient import ControlClientError, connect, request
 from ddrt.loop import COLUMNS, STATE_CODE
 
 REPO = Path(__file__).resolve().parents[1]
@@ -970,16 +970,7 @@ def test_estop_reaches_the_daemon_through_100_dribbling_connections(daemon: Daem
     held = []
     try:
         for _ in range(100):
-            s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-            s.settimeout(5.0)
-            deadline = time.monotonic() + 5.0
-            while True:  # a full listen backlog is EAGAIN at once: retry, bounded
-                try:
-                    s.connect(daemon.socket)
-                    break
-                except BlockingIOError:
-                    assert time.monotonic() < deadline, "the daemon's listen backlog stayed full"
-                    time.sleep(0.002)
+            s = connect(daemon.socket, 5.0)  # a full listen backlog is EAGAIN at once: retried, bounded
             s.setblocking(False)
             held.append(s)
         for _ in range(3):  # blank lines: no command, so no claim on a place
@@ -1114,7 +1105,7 @@ def test_peak_rss_is_the_processs_own_not_its_parents() -> None:
     not the parent's: ru_maxrss is inherited across fork and exec on Linux, VmHWM is not."""
     code = ("import numpy as np, subprocess, sys\n"
             "big = np.ones(300 * 2**20 // 8)\n"
-            "out = subprocess.run([sys.executable, '-c', 'from ddrt.service.daemon import peak_rss_kb; "
+            "out = subprocess.run([sys.executable, '-c', 'from ddrt.service.status import peak_rss_kb; "
             "import resource; print(peak_rss_kb(), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)'], "
             "capture_output=True, text=True, check=True).stdout\n"
             "print(out)\n")

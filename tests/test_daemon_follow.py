@@ -22,7 +22,7 @@ from typing import Any
 
 import pytest
 
-from ddrt.service.ctlsocket import request
+from ddrt.service.ctlclient import request
 from test_daemon import DaemonProc, ready_daemon, start_daemon, wait_for
 
 HUGE_CIRCLE = {"shape": "circle", "radius": 300.0, "speed": 0.3, "pose": [0.0, 0.0, 0.0]}  # 942 000 samples

@@ -20,9 +20,10 @@ from ddrt.core.ramp import Ramp
 from ddrt.loop import STATE_CODE, ControlLoop
 from ddrt.path import load_path
 from ddrt.path.spec import speed_limits
-from ddrt.service.daemon import Daemon, _PendingFollow
+from ddrt.service.daemon import Daemon
 from ddrt.service.drivecmd import drive_for
-from ddrt.service.pathworker import Build, BuildJob
+from ddrt.service.follow import PendingFollow as _PendingFollow
+from ddrt.service.pathjob import Build, BuildJob
 from hal.registry import open_hal
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -21,7 +21,8 @@ from ddrt.path.pursuit import PurePursuit
 from ddrt.path.reference import PathReference
 from ddrt.path.spec import load_path, speed_limits
 from ddrt.core.types import Setpoint
-from ddrt.service.pathworker import BuildJob, PathWorker, check_path_file
+from ddrt.service.pathjob import BuildJob, check_path_file
+from ddrt.service.pathworker import PathWorker
 
 ROOT = FsPath(__file__).resolve().parents[1]
 CFG = load_config(ROOT / "configs" / "sim.yaml")

@@ -96,7 +96,7 @@ def test_a_set_parameters_flood_is_refused_before_planning_and_the_loop_never_pl
     import logging
     import threading
 
-    import ddrt.service.daemon as daemon_mod
+    import ddrt.service.reloading as daemon_mod
     import ddrt.viz.params as params_mod
     import ddrt.viz.service as service_mod
 
@@ -144,7 +144,7 @@ def test_a_set_parameters_flood_is_refused_before_planning_and_the_loop_never_pl
 
 @needs_sdk
 def test_queued_parameter_sets_each_apply_in_order_without_replanning_on_the_loop(viz_rig, monkeypatch) -> None:
-    import ddrt.service.daemon as daemon_mod
+    import ddrt.service.reloading as daemon_mod
 
     rig, svc = viz_rig
     d = rig.d

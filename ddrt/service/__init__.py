@@ -1,2 +1,2 @@
-"""The long-running process around one ControlLoop: the daemon, its control socket, sd_notify,
-real-time set-up, the clock, loop timing and telemetry."""
+"""The long-running process around one ControlLoop: the daemon, its control socket and
+commands, the path worker, sd_notify, loop timing and telemetry."""

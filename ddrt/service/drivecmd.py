@@ -2,7 +2,7 @@
 
 `{"cmd": "drive", "v": V, "omega": W}` (m/s, rad/s; an "id" may ride along): the request's
 shape is checked here (both fields present, nothing else), the values by the loop
-(ddrt.core.drive.check_command), so every caller of `Daemon.drive` gets the same checks.
+(ddrt.core.drive.check_command), so every caller of `handlers.drive` gets the same checks.
 NaN, Infinity and 1e999 never get this far: the socket's strict JSON refuses them.
 """
 

@@ -4,7 +4,7 @@ The Teleop panel publishes geometry_msgs/Twist as JSON when the server offers th
 encoding: {"linear": {"x": v, ...}, "angular": {"z": omega, ...}}. Anything else (not
 JSON, not an object, a missing, non-numeric or non-finite field, an oversized message) is
 refused with a reason that names the field; the caller drops it and logs (rate-limited).
-Limits on the values themselves are the velocity mode's (Daemon.drive).
+Limits on the values themselves are the velocity mode's (ddrt.service.handlers.drive).
 """
 
 from __future__ import annotations

@@ -1,11 +1,13 @@
-"""The control socket: JSON lines over a local Unix stream socket, answered between ticks.
+"""The control socket's server: JSON lines over a local Unix stream socket, answered between
+ticks.
 
 A helper thread owns every connection: it accepts, reads, splits lines, parses JSON and
 rejects anything malformed on its own (bad or non-strict JSON, not an object, missing or
 unknown "cmd", a line over `max_request_bytes`, a client over its request rate), so junk
-never costs the loop a microsecond. Valid requests wait for the loop, which calls
-`poll(handler)` between ticks; poll never blocks, runs at most a few handlers and hands the
-encoded replies back to the thread to send.
+never costs the loop a microsecond. Valid requests wait for the loop in a `LoopQueue`
+(ddrt/service/ctlqueue.py: fair turns, priority commands first, replies that come later),
+which the loop serves with `poll(handler)` between ticks; poll never blocks, runs at most a
+few handlers and hands the encoded replies back to the thread to send.
 
 Nobody can lock a command out (the operator's estop above all):
 
@@ -19,22 +21,13 @@ Nobody can lock a command out (the operator's estop above all):
 - **A rate per connection.** A token bucket (`rate_per_s`, `rate_burst`) per connection;
   over it a request is answered with an error at once, never queued. The commands in
   `never_refused` (the daemon: estop) skip the bucket and the shared queue bound.
-- **Fair service.** Each connection's requests are answered in order, connections in turn
-  (round robin), so one client's burst cannot starve another's request. A connection whose
-  next request is in `priority` (the daemon: estop, stop) is served before the rest; so that
-  a priority command cannot be undone by one sent before it, `priority[cmd]` names the
-  commands it supersedes (estop: follow, reset, drive; stop: follow, drive): such a request that arrived
-  before it and is still waiting is answered with an error and not run.
 
-Strict JSON both ways: NaN and Infinity are not JSON, in a request (answered with an error
-naming the field) or in a reply (a non-finite float from the handler goes out as null and
-the reply lists it in "non_finite").
+Strict JSON both ways (ddrt/service/jsonlines.py): NaN and Infinity are not JSON, in a
+request (answered with an error naming the field) or in a reply (a non-finite float from
+the handler goes out as null and the reply lists it in "non_finite").
 
 Replies: `{"ok": true, ...}` from the handler, or `{"ok": false, "error": "..."}`. A request
-with an "id" gets it back in the reply. A handler that cannot answer between two ticks
-returns a `Deferred` and completes it later, from the loop thread (`Deferred.complete`): the
-connection stays open for that reply, and other requests, on it and on other connections,
-are answered meanwhile. Errors found by the thread are sent at once and may
+with an "id" gets it back in the reply. Errors found by the thread are sent at once and may
 overtake replies still queued for the loop; use "id" to match them when pipelining. A client
 that leaves (or is closed) before its reply does not cancel its request: it still runs.
 
@@ -44,18 +37,20 @@ It is a filesystem socket (mode 0660: owner and group only), never a network lis
 from __future__ import annotations
 
 import errno
-import json
 import logging
 import math
 import os
 import selectors
 import socket
-import stat
 import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterable, Mapping
+from typing import Any, Iterable, Mapping
+
+from ddrt.service.ctlqueue import Handler, LoopQueue
+from ddrt.service.jsonlines import error_line, find_non_finite, strict_loads
+from ddrt.service.sockfile import listen_unix, remove_if_ours
 
 log = logging.getLogger(__name__)
 
@@ -65,131 +60,6 @@ _READ_CHUNK = 4096
 _LISTEN_BACKLOG = 128
 _FD_ERRORS = (errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM)
 _ACCEPT_PAUSE_S = 0.1
-
-
-class ControlClientError(OSError):
-    """`request` could not reach the daemon or got no usable reply."""
-
-
-class _NonFinite:
-    """What a NaN, Infinity or out-of-range number in a request parses to."""
-
-    __slots__ = ("token",)
-
-    def __init__(self, token: str) -> None:
-        self.token = token
-
-
-def _strict_loads(line: bytes | str) -> tuple[Any, bool]:
-    """json.loads that turns NaN, Infinity, -Infinity and 1e999 into _NonFinite markers;
-    returns (value, whether any was found), so a clean request costs no second walk."""
-    found = False
-
-    def constant(token: str) -> _NonFinite:
-        nonlocal found
-        found = True
-        return _NonFinite(token)
-
-    def number(token: str) -> float | _NonFinite:
-        value = float(token)
-        return value if math.isfinite(value) else constant(token)
-
-    value = json.loads(line, parse_constant=constant, parse_float=number)
-    return (value, found)
-
-
-def _find_non_finite(obj: Any) -> tuple[str, str] | None:
-    """(where, token) of the first _NonFinite in a parsed request, e.g. ("pose[1]", "NaN")."""
-    stack: list[tuple[Any, str]] = [(obj, "")]
-    while stack:
-        item, where = stack.pop()
-        if isinstance(item, _NonFinite):
-            return where or "the request", item.token
-        if isinstance(item, dict):
-            stack.extend((v, f"{where}.{k}" if where else str(k)) for k, v in reversed(item.items()))
-        elif isinstance(item, list):
-            stack.extend((v, f"{where}[{i}]") for i, v in reversed(list(enumerate(item))))
-    return None
-
-
-def finite_or_null(obj: Any, where: str = "", found: list[str] | None = None) -> Any:
-    """A copy of `obj` with every NaN/Infinity float replaced by None; their paths go to `found`."""
-    if isinstance(obj, float):
-        if math.isfinite(obj):
-            return obj
-        if found is not None:
-            found.append(where)
-        return None
-    if isinstance(obj, dict):
-        return {k: finite_or_null(v, f"{where}.{k}" if where else str(k), found) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [finite_or_null(v, f"{where}[{i}]", found) for i, v in enumerate(obj)]
-    return obj
-
-
-def encode_reply(reply: dict[str, Any]) -> bytes:
-    """One strict JSON line. A non-finite float goes out as null, listed in "non_finite"."""
-    try:
-        text = json.dumps(reply, allow_nan=False)
-    except ValueError:
-        found: list[str] = []
-        clean = finite_or_null(reply, "", found)
-        clean["non_finite"] = found
-        text = json.dumps(clean, allow_nan=False)
-    return (text + "\n").encode()
-
-
-def _error_line(message: str, request_id: Any = None) -> bytes:
-    reply: dict[str, Any] = {"ok": False, "error": message}
-    if request_id is not None:
-        reply["id"] = request_id
-    return encode_reply(reply)
-
-
-class Deferred:
-    """A reply that comes later: a handler returns one, and its owner calls `complete(reply)`
-    once (from the loop thread) when the answer is known. Until then the request counts as
-    pending on its connection. Completing it after the server closed, or twice, does nothing.
-    """
-
-    __slots__ = ("_server", "_conn", "_rid", "_cmd", "done")
-
-    def __init__(self) -> None:
-        self._server: ControlServer | None = None
-        self._conn: _Conn | None = None
-        self._rid: Any = None
-        self._cmd: Any = None
-        self.done = False
-
-    def _bind(self, server: "ControlServer", conn: "_Conn", request: dict[str, Any]) -> None:
-        self._server, self._conn = server, conn
-        self._rid, self._cmd = request.get("id"), request.get("cmd")
-
-    def complete(self, reply: dict[str, Any]) -> None:
-        if self.done:
-            return
-        self.done = True
-        server, conn = self._server, self._conn
-        self._server = self._conn = None
-        if server is None or conn is None or server._closed:
-            return
-        server._replies.append((conn, _reply_line(reply, self._rid, self._cmd), self._cmd in server.never_refused))
-        server._wake()
-
-
-def _reply_line(reply: Any, rid: Any, cmd: Any) -> bytes:
-    """A handler's reply as one strict JSON line (an error line if it is not a JSON-able dict)."""
-    try:
-        if not isinstance(reply, dict):
-            raise TypeError(f"handler returned {type(reply).__name__}, expected dict")
-        if "ok" not in reply or (rid is not None and "id" not in reply):
-            reply = {"ok": True, **reply}
-            if rid is not None:
-                reply.setdefault("id", rid)
-        return encode_reply(reply)
-    except Exception as exc:  # the loop must survive any command
-        log.warning("control command %r failed: %s: %s", cmd, type(exc).__name__, exc)
-        return _error_line(f"{cmd}: {type(exc).__name__}: {exc}", rid)
 
 
 @dataclass(eq=False)
@@ -276,14 +146,8 @@ class ControlServer:
         # connection may have one request waiting even when max_queued are.
         self._hard_queue_bound = max_queued + max_clients
 
-        # I/O thread -> loop: valid requests in arrival order; loop -> I/O thread: replies.
-        self._requests: deque[tuple[_Conn, dict[str, Any]]] = deque()
-        self._replies: deque[tuple[_Conn, bytes, bool]] = deque()
-        # Loop thread only: connections with requests waiting, in turn; arrival numbers; for
-        # each superseded command, the arrival number before which it is not run, and why.
-        self._ring: deque[_Conn] = deque()
-        self._seq = 0
-        self._cut: dict[str, tuple[int, str]] = {}
+        # Valid requests wait there for the loop; their replies come back through it.
+        self._queue = LoopQueue(self.priority, self.never_refused, max_priority_per_poll, self._wake)
         # I/O thread only.
         self._conns: dict[int, _Conn] = {}
         self._outstanding = 0  # requests handed to the loop whose reply is not back
@@ -298,7 +162,7 @@ class ControlServer:
         self._stopping = False
         self._closed = False
 
-        self._listener = self._bind(mode)
+        self._listener = listen_unix(self.path, mode, _LISTEN_BACKLOG)
         self._inode = os.stat(self.path).st_ino
         self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
         self._reserve_fd: int | None = self._open_reserve()
@@ -313,38 +177,6 @@ class ControlServer:
 
     # ----- set-up -------------------------------------------------------------------------
 
-    def _bind(self, mode: int) -> socket.socket:
-        path = self.path
-        try:
-            st = os.lstat(path)
-        except FileNotFoundError:
-            pass
-        else:
-            if not stat.S_ISSOCK(st.st_mode):
-                raise FileExistsError(errno.EEXIST,
-                                      f"control socket {path}: exists and is not a socket, not replacing it")
-            with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as probe:
-                probe.settimeout(0.5)
-                try:
-                    probe.connect(path)
-                except ConnectionRefusedError:
-                    os.unlink(path)  # left behind by a crashed run: nobody listens
-                except OSError as exc:
-                    raise OSError(exc.errno, f"control socket {path}: exists and cannot be probed: {exc}") from exc
-                else:
-                    raise OSError(errno.EADDRINUSE, f"control socket {path}: another process is listening on it")
-        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC)
-        try:
-            sock.bind(path)
-            # Before listen(), nobody can connect, so there is no window with looser permissions.
-            os.chmod(path, mode)
-            sock.listen(_LISTEN_BACKLOG)
-        except OSError as exc:
-            sock.close()
-            raise OSError(exc.errno, f"control socket {path}: {exc.strerror or exc}") from exc
-        sock.setblocking(False)
-        return sock
-
     @staticmethod
     def _open_reserve() -> int | None:
         """A spare descriptor, given up to accept() one more client when the process has none."""
@@ -355,72 +187,9 @@ class ControlServer:
 
     # ----- loop side ----------------------------------------------------------------------
 
-    def poll(self, handler: Callable[[dict[str, Any]], "dict[str, Any] | Deferred"], max_requests: int = 4) -> int:
-        """Answer waiting requests; return how many. Never blocks.
-
-        First the connections whose next request is a priority command (at most
-        `max_priority_per_poll`), then up to `max_requests` others, one per connection in
-        turn. A handler that raises, or returns something that is not a JSON-able dict,
-        produces an error reply; the exception does not propagate. A handler that returns a
-        `Deferred` answers when it completes it.
-        """
-        incoming = self._requests
-        ring = self._ring
-        if not incoming and not ring:  # the common case, every tick: no allocation, no exception
-            return 0
-        while True:
-            try:
-                conn, request = incoming.popleft()
-            except IndexError:
-                break
-            self._seq += 1
-            if not conn.queue:
-                ring.append(conn)
-            conn.queue.append((self._seq, request))
-        n = 0
-        if self.priority:
-            for conn in ring:
-                if n >= self.max_priority_per_poll:
-                    break
-                if conn.queue and conn.queue[0][1]["cmd"] in self.priority:
-                    self._serve(conn, handler)
-                    n += 1
-            if n:
-                self._ring = ring = deque(c for c in ring if c.queue)
-        served = 0
-        while served < max_requests and ring:
-            conn = ring.popleft()
-            self._serve(conn, handler)
-            served += 1
-            if conn.queue:
-                ring.append(conn)
-        n += served
-        if n:
-            self._wake()
-        return n
-
-    def _serve(self, conn: _Conn, handler: Callable[[dict[str, Any]], dict[str, Any]]) -> None:
-        seq, request = conn.queue.popleft()
-        cmd = request["cmd"]
-        rid = request.get("id")
-        for other in self.priority.get(cmd, ()):
-            self._cut[other] = (seq, cmd)
-        cut = self._cut.get(cmd)
-        if cut is not None and seq < cut[0]:
-            data = _error_line(f"{cmd} not run: the {cut[1]} sent after it was served first; "
-                               f"send {cmd} again if you still mean it", rid)
-        else:
-            try:
-                reply = handler(request)
-            except Exception as exc:  # the loop must survive any command
-                log.warning("control command %r failed: %s: %s", cmd, type(exc).__name__, exc)
-                data = _error_line(f"{cmd}: {type(exc).__name__}: {exc}", rid)
-            else:
-                if isinstance(reply, Deferred):
-                    reply._bind(self, conn, request)  # answered by reply.complete(), later
-                    return
-                data = _reply_line(reply, rid, cmd)
-        self._replies.append((conn, data, cmd in self.never_refused))
+    def poll(self, handler: Handler, max_requests: int = 4) -> int:
+        """Answer waiting requests between two ticks (`LoopQueue.poll`); never blocks."""
+        return self._queue.poll(handler, max_requests)
 
     @property
     def queued(self) -> int:
@@ -546,7 +315,7 @@ class ControlServer:
     def _say_and_close(self, conn: _Conn, message: str) -> None:
         """Best effort: what is still unsent, then one error line, then close."""
         try:
-            conn.sock.send(bytes(conn.out) + _error_line(message), socket.MSG_NOSIGNAL)
+            conn.sock.send(bytes(conn.out) + error_line(message), socket.MSG_NOSIGNAL)
         except OSError:
             pass
         self._close_conn(conn)
@@ -607,7 +376,7 @@ class ControlServer:
 
     def _handle_line(self, conn: _Conn, line: bytes, now: float) -> None:
         try:
-            request, non_finite = _strict_loads(line)
+            request, non_finite = strict_loads(line)
         except (ValueError, RecursionError) as exc:
             self._reject(conn, f"malformed JSON: {exc}")
             return
@@ -616,10 +385,10 @@ class ControlServer:
             return
         rid = request.get("id")
         if non_finite:
-            bad = _find_non_finite(request)
+            bad = find_non_finite(request)
             where, token = bad if bad is not None else ("a value", "not finite")
             self._reject(conn, f"request is not strict JSON: {where} is {token}; JSON has no NaN or Infinity "
-                               "(send a finite number)", rid if _find_non_finite(rid) is None else None)
+                               "(send a finite number)", rid if find_non_finite(rid) is None else None)
             return
         if "cmd" not in request:
             self._reject(conn, "missing field 'cmd'", rid)
@@ -664,14 +433,14 @@ class ControlServer:
             self._outstanding += 1
         conn.pending += 1
         conn.last_command = now
-        self._requests.append((conn, request))
+        self._queue.incoming.append((conn, request))
 
     def _reject(self, conn: _Conn, message: str, request_id: Any = None) -> None:
         self.rejected += 1
-        self._queue_out(conn, _error_line(message, request_id))
+        self._queue_out(conn, error_line(message, request_id))
 
     def _send_replies(self) -> None:
-        replies = self._replies
+        replies = self._queue.replies
         while True:
             try:
                 conn, data, exempt = replies.popleft()
@@ -765,6 +534,7 @@ class ControlServer:
         if self._closed:
             return
         self._closed = True
+        self._queue.closed = True
         self._stopping = True
         self._wake()
         self._thread.join(timeout=5.0)
@@ -777,11 +547,7 @@ class ControlServer:
         if self._reserve_fd is not None:
             os.close(self._reserve_fd)
             self._reserve_fd = None
-        try:
-            if os.stat(self.path).st_ino == self._inode:
-                os.unlink(self.path)
-        except FileNotFoundError:
-            pass
+        remove_if_ours(self.path, self._inode)
 
     def __enter__(self) -> "ControlServer":
         return self
@@ -789,68 +555,3 @@ class ControlServer:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-
-def _reject_constant(token: str) -> Any:
-    raise ValueError(f"{token} is not JSON")
-
-
-def request(path: str | os.PathLike[str], payload: dict[str, Any], timeout: float = 2.0,
-            max_reply_bytes: int = 1 << 22) -> dict[str, Any]:
-    """Send one request, wait for its reply line; the client behind `ddrt ctl`.
-
-    Raises ValueError for a payload that is not strict JSON (NaN, Infinity);
-    ControlClientError when the socket is missing, refuses, or the reply is not a strict JSON
-    object; TimeoutError when no reply arrives within `timeout` seconds.
-    """
-    path = os.fspath(path)
-    if not isinstance(payload, dict) or not isinstance(payload.get("cmd"), str):
-        raise ValueError(f"request: payload must be a dict with a string 'cmd', got {payload!r}")
-    if not timeout > 0:
-        raise ValueError(f"request: timeout must be > 0 seconds, got {timeout!r}")
-    try:
-        data = (json.dumps(payload, allow_nan=False) + "\n").encode()
-    except ValueError as exc:
-        raise ValueError(f"request: payload is not strict JSON ({exc}): NaN and Infinity cannot be sent") from None
-    deadline = time.monotonic() + timeout
-    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC) as sock:
-        sock.settimeout(timeout)
-        try:
-            while True:
-                try:
-                    sock.connect(path)
-                    break
-                except BlockingIOError:
-                    # The listen backlog is full (a flood of connections): AF_UNIX says EAGAIN
-                    # at once rather than wait; keep trying until the deadline.
-                    if time.monotonic() + 0.005 >= deadline:
-                        raise TimeoutError from None
-                    time.sleep(0.005)
-            sock.sendall(data)
-            buf = bytearray()
-            while b"\n" not in buf:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0:
-                    raise TimeoutError
-                sock.settimeout(remaining)
-                chunk = sock.recv(65536)
-                if not chunk:
-                    raise ControlClientError(f"control socket {path}: connection closed without a reply")
-                buf += chunk
-                if len(buf) > max_reply_bytes:
-                    raise ControlClientError(f"control socket {path}: reply longer than {max_reply_bytes} bytes")
-        except TimeoutError:
-            raise TimeoutError(f"control socket {path}: no reply within {timeout:g} s") from None
-        except FileNotFoundError:
-            raise ControlClientError(errno.ENOENT, f"control socket {path} does not exist: is ddrt running?") from None
-        except ControlClientError:
-            raise
-        except OSError as exc:
-            raise ControlClientError(exc.errno, f"control socket {path}: {exc.strerror or exc}") from exc
-    line = bytes(buf[: buf.index(b"\n")])
-    try:
-        reply = json.loads(line, parse_constant=_reject_constant)
-    except ValueError as exc:
-        raise ControlClientError(f"control socket {path}: reply is not strict JSON: {exc}") from None
-    if not isinstance(reply, dict):
-        raise ControlClientError(f"control socket {path}: reply is not a JSON object: {line[:80]!r}")
-    return reply

@@ -1,0 +1,185 @@
+"""A `follow` from request to the loop's switch: the path is read and built in the worker
+process (ddrt/service/pathworker.py), the loop keeps ticking, and between two ticks, once
+the path is ready, the loop switches to it and the request's `Deferred` reply is sent.
+
+At most one follow waits for its path at a time: the daemon's `_pending`. Nothing here reads
+a file or builds anything on the loop thread: a follow costs the loop microseconds whatever
+it asks for. A stop, an estop or the daemon's exit cancels a follow still being prepared.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from array import array
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ddrt.path import PathError
+from ddrt.path.spec import speed_limits
+from ddrt.service.ctlqueue import Deferred
+from ddrt.service.pathjob import Build, BuildJob, build_path, describe
+from ddrt.service.timing import select_quantiles
+
+if TYPE_CHECKING:
+    from ddrt.service.daemon import Daemon
+
+log = logging.getLogger("ddrt.service.daemon")
+
+PREPARE_SAMPLES = 1 << 14  # lateness samples kept while a path is prepared (82 s at 200 Hz)
+
+
+class PendingFollow:
+    """A follow whose path is being built in the worker; the loop switches to it when ready."""
+
+    __slots__ = ("build", "pose", "reply", "what", "ticks", "late", "missed0")
+
+    def __init__(self, build: Build, pose: tuple[float, float, float] | None, reply: Deferred | None,
+                 what: str, missed0: int) -> None:
+        self.build = build
+        self.pose = pose
+        self.reply = reply
+        self.what = what
+        self.ticks = 0
+        self.late = array("d")  # each tick's lateness while the path is prepared (bounded)
+        self.missed0 = missed0
+
+    def report(self, missed: int) -> dict[str, Any]:
+        """What preparing the path cost the loop: the ticks it ran meanwhile, how late."""
+        _p50, p99, top = (select_quantiles(np.frombuffer(self.late, dtype=np.float64)) if self.late
+                          else (None, None, None))
+        return {"seconds": self.build.elapsed_s, "ticks": self.ticks, "missed_ticks": missed - self.missed0,
+                "late_p99_us": p99 * 1e6 if p99 is not None else None,
+                "late_max_us": top * 1e6 if top is not None else None}
+
+
+def start_follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
+    """Check the request, hand the path to the worker, answer when the loop has switched.
+
+    A follow while following (or while another one is being prepared) is refused, as
+    before: send stop first.
+    """
+    loop = d.loop
+    assert loop is not None
+    if loop.state in ("following", "stopping", "driving"):
+        return {"ok": False, "error": f"already {loop.state}: send stop first"}
+    if loop.state in ("estop", "fault"):
+        return {"ok": False, "error": f"in {loop.state}: send reset first"}
+    if d._pending is not None:
+        return {"ok": False, "error": f"busy: still preparing {d._pending.what} "
+                                      f"({d._pending.build.elapsed_s:.1f} s): send stop to cancel it"}
+    source: Any
+    if "path" in req:
+        source = req["path"]
+        if not isinstance(source, str):
+            return {"ok": False, "error": "follow: path: expected a file name"}
+        if not source or "\0" in source:
+            return {"ok": False, "error": f"follow: path: not a file name: {source!r}"}
+    elif "points" in req or "shape" in req:
+        # An inline spec: every key but the request's own goes to the path loader, which
+        # refuses unknown ones and clamps limits above the config's (reported below).
+        source = {k: v for k, v in req.items() if k not in ("cmd", "id", "pose")}
+        if "points" in source:
+            source.setdefault("speed", min(0.3, speed_limits(d.cfg).v_max))
+    else:
+        return {"ok": False, "error": "follow: give path (a file), points ([[x, y], ...]) or shape"}
+    pose = req.get("pose")
+    if pose is not None:
+        if (not isinstance(pose, list) or len(pose) != 3
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                           for v in pose)):
+            return {"ok": False, "error": "follow: pose: expected [x, y, theta]"}
+        pose = (float(pose[0]), float(pose[1]), float(pose[2]))
+    job = BuildJob(source, speed_limits(d.cfg), d.cfg.paths, where="request")
+    what = describe(source)
+    if d.paths is None:
+        # A Daemon that is not running (tests, tools): no loop to protect, build here.
+        build = Build(job)
+        try:
+            build._finish(path=build_path(job))
+        except (PathError, ValueError, TypeError, OSError) as exc:
+            return {"ok": False, "error": f"follow: {exc}"}
+        return switch(d, PendingFollow(build, pose, None, what, d.stats.missed), build)
+    build = d.paths.submit(job)
+    reply = Deferred()
+    d._pending = PendingFollow(build, pose, reply, what, d.stats.missed)
+    log.info("follow: preparing %s", what)
+    return reply
+
+
+def follow_step(d: Daemon, late_s: float) -> None:
+    """Between two ticks while a follow waits for its path: switch once it is ready."""
+    p = d._pending
+    assert p is not None
+    p.ticks += 1
+    if len(p.late) < PREPARE_SAMPLES:
+        p.late.append(late_s)
+    build = p.build
+    if not build.done:
+        return
+    d._pending = None
+    reply = switch(d, p, build) if not build.error else {"ok": False, "error": f"follow: {build.error}"}
+    reply["prepared"] = p.report(d.stats.missed)
+    if not reply["ok"]:
+        log.error("not following %s: %s", p.what, reply["error"])
+    if p.reply is not None:
+        p.reply.complete(reply)
+    elif build.error:
+        # The start path (--follow) does not load: a bad start-up input like a bad config.
+        d.error = f"{p.what}: {build.error}"
+        d.exit_code = 2
+        d.stop_requested = True
+
+
+def switch(d: Daemon, p: PendingFollow, build: Build) -> dict[str, Any]:
+    """The loop takes the built path (between two ticks); the last one is freed off the loop."""
+    loop = d.loop
+    assert loop is not None
+    path, build.path = build.path, None
+    old = getattr(loop, "path", None)
+    try:
+        if loop.state in ("following", "stopping", "driving"):
+            raise ValueError(f"already {loop.state}")
+        loop.follow(path, p.pose)
+    except (ValueError, RuntimeError) as exc:
+        if d.paths is not None:
+            d.paths.dispose(path)
+        return {"ok": False, "error": f"follow: {exc}"}
+    if old is not None and old is not path and d.paths is not None:
+        d.paths.dispose(old)  # the loop's last reference is gone: free it off the loop
+    del old
+    if d.viz is not None:
+        d.viz.path_started(path)
+    for note in path.warnings:
+        log.warning("follow: %s", note)
+    log.info("following %s: %.2f m, %.1f s (prepared in %.2f s)", p.what, path.length, path.duration,
+             build.elapsed_s)
+    reply: dict[str, Any] = {
+        "ok": True, "state": loop.state, "length_m": path.length, "duration_s": path.duration,
+    }
+    if path.warnings:
+        reply["warnings"] = list(path.warnings)
+    return reply
+
+
+def cancel_follow(d: Daemon, why: str) -> dict[str, Any]:
+    """A stop or estop (or the daemon's exit) cancels a follow still being prepared."""
+    p = d._pending
+    if p is None:
+        return {}
+    d._pending = None
+    if d.paths is not None:
+        d.paths.cancel(p.build)
+    log.info("follow of %s %s", p.what, why)
+    if p.reply is not None:
+        p.reply.complete({"ok": False, "error": f"follow: {why}"})
+    return {"cancelled": f"follow of {p.what}"}
+
+
+def preparing(d: Daemon) -> dict[str, Any] | None:
+    """The follow being prepared, for status (None when there is none)."""
+    p = d._pending
+    if p is None:
+        return None
+    return {"source": p.what, "phase": p.build.phase, "elapsed_s": p.build.elapsed_s}

@@ -1,0 +1,135 @@
+"""The control socket's command table: each command of ddrt/service/commands.py and the
+function that answers it, between two ticks, on the loop thread.
+
+`command_table` checks the table against the command list when this module is imported: a
+command without a handler, or a handler for a command the list does not have, stops the
+daemon before it starts (the server refuses unknown commands by that same list). A handler
+takes the daemon and the request and returns the reply, or a `Deferred` that the loop
+completes later (a follow, once its path is built).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping
+
+from ddrt.service.commands import COMMANDS
+from ddrt.service.ctlqueue import Deferred
+from ddrt.service.drivecmd import drive_fields
+from ddrt.service.follow import cancel_follow, start_follow
+
+if TYPE_CHECKING:
+    from ddrt.service.daemon import Daemon
+
+CommandHandler = Callable[["Daemon", dict[str, Any]], "dict[str, Any] | Deferred"]
+
+
+def command_table(handlers: Mapping[str, CommandHandler], commands: Iterable[str]) -> dict[str, CommandHandler]:
+    """`handlers` as the table, if it answers exactly `commands`; ValueError naming the gaps."""
+    names = set(commands)
+    missing = sorted(names - set(handlers))
+    extra = sorted(set(handlers) - names)
+    if missing or extra:
+        raise ValueError(f"control commands and handlers differ: without a handler {missing}, "
+                         f"handlers without a command {extra} (ddrt/service/commands.py)")
+    return dict(handlers)
+
+
+def drive(d: Daemon, v: object, omega: object, source: str) -> dict[str, Any]:
+    """Velocity mode (ddrt/core/drive.py): hold (v, omega) until the next drive, a stop
+    or daemon.command_timeout_s without one. The one entry for every caller (the control
+    socket, a teleop bridge), between two ticks; a refusal changes nothing."""
+    loop = d.loop
+    assert loop is not None
+    if d._pending is not None:
+        return {"ok": False, "error": f"drive: busy: preparing {d._pending.what} to follow: "
+                                      "send stop to cancel it"}
+    old = loop.path
+    try:
+        v_lim, w_lim, clamped = loop.drive(v, omega, source)
+    except (ValueError, RuntimeError) as exc:
+        return {"ok": False, "error": f"drive: {exc}"}
+    if old is not None and loop.path is None and d.paths is not None:
+        d.paths.dispose(old)  # the last path's samples are freed off the loop
+    reply: dict[str, Any] = {"ok": True, "state": loop.state, "v": v_lim, "omega": w_lim,
+                             "timeout_s": d.cfg.daemon.command_timeout_s}
+    if clamped:
+        reply["clamped"] = list(clamped)
+    return reply
+
+
+def vars_of(obj: Any) -> dict[str, Any]:
+    return {k: getattr(obj, k) for k in obj.__dataclass_fields__}
+
+
+def _status(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
+    return {"ok": True, "status": d.status()}
+
+
+def _gains(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
+    c = d.cfg.controller
+    return {"ok": True, "mode": c.mode, "outer": vars_of(c.outer), "inner": vars_of(c.inner),
+            "wheel_pid": vars_of(c.wheel_pid), "heading_gain": c.heading_gain}
+
+
+def _stop(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
+    loop = d.loop
+    assert loop is not None
+    cancelled = cancel_follow(d, "cancelled by stop")
+    loop.stop()
+    return {"ok": True, "state": loop.state, **cancelled}
+
+
+def _estop(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
+    loop = d.loop
+    assert loop is not None
+    loop.estop("estop requested over the control socket")
+    cancelled = cancel_follow(d, "cancelled by estop")
+    return {"ok": True, "state": loop.state, **cancelled}
+
+
+def _resume(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
+    # After a hold ended stopped (daemon.on_recover: wait): the path from where the robot
+    # stands, the schedule ramping up from rest.
+    loop = d.loop
+    assert loop is not None
+    try:
+        loop.resume()
+    except ValueError as exc:
+        return {"ok": False, "error": f"resume: {exc} (only a path interrupted by a hold, "
+                                      "with daemon.on_recover: wait, is resumed)"}
+    return {"ok": True, "state": loop.state}
+
+
+def _reset(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
+    loop = d.loop
+    assert loop is not None
+    loop.reset()
+    return {"ok": True, "state": loop.state}
+
+
+def _reload(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
+    return d.reload()
+
+
+def _drive(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
+    try:
+        v, omega = drive_fields(req)
+    except ValueError as exc:
+        return {"ok": False, "error": f"drive: {exc}"}
+    return drive(d, v, omega, "control socket")
+
+
+def _follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
+    loop = d.loop
+    assert loop is not None
+    if loop.state == "stopping":
+        return {"ok": False, "error": "follow: not started: the robot is still stopping on its last path; "
+                                      "send follow again once status says 'stopped' "
+                                      "(estop stops it at once)"}
+    return start_follow(d, req)
+
+
+HANDLERS = command_table({
+    "status": _status, "follow": _follow, "drive": _drive, "stop": _stop, "resume": _resume,
+    "estop": _estop, "reset": _reset, "gains": _gains, "reload": _reload,
+}, COMMANDS)
