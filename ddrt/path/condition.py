@@ -5,7 +5,7 @@ A CSV or `points:` list arrives as a polyline. Three kinds are told apart (`clas
 - **waypoints**: points far apart (median spacing at least `paths.waypoint_spacing_m`,
   0.25 m), or `tolerance` 0. Straight segments through them, a turn in place at corners
   sharper than `corner_pivot_deg` and a curvature-continuous blend at gentler ones: the
-  geometry of `_polyline` (ddrt/path/geometry.py), unchanged.
+  geometry of `polyline_geometry` (ddrt/path/geometry.py), unchanged.
 - **grid**: a grid planner's plan cell by cell (every step one cell along an axis or a
   diagonal of a common grid, a cell below the waypoint spacing). The plan says which cells
   are free, not that the robot must zig-zag through their centres: it is smoothed like
@@ -65,7 +65,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ddrt.path.geometry import _Geometry, _line, _Options, _Piece, _pivot, _polyline
+from ddrt.path.geometry import Geometry, GeometryOptions, Piece, line_piece, pivot_piece, polyline_geometry
 from ddrt.path.turnspeed import turn_caps
 
 __all__ = ["ConditionOptions", "Conditioning", "ConditionError", "EndPin", "classify", "condition_polyline",
@@ -480,7 +480,7 @@ def _refine_corner(p: np.ndarray, u: np.ndarray, k: int, scale: float, tol: floa
 
 @dataclass
 class _Leg:
-    pieces: list[_Piece]
+    pieces: list[Piece]
     theta0: float
     theta1: float
     sigma: np.ndarray  # progress (from the leg's start) of each of its points' feet
@@ -489,7 +489,7 @@ class _Leg:
     fits: int = 0
 
 
-def _short(p: np.ndarray, tol: float, opt: _Options) -> _Leg:
+def _short(p: np.ndarray, tol: float, opt: GeometryOptions) -> _Leg:
     """Few points (or a leg shorter than three knots): a straight line from the first to the
     last if every point is within `tol` of it, else straight segments through them all (as
     waypoints)."""
@@ -500,13 +500,13 @@ def _short(p: np.ndarray, tol: float, opt: _Options) -> _Leg:
         dev = np.hypot(*(p - (p[0] + t[:, None] * d)).T)
         if np.all(dev <= tol):
             heading = math.atan2(d[1], d[0])
-            return _Leg([_line(float(p[0, 0]), float(p[0, 1]), heading, length, opt.step)], heading, heading,
+            return _Leg([line_piece(float(p[0, 0]), float(p[0, 1]), heading, length, opt.step)], heading, heading,
                         t * length, dev)
     keep = np.concatenate(([True], np.hypot(*np.diff(p, axis=0).T) > 1e-9))
     q = p[keep]
     if len(q) < 2:
         raise ConditionError("a leg of the path has no length")
-    geo = _polyline([(float(a), float(b)) for a, b in q], [0.0] * len(q), opt)
+    geo = polyline_geometry([(float(a), float(b)) for a, b in q], [0.0] * len(q), opt)
     enter = np.asarray(geo.cap_sigma)[::2]
     sig = np.interp(np.cumsum(keep) - 1, np.arange(len(q)), enter)
     seg = np.diff(q, axis=0)
@@ -516,7 +516,7 @@ def _short(p: np.ndarray, tol: float, opt: _Options) -> _Leg:
 
 
 def _sample_piece(sp: _Spline, step: float, start: np.ndarray | None, end: np.ndarray | None,
-                  u0: float = 0.0, u1: float | None = None) -> tuple[_Piece, Callable[[np.ndarray], np.ndarray]]:
+                  u0: float = 0.0, u1: float | None = None) -> tuple[Piece, Callable[[np.ndarray], np.ndarray]]:
     """The spline on [u0, u1] sampled every `step` of its own arc length; also the map from u
     to that arc length."""
     u1 = sp.length if u1 is None else u1
@@ -544,7 +544,7 @@ def _sample_piece(sp: _Spline, step: float, start: np.ndarray | None, end: np.nd
         x[0], y[0] = start
     if end is not None:
         x[-1], y[-1] = end
-    return _Piece(s, x, y, th, kap), (lambda uu: np.interp(uu, uf, sf))
+    return Piece(s, x, y, th, kap), (lambda uu: np.interp(uu, uf, sf))
 
 
 SEARCH_POINTS = 4000  # a longer leg chooses its smoothing on windows of this many points
@@ -609,7 +609,7 @@ def _cell_distance(sp: _Spline, q: np.ndarray, uf: np.ndarray, axis: float) -> n
 
 
 def _fit_leg(p: np.ndarray, fix0: np.ndarray | None, fix1: np.ndarray | None, tol: float, noise: float,
-             knot: float, opt: _Options, names: Sequence[str], offset: int, where: str,
+             knot: float, opt: GeometryOptions, names: Sequence[str], offset: int, where: str,
              wrap: tuple[np.ndarray, np.ndarray] | None = None, cell_axis: float | None = None,
              slope0: np.ndarray | None = None, slope1: np.ndarray | None = None) -> _Leg:
     """One leg between corners (or the path's ends): the smoothing spline of the module doc.
@@ -742,7 +742,7 @@ def _loop_wrap(p: np.ndarray, knot: float, scale: float, threshold: float, tol: 
 
 
 
-def _cap_turns(geo: _Geometry, info: Conditioning) -> None:
+def _cap_turns(geo: Geometry, info: Conditioning) -> None:
     """A grid plan's turns at a bounded yaw acceleration (ddrt/path/turnspeed.py), merged with
     the points' own caps."""
     ts, tv = turn_caps(geo.pieces)
@@ -780,10 +780,10 @@ class EndPin:
     slope: np.ndarray | None = None
 
 
-def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, copt: ConditionOptions,
+def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: GeometryOptions, copt: ConditionOptions,
                        where: str, names: Sequence[str],
                        ends: tuple[EndPin | None, EndPin | None] = (None, None),
-                       noise: float | None = None) -> tuple[_Geometry, Conditioning]:
+                       noise: float | None = None) -> tuple[Geometry, Conditioning]:
     """The geometry of a polyline of distinct points (module docstring); caps per point or None.
 
     `noise`: the points' noise when it is known better than from these points alone (one run
@@ -799,7 +799,7 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, 
     mode, tol, cell = classify(p, copt)
     info = Conditioning(mode, tol, p, names, grid_cell_m=cell, spacing_m=spacing)
     if mode == WAYPOINTS:
-        geo = _polyline([(float(a), float(b)) for a, b in p], None if caps is None else caps.tolist(), opt)
+        geo = polyline_geometry([(float(a), float(b)) for a, b in p], None if caps is None else caps.tolist(), opt)
         if len(p) > 2:
             d = np.diff(p, axis=0)
             turn = _wrap(np.diff(np.arctan2(d[:, 1], d[:, 0])))
@@ -844,7 +844,7 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, 
     fixes: list[np.ndarray | None] = ([None if ends[0] is None else ends[0].point]
                                       + [_refine_corner(p, u, k, scale, tol) for k, _ in corners]
                                       + [None if ends[1] is None else ends[1].point])
-    pieces: list[_Piece] = []
+    pieces: list[Piece] = []
     sig_pts = np.zeros(len(p))
     devs = np.zeros(len(p))
     cap_s: list[float] = []
@@ -880,7 +880,7 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, 
             if abs(turn) > 1e-9:
                 c = fixes[j]
                 assert c is not None
-                pieces.append(_pivot(float(c[0]), float(c[1]), heading, turn, opt.pivot_radius, opt.step))
+                pieces.append(pivot_piece(float(c[0]), float(c[1]), heading, turn, opt.pivot_radius, opt.step))
                 kept.append(Corner(a, turn, float(c[0]), float(c[1])))
                 if caps is not None:
                     cap_s.append(sigma)
@@ -903,7 +903,7 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: _Options, 
             cap_s.extend((sigma + leg.sigma).tolist())
             cap_v.extend(caps[sl].tolist())
         sigma += sum(pc.length for pc in leg.pieces)
-    geo = _Geometry(pieces)
+    geo = Geometry(pieces)
     if caps is not None:
         cs = np.maximum.accumulate(np.asarray(cap_s))
         geo.cap_sigma = cs

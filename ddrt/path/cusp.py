@@ -54,7 +54,7 @@ import numpy as np
 
 from dataclasses import dataclass
 
-from ddrt.path.geometry import _Piece
+from ddrt.path.geometry import Piece
 
 __all__ = ["CUSP_BLEND_MAX_RAD", "CUSP_BLEND_M", "SharedCusp", "blend_offset", "bend_end", "bend_start",
            "estimate_cusp"]
@@ -65,7 +65,7 @@ CUSP_BLEND_MAX_RAD = math.radians(12.0)
 CUSP_BLEND_M = 0.25
 
 
-def blend_length(piece: _Piece) -> float:
+def blend_length(piece: Piece) -> float:
     return min(CUSP_BLEND_M, 0.5 * piece.length)
 
 
@@ -74,7 +74,7 @@ def blend_offset(length: float, beta: float) -> float:
     return 4.0 / 27.0 * length * abs(math.tan(beta))
 
 
-def _bend(pc: _Piece, d: np.ndarray, sign: float, beta: float, length: float) -> None:
+def _bend(pc: Piece, d: np.ndarray, sign: float, beta: float, length: float) -> None:
     """Offset the samples at distance d (from the cusp) along the travel normal; `sign` is ds/dd
     (-1 at a run's end, +1 at its start), so the tangent there turns by beta."""
     m = d < length
@@ -98,12 +98,12 @@ def _bend(pc: _Piece, d: np.ndarray, sign: float, beta: float, length: float) ->
     pc.kappa[m] += (-1.0 if pc.reverse else 1.0) * d2e
 
 
-def bend_end(pc: _Piece, beta: float, length: float) -> None:
+def bend_end(pc: Piece, beta: float, length: float) -> None:
     """Turn the piece's last tangent by beta (rad), its end point fixed."""
     _bend(pc, pc.s[-1] - pc.s, -1.0, beta, length)
 
 
-def bend_start(pc: _Piece, beta: float, length: float) -> None:
+def bend_start(pc: Piece, beta: float, length: float) -> None:
     """Turn the piece's first tangent by beta (rad), its start point fixed."""
     _bend(pc, pc.s - pc.s[0], 1.0, beta, length)
 

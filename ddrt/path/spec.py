@@ -30,7 +30,7 @@ from ddrt.core.wrap import wrap_angle
 from ddrt.path.cusp import (
     CUSP_BLEND_MAX_RAD, SharedCusp, bend_end, bend_start, blend_length, blend_offset, estimate_cusp,
 )
-from ddrt.path.geometry import _Geometry, _Options, _Piece, _pivot, reversed_piece
+from ddrt.path.geometry import Geometry, GeometryOptions, Piece, pivot_piece, reversed_piece
 from ddrt.path.profile import SpeedLimits
 from ddrt.path.sampled import Path
 from ddrt.path.shapes import (
@@ -40,7 +40,7 @@ from ddrt.path.shapes import (
 if TYPE_CHECKING:
     from ddrt.config import Config
 
-__all__ = ["PathError", "load_path", "path_source", "resolve_path", "speed_limits"]
+__all__ = ["PathError", "load_path", "path_source", "read_points_csv", "resolve_path", "speed_limits"]
 
 
 class PathError(ValueError):
@@ -97,7 +97,8 @@ def _merge_points(rows: list[tuple[float, float, float]],
     return out, kept
 
 
-def _read_csv(filename: str, paths: PathsConfig) -> tuple[list[tuple[float, float, float]], bool, list[str]]:
+def read_points_csv(filename: str,
+                    paths: PathsConfig) -> tuple[list[tuple[float, float, float]], bool, list[str]]:
     """Waypoints (x, y, v cap or inf) from a CSV with header x,y or x,y,v; second item: has v;
     third: each waypoint's line ("line 7")."""
     # At most ~128 bytes a waypoint: the file cannot be larger than its waypoints need.
@@ -149,11 +150,11 @@ def _condition_options(paths: PathsConfig, tolerance: float | None) -> Condition
                             tolerance is not None)
 
 
-def _waypoint_geometry(rows: list[tuple[float, float, float]], has_v: bool, where: str, opt: _Options,
+def _waypoint_geometry(rows: list[tuple[float, float, float]], has_v: bool, where: str, opt: GeometryOptions,
                        paths: PathsConfig, names: list[str], tolerance: float | None = None,
                        budget_where: str | None = None,
                        tries: Sequence[tuple[EndPin | None, EndPin | None]] = (),
-                       noise: float | None = None) -> tuple[_Geometry, Conditioning]:
+                       noise: float | None = None) -> tuple[Geometry, Conditioning]:
     """A polyline's geometry: waypoints as they are, samples of a curve smoothed (condition.py).
     Errors about one point name `where` and the point's name; about the whole, `budget_where`.
     `tries`: a run's start and end pins (condition.EndPin: a cusp shared with the next run,
@@ -211,8 +212,8 @@ def _direction_runs(pts: list[tuple[float, float, float]]) -> list[tuple[int, in
 
 
 def _reversing_geometry(pts: list[tuple[float, float, float]], names: list[str], runs: list[tuple[int, int, float]],
-                        has_v: bool, where: str, opt: _Options, paths: PathsConfig, tolerance: float | None,
-                        budget_where: str | None) -> tuple[_Geometry, Conditioning]:
+                        has_v: bool, where: str, opt: GeometryOptions, paths: PathsConfig, tolerance: float | None,
+                        budget_where: str | None) -> tuple[Geometry, Conditioning]:
     """A polyline with runs driven in reverse: each run read as its own polyline (so a reversal
     inside a run is still refused naming its point), its pieces turned round, joined at each
     cusp. Where both runs are smoothed samples the cusp is estimated once from both runs'
@@ -221,7 +222,7 @@ def _reversing_geometry(pts: list[tuple[float, float, float]], names: list[str],
     noise: each is smoothed for the noise pooled over all (a short run's own estimate is
     unsure, and too low a one leaves noise in its curvature). Speed caps are |v|."""
     shared, noise, tols = _shared_cusps(pts, runs, paths, tolerance)
-    pieces: list[_Piece] = []
+    pieces: list[Piece] = []
     cap_s: list[np.ndarray] = []
     cap_v: list[np.ndarray] = []
     conds: list[tuple[int, Conditioning]] = []
@@ -268,7 +269,7 @@ def _reversing_geometry(pts: list[tuple[float, float, float]], names: list[str],
             if abs(turn) > CUSP_TURN_TOL_RAD and _blend_cusp(pieces[-1], run[0], turn, conds[-1][1], cond):
                 turn = 0.0
             if abs(turn) > CUSP_TURN_TOL_RAD:
-                pieces.append(_pivot(float(run[0].x[0]), float(run[0].y[0]), float(pieces[-1].theta[-1]), turn,
+                pieces.append(pivot_piece(float(run[0].x[0]), float(run[0].y[0]), float(pieces[-1].theta[-1]), turn,
                                      opt.pivot_radius, opt.step))
                 sigma += pieces[-1].length
         if geo.cap_sigma is not None and geo.cap_value is not None:
@@ -277,7 +278,7 @@ def _reversing_geometry(pts: list[tuple[float, float, float]], names: list[str],
         pieces += run
         sigma += sum(pc.length for pc in run)
         conds.append((a, cond))
-    out = _Geometry(pieces)
+    out = Geometry(pieces)
     if cap_s:
         out.cap_sigma = np.maximum.accumulate(np.concatenate(cap_s))
         out.cap_value = np.concatenate(cap_v)
@@ -317,7 +318,7 @@ def _shared_cusps(pts: list[tuple[float, float, float]], runs: list[tuple[int, i
     return out, noise, tols
 
 
-def _blend_cusp(end: _Piece, start: _Piece, turn: float, before: Conditioning, after: Conditioning) -> bool:
+def _blend_cusp(end: Piece, start: Piece, turn: float, before: Conditioning, after: Conditioning) -> bool:
     """Bend two smoothed runs onto one heading at their cusp when the difference is within what
     their points allow (ddrt/path/cusp.py); False (nothing changed) otherwise."""
     if before.mode == WAYPOINTS or after.mode == WAYPOINTS or abs(turn) > CUSP_BLEND_MAX_RAD:
@@ -350,15 +351,15 @@ def _joined_conditioning(pts: list[tuple[float, float, float]], names: list[str]
     return out
 
 
-def _check_samples(estimate: float, where: str, paths: PathsConfig, opt: _Options) -> None:
+def _check_samples(estimate: float, where: str, paths: PathsConfig, opt: GeometryOptions) -> None:
     if not estimate <= paths.max_samples:
         raise PathError(f"{where}: the path would have about {estimate:.3g} samples at {opt.step:g} m "
                         f"(paths.sample_step_m), more than paths.max_samples = {paths.max_samples}")
 
 
-def _options(spec: PathCommon, paths: PathsConfig) -> _Options:
+def _options(spec: PathCommon, paths: PathsConfig) -> GeometryOptions:
     """Sampling options: the config's paths: section, with the spec's own keys first."""
-    return _Options(
+    return GeometryOptions(
         paths.sample_step_m,
         paths.pivot_radius_m if spec.pivot_radius is None else spec.pivot_radius,
         paths.corner_pivot_deg if spec.corner_pivot_deg is None else spec.corner_pivot_deg,
@@ -454,7 +455,7 @@ def _from_mapping(m: Any, limits: SpeedLimits, where: str, base_dir: str | None,
         if base_dir is not None and not os.path.isabs(fname):
             fname = os.path.join(base_dir, fname)
         try:
-            rows, has_v, lines = _read_csv(fname, paths)
+            rows, has_v, lines = read_points_csv(fname, paths)
             if spec.reverse:
                 rows = [(x, y, -v) for x, y, v in rows]
             geo, cond = _waypoint_geometry(rows, has_v, fname, opt, paths, lines, spec.tolerance)
@@ -476,7 +477,7 @@ def _from_mapping(m: Any, limits: SpeedLimits, where: str, base_dir: str | None,
     return _finish(geo, lim, v_cap, opt, spec.pose(), where, paths, notes, cond)
 
 
-def _finish(geo: _Geometry, lim: SpeedLimits, v_cap: float, opt: _Options,
+def _finish(geo: Geometry, lim: SpeedLimits, v_cap: float, opt: GeometryOptions,
             start: tuple[float, float, float] | None, where: str, paths: PathsConfig, notes: list[str],
             cond: Conditioning | None = None) -> Path:
     """Check the sampled geometry against the bounds, then profile it into a Path."""
@@ -522,10 +523,10 @@ def load_path(source: str | os.PathLike[str] | Mapping[str, Any], limits: SpeedL
     fname = os.fspath(source)
     low = fname.lower()
     if low.endswith(".csv"):
-        rows, has_v, lines = _read_csv(fname, paths)
+        rows, has_v, lines = read_points_csv(fname, paths)
         notes: list[str] = []
         _note_point_caps([r[2] for r in rows], limits.v_max, fname, notes)
-        opt = _Options(paths.sample_step_m, paths.pivot_radius_m, paths.corner_pivot_deg, paths.blend_max_m)
+        opt = GeometryOptions(paths.sample_step_m, paths.pivot_radius_m, paths.corner_pivot_deg, paths.blend_max_m)
         geo, cond = _waypoint_geometry(rows, has_v, fname, opt, paths, lines)
         return _finish(geo, limits, limits.v_max, opt, None, fname, paths, notes, cond)
     if low.endswith((".yaml", ".yml")):
