@@ -23,7 +23,7 @@ CUSP_BLEND_M behind the cusp ((X^T X)^-1 of the shared offset and slope). None i
 counts, or either run has too few points.
 
 Each run is then fitted with its end held at that point and its end tangent on that heading
-(condition.EndPin), so the runs meet on one heading, and the cusp sample's distance from the
+(smoothing.EndPin), so the runs meet on one heading, and the cusp sample's distance from the
 point counts in the reported deviation like any other point's. The loader (spec.py) shares
 no cusp whose point lies farther than the tolerance from the cusp sample.
 

@@ -24,7 +24,7 @@ from ddrt.config.schema import ConfigError, build
 from ddrt.config.sections import PathsConfig
 from ddrt.config.yamlio import read_text, read_yaml, shorten
 from ddrt.path.condition import (
-    WAYPOINTS, ConditionError, ConditionOptions, Conditioning, EndPin, classify, condition_polyline, point_noise,
+    WAYPOINTS, ConditionError, ConditionOptions, Conditioning, classify, condition_polyline, point_noise,
 )
 from ddrt.core.wrap import wrap_angle
 from ddrt.path.cusp import (
@@ -36,6 +36,7 @@ from ddrt.path.sampled import Path
 from ddrt.path.shapes import (
     KINDS, LIMIT_KEYS, SHAPES, FileSpec, PathCommon, PointsSpec, RectangleSpec, polyline_samples,
 )
+from ddrt.path.smoothing import EndPin
 
 if TYPE_CHECKING:
     from ddrt.config import Config
@@ -157,7 +158,7 @@ def _waypoint_geometry(rows: list[tuple[float, float, float]], has_v: bool, wher
                        noise: float | None = None) -> tuple[Geometry, Conditioning]:
     """A polyline's geometry: waypoints as they are, samples of a curve smoothed (condition.py).
     Errors about one point name `where` and the point's name; about the whole, `budget_where`.
-    `tries`: a run's start and end pins (condition.EndPin: a cusp shared with the next run,
+    `tries`: a run's start and end pins (smoothing.EndPin: a cusp shared with the next run,
     or the point where the other run meets it), tried in order; if no fit can hold them
     within the tolerance, the run is fitted free (`Conditioning.extra["ends"]` says which
     pins were held, `extra["pinned"]` which ends). `noise`: the points' noise if known
