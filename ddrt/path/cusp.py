@@ -24,13 +24,13 @@ counts, or either run has too few points.
 
 Each run is then fitted with its end held at that point and its end tangent on that heading
 (smoothing.EndPin), so the runs meet on one heading, and the cusp sample's distance from the
-point counts in the reported deviation like any other point's. The loader (spec.py) shares
+point counts in the reported deviation like any other point's. The assembly (reversal.py) shares
 no cusp whose point lies farther than the tolerance from the cusp sample.
 
 Where a cusp is not shared (a run is waypoints or has too few points, no window's fit
 matches the noise, or a pinned fit cannot keep its points within the tolerance) the runs
 still meet at one point, held by both fits: the cusp sample (or the previous run's end), the
-tangents free (spec.py). Only if no fit can hold that point is a run fitted free and moved
+tangents free (reversal.py). Only if no fit can hold that point is a run fitted free and moved
 onto the previous run's end, the move added to its deviation.
 
 Bending. Where the two runs' tangents at the cusp differ (each fitted on its own end), a
