@@ -30,9 +30,9 @@ point to the reference (for a grid plan, along the grid's axes: at most half a c
 the reference crosses every planned cell).
 
 Reversals: in samples a corner that turns by 150 degrees or more is a cusp (the recording
-drove back the way it came). Unless its points are marked as reached in reverse (reversal.py), it is refused naming the
-line; a turn in place there is a different motion, which the file would have to say
-(split it into two paths there).
+drove back the way it came). Unless its points are marked as reached in reverse
+(reversal.py), it is refused naming the line; a turn in place there is a different motion,
+which the file would have to say (split it into two paths there).
 """
 
 from __future__ import annotations
