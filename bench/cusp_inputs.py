@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ddrt.path.geometry import _Geometry, _Piece, reversed_piece
+from ddrt.path.geometry import Geometry, Piece, reversed_piece
 
 __all__ = ["Leg", "Manoeuvre", "three_point_turn", "parallel_park", "zig_zag", "random_manoeuvre"]
 
@@ -56,7 +56,7 @@ class Manoeuvre:
     def xy(self) -> np.ndarray:
         return np.column_stack((self.x, self.y))
 
-    def exact_path_geometry(self) -> _Geometry:
+    def exact_path_geometry(self) -> Geometry:
         """The curve as pieces of the loader's convention (reversed legs: heading + pi of travel)."""
         pieces = []
         for k, d in enumerate(self.directions):
@@ -65,9 +65,9 @@ class Manoeuvre:
                 sel = np.concatenate(([sel[0] - 1], sel))  # share the cusp sample
             s = self.s[sel] - self.s[sel[0]]
             travel = self.theta[sel] + (0.0 if d > 0 else math.pi)
-            pc = _Piece(s, self.x[sel], self.y[sel], travel, self.c[sel])
+            pc = Piece(s, self.x[sel], self.y[sel], travel, self.c[sel])
             pieces.append(reversed_piece(pc) if d < 0 else pc)
-        return _Geometry(pieces)
+        return Geometry(pieces)
 
     def recording(self, rng: np.random.Generator, speed: float, spacing: tuple[float, float] = (0.01, 0.01),
                   noise: float = 0.0015) -> tuple[np.ndarray, np.ndarray]:

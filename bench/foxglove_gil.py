@@ -48,7 +48,7 @@ def _schedstat() -> tuple[int, int]:
 def probe(enabled: bool, duration: float, normal_publisher: bool = False) -> dict[str, list[tuple[float, ...]]]:
     from ddrt import cli
     from ddrt.runtime import rt
-from ddrt.service import timing
+    from ddrt.service import timing
     from ddrt.viz import service
 
     if normal_publisher:

@@ -47,7 +47,7 @@ import numpy as np
 
 from bench.cusp_inputs import Manoeuvre, parallel_park, three_point_turn
 from ddrt.config import load_config
-from ddrt.path.geometry import _Geometry, _Piece
+from ddrt.path.geometry import Geometry, Piece
 from ddrt.path.sampled import Path, distances_to_polyline
 from ddrt.path.spec import load_path, speed_limits
 from ddrt.simrun.runner import run_sim
@@ -94,9 +94,9 @@ def _curve_path(s: np.ndarray, x: np.ndarray, y: np.ndarray, th: np.ndarray, k: 
     """The exact curve as a Path at configs/sim.yaml's limits and `speed` (for its duration)."""
     n = max(2, int(math.ceil(s[-1] / step)))
     ss = np.linspace(0.0, s[-1], n + 1)
-    piece = _Piece(ss, np.interp(ss, s, x), np.interp(ss, s, y), np.interp(ss, s, th), np.interp(ss, s, k))
+    piece = Piece(ss, np.interp(ss, s, x), np.interp(ss, s, y), np.interp(ss, s, th), np.interp(ss, s, k))
     cfg = load_config(SIM_CONFIG)
-    return Path(_Geometry([piece]), speed_limits(cfg), v_cap=speed, pivot_radius=cfg.paths.pivot_radius_m)
+    return Path(Geometry([piece]), speed_limits(cfg), v_cap=speed, pivot_radius=cfg.paths.pivot_radius_m)
 
 
 def circle_recording(seed: int = 1, radius: float = 1.2, spacing: float = 0.01, noise: float = 0.001) -> Case:
@@ -427,7 +427,7 @@ def measure_case(case: Case, seed: int = 1, directory: str | None = None, exact:
 def measure_long(sizes: Sequence[int] = (10_000, 100_000), repeats: int = 2) -> list[LongRow]:
     """CPU time of load_path on a long recording's CSV: reading, then conditioning and profiling."""
     from ddrt.config.sections import PathsConfig
-    from ddrt.path.spec import _read_csv
+    from ddrt.path.spec import read_points_csv
 
     cfg = load_config(SIM_CONFIG)
     lim = speed_limits(cfg)
@@ -441,7 +441,7 @@ def measure_long(sizes: Sequence[int] = (10_000, 100_000), repeats: int = 2) -> 
             path = None
             for _ in range(repeats):
                 t0 = time.process_time()
-                _read_csv(str(fname), paths)
+                read_points_csv(str(fname), paths)
                 best_read = min(best_read, time.process_time() - t0)
                 t0 = time.process_time()
                 path = load_path(str(fname), lim, paths=paths)

@@ -19,9 +19,10 @@ from ddrt.config import load as config_mod
 from ddrt.config import (
     AdaptationConfig, BridgeConfig, Config, ControllerConfig, DaemonConfig, EstimatorConfig, GyroTruth,
     HalConfig, ImuConfig, LimitsConfig, OuterGains, PathsConfig, PidGains, PursuitConfig, PwmSysfsConfig,
-    SensorsConfig, SimConfig, SlipConfig, WheelPidGains, config_from_mapping, load_config,
+    SensorsConfig, SimConfig, SlipConfig, config_from_mapping, load_config,
     with_overrides,
 )
+from ddrt.config.sections import INNER_PID, WHEEL_PID
 from ddrt.params.robot import RobotParams
 from ddrt.params.motor import MotorParams
 from ddrt.config.schema import ConfigError
@@ -353,7 +354,7 @@ def _schema_keys() -> dict[str, tuple[type, dataclasses.Field]]:
 def test_schema_walk_reaches_every_section_class() -> None:
     reached = {cls for cls, _ in _schema_keys().values()}
     for cls in (SimConfig, SlipConfig, GyroTruth, SensorsConfig, HalConfig, ImuConfig, BridgeConfig,
-                PwmSysfsConfig, ControllerConfig, OuterGains, PidGains, WheelPidGains, AdaptationConfig,
+                PwmSysfsConfig, ControllerConfig, OuterGains, PidGains, AdaptationConfig,
                 EstimatorConfig, PursuitConfig, LimitsConfig, DaemonConfig, PathsConfig, RobotParams,
                 MotorParams):
         assert cls in reached, cls.__name__
@@ -374,12 +375,12 @@ def test_docs_cover_every_config_field() -> None:
 
 def test_docs_cover_every_top_level_key() -> None:
     documented = {r[0] for r in _doc_rows()}
-    missing = [k for k in config_mod._TOP_KEYS if k not in documented]
+    missing = [k for k in config_mod.TOP_KEYS if k not in documented]
     assert not missing, f"docs/config.md lacks: {missing}"
 
 
 def test_docs_document_no_key_that_does_not_exist() -> None:
-    known = (set(_schema_keys()) | set(config_mod._TOP_KEYS) | set(_CONFIG_FIELD_KEY.values())
+    known = (set(_schema_keys()) | set(config_mod.TOP_KEYS) | set(_CONFIG_FIELD_KEY.values())
              | {"plant.motor_l", "plant.motor_r"})
     stale = [k for k in (r[0] for r in _doc_rows()) if k not in known]
     assert not stale, f"docs/config.md documents unknown keys: {stale}"
@@ -390,15 +391,33 @@ def test_every_row_has_unit_default_and_meaning() -> None:
         assert unit and default and len(meaning) > 10, key
 
 
+def _key_default(keys: dict[str, tuple[type, dataclasses.Field]], key: str) -> Any:
+    """The default a key takes, as the walker gives it: the value in its enclosing section's
+    default (one class serves controller.inner and controller.wheel_pid with two default
+    sets), else its field's own; MISSING if it has none."""
+    f = keys[key][1]
+    parent = key.rpartition(".")[0]
+    if parent in keys:
+        section = _key_default(keys, parent)
+        if dataclasses.is_dataclass(section):
+            return getattr(section, f.name)
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    return dataclasses.MISSING
+
+
 def test_docs_defaults_match_the_dataclasses() -> None:
     rows = {r[0]: r for r in _doc_rows()}
     checked = 0
-    for key, (_, f) in _schema_keys().items():
+    keys = _schema_keys()
+    for key in keys:
         default_cell = rows[key][2]
-        if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+        value = _key_default(keys, key)
+        if value is dataclasses.MISSING:
             assert default_cell == "required", key
             continue
-        value = f.default if f.default is not dataclasses.MISSING else f.default_factory()
         if dataclasses.is_dataclass(value):
             continue  # a sub-section: its own keys carry the defaults
         assert default_cell.startswith("`") and default_cell.endswith("`"), (key, default_cell)
@@ -410,6 +429,20 @@ def test_docs_defaults_match_the_dataclasses() -> None:
             (key, doc_value, value)
         checked += 1
     assert checked > 60
+
+
+def test_a_pid_section_missing_keys_take_that_sections_defaults() -> None:
+    """controller.inner and controller.wheel_pid are one class (PidGains) with two default
+    sets: a key one of them leaves out takes its own section's default, not the other's."""
+    data = _minimal()
+    data["controller"] = {"inner": {"kp": 30.0}, "wheel_pid": {"kp": 0.2}}
+    c = config_from_mapping(data).controller
+    assert c.inner == dataclasses.replace(INNER_PID, kp=30.0)
+    assert c.wheel_pid == dataclasses.replace(WHEEL_PID, kp=0.2)
+    assert config_from_mapping(_minimal()).controller.wheel_pid == WHEEL_PID
+    data["controller"] = {"wheel_pid": {"integrator_limit": 0.0}}
+    with pytest.raises(ConfigError, match=r"controller\.wheel_pid\.integrator_limit: must be > 0"):
+        config_from_mapping(data)
 
 
 def test_docs_cover_the_real_backends_keys() -> None:

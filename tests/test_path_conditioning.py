@@ -16,7 +16,7 @@ from ddrt.config import load_config
 from ddrt.config.sections import PathsConfig
 from ddrt.path.report import pivot_runs
 from ddrt.path import PathError, load_path
-from ddrt.path.geometry import _Options, _polyline
+from ddrt.path.geometry import GeometryOptions, polyline_geometry
 from ddrt.path.report import LABELS, active_limits, path_report
 from ddrt.path.sampled import Path
 from ddrt.path.spec import resolve_path, speed_limits
@@ -201,8 +201,8 @@ def test_sparse_waypoints_and_rectangles_are_built_as_before() -> None:
     assert path.conditioning.mode == "waypoints" and path.deviation_m == 0.0
     data = np.loadtxt(f, delimiter=",", skiprows=3)
     paths = PathsConfig()
-    opt = _Options(paths.sample_step_m, paths.pivot_radius_m, paths.corner_pivot_deg, paths.blend_max_m)
-    legacy = Path(_polyline([tuple(p) for p in data[:, :2]], data[:, 2].tolist(), opt), LIM, v_cap=LIM.v_max,
+    opt = GeometryOptions(paths.sample_step_m, paths.pivot_radius_m, paths.corner_pivot_deg, paths.blend_max_m)
+    legacy = Path(polyline_geometry([tuple(p) for p in data[:, :2]], data[:, 2].tolist(), opt), LIM, v_cap=LIM.v_max,
                   pivot_radius=opt.pivot_radius)
     for key in ("sigma", "x", "y", "theta", "kappa", "u", "t"):
         assert np.array_equal(path.arrays()[key], legacy.arrays()[key]), key

@@ -7,13 +7,13 @@ from ddrt.config.schema import ConfigError
 from ddrt.config.sections import (
     AdaptationConfig, BridgeConfig, Config, ControllerConfig, DaemonConfig, DriveConfig, EstimatorConfig, GyroTruth,
     HalConfig, ImuConfig, LimitsConfig, OuterGains, PathsConfig, PidGains, PursuitConfig, PwmSysfsConfig,
-    SensorsConfig, SimConfig, SlipConfig, WheelPidGains,
+    SensorsConfig, SimConfig, SlipConfig,
 )
 
 __all__ = [
     "AdaptationConfig", "BridgeConfig", "Config", "ConfigError", "ControllerConfig", "DaemonConfig", "DriveConfig",
     "EstimatorConfig", "GyroTruth", "HalConfig", "ImuConfig", "LimitsConfig", "OuterGains", "PathsConfig",
     "PidGains", "PursuitConfig", "PwmSysfsConfig", "SensorsConfig", "SimConfig",
-    "SlipConfig", "WheelPidGains", "config_from_mapping",
+    "SlipConfig", "config_from_mapping",
     "load_config", "with_overrides",
 ]

@@ -22,7 +22,8 @@ from ddrt.params.motor import MotorParams
 
 # --------------------------------------------------------------------------- loading
 
-_TOP_KEYS = ("extends", "robot", "plant", "sim", "sensors", "hal", "controller", "estimator",
+# The keys a config file may hold at its top level (docs/config.md documents each).
+TOP_KEYS = ("extends", "robot", "plant", "sim", "sensors", "hal", "controller", "estimator",
              "pursuit", "limits", "daemon", "drive", "paths", "path", "start", "name", "description")
 
 
@@ -95,9 +96,9 @@ def config_from_mapping(data: Mapping[str, Any], source: str = "<memory>", base_
 def _config_from_mapping(data: Mapping[str, Any], source: str, base_dir: str) -> Config:
     # The top level is not one dataclass (plant: merges over robot:, extends: and name: are
     # the file's own), so its keys are checked here; every section below goes to the walker.
-    unknown = sorted(k if isinstance(k, str) else shorten(k) for k in data if k not in _TOP_KEYS)
+    unknown = sorted(k if isinstance(k, str) else shorten(k) for k in data if k not in TOP_KEYS)
     if unknown:
-        raise ConfigError(f"{unknown[0]}: unknown section (known: {', '.join(_TOP_KEYS)})")
+        raise ConfigError(f"{unknown[0]}: unknown section (known: {', '.join(TOP_KEYS)})")
     if "robot" not in data:
         raise ConfigError("robot: missing (required): the controller's robot parameters")
     robot_section = data["robot"]

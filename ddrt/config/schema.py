@@ -49,7 +49,8 @@ def convert(tp: Any, value: Any, where: str) -> Any:
     return _convert(tp, value, where)
 
 
-def _convert(tp: Any, value: Any, where: str) -> Any:
+def _convert(tp: Any, value: Any, where: str, default: Any = None) -> Any:
+    """`default`: the field's default; a section's missing keys take its values."""
     optional, inner = _is_optional(tp)
     if value is None:
         if optional:
@@ -58,7 +59,7 @@ def _convert(tp: Any, value: Any, where: str) -> Any:
     tp = inner
     origin = get_origin(tp)
     if dataclasses.is_dataclass(tp):
-        return build(tp, value, where)
+        return build(tp, value, where, base=default if isinstance(default, tp) else None)
     if tp is Any:
         return value
     if origin is Literal:
@@ -113,10 +114,23 @@ def _convert(tp: Any, value: Any, where: str) -> Any:
     raise TypeError(f"schema: unsupported type {tp!r} at {where}")
 
 
-def build(cls: type[T], mapping: Any, where: str = "", *, ignore: Collection[str] = ()) -> T:
+def _field_default(f: dataclasses.Field, base: Any) -> Any:
+    """What field `f` is when its key is missing: `base`'s value, else its own default (None if it has none)."""
+    if base is not None:
+        return getattr(base, f.name)
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    return None
+
+
+def build(cls: type[T], mapping: Any, where: str = "", *, ignore: Collection[str] = (), base: T | None = None) -> T:
     """Build dataclass `cls` from `mapping`, rejecting unknown keys and bad values.
 
-    Missing keys take the field's default; a field without default is required. After the
+    Missing keys take the field's default; a field without default is required. A section
+    inside a section starts from its field's default instead (`base`: one class, such as
+    PidGains, serves two sections with two default sets), so its missing keys take that. After the
     fields are set, a `validate(where)` method on the class (if any) checks cross-field rules.
     Keys in `ignore` are allowed in `mapping` and left to the caller (e.g. robot.motor). A
     class may name keys it no longer takes in `MOVED: ClassVar[dict[str, str]]`, key -> what
@@ -142,7 +156,9 @@ def build(cls: type[T], mapping: Any, where: str = "", *, ignore: Collection[str
             continue
         key = _join(where, f.name)
         if f.name in mapping:
-            kwargs[f.name] = _convert(hints[f.name], mapping[f.name], key)
+            kwargs[f.name] = _convert(hints[f.name], mapping[f.name], key, _field_default(f, base))
+        elif base is not None:
+            kwargs[f.name] = getattr(base, f.name)
         elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
             missing.append(key)
     if missing:

@@ -208,30 +208,24 @@ class OuterGains:
 
 @dataclass(frozen=True)
 class PidGains:
-    """PID on a velocity error. Units follow the loop: kp (1/s), ki (1/s^2), kd (-)."""
+    """A PID on a speed error: kp, ki, kd and the clamp of the integrated error. Two sections take
+    it with their own defaults and units (INNER_PID, WHEEL_PID): a key missing from one takes
+    that section's default (the walker builds a section over its field's default)."""
 
-    kp: float = 20.0
-    ki: float = 100.0
-    kd: float = 0.0
-    integrator_limit: float = 0.2
-
-    def validate(self, where: str) -> None:
-        non_negative(where, kp=self.kp, ki=self.ki, kd=self.kd)
-        positive(where, integrator_limit=self.integrator_limit)
-
-
-@dataclass(frozen=True)
-class WheelPidGains:
-    """Per-wheel speed PID of the kinematic baseline: duty per rad/s of wheel-speed error."""
-
-    kp: float = 0.15
-    ki: float = 1.5
-    kd: float = 0.0
-    integrator_limit: float = 0.3
+    kp: float
+    ki: float
+    kd: float
+    integrator_limit: float
 
     def validate(self, where: str) -> None:
         non_negative(where, kp=self.kp, ki=self.ki, kd=self.kd)
         positive(where, integrator_limit=self.integrator_limit)
+
+
+# controller.inner: PID on a velocity error. Units follow the loop: kp (1/s), ki (1/s^2), kd (-).
+INNER_PID = PidGains(kp=20.0, ki=100.0, kd=0.0, integrator_limit=0.2)
+# controller.wheel_pid: the kinematic baseline's per-wheel speed PID: duty per rad/s of wheel-speed error.
+WHEEL_PID = PidGains(kp=0.15, ki=1.5, kd=0.0, integrator_limit=0.3)
 
 
 @dataclass(frozen=True)
@@ -270,8 +264,8 @@ class ControllerConfig:
     mode: Literal["dynamic", "kinematic", "seed"] = restart("dynamic")
     rate_hz: float = restart(200.0)
     outer: OuterGains = field(default_factory=OuterGains)
-    inner: PidGains = field(default_factory=PidGains)
-    wheel_pid: WheelPidGains = field(default_factory=WheelPidGains)
+    inner: PidGains = INNER_PID
+    wheel_pid: PidGains = WHEEL_PID
     heading_gain: float = 8.0
     adaptation: AdaptationConfig = restart(factory=AdaptationConfig)  # the adapter is built at start
 

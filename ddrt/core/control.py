@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from ddrt.config import ControllerConfig, LimitsConfig, OuterGains, PidGains, WheelPidGains
+from ddrt.config import ControllerConfig, LimitsConfig, OuterGains, PidGains
 from ddrt.core.model import Dynamics
 from ddrt.core.motor import Motor
 from ddrt.core.types import Setpoint
@@ -55,7 +55,7 @@ class _Pid:
 
     __slots__ = ("kp", "ki", "kd", "limit", "integral", "prev_meas", "prev_err", "on_error")
 
-    def __init__(self, gains: PidGains | WheelPidGains, on_error: bool = False) -> None:
+    def __init__(self, gains: PidGains, on_error: bool = False) -> None:
         self.kp = gains.kp
         self.ki = gains.ki
         self.kd = gains.kd
@@ -78,7 +78,7 @@ class _Pid:
         self.prev_err = err
         return self.kp * err + self.ki * self.integral + self.kd * deriv
 
-    def retune(self, gains: PidGains | WheelPidGains, err: float) -> None:
+    def retune(self, gains: PidGains, err: float) -> None:
         """New gains, with the integrator re-seeded so the output does not step (bumpless)."""
         p_old = self.kp * err + self.ki * self.integral
         self.kp, self.kd, self.limit = gains.kp, gains.kd, gains.integrator_limit

@@ -23,14 +23,14 @@ CUSP_BLEND_M behind the cusp ((X^T X)^-1 of the shared offset and slope). None i
 counts, or either run has too few points.
 
 Each run is then fitted with its end held at that point and its end tangent on that heading
-(condition.EndPin), so the runs meet on one heading, and the cusp sample's distance from the
-point counts in the reported deviation like any other point's. The loader (spec.py) shares
+(smoothing.EndPin), so the runs meet on one heading, and the cusp sample's distance from the
+point counts in the reported deviation like any other point's. The assembly (reversal.py) shares
 no cusp whose point lies farther than the tolerance from the cusp sample.
 
 Where a cusp is not shared (a run is waypoints or has too few points, no window's fit
 matches the noise, or a pinned fit cannot keep its points within the tolerance) the runs
 still meet at one point, held by both fits: the cusp sample (or the previous run's end), the
-tangents free (spec.py). Only if no fit can hold that point is a run fitted free and moved
+tangents free (reversal.py). Only if no fit can hold that point is a run fitted free and moved
 onto the previous run's end, the move added to its deviation.
 
 Bending. Where the two runs' tangents at the cusp differ (each fitted on its own end), a
@@ -54,7 +54,7 @@ import numpy as np
 
 from dataclasses import dataclass
 
-from ddrt.path.geometry import _Piece
+from ddrt.path.geometry import Piece
 
 __all__ = ["CUSP_BLEND_MAX_RAD", "CUSP_BLEND_M", "SharedCusp", "blend_offset", "bend_end", "bend_start",
            "estimate_cusp"]
@@ -65,7 +65,7 @@ CUSP_BLEND_MAX_RAD = math.radians(12.0)
 CUSP_BLEND_M = 0.25
 
 
-def blend_length(piece: _Piece) -> float:
+def blend_length(piece: Piece) -> float:
     return min(CUSP_BLEND_M, 0.5 * piece.length)
 
 
@@ -74,7 +74,7 @@ def blend_offset(length: float, beta: float) -> float:
     return 4.0 / 27.0 * length * abs(math.tan(beta))
 
 
-def _bend(pc: _Piece, d: np.ndarray, sign: float, beta: float, length: float) -> None:
+def _bend(pc: Piece, d: np.ndarray, sign: float, beta: float, length: float) -> None:
     """Offset the samples at distance d (from the cusp) along the travel normal; `sign` is ds/dd
     (-1 at a run's end, +1 at its start), so the tangent there turns by beta."""
     m = d < length
@@ -98,12 +98,12 @@ def _bend(pc: _Piece, d: np.ndarray, sign: float, beta: float, length: float) ->
     pc.kappa[m] += (-1.0 if pc.reverse else 1.0) * d2e
 
 
-def bend_end(pc: _Piece, beta: float, length: float) -> None:
+def bend_end(pc: Piece, beta: float, length: float) -> None:
     """Turn the piece's last tangent by beta (rad), its end point fixed."""
     _bend(pc, pc.s[-1] - pc.s, -1.0, beta, length)
 
 
-def bend_start(pc: _Piece, beta: float, length: float) -> None:
+def bend_start(pc: Piece, beta: float, length: float) -> None:
     """Turn the piece's first tangent by beta (rad), its start point fixed."""
     _bend(pc, pc.s - pc.s[0], 1.0, beta, length)
 

@@ -19,7 +19,7 @@ TWO_PI = 2.0 * math.pi
 
 
 @dataclass(slots=True)
-class _Piece:
+class Piece:
     """Samples of one piece, both end points included; `s` is progress from the piece's start."""
 
     s: np.ndarray
@@ -36,13 +36,13 @@ class _Piece:
         return float(self.s[-1])
 
 
-def reversed_piece(pc: _Piece) -> _Piece:
+def reversed_piece(pc: Piece) -> Piece:
     """The same samples driven backwards: the robot faces away from the direction of travel
     (theta + pi), and its curvature d(theta)/d(forward distance) changes sign (forward
     distance shrinks as progress grows), so omega = v kappa holds for the negative v."""
     if pc.pivot:
-        return _Piece(pc.s, pc.x, pc.y, pc.theta + math.pi, pc.kappa, True, pc.turn)
-    return _Piece(pc.s, pc.x, pc.y, pc.theta + math.pi, -pc.kappa, False, 0.0, True)
+        return Piece(pc.s, pc.x, pc.y, pc.theta + math.pi, pc.kappa, True, pc.turn)
+    return Piece(pc.s, pc.x, pc.y, pc.theta + math.pi, -pc.kappa, False, 0.0, True)
 
 
 def _count(length: float, step: float) -> int:
@@ -50,14 +50,14 @@ def _count(length: float, step: float) -> int:
     return max(2, int(math.ceil(length / step - 1e-9)))
 
 
-def _line(x0: float, y0: float, heading: float, length: float, step: float) -> _Piece:
+def line_piece(x0: float, y0: float, heading: float, length: float, step: float) -> Piece:
     n = _count(length, step)
     s = np.linspace(0.0, length, n + 1)
     c, sn = math.cos(heading), math.sin(heading)
-    return _Piece(s, x0 + c * s, y0 + sn * s, np.full(n + 1, heading), np.zeros(n + 1))
+    return Piece(s, x0 + c * s, y0 + sn * s, np.full(n + 1, heading), np.zeros(n + 1))
 
 
-def _arc(x0: float, y0: float, heading: float, radius: float, sweep: float, step: float) -> _Piece:
+def arc_piece(x0: float, y0: float, heading: float, radius: float, sweep: float, step: float) -> Piece:
     """Arc of `radius` turning by `sweep` (rad, positive = left) from pose (x0, y0, heading)."""
     length = radius * abs(sweep)
     n = _count(length, step)
@@ -69,15 +69,15 @@ def _arc(x0: float, y0: float, heading: float, radius: float, sweep: float, step
     x = cx + np.sin(th) / k
     y = cy - np.cos(th) / k
     x[0], y[0] = x0, y0
-    return _Piece(s, x, y, th, np.full(n + 1, k))
+    return Piece(s, x, y, th, np.full(n + 1, k))
 
 
-def _pivot(x: float, y: float, theta0: float, dtheta: float, b: float, step: float) -> _Piece:
+def pivot_piece(x: float, y: float, theta0: float, dtheta: float, b: float, step: float) -> Piece:
     length = b * abs(dtheta)
     n = _count(length, step)
     s = np.linspace(0.0, length, n + 1)
     th = theta0 + np.linspace(0.0, dtheta, n + 1)
-    return _Piece(s, np.full(n + 1, x), np.full(n + 1, y), th, np.zeros(n + 1), True, math.copysign(1.0, dtheta))
+    return Piece(s, np.full(n + 1, x), np.full(n + 1, y), th, np.zeros(n + 1), True, math.copysign(1.0, dtheta))
 
 
 _SUB = 16  # sub-steps per sample when integrating a blend's position
@@ -91,7 +91,7 @@ def _blend_unit_chord(phi: float) -> float:
     return math.hypot(cx, cy)
 
 
-def _blend(x0: float, y0: float, heading: float, phi: float, length: float, step: float) -> _Piece:
+def _blend(x0: float, y0: float, heading: float, phi: float, length: float, step: float) -> Piece:
     """Curvature-continuous corner: kappa rises and falls as a raised cosine, total turn phi."""
     n = _count(length, step)
     m = n * _SUB
@@ -102,14 +102,14 @@ def _blend(x0: float, y0: float, heading: float, phi: float, length: float, step
     dy = np.concatenate(([0.0], np.cumsum(0.5 * (np.sin(th[1:]) + np.sin(th[:-1])) * np.diff(sf))))
     sel = slice(None, None, _SUB)
     kap = (phi / length) * (1.0 - np.cos(TWO_PI * w[sel]))
-    return _Piece(sf[sel], x0 + dx[sel], y0 + dy[sel], th[sel], kap)
+    return Piece(sf[sel], x0 + dx[sel], y0 + dy[sel], th[sel], kap)
 
 
 Curve = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
-def _parametric(r: Curve, dr: Curve, ddr: Curve, u0: float, u1: float, step: float,
-                period: float | None = None) -> _Piece:
+def parametric_piece(r: Curve, dr: Curve, ddr: Curve, u0: float, u1: float, step: float,
+                period: float | None = None) -> Piece:
     """Smooth curve r(u), u in [u0, u1], resampled at uniform arc length.
 
     A curve that repeats every `period` in u (a closed shape's laps) keeps its arc-length
@@ -156,25 +156,31 @@ def _parametric(r: Curve, dr: Curve, ddr: Curve, u0: float, u1: float, step: flo
     ddx, ddy = ddr(u)
     th = np.unwrap(np.arctan2(dy, dx))
     kap = (dx * ddy - dy * ddx) / np.hypot(dx, dy) ** 3
-    return _Piece(s, x, y, th, kap)
+    return Piece(s, x, y, th, kap)
 
 
 @dataclass(slots=True)
-class _Geometry:
-    pieces: list[_Piece]
+class Geometry:
+    """A path's pieces in driving order, and the speed caps its points set (progress, cap)."""
+
+    pieces: list[Piece]
     cap_sigma: np.ndarray | None = None  # progress of waypoints with a speed cap
     cap_value: np.ndarray | None = None
 
 
 @dataclass(frozen=True, slots=True)
-class _Options:
+class GeometryOptions:
+    """How geometry is built: the sample step (m), the turn-in-place radius b (m), the corner
+    sharper than which a polyline turns in place (deg) and the longest blend (m)."""
+
     step: float = 0.002
     pivot_radius: float = 0.1
     corner_pivot_deg: float = 30.0
     blend_max: float = 0.15
 
 
-def _polyline(pts: Sequence[tuple[float, float]], caps: Sequence[float] | None, opt: _Options) -> _Geometry:
+def polyline_geometry(pts: Sequence[tuple[float, float]], caps: Sequence[float] | None,
+                      opt: GeometryOptions) -> Geometry:
     """Straight segments through the waypoints; pivots at sharp corners, blends at gentle ones."""
     p = [(float(a), float(b)) for a, b in pts]
     nseg = len(p) - 1
@@ -188,7 +194,7 @@ def _polyline(pts: Sequence[tuple[float, float]], caps: Sequence[float] | None, 
         turn[k] = phi
         if 1e-9 < abs(phi) <= sharp:
             tangent[k] = min(opt.blend_max, 0.5 * seg_len[k - 1], 0.5 * seg_len[k])
-    pieces: list[_Piece] = []
+    pieces: list[Piece] = []
     enter = [0.0] * len(p)
     leave = [0.0] * len(p)
     sigma = 0.0
@@ -200,7 +206,7 @@ def _polyline(pts: Sequence[tuple[float, float]], caps: Sequence[float] | None, 
         straight = seg_len[k] - tangent[k] - tangent[k + 1]
         heading = heading + wrap_angle(seg_dir[k] - heading)  # keep theta continuous
         if straight > 1e-9:
-            pieces.append(_line(x0, y0, heading, straight, opt.step))
+            pieces.append(line_piece(x0, y0, heading, straight, opt.step))
             sigma += straight
         if k + 1 == nseg:
             enter[k + 1] = leave[k + 1] = sigma
@@ -208,7 +214,7 @@ def _polyline(pts: Sequence[tuple[float, float]], caps: Sequence[float] | None, 
         phi = turn[k + 1]
         if abs(phi) > sharp:
             enter[k + 1] = sigma
-            pieces.append(_pivot(bx, by, heading, phi, opt.pivot_radius, opt.step))
+            pieces.append(pivot_piece(bx, by, heading, phi, opt.pivot_radius, opt.step))
             sigma += pieces[-1].length
             leave[k + 1] = sigma
         elif tangent[k + 1] > 0.0:
@@ -220,7 +226,7 @@ def _polyline(pts: Sequence[tuple[float, float]], caps: Sequence[float] | None, 
         else:
             enter[k + 1] = leave[k + 1] = sigma
         heading += phi
-    geo = _Geometry(pieces)
+    geo = Geometry(pieces)
     if caps is not None:
         xs = np.array([v for pair in zip(enter, leave) for v in pair])
         geo.cap_sigma = xs

@@ -67,7 +67,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ddrt.core.wrap import wrap_angle
-from ddrt.path.geometry import _Geometry, _Piece
+from ddrt.path.geometry import Geometry, Piece
 from ddrt.path.profile import SpeedLimits, envelope_excess, speed_profile
 
 if TYPE_CHECKING:
@@ -97,7 +97,7 @@ class PathPoint:
 class Path:
     """Dense samples of a path and its speed profile; O(log n) lookups by progress or time."""
 
-    def __init__(self, geo: _Geometry, limits: SpeedLimits, *, v_cap: float, pivot_radius: float,
+    def __init__(self, geo: Geometry, limits: SpeedLimits, *, v_cap: float, pivot_radius: float,
                  start_pose: tuple[float, float, float] | None = None) -> None:
         self.limits = limits
         self.pivot_radius = pivot_radius
@@ -128,7 +128,7 @@ class Path:
         return 0.0 if c is None or c.mode == "waypoints" else float(c.deviation_m)
 
     # -- construction -------------------------------------------------------------------------
-    def _assemble(self, pieces: list[_Piece]) -> None:
+    def _assemble(self, pieces: list[Piece]) -> None:
         cols: dict[str, list[np.ndarray]] = {k: [] for k in ("s", "x", "y", "theta", "kappa")}
         seg_pivot: list[bool] = []
         turn: list[float] = []

@@ -16,7 +16,9 @@ import numpy as np
 
 from ddrt.config.schema import ConfigError, non_negative, positive
 from ddrt.config.sections import MAX_TOLERANCE_M, MIN_PATH_SIZE_M
-from ddrt.path.geometry import TWO_PI, Curve, _arc, _Geometry, _line, _Options, _parametric, _polyline
+from ddrt.path.geometry import (
+    TWO_PI, Curve, Geometry, GeometryOptions, arc_piece, line_piece, parametric_piece, polyline_geometry,
+)
 
 LIMIT_KEYS = ("accel", "decel", "lateral_accel", "omega_max", "alpha_max")
 
@@ -30,7 +32,7 @@ def _sizes(where: str, **values: float | None) -> None:
             raise ConfigError(f"{where + '.' if where else ''}{key}: must be at least {MIN_PATH_SIZE_M} m, got {value!r}")
 
 
-def _pivot_samples(opt: _Options, turn: float) -> float:
+def _pivot_samples(opt: GeometryOptions, turn: float) -> float:
     return max(2.0, opt.pivot_radius * abs(turn) / opt.step)
 
 
@@ -88,7 +90,7 @@ class PathCommon:
         return "laps" if laps > 1.0 else self.SIZE_KEY
 
     # Each kind: samples(opt) -> float (an estimate, never below the real count by much) and
-    # geometry(opt) -> _Geometry.
+    # geometry(opt) -> Geometry.
 
 
 def _direction(value: str) -> float:
@@ -107,14 +109,14 @@ class LineSpec(PathCommon):
         super().validate(where)
         _sizes(where, length=self.length)
 
-    def samples(self, opt: _Options) -> float:
+    def samples(self, opt: GeometryOptions) -> float:
         return self.length / opt.step
 
-    def geometry(self, opt: _Options) -> _Geometry:
+    def geometry(self, opt: GeometryOptions) -> Geometry:
         origin = self.origin
         if origin is None:
             origin = (self.start[0], self.start[1]) if self.start is not None and len(self.start) == 2 else (0.0, 0.0)
-        return _Geometry([_line(origin[0], origin[1], math.radians(self.heading_deg), self.length, opt.step)])
+        return Geometry([line_piece(origin[0], origin[1], math.radians(self.heading_deg), self.length, opt.step)])
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -131,14 +133,14 @@ class CircleSpec(PathCommon):
         _sizes(where, radius=self.radius)
         positive(where, laps=self.laps)
 
-    def samples(self, opt: _Options) -> float:
+    def samples(self, opt: GeometryOptions) -> float:
         return TWO_PI * self.radius * self.laps / opt.step
 
-    def geometry(self, opt: _Options) -> _Geometry:
+    def geometry(self, opt: GeometryOptions) -> Geometry:
         sign = _direction(self.direction)
         cx, cy = self.center if self.center is not None else (0.0, sign * self.radius)
         # Start where the heading is +x: bottom of a ccw circle, top of a cw one.
-        return _Geometry([_arc(cx, cy - sign * self.radius, 0.0, self.radius, sign * TWO_PI * self.laps, opt.step)])
+        return Geometry([arc_piece(cx, cy - sign * self.radius, 0.0, self.radius, sign * TWO_PI * self.laps, opt.step)])
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -160,14 +162,14 @@ class RectangleSpec(PathCommon):
     def corners(self) -> float:
         return 4.0 * self.laps + 1.0
 
-    def samples(self, opt: _Options) -> float:
+    def samples(self, opt: GeometryOptions) -> float:
         per_lap = 2.0 * (self.width + self.height) / opt.step + 4.0 * _pivot_samples(opt, 0.5 * math.pi)
         return self.laps * per_lap
 
-    def geometry(self, opt: _Options) -> _Geometry:
+    def geometry(self, opt: GeometryOptions) -> Geometry:
         w, h, sign = self.width, self.height, _direction(self.direction)
         corners = [(w, 0.0), (w, sign * h), (0.0, sign * h), (0.0, 0.0)]
-        return _polyline([(0.0, 0.0)] + corners * int(self.laps), None, opt)
+        return polyline_geometry([(0.0, 0.0)] + corners * int(self.laps), None, opt)
 
 
 def _curve_length(dr: Curve, u1: float) -> float:
@@ -200,15 +202,15 @@ class EllipseSpec(PathCommon):
                 lambda u: (a * np.cos(u), sign * b * np.sin(u)),
                 lambda u: (-a * np.sin(u), sign * b * np.cos(u)))
 
-    def samples(self, opt: _Options) -> float:
+    def samples(self, opt: GeometryOptions) -> float:
         a, b = self.a, self.b
         h = ((a - b) / (a + b)) ** 2 if a + b < math.inf else 0.0
         perimeter = math.pi * (a + b) * (1.0 + 3.0 * h / (10.0 + math.sqrt(4.0 - 3.0 * h)))  # Ramanujan
         return perimeter * self.laps / opt.step
 
-    def geometry(self, opt: _Options) -> _Geometry:
+    def geometry(self, opt: GeometryOptions) -> Geometry:
         r, dr, ddr = self._curve()
-        return _Geometry([_parametric(r, dr, ddr, 0.0, TWO_PI * self.laps, opt.step, period=TWO_PI)])
+        return Geometry([parametric_piece(r, dr, ddr, 0.0, TWO_PI * self.laps, opt.step, period=TWO_PI)])
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -246,14 +248,14 @@ class FigureEightSpec(PathCommon):
     def blame(self) -> str:
         return "laps" if self.laps > 1.0 else ("size" if self.size is not None else "width")
 
-    def samples(self, opt: _Options) -> float:
+    def samples(self, opt: GeometryOptions) -> float:
         with np.errstate(over="ignore", invalid="ignore"):
             lap = _curve_length(self._curve()[1], TWO_PI)
         return lap * self.laps / opt.step if math.isfinite(lap) else math.inf
 
-    def geometry(self, opt: _Options) -> _Geometry:
+    def geometry(self, opt: GeometryOptions) -> Geometry:
         r, dr, ddr = self._curve()
-        return _Geometry([_parametric(r, dr, ddr, 0.0, TWO_PI * self.laps, opt.step, period=TWO_PI)])
+        return Geometry([parametric_piece(r, dr, ddr, 0.0, TWO_PI * self.laps, opt.step, period=TWO_PI)])
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -265,14 +267,14 @@ class SCurveSpec(PathCommon):
         super().validate(where)
         _sizes(where, length=self.length)
 
-    def samples(self, opt: _Options) -> float:
+    def samples(self, opt: GeometryOptions) -> float:
         return (self.length + 2.0 * abs(self.offset)) / opt.step  # the arc is at most this long
 
-    def geometry(self, opt: _Options) -> _Geometry:
+    def geometry(self, opt: GeometryOptions) -> Geometry:
         length, offset = self.length, self.offset
         k = math.pi / length
         # y = (offset/2)(1 - cos(pi x / length)): heading 0 at both ends, lateral shift `offset`.
-        return _Geometry([_parametric(
+        return Geometry([parametric_piece(
             lambda u: (u, 0.5 * offset * (1.0 - np.cos(k * u))),
             lambda u: (np.ones_like(u), 0.5 * offset * k * np.sin(k * u)),
             lambda u: (np.zeros_like(u), 0.5 * offset * k * k * np.cos(k * u)),
@@ -324,7 +326,7 @@ SHAPES: dict[str, type[PathCommon]] = {
 KINDS: dict[str, type[PathCommon]] = {"points": PointsSpec, "file": FileSpec}
 
 
-def polyline_samples(pts: list[tuple[float, float, Any]], opt: _Options) -> float:
+def polyline_samples(pts: list[tuple[float, float, Any]], opt: GeometryOptions) -> float:
     """An upper estimate of the samples of a polyline through `pts` (every corner a pivot)."""
     total = 0.0
     for (x0, y0, _), (x1, y1, _) in zip(pts, pts[1:]):

@@ -23,24 +23,20 @@ import numpy as np
 from ddrt.config.schema import ConfigError, build
 from ddrt.config.sections import PathsConfig
 from ddrt.config.yamlio import read_text, read_yaml, shorten
-from ddrt.path.condition import (
-    WAYPOINTS, ConditionError, ConditionOptions, Conditioning, EndPin, classify, condition_polyline, point_noise,
-)
-from ddrt.core.wrap import wrap_angle
-from ddrt.path.cusp import (
-    CUSP_BLEND_MAX_RAD, SharedCusp, bend_end, bend_start, blend_length, blend_offset, estimate_cusp,
-)
-from ddrt.path.geometry import _Geometry, _Options, _Piece, _pivot, reversed_piece
+from ddrt.path.condition import WAYPOINTS, ConditionError, ConditionOptions, Conditioning, classify, condition_polyline
+from ddrt.path.geometry import Geometry, GeometryOptions, reversed_piece
 from ddrt.path.profile import SpeedLimits
+from ddrt.path.reversal import Point, direction_runs, reversing_geometry
 from ddrt.path.sampled import Path
 from ddrt.path.shapes import (
     KINDS, LIMIT_KEYS, SHAPES, FileSpec, PathCommon, PointsSpec, RectangleSpec, polyline_samples,
 )
+from ddrt.path.smoothing import EndPin
 
 if TYPE_CHECKING:
     from ddrt.config import Config
 
-__all__ = ["PathError", "load_path", "path_source", "resolve_path", "speed_limits"]
+__all__ = ["PathError", "load_path", "path_source", "read_points_csv", "resolve_path", "speed_limits"]
 
 
 class PathError(ValueError):
@@ -49,8 +45,6 @@ class PathError(ValueError):
 
 # Minimum length of a path (m): shorter, it is a point the robot cannot follow.
 MIN_PATH_LENGTH_M = 0.001
-# At a cusp whose two headings differ by more than this the robot turns in place there.
-CUSP_TURN_TOL_RAD = 1e-4
 
 # The config key each path limit lowers (the config has one acceleration, for braking too).
 _CONFIG_KEY = {"speed": "limits.v_max", "accel": "limits.accel", "decel": "limits.accel",
@@ -101,7 +95,8 @@ CSV_BYTES_PER_POINT = 128  # a CSV line "x,y,v" with full-precision floats and r
 CSV_HEADER_BYTES = 65536  # the header, comments and blank lines
 
 
-def _read_csv(filename: str, paths: PathsConfig) -> tuple[list[tuple[float, float, float]], bool, list[str]]:
+def read_points_csv(filename: str,
+                    paths: PathsConfig) -> tuple[list[tuple[float, float, float]], bool, list[str]]:
     """Waypoints (x, y, v cap or inf) from a CSV with header x,y or x,y,v; second item: has v;
     third: each waypoint's line ("line 7")."""
     # At most ~128 bytes a waypoint: the file cannot be larger than its waypoints need.
@@ -159,22 +154,26 @@ def _condition_options(paths: PathsConfig, tolerance: float | None) -> Condition
                             tolerance is not None)
 
 
-def _waypoint_geometry(rows: list[tuple[float, float, float]], has_v: bool, where: str, opt: _Options,
+def _waypoint_geometry(rows: list[tuple[float, float, float]], has_v: bool, where: str, opt: GeometryOptions,
                        paths: PathsConfig, names: list[str], tolerance: float | None = None,
                        budget_where: str | None = None,
                        tries: Sequence[tuple[EndPin | None, EndPin | None]] = (),
-                       noise: float | None = None) -> tuple[_Geometry, Conditioning]:
+                       noise: float | None = None) -> tuple[Geometry, Conditioning]:
     """A polyline's geometry: waypoints as they are, samples of a curve smoothed (condition.py).
     Errors about one point name `where` and the point's name; about the whole, `budget_where`.
-    `tries`: a run's start and end pins (condition.EndPin: a cusp shared with the next run,
+    `tries`: a run's start and end pins (smoothing.EndPin: a cusp shared with the next run,
     or the point where the other run meets it), tried in order; if no fit can hold them
     within the tolerance, the run is fitted free (`Conditioning.extra["ends"]` says which
     pins were held, `extra["pinned"]` which ends). `noise`: the points' noise if known
     (condition_polyline)."""
     pts, kept = _merge_points(rows, names)
-    runs = _direction_runs(pts)
+    runs = direction_runs(pts)
     if len(runs) > 1 or runs[0][2] < 0.0:
-        return _reversing_geometry(pts, kept, runs, has_v, where, opt, paths, tolerance, budget_where)
+        def fit_run(sub: list[Point], sub_names: list[str], pins: Sequence[tuple[EndPin | None, EndPin | None]],
+                    pooled: float | None) -> tuple[Geometry, Conditioning]:
+            return _waypoint_geometry(sub, has_v, where, opt, paths, sub_names, tolerance, budget_where, pins, pooled)
+
+        return reversing_geometry(pts, kept, runs, _condition_options(paths, tolerance), opt, fit_run)
     whole = where if budget_where is None else budget_where
     if len(pts) < 2:
         only = f" (every point equals the one at {kept[0]})" if kept and len(rows) > 1 else ""
@@ -207,168 +206,16 @@ def _waypoint_geometry(rows: list[tuple[float, float, float]], has_v: bool, wher
     return geo, cond
 
 
-def _direction_runs(pts: list[tuple[float, float, float]]) -> list[tuple[int, int, float]]:
-    """(first point, last point, direction) of each run of segments driven one way. The segment
-    to point k is driven in reverse when point k's v is negative (the robot reaches it backwards)."""
-    dirs = [-1.0 if pts[k][2] < 0.0 else 1.0 for k in range(1, len(pts))] or [1.0]
-    runs: list[tuple[int, int, float]] = []
-    a = 0
-    for k in range(1, len(dirs) + 1):
-        if k == len(dirs) or dirs[k] != dirs[a]:
-            runs.append((a, k, dirs[a]))
-            a = k
-    return runs
 
-
-def _reversing_geometry(pts: list[tuple[float, float, float]], names: list[str], runs: list[tuple[int, int, float]],
-                        has_v: bool, where: str, opt: _Options, paths: PathsConfig, tolerance: float | None,
-                        budget_where: str | None) -> tuple[_Geometry, Conditioning]:
-    """A polyline with runs driven in reverse: each run read as its own polyline (so a reversal
-    inside a run is still refused naming its point), its pieces turned round, joined at each
-    cusp. Where both runs are smoothed samples the cusp is estimated once from both runs'
-    points and each run fitted ending there on its heading (ddrt/path/cusp.py); otherwise a
-    turn in place joins them where the headings differ. The runs are one recording, with one
-    noise: each is smoothed for the noise pooled over all (a short run's own estimate is
-    unsure, and too low a one leaves noise in its curvature). Speed caps are |v|."""
-    shared, noise, tols = _shared_cusps(pts, runs, paths, tolerance)
-    pieces: list[_Piece] = []
-    cap_s: list[np.ndarray] = []
-    cap_v: list[np.ndarray] = []
-    conds: list[tuple[int, Conditioning]] = []
-    sigma = 0.0
-    held = 0
-    for r, (a, b, d) in enumerate(runs):
-        sub = [(x, y, abs(v)) for x, y, v in pts[a:b + 1]]
-        before = shared[r - 1] if r > 0 else None
-        after = shared[r] if r < len(shared) else None
-        # The start meets the previous run's end: at the shared cusp on its heading when that run
-        # ended there, else at that end's point (within the tolerance of this run's first point);
-        # the end at the shared cusp, else at the cusp sample itself. Only if no fit holds them
-        # is the run fitted free and moved onto the previous end (below).
-        starts: list[EndPin | None] = [None]
-        ends_: list[EndPin | None] = [None]
-        if r > 0:
-            prev_end = np.array([pieces[-1].x[-1], pieces[-1].y[-1]], dtype=float)
-            last = conds[-1][1].extra.get("ends", (None, None))[1]
-            starts = []
-            if before is not None and last is not None and last.slope is not None:
-                starts.append(EndPin(before.point, -before.pace_out * before.direction))
-            if math.hypot(*(prev_end - np.array(pts[a][:2]))) <= tols[r]:
-                starts.append(EndPin(prev_end))
-        if r < len(runs) - 1:
-            ends_ = ([] if after is None else [EndPin(after.point, after.pace_in * after.direction)])
-            ends_.append(EndPin(np.array(pts[b][:2], dtype=float)))
-        tries = [(s0, s1) for s0 in starts for s1 in ends_]
-        geo, cond = _waypoint_geometry(sub, has_v, where, opt, paths, names[a:b + 1], tolerance, budget_where, tries,
-                                       noise)
-        run = [reversed_piece(pc) for pc in geo.pieces] if d < 0.0 else geo.pieces
-        if pieces:
-            got_end = conds[-1][1].extra.get("ends", (None, None))[1]
-            got_start = cond.extra.get("ends", (None, None))[0]
-            if got_end is not None and got_end.slope is not None and got_start is not None and got_start.slope is not None:
-                held += 1
-            # A smoothed run need not end exactly on its last point: the next one is moved onto
-            # it (by less than the tolerance), so the two meet at one cusp.
-            dx, dy = float(pieces[-1].x[-1] - run[0].x[0]), float(pieces[-1].y[-1] - run[0].y[0])
-            if dx or dy:
-                for pc in run:
-                    pc.x, pc.y = pc.x + dx, pc.y + dy
-                cond.deviation_m += math.hypot(dx, dy)
-            turn = wrap_angle(float(run[0].theta[0]) - float(pieces[-1].theta[-1]))
-            if abs(turn) > CUSP_TURN_TOL_RAD and _blend_cusp(pieces[-1], run[0], turn, conds[-1][1], cond):
-                turn = 0.0
-            if abs(turn) > CUSP_TURN_TOL_RAD:
-                pieces.append(_pivot(float(run[0].x[0]), float(run[0].y[0]), float(pieces[-1].theta[-1]), turn,
-                                     opt.pivot_radius, opt.step))
-                sigma += pieces[-1].length
-        if geo.cap_sigma is not None and geo.cap_value is not None:
-            cap_s.append(sigma + geo.cap_sigma)
-            cap_v.append(geo.cap_value)
-        pieces += run
-        sigma += sum(pc.length for pc in run)
-        conds.append((a, cond))
-    out = _Geometry(pieces)
-    if cap_s:
-        out.cap_sigma = np.maximum.accumulate(np.concatenate(cap_s))
-        out.cap_value = np.concatenate(cap_v)
-    joined = _joined_conditioning(pts, names, conds, [a for a, _, _ in runs[1:]])
-    joined.extra["cusps_shared"] = held
-    return out, joined
-
-
-# A run needs this many points for its own noise estimate to count in the pooled one.
-NOISE_POOL_MIN_POINTS = 8
-
-
-def _shared_cusps(pts: list[tuple[float, float, float]], runs: list[tuple[int, int, float]], paths: PathsConfig,
-                  tolerance: float | None) -> tuple[list[SharedCusp | None], float | None, list[float]]:
-    """Each cusp's point and heading from the points of both runs that meet there, where both
-    are smoothed samples (ddrt/path/cusp.py; None where either is waypoints or too short, or
-    the estimated point is farther than the tolerance from the cusp sample), the noise pooled
-    over the smoothed runs (the RMS of their estimates, weighted by their points; None if no
-    run has enough points for one), and each run's tolerance."""
-    copt = _condition_options(paths, tolerance)
-    xys = [np.array([(p[0], p[1]) for p in pts[a:b + 1]], dtype=float) for a, b, _ in runs]
-    found = [point_noise(xy, copt) if len(xy) >= 4 else (WAYPOINTS, 0.0) for xy in xys]
-    tols = [classify(xy, copt)[1] for xy in xys]
-    pool = [(len(xy), nz) for xy, (mode, nz) in zip(xys, found)
-            if mode != WAYPOINTS and len(xy) >= NOISE_POOL_MIN_POINTS]
-    noise = (math.sqrt(sum(n * nz * nz for n, nz in pool) / sum(n for n, _ in pool))) if pool else None
-    out: list[SharedCusp | None] = []
-    for r in range(len(runs) - 1):
-        (ma, na), (mb, nb) = found[r], found[r + 1]
-        cusp = (None if WAYPOINTS in (ma, mb)
-                else estimate_cusp(xys[r], xys[r + 1], max(na, nb) if noise is None else noise))
-        # The cusp sample is measured against the shared point, and a pinned point is not one the
-        # fit can move: a point farther from it than the tolerance is no cusp the runs can share.
-        if cusp is not None and math.hypot(*(cusp.point - xys[r][-1])) > min(tols[r], tols[r + 1]):
-            cusp = None
-        out.append(cusp)
-    return out, noise, tols
-
-
-def _blend_cusp(end: _Piece, start: _Piece, turn: float, before: Conditioning, after: Conditioning) -> bool:
-    """Bend two smoothed runs onto one heading at their cusp when the difference is within what
-    their points allow (ddrt/path/cusp.py); False (nothing changed) otherwise."""
-    if before.mode == WAYPOINTS or after.mode == WAYPOINTS or abs(turn) > CUSP_BLEND_MAX_RAD:
-        return False
-    la, lb = blend_length(end), blend_length(start)
-    ea, eb = blend_offset(la, 0.5 * turn), blend_offset(lb, 0.5 * turn)
-    if before.deviation_m + ea > before.tolerance_m or after.deviation_m + eb > after.tolerance_m:
-        return False
-    bend_end(end, 0.5 * turn, la)
-    bend_start(start, -0.5 * turn, lb)
-    before.deviation_m += ea
-    after.deviation_m += eb
-    return True
-
-
-def _joined_conditioning(pts: list[tuple[float, float, float]], names: list[str],
-                         conds: list[tuple[int, Conditioning]], cusps: list[int]) -> Conditioning:
-    """One Conditioning for the runs of a reversing polyline (indices into all its points)."""
-    first = next((c for _, c in conds if c.mode != WAYPOINTS), conds[0][1])
-    worst_a, worst = max(conds, key=lambda ac: ac[1].deviation_m)
-    corners = tuple(replace(k, index=k.index + a) for a, c in conds for k in c.corners)
-    xy = np.array([(p[0], p[1]) for p in pts], dtype=float)
-    seg = np.hypot(*np.diff(xy, axis=0).T)
-    out = Conditioning(first.mode, first.tolerance_m, xy, names, deviation_m=worst.deviation_m,
-                       worst=worst_a + worst.worst, noise_m=max(c.noise_m for _, c in conds),
-                       grid_cell_m=first.grid_cell_m, smoothing_m=tuple(e for _, c in conds for e in c.smoothing_m),
-                       corners=corners, spacing_m=float(np.median(seg)) if len(seg) else 0.0,
-                       iterations=sum(c.iterations for _, c in conds))
-    out.extra["cusps"] = [names[k] for k in cusps]
-    return out
-
-
-def _check_samples(estimate: float, where: str, paths: PathsConfig, opt: _Options) -> None:
+def _check_samples(estimate: float, where: str, paths: PathsConfig, opt: GeometryOptions) -> None:
     if not estimate <= paths.max_samples:
         raise PathError(f"{where}: the path would have about {estimate:.3g} samples at {opt.step:g} m "
                         f"(paths.sample_step_m), more than paths.max_samples = {paths.max_samples}")
 
 
-def _options(spec: PathCommon, paths: PathsConfig) -> _Options:
+def _options(spec: PathCommon, paths: PathsConfig) -> GeometryOptions:
     """Sampling options: the config's paths: section, with the spec's own keys first."""
-    return _Options(
+    return GeometryOptions(
         paths.sample_step_m,
         paths.pivot_radius_m if spec.pivot_radius is None else spec.pivot_radius,
         paths.corner_pivot_deg if spec.corner_pivot_deg is None else spec.corner_pivot_deg,
@@ -464,7 +311,7 @@ def _from_mapping(m: Any, limits: SpeedLimits, where: str, base_dir: str | None,
         if base_dir is not None and not os.path.isabs(fname):
             fname = os.path.join(base_dir, fname)
         try:
-            rows, has_v, lines = _read_csv(fname, paths)
+            rows, has_v, lines = read_points_csv(fname, paths)
             if spec.reverse:
                 rows = [(x, y, -v) for x, y, v in rows]
             geo, cond = _waypoint_geometry(rows, has_v, fname, opt, paths, lines, spec.tolerance)
@@ -486,7 +333,7 @@ def _from_mapping(m: Any, limits: SpeedLimits, where: str, base_dir: str | None,
     return _finish(geo, lim, v_cap, opt, spec.pose(), where, paths, notes, cond)
 
 
-def _finish(geo: _Geometry, lim: SpeedLimits, v_cap: float, opt: _Options,
+def _finish(geo: Geometry, lim: SpeedLimits, v_cap: float, opt: GeometryOptions,
             start: tuple[float, float, float] | None, where: str, paths: PathsConfig, notes: list[str],
             cond: Conditioning | None = None) -> Path:
     """Check the sampled geometry against the bounds, then profile it into a Path."""
@@ -532,10 +379,10 @@ def load_path(source: str | os.PathLike[str] | Mapping[str, Any], limits: SpeedL
     fname = os.fspath(source)
     low = fname.lower()
     if low.endswith(".csv"):
-        rows, has_v, lines = _read_csv(fname, paths)
+        rows, has_v, lines = read_points_csv(fname, paths)
         notes: list[str] = []
         _note_point_caps([r[2] for r in rows], limits.v_max, fname, notes)
-        opt = _Options(paths.sample_step_m, paths.pivot_radius_m, paths.corner_pivot_deg, paths.blend_max_m)
+        opt = GeometryOptions(paths.sample_step_m, paths.pivot_radius_m, paths.corner_pivot_deg, paths.blend_max_m)
         geo, cond = _waypoint_geometry(rows, has_v, fname, opt, paths, lines)
         return _finish(geo, limits, limits.v_max, opt, None, fname, paths, notes, cond)
     if low.endswith((".yaml", ".yml")):

@@ -13,7 +13,7 @@ cap, the largest v with v^2 |d(kappa)/ds| <= yaw_accel at every sample of the tu
 is constant across the turn, so the profile brakes and speeds up on the straights either
 side, where kappa is small and a kappa stays below accel * STRAIGHT_KAPPA; inside the turn
 the only yaw acceleration is v^2 d(kappa)/ds. Between turns the per-sample cap applies as
-it is. The caps are the conditioning's own point caps (`_Geometry.cap_sigma/cap_value`),
+it is. The caps are the conditioning's own point caps (`Geometry.cap_sigma/cap_value`),
 so the speed profile (ddrt/path/profile.py) needs no new limit.
 """
 
@@ -23,7 +23,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ddrt.path.geometry import _Piece
+from ddrt.path.geometry import Piece
 
 __all__ = ["GRID_YAW_ACCEL", "STRAIGHT_KAPPA", "turn_caps"]
 
@@ -32,7 +32,7 @@ STRAIGHT_KAPPA = 0.25  # 1/m: below this a sample is on a straight (a kappa <= 0
 _NO_CAP = 1e3  # m/s: a sample whose curvature does not change
 
 
-def _piece_caps(pc: _Piece, yaw_accel: float) -> np.ndarray:
+def _piece_caps(pc: Piece, yaw_accel: float) -> np.ndarray:
     """Per-sample caps of one driving piece: per turn one speed, elsewhere each sample's own."""
     k = pc.kappa
     dk = np.gradient(k, pc.s)
@@ -56,7 +56,7 @@ def _piece_caps(pc: _Piece, yaw_accel: float) -> np.ndarray:
     return cap
 
 
-def _end_ramp(s: np.ndarray, pieces: Sequence[_Piece], total: float, yaw_accel: float) -> np.ndarray:
+def _end_ramp(s: np.ndarray, pieces: Sequence[Piece], total: float, yaw_accel: float) -> np.ndarray:
     """A plan that starts or ends in a turn starts or stops there: the speed ramps at most at
     yaw_accel / |kappa| (so a kappa stays within yaw_accel) over the first and last turn."""
     cap = np.full(len(s), _NO_CAP)
@@ -73,7 +73,7 @@ def _end_ramp(s: np.ndarray, pieces: Sequence[_Piece], total: float, yaw_accel: 
     return cap
 
 
-def turn_caps(pieces: Sequence[_Piece], yaw_accel: float = GRID_YAW_ACCEL) -> tuple[np.ndarray, np.ndarray]:
+def turn_caps(pieces: Sequence[Piece], yaw_accel: float = GRID_YAW_ACCEL) -> tuple[np.ndarray, np.ndarray]:
     """(progress, cap) at every sample of the driving pieces, progress from the first piece's
     start; pivots are left to the profile (it stops for them)."""
     sig: list[np.ndarray] = []
