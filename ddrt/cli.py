@@ -72,7 +72,7 @@ def _run_name(config: str, source: object) -> str:
         what = f"inline {source.get('shape', 'path')}" if "file" not in source else Path(str(source["file"])).name
     else:
         what = Path(str(source)).name
-    return f"{Path(config).name}: {what}"
+    return Path(config).name if what == Path(config).name else f"{Path(config).name}: {what}"
 
 
 def _cmd_sim(args: argparse.Namespace) -> int:

@@ -57,10 +57,15 @@ def xy_figure(points: np.ndarray, title: str) -> tuple[Figure, Axes, Axes]:
     return fig, ax_xy, ax_other
 
 
-def mark_route(ax: Axes, xy: np.ndarray, cusps: Sequence[tuple[float, float]] = (), arrows: int = 8) -> None:
-    """Start and end markers, arrows the way the route is driven and its cusps, so one look
-    says where a run begins and which way it goes. `xy`: the route's points in order."""
+def mark_route(ax: Axes, xy: np.ndarray, cusps: Sequence[tuple[float, float]] = (),
+               backwards: np.ndarray | None = None, arrows: int = 8) -> None:
+    """Start and end markers, arrows the way the route is driven, its cusps and the stretches
+    driven backwards, so one look says where a run begins and which way it goes. `xy`: the
+    route's points in order; `backwards`: per point, whether it lies on a reversing stretch."""
     xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+    if backwards is not None and np.any(backwards):
+        ax.plot(*np.where(np.asarray(backwards)[:, None], xy, np.nan).T, "-", lw=7, color="tab:purple",
+                alpha=0.25, solid_capstyle="butt", zorder=2, label="driven backwards")
     ax.plot(*xy[0], "o", ms=8, mfc="tab:green", mec="black", zorder=7, label="start")
     ax.plot(*xy[-1], "s", ms=8, mfc="none", mec="tab:red", mew=1.5, zorder=6, label="end")
     if len(cusps):
@@ -81,7 +86,7 @@ def mark_route(ax: Axes, xy: np.ndarray, cusps: Sequence[tuple[float, float]] = 
         ax.quiver(p[ok, 0], p[ok, 1], u[ok, 0] / n[ok], u[ok, 1] / n[ok], angles="xy", pivot="mid",
                   units="inches", scale_units="inches", scale=3.5, width=0.025, headwidth=4,
                   headlength=4, headaxislength=3.5, color="black", zorder=6)
-        ax.plot([], [], ls="none", marker="$\\rightarrow$", ms=14, color="black", label="direction")  # legend entry
+        ax.plot([], [], ls="none", marker=r"$\rightarrow$", ms=14, color="black", label="direction")  # legend entry
 
 
 def legend_above(ax: Axes) -> None:
@@ -89,6 +94,6 @@ def legend_above(ax: Axes) -> None:
     handles, labels = ax.get_legend_handles_labels()
     if handles:
         width_in = ax.get_position().width * ax.figure.get_figwidth()
-        ncol = max(1, min(len(handles), int(width_in / 1.25)))
+        ncol = min(len(handles), max(2, int(width_in / 1.25)))
         ax.legend(handles, labels, loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=ncol,
                   fontsize=8, frameon=False, borderaxespad=0.3)

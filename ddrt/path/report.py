@@ -266,7 +266,11 @@ def report_figure(path: Path, r: PathReport) -> "Figure":
     if r.pivots:
         pv = np.array([(x, y) for _, x, y, _ in r.pivots])
         ax0.plot(pv[:, 0], pv[:, 1], "o", ms=9, mfc="none", mec="tab:blue", mew=1.5, label="turn in place", zorder=5)
-    mark_route(ax0, ref, [(x, y) for _, x, y in r.cusps])
+    d = a["direction"]  # per interval: a point is backwards when an interval beside it is
+    back = np.zeros(len(ref), dtype=bool)
+    back[:-1] |= d < 0.0
+    back[1:] |= d < 0.0
+    mark_route(ax0, ref, [(x, y) for _, x, y in r.cusps], back)
     legend_above(ax0)
     s = a["sigma"]
     top = 1.3 * max(r.v_cap, float(np.max(a["u"])), 1e-9)

@@ -112,7 +112,10 @@ def path_figure(result: SimResult, name: str = "") -> Figure:
     ax.plot(true[:, 0], true[:, 1], "-", lw=1.3, color="tab:blue", label="robot (true)", zorder=3)
     ax.plot(est[:, 0], est[:, 1], "--", lw=1.0, color="tab:orange", label="estimate", zorder=4)
     cusps = [(p.x, p.y) for p in (path.at(s) for s in path.cusps)]
-    mark_route(ax, poly, cusps)
+    a = path.arrays()
+    s = np.linspace(0.0, path.length, len(poly))  # path_polyline's own spacing
+    i = np.clip(np.searchsorted(a["sigma"], s, side="right") - 1, 0, len(a["direction"]) - 1)
+    mark_route(ax, poly, cusps, a["direction"][i] < 0.0)
     legend_above(ax)
     t = c("t")
     e_true, e_est = cross_track_mm(result)
@@ -121,6 +124,11 @@ def path_figure(result: SimResult, name: str = "") -> Figure:
     ax_err.plot(t, e_est, "--", lw=1.0, color="tab:orange", label="estimated pose")
     ax_err.set_xlabel("t (s)")
     ax_err.set_ylabel("cross-track (mm), left +")
+    typical = float(np.nanpercentile(np.abs(np.concatenate([e_true, e_est])), 90)) if len(t) else 0.0
+    if typical > 0.0 and np.nanmax(np.abs(np.concatenate([e_true, e_est]))) > 20.0 * typical:
+        # A start far off the path (or one excursion) would flatten the rest of the run to a line.
+        ax_err.set_yscale("symlog", linthresh=2.0 * typical, linscale=2.0)
+        ax_err.set_ylabel(f"cross-track (mm), left +\n(linear within {2.0 * typical:.2g} mm, log beyond)")
     if len(t) > 1:
         ax_err.set_xlim(t[0], t[-1])
     legend_above(ax_err)
