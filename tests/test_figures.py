@@ -104,6 +104,15 @@ def test_path_png_has_the_map_and_the_error_panel_and_a_title_with_the_outcome(t
     assert np.allclose(np.ravel(start.get_xydata()), [p0.x, p0.y])
 
 
+def test_a_start_far_off_the_path_does_not_flatten_the_rest_of_the_error_panel() -> None:
+    path = load_path({"shape": "circle", "radius": 0.5, "speed": 0.3})
+    assert path_figure(_run(path)).axes[1].get_yscale() == "linear"
+    r = _run(path)
+    r.table[:20, SIM_COLUMNS.index("y")] -= 0.05  # the first ticks 50 mm off, the rest 2 mm
+    ax_err = path_figure(r).axes[1]
+    assert ax_err.get_yscale() == "symlog" and "log beyond" in ax_err.get_ylabel()
+
+
 def test_the_legends_keep_off_the_data_and_the_title(tmp_path) -> None:
     path = load_path({"shape": "figure_eight", "size": 1.2, "speed": 0.3})
     fig = _drawn(path_figure(_run(path)))

@@ -20,7 +20,7 @@ from ddrt.simrun.runner import SimResult
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["cross_track_mm", "path_figure", "run_title", "path_side", "write_plots"]
+__all__ = ["cross_track_mm", "path_figure", "path_side", "run_title", "write_plots"]
 
 
 def _mm(v: float) -> str:
@@ -124,8 +124,9 @@ def path_figure(result: SimResult, name: str = "") -> Figure:
     ax_err.plot(t, e_est, "--", lw=1.0, color="tab:orange", label="estimated pose")
     ax_err.set_xlabel("t (s)")
     ax_err.set_ylabel("cross-track (mm), left +")
-    typical = float(np.nanpercentile(np.abs(np.concatenate([e_true, e_est])), 90)) if len(t) else 0.0
-    if typical > 0.0 and np.nanmax(np.abs(np.concatenate([e_true, e_est]))) > 20.0 * typical:
+    both = np.abs(np.concatenate([e_true, e_est]))
+    typical = float(np.nanpercentile(both, 90)) if len(both) else 0.0
+    if typical > 0.0 and np.nanmax(both) > 20.0 * typical:
         # A start far off the path (or one excursion) would flatten the rest of the run to a line.
         ax_err.set_yscale("symlog", linthresh=2.0 * typical, linscale=2.0)
         ax_err.set_ylabel(f"cross-track (mm), left +\n(linear within {2.0 * typical:.2g} mm, log beyond)")
