@@ -170,3 +170,11 @@ def test_the_figure_modules_do_not_import_matplotlib() -> None:
     code = ("import sys, ddrt.path.figure, ddrt.path.report, ddrt.simrun.plots; "
             "sys.exit('matplotlib' in sys.modules)")
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
+
+
+def test_the_title_names_the_config_and_its_path() -> None:
+    from ddrt.cli import _run_name
+
+    assert _run_name("configs/sim.yaml", "/r/configs/paths/figure8_slow.yaml") == "sim.yaml: figure8_slow.yaml"
+    assert _run_name("configs/scenarios/s_curve.yaml", "/r/configs/paths/s_curve.yaml") == "s_curve.yaml"
+    assert _run_name("circle_fast.yaml", {"shape": "circle", "radius": 0.5}) == "circle_fast.yaml: inline circle"
