@@ -66,9 +66,18 @@ def sim_exit_status(metrics: dict, duration_given: bool) -> int:
     return 0 if duration_given and not metrics.get("fault") and metrics.get("state") not in ("fault", "estop") else 1
 
 
+def _run_name(config: str, source: object) -> str:
+    """The figures' name of a run: the config's file and the path's (or its inline shape)."""
+    if isinstance(source, dict):
+        what = f"inline {source.get('shape', 'path')}" if "file" not in source else Path(str(source["file"])).name
+    else:
+        what = Path(str(source)).name
+    return Path(config).name if what == Path(config).name else f"{Path(config).name}: {what}"
+
+
 def _cmd_sim(args: argparse.Namespace) -> int:
     from ddrt.config import load_config
-    from ddrt.path.spec import resolve_path
+    from ddrt.path.spec import path_source, resolve_path
     from ddrt.simrun.runner import run_sim, stderr_progress, summary_text, write_outputs
 
     if args.plot:
@@ -98,7 +107,7 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     if args.plot:
         from ddrt.simrun.plots import write_plots
 
-        write_plots(result, args.out)
+        write_plots(result, args.out, name=_run_name(args.config, path_source(cfg, args.path)[0]))
     print(summary_text(result.metrics))
     print(f"wrote {args.out}/telemetry.csv and {args.out}/metrics.json" + (" and figures" if args.plot else "")
           + (f" and {args.mcap}" if args.mcap else ""))

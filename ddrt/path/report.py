@@ -35,13 +35,17 @@ import math
 import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path as FsPath
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ddrt.path.profile import CapTerms, cap_terms
 from ddrt.path.sampled import Path, distances_to_polyline
 
-__all__ = ["LABELS", "PathReport", "active_limits", "path_report", "report_text", "write_plot"]
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+__all__ = ["LABELS", "PathReport", "active_limits", "path_report", "report_figure", "report_text", "write_plot"]
 
 LABELS = ("speed", "point cap", "lateral", "omega", "curv. rate", "pivot omega", "accel", "decel", "rest",
           "motors: speed", "motors: accel", "motors: braking", "other")
@@ -244,41 +248,47 @@ def report_text(r: PathReport, max_stretches: int = 24) -> str:
     return "\n".join(lines)
 
 
-def write_plot(path: Path, r: PathReport, out_file: str | FsPath) -> FsPath:
-    """The input against the reference, and the speed profile under its caps (matplotlib)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+def report_figure(path: Path, r: PathReport) -> "Figure":
+    """The input against the reference at equal scale (start, direction, corners, cusps), and
+    the speed profile under its caps; the layout follows the path's extent (ddrt/path/figure.py)."""
+    from ddrt.path.figure import legend_above, mark_route, xy_figure
 
     a = path.arrays()
     c = path.conditioning
-    fig, (ax0, ax1) = plt.subplots(2, 1, figsize=(9, 10), gridspec_kw={"height_ratios": [3, 2]})
-    if c is not None:
-        pts = np.asarray(c.points)
-        ax0.plot(pts[:, 0], pts[:, 1], ".", ms=3, color="0.45", label=f"input ({len(pts)} points)")
-    ax0.plot(a["x"], a["y"], "-", lw=1.2, color="tab:red", label="reference")
+    pts = np.asarray(c.points, dtype=float).reshape(-1, 2) if c is not None else np.empty((0, 2))
+    ref = np.column_stack([a["x"], a["y"]])
+    head = f"{FsPath(r.source).name}: {r.length_m:.2f} m in {r.duration_s:.1f} s"
+    title = "\n".join([head] + textwrap.wrap(r.summary, 110))
+    fig, ax0, ax1 = xy_figure(np.vstack([pts, ref]), title)
+    if len(pts):
+        ax0.plot(pts[:, 0], pts[:, 1], ".", ms=3, color="0.45", label=f"input ({len(pts)} points)", zorder=2)
+    ax0.plot(ref[:, 0], ref[:, 1], "-", lw=1.2, color="tab:red", label="reference", zorder=3)
     if r.pivots:
         pv = np.array([(x, y) for _, x, y, _ in r.pivots])
-        ax0.plot(pv[:, 0], pv[:, 1], "o", mfc="none", color="tab:blue", label="turn in place")
-    ax0.set_aspect("equal")
-    ax0.set_xlabel("x (m)")
-    ax0.set_ylabel("y (m)")
-    ax0.legend(loc="best", fontsize=8)
-    ax0.set_title("\n".join(textwrap.wrap(f"{FsPath(r.source).name}: {r.summary}", 100)), fontsize=9)
+        ax0.plot(pv[:, 0], pv[:, 1], "o", ms=9, mfc="none", mec="tab:blue", mew=1.5, label="turn in place", zorder=5)
+    d = a["direction"]  # per interval: a point is backwards when an interval beside it is
+    back = np.zeros(len(ref), dtype=bool)
+    back[:-1] |= d < 0.0
+    back[1:] |= d < 0.0
+    mark_route(ax0, ref, [(x, y) for _, x, y in r.cusps], back)
+    legend_above(ax0)
     s = a["sigma"]
     top = 1.3 * max(r.v_cap, float(np.max(a["u"])), 1e-9)
     for name, cap in _caps(path).items():
         if np.any(np.isfinite(cap) & (cap < top)):
             ax1.plot(s, np.where(cap < top, cap, np.nan), lw=0.8, ls="--", label=name if "cap" in name else f"{name} cap")
     ax1.plot(s, a["u"], "k-", lw=1.4, label="profile (progress rate)")
+    ax1.set_xlim(s[0], s[-1])
     ax1.set_ylim(0.0, top)
     ax1.set_xlabel("progress (m)")
     ax1.set_ylabel("speed (m/s)")
-    ax1.legend(loc="best", fontsize=8, ncol=2)
-    fig.tight_layout()
+    legend_above(ax1)
+    return fig
+
+
+def write_plot(path: Path, r: PathReport, out_file: str | FsPath) -> FsPath:
+    """`report_figure` as a PNG (matplotlib)."""
     out = FsPath(out_file)
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
+    report_figure(path, r).savefig(out, dpi=110)
     return out
