@@ -201,7 +201,7 @@ def _mark(ok: bool | None) -> str:
 def render(r: PathsResult) -> list[str]:
     lines = [
         "Polylines as recordings, planners and exports deliver them (bench/paths_as_given.py, inputs generated "
-        "with fixed seeds), loaded as `ddrt sim --path FILE` loads a CSV on configs/sim.yaml and run on the "
+        "with fixed seeds by tests/support/path_inputs.py), loaded as `ddrt sim --path FILE` loads a CSV on configs/sim.yaml and run on the "
         "simulated robot (seed 1). time: simulated time to the end, against the target "
         f"{TIME_FACTOR:g} x max(length / speed, the exact curve's own profile) + {TIME_EXTRA_S:g} s; "
         "true: distance of the true pose from the underlying curve (a grid plan: its staircase), RMS / max; "
