@@ -12,20 +12,19 @@ Three measurements on the simulated robot:
 from __future__ import annotations
 
 import math
-import multiprocessing
 import statistics
 import time
 from dataclasses import dataclass
 from pathlib import Path as FsPath
 from typing import Sequence
 
+from bench.common import REPO, pooled_by_key
 from ddrt import calibrate as cal
 from ddrt.config import load_config, with_overrides
 from ddrt.path.spec import resolve_path
 from ddrt.simrun.runner import run_sim
 from hal.registry import open_hal
 
-REPO = FsPath(__file__).resolve().parents[1]
 RATES_HZ = (200.0, 1000.0)
 TARGET_CASE = ("figure8_fast_offset_mass", "figure8_fast")  # (hidden mass, same path nominal)
 SLOW_CASES = ("figure8_slow", "figure8_slow_offset_mass")
@@ -96,19 +95,6 @@ def _job(args: tuple[str, float, bool, int]) -> tuple[tuple[str, float, bool], f
     return (name, rate, on), float(m["rms_tracking_m"]), float(m["rms_cross_track_m"])
 
 
-def _pooled(fn, jobs: list, workers: int) -> dict[tuple[str, float, bool], list[tuple[float, ...]]]:
-    """Run `fn` over `jobs` (in `workers` processes) and group its values by key over seeds."""
-    if workers > 1:
-        with multiprocessing.get_context("fork").Pool(workers) as pool:
-            out = pool.map(fn, jobs, chunksize=1)
-    else:
-        out = [fn(j) for j in jobs]
-    acc: dict[tuple[str, float, bool], list[tuple[float, ...]]] = {}
-    for key, *values in out:
-        acc.setdefault(key, []).append(tuple(values))
-    return acc
-
-
 def _medians(rows: list[tuple[float, ...]]) -> list[float]:
     return [statistics.median(r[i] for r in rows) for i in range(len(rows[0]))]
 
@@ -116,7 +102,7 @@ def _medians(rows: list[tuple[float, ...]]) -> list[float]:
 def measure_grid(scenarios: Sequence[str], seeds: Sequence[int], workers: int,
                  rates: Sequence[float] = RATES_HZ) -> dict[tuple[str, float, bool], Cell]:
     jobs = [(s, r, on, seed) for s in scenarios for r in rates for on in (False, True) for seed in seeds]
-    return {k: Cell(*_medians(v)) for k, v in _pooled(_job, jobs, workers).items()}
+    return {k: Cell(*_medians(v)) for k, v in pooled_by_key(_job, jobs, workers).items()}
 
 
 def _long_job(args: tuple[str, float, bool, int]) -> tuple[tuple[str, float, bool], float, float, float]:
@@ -139,7 +125,7 @@ def measure_long(seeds: Sequence[int], workers: int,
                  rates: Sequence[float] = RATES_HZ) -> dict[tuple[str, float, bool], LongRun]:
     """Both figure-eights of TARGET_CASE over five laps, adaptation off and on."""
     jobs = [(s, r, on, seed) for s in TARGET_CASE for r in rates for on in (False, True) for seed in seeds]
-    return {k: LongRun(*_medians(v)) for k, v in _pooled(_long_job, jobs, workers).items()}
+    return {k: LongRun(*_medians(v)) for k, v in pooled_by_key(_long_job, jobs, workers).items()}
 
 
 def measure_identify() -> list[IdentifyRow]:

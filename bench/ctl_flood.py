@@ -21,6 +21,7 @@ import time
 from dataclasses import dataclass
 from typing import Any, Sequence
 
+from bench.common import percentile
 from ddrt.service.commands import COMMANDS, NEVER_REFUSED, PRIORITY
 from ddrt.service.ctlclient import connect, request
 from ddrt.service.ctlserver import ControlServer
@@ -62,12 +63,6 @@ def _fd_room(n: int) -> bool:
         return False
     resource.setrlimit(resource.RLIMIT_NOFILE, (need, hard))
     return True
-
-
-def _percentile(data: list[float], q: float) -> float:
-    data = sorted(data)
-    k = min(len(data) - 1, max(0, round(q / 100.0 * (len(data) - 1))))
-    return data[k]
 
 
 def measure_one(kind: str, n: int, estops: int = ESTOPS) -> FloodRow:
@@ -149,7 +144,7 @@ def measure_one(kind: str, n: int, estops: int = ESTOPS) -> FloodRow:
     count = opened[0] if kind == "connect flood" else n
     if not lat:
         return FloodRow(kind, count, 0, estops, None, None, None, evicted)
-    return FloodRow(kind, count, len(lat), estops, statistics.median(lat) * 1e3, _percentile(lat, 99) * 1e3,
+    return FloodRow(kind, count, len(lat), estops, statistics.median(lat) * 1e3, percentile(lat, 99) * 1e3,
                     max(lat) * 1e3, evicted)
 
 

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import subprocess
 import sys
 import tempfile
@@ -34,8 +33,9 @@ from typing import Any, Sequence
 
 import yaml
 
-REPO = FsPath(__file__).resolve().parent.parent
-BASE_CONFIG = REPO / "configs" / "sim.yaml"
+from bench.common import SIM_CONFIG, percentile, spawn_daemon
+from ddrt.service.ctlclient import ControlClientError, request
+
 TARGET_LATE_P99_US = 1000.0
 TARGET_ESTOP_MS = 10.0
 ESTOP_ROUNDS = 3
@@ -43,15 +43,6 @@ ESTOP_ROUNDS = 3
 # `status`: its timing summary sorts the daemon's whole 16384-tick window on the loop thread
 # (3 to 12 ms on the bench machine), which would be the lateness measured here.
 PROBE = "gains"
-sys.path.insert(0, str(REPO))
-
-from ddrt.service.ctlclient import ControlClientError, request  # noqa: E402
-
-
-def child_env() -> dict[str, str]:
-    env = {k: v for k, v in os.environ.items() if k not in ("NOTIFY_SOCKET", "WATCHDOG_USEC", "WATCHDOG_PID")}
-    env["PYTHONPATH"] = str(REPO) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-    return env
 
 
 class Daemon:
@@ -60,16 +51,15 @@ class Daemon:
         self.sock = str(directory / "ddrt.sock")
         cfg = directory / "bench_follow.yaml"
         cfg.write_text(yaml.safe_dump({
-            "extends": str(BASE_CONFIG),
+            "extends": str(SIM_CONFIG),
             "daemon": {"telemetry_dir": str(directory / "telemetry"), "rt_priority": 10},
             "estimator": {"calibration_s": 0.5},
             "start": [0.0, 0.0, 0.0],
             "paths": paths,
         }, sort_keys=False), encoding="utf-8")
         self.err = open(directory / "stderr.log", "wb")
-        self.proc = subprocess.Popen([sys.executable, "-m", "ddrt.cli", "run", str(cfg), "--socket", self.sock,
-                                      "--stats-json", str(directory / "stats.json")],
-                                     cwd=REPO, env=child_env(), stdout=subprocess.DEVNULL, stderr=self.err)
+        self.proc = spawn_daemon(cfg, "--socket", self.sock, "--stats-json", str(directory / "stats.json"),
+                                 stderr=self.err)
         deadline = time.monotonic() + 60.0
         while True:
             if self.proc.poll() is not None:
@@ -100,16 +90,6 @@ class Daemon:
         return json.loads(stats.read_text()) if stats.exists() else None
 
 
-def _percentile(values: list[float], q: float) -> float | None:
-    if not values:
-        return None
-    v = sorted(values)
-    k = (len(v) - 1) * q / 100.0
-    lo = int(k)
-    hi = min(lo + 1, len(v) - 1)
-    return v[lo] + (v[hi] - v[lo]) * (k - lo)
-
-
 def one_case(d: Daemon, name: str, follow: dict[str, Any]) -> dict[str, Any]:
     """Follow with status polled meanwhile; then the same follow cancelled by an estop."""
     out: dict[str, Any] = {"case": name}
@@ -136,7 +116,7 @@ def one_case(d: Daemon, name: str, follow: dict[str, Any]) -> dict[str, Any]:
     out.update(ok=reply.get("ok"), outcome=reply.get("state") or reply.get("error", "")[:120],
                reply_s=box["s"], ticks=prepared.get("ticks"), missed=prepared.get("missed_ticks"),
                late_p99_us=prepared.get("late_p99_us"), late_max_us=prepared.get("late_max_us"),
-               status_p50_ms=(_percentile(status_rtt, 50) or 0) * 1e3,
+               status_p50_ms=percentile(status_rtt, 50) * 1e3 if status_rtt else 0.0,
                status_max_ms=max(status_rtt, default=0.0) * 1e3, status_n=len(status_rtt))
     if reply.get("ok"):
         dt, e = d.ask({"cmd": "estop"})
@@ -171,7 +151,7 @@ def idle_case(d: Daemon) -> dict[str, Any]:
         time.sleep(0.1)
     return {"case": "(nothing: idle)", "budgets": "-", "ok": True, "outcome": "idle", "reply_s": None,
             "ticks": None, "missed": None, "late_p99_us": None, "late_max_us": None,
-            "status_p50_ms": (_percentile(status, 50) or 0) * 1e3, "status_max_ms": max(status) * 1e3,
+            "status_p50_ms": percentile(status, 50) * 1e3, "status_max_ms": max(status) * 1e3,
             "status_n": len(status), "estop_preparing_ms": max(estops) * 1e3,
             "estop_preparing_all_ms": [round(x * 1e3, 2) for x in estops]}
 

@@ -33,7 +33,8 @@ from typing import Any, Sequence
 
 import yaml
 
-from bench.foxglove_load import BASE_CONFIG, PATH, REPO, _client
+from bench.common import REPO, SIM_CONFIG, child_env
+from bench.foxglove_load import PATH, view_client
 
 PORT = 18766
 LATE_S = 0.001
@@ -72,14 +73,14 @@ def probe(enabled: bool, duration: float, normal_publisher: bool = False) -> dic
     timing.RateScheduler.account, service.VizService.publish_once = timed_account, timed_publish  # type: ignore
     try:
         with tempfile.TemporaryDirectory(prefix="ddrt-gil-", dir="/tmp") as tmp:
-            cfg = {"extends": str(BASE_CONFIG), "path": str(PATH),
+            cfg = {"extends": str(SIM_CONFIG), "path": str(PATH),
                    "daemon": {"socket": f"{tmp}/ctl.sock", "telemetry_dir": f"{tmp}/tel", "rt_priority": 10,
                               "foxglove": {"enabled": enabled, "port": PORT}}}
             FsPath(tmp, "cfg.yaml").write_text(yaml.safe_dump(cfg))
             client = None
             if enabled:  # another process: the client must not share this one's GIL
                 client = subprocess.Popen([sys.executable, "-m", "bench.foxglove_gil", "--client", str(duration)],
-                                          cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)},
+                                          cwd=REPO, env=child_env(),
                                           stdout=subprocess.DEVNULL)
             try:
                 cli.main(["run", f"{tmp}/cfg.yaml", "--follow", "--duration", str(duration)])
@@ -122,7 +123,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.client is not None:
         time.sleep(float(os.environ.get("DDRT_GIL_CLIENT_DELAY_S", "3.0")))  # the daemon's start-up
-        asyncio.run(_client(PORT, time.monotonic() + args.client))
+        asyncio.run(view_client(PORT, time.monotonic() + args.client))
         return 0
     r = analyse(probe(not args.off, args.duration, args.normal_publisher))
     r["load_average"] = " ".join(f"{x:.2f}" for x in os.getloadavg())

@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
-import os
 import re
 import shlex
 import statistics
@@ -40,8 +39,8 @@ from typing import Any, Sequence
 
 import yaml
 
-REPO = FsPath(__file__).resolve().parent.parent
-BASE_CONFIG = REPO / "configs" / "sim.yaml"
+from bench.common import REPO, SIM_CONFIG, child_env, percentile, spawn_daemon
+
 PATH = REPO / "configs" / "paths" / "figure8_fast_5laps.yaml"
 TARGET_TICK_P99_US = 5.0
 TARGET_RSS_MB = 40.0
@@ -49,21 +48,21 @@ TARGET_AGE_MS = 100.0
 
 
 def _start(workdir: FsPath, enabled: bool, duration: float) -> tuple[subprocess.Popen[bytes], FsPath, FsPath]:
-    cfg = {"extends": str(BASE_CONFIG), "path": str(PATH),
+    cfg = {"extends": str(SIM_CONFIG), "path": str(PATH),
            "daemon": {"socket": str(workdir / "ctl.sock"), "telemetry_dir": str(workdir / "tel"), "rt_priority": 10,
                       "foxglove": {"enabled": enabled, "port": 0}}}
     config = workdir / "cfg.yaml"
     config.write_text(yaml.safe_dump(cfg))
     stats, err = workdir / "stats.json", workdir / "stderr.log"
-    env = {k: v for k, v in os.environ.items() if k not in ("NOTIFY_SOCKET", "LOGS_DIRECTORY")}
-    env["PYTHONPATH"] = str(REPO)
     with open(err, "wb") as fh:
-        proc = subprocess.Popen([sys.executable, "-m", "ddrt.cli", "run", str(config), "--follow", "--duration",
-                                 str(duration), "--stats-json", str(stats)], cwd=REPO, env=env, stdout=fh, stderr=fh)
+        proc = spawn_daemon(config, "--follow", "--duration", str(duration), "--stats-json", str(stats),
+                            stdout=fh, stderr=fh)
     return proc, stats, err
 
 
-async def _client(port: int, until: float) -> dict[str, Any]:
+async def view_client(port: int, until: float) -> dict[str, Any]:
+    """A `websockets` client subscribed to every channel until `until` (time.monotonic()): the
+    messages it received per topic and the age of each /state message on arrival."""
     import websockets
 
     ages: list[float] = []
@@ -96,13 +95,9 @@ async def _client(port: int, until: float) -> dict[str, Any]:
             counts[topic] = counts.get(topic, 0) + 1
             if topic == "/state":
                 ages.append((now - int.from_bytes(msg[5:13], "little")) / 1e6)
-    ages.sort()
-    return {"counts": counts, "age_ms": {"p50": _pct(ages, 50), "p99": _pct(ages, 99), "max": ages[-1] if ages else None,
-                                         "n": len(ages)}}
-
-
-def _pct(xs: list[float], p: float) -> float | None:
-    return xs[min(len(xs) - 1, int(round(p / 100 * (len(xs) - 1))))] if xs else None
+    return {"counts": counts, "age_ms": {"p50": percentile(ages, 50) if ages else None,
+                                         "p99": percentile(ages, 99) if ages else None,
+                                         "max": max(ages) if ages else None, "n": len(ages)}}
 
 
 def run_one(enabled: bool, duration: float) -> dict[str, Any]:
@@ -120,7 +115,7 @@ def run_one(enabled: bool, duration: float) -> dict[str, Any]:
                     time.sleep(0.02)
                 if port is None:
                     raise RuntimeError(f"no Foxglove server:\n{err.read_text(errors='replace')}")
-                client = asyncio.run(_client(port, time.monotonic() + duration + 30.0))
+                client = asyncio.run(view_client(port, time.monotonic() + duration + 30.0))
             proc.wait(timeout=duration + 60.0)
         finally:
             if proc.poll() is None:
@@ -183,7 +178,7 @@ def measure_mcap(scenario: str = "figure8_fast", duration: float | None = None,
                  repeats: int = 2) -> dict[str, Any]:
     """`ddrt sim` on one scenario with the daemon runs' path (PATH) with and without `--mcap`
     (best wall time of `repeats`), and the sizes of its telemetry.csv and the MCAP file."""
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    env = child_env()
     out: dict[str, Any] = {"scenario": scenario, "path": str(PATH.relative_to(REPO))}
     with tempfile.TemporaryDirectory(prefix="ddrt-mcap-", dir="/tmp") as tmp:
         for mcap in (False, True):

@@ -22,9 +22,9 @@ from pathlib import Path as FsPath
 
 from ddrt.config import load_config
 from ddrt.path.spec import resolve_path
+from bench.common import REPO
 from ddrt.simrun.runner import run_sim
 
-ROOT = FsPath(__file__).resolve().parents[1]
 SCENARIOS = ("figure8_slow", "figure8_fast", "figure8_fast_offset_mass", "rectangle", "s_curve",
              "waypoints_sparse", "circle_fast", "seed_circle_offset_mass")
 K_Y = (64.0, 400.0, 1600.0, 6400.0)
@@ -43,7 +43,7 @@ def _one(job: tuple[str, float, float, bool]) -> tuple[str, float, float, bool, 
                                       "inner": {"kp": 2.0 * w0, "ki": w0 * w0, "kd": 0.0}}}
     if slow:
         overrides.update(SLOW)
-    cfg = load_config(ROOT / "configs" / "scenarios" / f"{name}.yaml", overrides)
+    cfg = load_config(REPO / "configs" / "scenarios" / f"{name}.yaml", overrides)
     result = run_sim(cfg, resolve_path(cfg))
     m = result.metrics
     dl = result.column("duty_l")
@@ -53,7 +53,7 @@ def _one(job: tuple[str, float, float, bool]) -> tuple[str, float, float, bool, 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--out", default=str(ROOT / "docs" / "TUNING.md"))
+    ap.add_argument("--out", default=str(REPO / "docs" / "TUNING.md"))
     args = ap.parse_args()
     jobs = list(itertools.product(SCENARIOS, K_Y, W0, (False, True)))
     t0 = time.perf_counter()

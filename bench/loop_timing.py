@@ -8,7 +8,6 @@ with `controller.rate_hz` and a temp telemetry dir; the daemon writes its own ti
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 import tempfile
@@ -18,18 +17,11 @@ from typing import Any, Sequence
 
 import yaml
 
-REPO = FsPath(__file__).resolve().parent.parent
-BASE_CONFIG = REPO / "configs" / "sim.yaml"
+from bench.common import REPO, SIM_CONFIG, child_env, spawn_daemon
+
 # A path longer than any run here (80 s at 31 mm/s), so the loop follows for the whole run.
 FOLLOW_PATH = REPO / "configs" / "paths" / "seed_circle.yaml"
 RATES_HZ = (100, 200, 500, 1000)
-
-
-def child_env() -> dict[str, str]:
-    """The environment for a child python: the repo importable however the bench was started."""
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(REPO) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-    return env
 
 
 def daemon_help() -> str | None:
@@ -64,7 +56,7 @@ class LoopTiming:
 def write_config(directory: FsPath, rate_hz: float, spin_us: int = 0) -> FsPath:
     """A config that extends configs/sim.yaml at `rate_hz`, telemetry and socket in `directory`."""
     data = {
-        "extends": str(BASE_CONFIG),
+        "extends": str(SIM_CONFIG),
         "controller": {"rate_hz": rate_hz},
         "daemon": {"telemetry_dir": str(directory / "telemetry"), "socket": str(directory / "ddrt.sock"),
                    "spin_us": spin_us},
@@ -80,22 +72,23 @@ def run_daemon(rate_hz: float, duration_s: float, follow: bool, spin_us: int = 0
         d = FsPath(tmp)
         cfg = write_config(d, rate_hz, spin_us)
         stats_file = d / "stats.json"
-        cmd = [sys.executable, "-m", "ddrt.cli", "run", str(cfg), "--duration", f"{duration_s:g}",
-               "--socket", str(d / "ddrt.sock"), "--stats-json", str(stats_file)]
+        args = ["--duration", f"{duration_s:g}", "--socket", str(d / "ddrt.sock"), "--stats-json", str(stats_file)]
         if follow:
-            cmd.append("--follow")
+            args.append("--follow")
+        p = spawn_daemon(cfg, *args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
-            p = subprocess.run(cmd, cwd=REPO, env=child_env(), capture_output=True, text=True,
-                               timeout=duration_s + 60.0)
+            _, stderr = p.communicate(timeout=duration_s + 60.0)
         except subprocess.TimeoutExpired:
+            p.kill()
+            p.communicate()
             return LoopRun(rate_hz, duration_s, None, "timed out", follow, spin_us)
         if not stats_file.exists():
-            return LoopRun(rate_hz, duration_s, None, f"exit {p.returncode}, no stats: {last_error(p.stderr)}", follow, spin_us)
+            return LoopRun(rate_hz, duration_s, None, f"exit {p.returncode}, no stats: {last_error(stderr)}", follow, spin_us)
         try:
             stats = json.loads(stats_file.read_text(encoding="utf-8"))
         except ValueError as exc:
             return LoopRun(rate_hz, duration_s, None, f"{stats_file.name}: not JSON: {exc}", follow, spin_us)
-        err = "" if p.returncode == 0 else f"exit {p.returncode}: {last_error(p.stderr)}"
+        err = "" if p.returncode == 0 else f"exit {p.returncode}: {last_error(stderr)}"
         return LoopRun(rate_hz, duration_s, stats, err, follow, spin_us)
 
 

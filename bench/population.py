@@ -39,7 +39,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
-from bench.adaptation import _pooled
+from bench.common import pooled_by_key
 from ddrt.config import config_from_mapping
 from ddrt.params.robot import RobotParams
 from ddrt.path.spec import resolve_path
@@ -198,7 +198,7 @@ def measure_population(n: int = ROBOTS, workers: int = 2, variants: Sequence[str
     robots = population(n, seed)
     jobs = [(r, p, v) for v in variants for r in robots for p in PATHS]
     t0 = time.perf_counter()
-    grouped = _pooled(_run, jobs, workers)
+    grouped = pooled_by_key(_run, jobs, workers)
     runs = {k: v[0][0] for k, v in grouped.items()}
     res = PopulationResult(robots, runs, tuple(variants), time.perf_counter() - t0)
     res.verdict = verdicts(res)

@@ -30,13 +30,12 @@ import numpy as np
 
 from bench import (accuracy, adaptation, ctl_flood, foxglove_load, io_bound, loop_timing, paths_as_given, population,
                    startup, tick_cost, velocity_mode)
+from bench.common import REPO, SIM_CONFIG
 from ddrt.config import load_config
 from ddrt.path.spec import resolve_path
 from ddrt.simrun.runner import run_sim
 
-REPO = loop_timing.REPO
 SCENARIO_DIR = REPO / "configs" / "scenarios"
-TICK_CONFIG = REPO / "configs" / "sim.yaml"
 
 SECTIONS = (
     "Machine",
@@ -160,7 +159,7 @@ def measure_paths(opts: BenchOptions) -> object:
 def measure_live(opts: BenchOptions) -> LiveView:
     missing = foxglove_missing()
     fx = None if missing else foxglove_load.section(opts.foxglove_duration_s, opts.mcap_duration_s, opts.mcap_repeats)
-    return LiveView(fx, missing, velocity_mode.measure(load_config(TICK_CONFIG), min(opts.ticks, 100_000)))
+    return LiveView(fx, missing, velocity_mode.measure(load_config(SIM_CONFIG), min(opts.ticks, 100_000)))
 
 
 def render_live(live: LiveView) -> list[str]:
@@ -247,7 +246,7 @@ def measure_all(opts: BenchOptions, command: str, say: Callable[[str], None] = _
         say(f"{name}: {walls[name]:.1f} s")
         return value
 
-    ticks = timed("tick cost", lambda: tick_cost.measure_tick_cost(load_config(TICK_CONFIG), opts.ticks))
+    ticks = timed("tick cost", lambda: tick_cost.measure_tick_cost(load_config(SIM_CONFIG), opts.ticks))
     loop = timed("loop timing", lambda: loop_timing.measure_loop_timing(opts.loop_rates, opts.loop_duration_s))
     ctl = timed("control socket", lambda: ctl_flood.measure_ctl_flood(opts.ctl_counts, opts.ctl_estops))
     speed = timed("simulation speed", lambda: measure_speed(opts.speed_scenarios, opts.seeds))

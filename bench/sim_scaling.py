@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import statistics
 import subprocess
 import sys
@@ -29,7 +28,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path as FsPath
 
-REPO = FsPath(__file__).resolve().parent.parent
+from bench.common import REPO, child_env
 
 # name, config (relative to the repo), figure-eight laps (None: the config's own path), --duration
 CASES: tuple[tuple[str, str, int | None, float | None], ...] = (
@@ -77,7 +76,7 @@ def run_case(repo: FsPath, config: str, laps: int | None, duration: float | None
             argv += ["--path", str(figure8_path(laps, FsPath(tmp) / f"figure8_{laps}laps.yaml"))]
         if duration is not None:
             argv += ["--duration", f"{duration:g}"]
-        env = dict(os.environ, PYTHONPATH=str(repo), OPENBLAS_NUM_THREADS="1")
+        env = child_env(repo, OPENBLAS_NUM_THREADS="1")
         t0 = time.perf_counter()
         p = subprocess.run([sys.executable, "-c", _CHILD, json.dumps(argv)], cwd=repo, env=env,
                            capture_output=True, text=True, timeout=900)

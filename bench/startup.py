@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path as FsPath
 from typing import Sequence
 
-from bench.loop_timing import REPO, child_env
+from bench.common import REPO, child_env
 
 MODULES = ("numpy", "filterpy", "yaml", "serial", "smbus2", "ddrt.loop")
 

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bench.common import percentile
 from ddrt.config import Config
 from ddrt.loop import ControlLoop
 from ddrt.path.spec import resolve_path
@@ -41,8 +42,7 @@ class Percentiles:
         a = np.asarray(ns, dtype=np.float64) / 1000.0
         if a.size == 0:
             raise ValueError("no samples")
-        p50, p99 = np.percentile(a, [50.0, 99.0])
-        return cls(p50_us=float(p50), p99_us=float(p99), max_us=float(a.max()))
+        return cls(p50_us=percentile(a, 50.0), p99_us=percentile(a, 99.0), max_us=float(a.max()))
 
 
 @dataclass(frozen=True)

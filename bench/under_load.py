@@ -33,16 +33,10 @@ from typing import Any
 
 import yaml
 
-REPO = FsPath(__file__).resolve().parent.parent
-BASE_CONFIG = REPO / "configs" / "sim.yaml"
+from bench.common import SIM_CONFIG, spawn_daemon
+
 PATH = {"shape": "figure_eight", "width": 1.2, "height": 0.6, "speed": 0.3, "laps": 4}
 BURN = "while True:\n    pass\n"
-
-
-def child_env() -> dict[str, str]:
-    env = {k: v for k, v in os.environ.items() if k not in ("NOTIFY_SOCKET", "WATCHDOG_USEC", "WATCHDOG_PID")}
-    env["PYTHONPATH"] = str(REPO) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-    return env
 
 
 @dataclass
@@ -81,7 +75,7 @@ def _path_length() -> float:
     from ddrt.path import load_path
     from ddrt.path.spec import speed_limits
 
-    return load_path(dict(PATH), speed_limits(load_config(BASE_CONFIG))).length
+    return load_path(dict(PATH), speed_limits(load_config(SIM_CONFIG))).length
 
 
 def _progress(telemetry_dir: FsPath) -> float:
@@ -107,16 +101,14 @@ def run_once(index: int, duration_s: float, length_m: float) -> LoadRun:
         tel = tmpdir / "tel"
         stats_file = tmpdir / "stats.json"
         cfg.write_text(yaml.safe_dump({
-            "extends": str(BASE_CONFIG),
+            "extends": str(SIM_CONFIG),
             "daemon": {"telemetry_dir": str(tel), "socket": None},
             "path": dict(PATH),
         }, sort_keys=False))
-        cmd = [sys.executable, "-m", "ddrt.cli", "run", str(cfg), "--follow", "--duration", str(duration_s),
-               "--stats-json", str(stats_file)]
         t0 = time.monotonic()
         with open(tmpdir / "stderr.log", "wb") as err:
-            proc = subprocess.Popen(cmd, cwd=REPO, env=child_env(), stdout=subprocess.DEVNULL, stderr=err,
-                                    stdin=subprocess.DEVNULL)
+            proc = spawn_daemon(cfg, "--follow", "--duration", str(duration_s), "--stats-json", str(stats_file),
+                                stderr=err)
             try:
                 rc: int | None = proc.wait(timeout=duration_s + 60.0)
             except subprocess.TimeoutExpired:

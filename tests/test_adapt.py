@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import math
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,8 +17,8 @@ from ddrt.core.motor import Motor
 from ddrt.params.motor import MotorParams
 from ddrt.path.spec import resolve_path
 from ddrt.simrun.runner import run_sim
+from tests.support.repo import REPO, SIM_YAML
 
-ROOT = Path(__file__).resolve().parents[1]
 NOMINAL = Dynamics(m_k=4.3, mbar=0.0, I=0.048, m_x=0.083, L=0.108, R=0.108, r_L=0.05, r_R=0.05)
 TRUE = AdaptedDynamics(m_k=6.5, mbar=-0.03, I=0.059, m_x=0.226, L=0.108, R=0.108, r_L=0.05, r_R=0.05,
                        fric_l=0.012, fric_r=-0.006)
@@ -157,14 +156,14 @@ def test_update_cost_is_small() -> None:
                                        ("min_wheel_speed", -0.5), ("forgetting", 0.5)])
 def test_bad_config_names_the_key(key: str, value: float) -> None:
     with pytest.raises(ConfigError, match=f"controller.adaptation.{key}"):
-        load_config(ROOT / "configs/sim.yaml", {"controller": {"adaptation": {key: value}}})
+        load_config(SIM_YAML, {"controller": {"adaptation": {key: value}}})
 
 
 # --------------------------------------------------------------------------- closed loop
 
 
 def _run(scenario: str, enabled: bool, rate_hz: float = 200.0, **over):
-    cfg = load_config(ROOT / "configs/scenarios" / scenario)
+    cfg = load_config(REPO / "configs/scenarios" / scenario)
     cfg = with_overrides(cfg, {"controller": {"rate_hz": rate_hz, "adaptation": {"enabled": enabled, **over}}})
     return cfg, run_sim(cfg, resolve_path(cfg))
 
@@ -183,10 +182,10 @@ def _laps(result, laps: int = 5) -> list[float]:
 def test_offset_mass_figure8_fast_is_identified_and_tracks_as_the_nominal_robot() -> None:
     """Issue 7's case at 1 kHz, where the model is what limits the tracking error: five laps
     of the 0.8 m/s figure-eight, the first being the adapter's learning lap."""
-    five = str(ROOT / "configs/paths/figure8_fast_5laps.yaml")
+    five = str(REPO / "configs/paths/figure8_fast_5laps.yaml")
 
     def run(scenario: str, enabled: bool):
-        cfg = load_config(ROOT / "configs/scenarios" / scenario,
+        cfg = load_config(REPO / "configs/scenarios" / scenario,
                           {"controller": {"rate_hz": 1000.0, "adaptation": {"enabled": enabled}}})
         return cfg, run_sim(cfg, resolve_path(cfg, five))
 

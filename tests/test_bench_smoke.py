@@ -11,21 +11,21 @@ from array import array
 
 import pytest
 
-from bench import accuracy, adaptation, io_bound, run, tick_cost, velocity_mode
+from bench import accuracy, adaptation, io_bound, paths_as_given, run, tick_cost, velocity_mode
 from ddrt.config import load_config
 from ddrt.loop import ControlLoop
 from ddrt.path.spec import resolve_path
 from hal.wire import Drive, Packet, encode_frame
 from hal.registry import open_hal
-
-SIM = run.TICK_CONFIG
+from tests.support import path_inputs
+from tests.support.repo import SIM_YAML
 
 
 # ------------------------------------------------------------------ tick cost
 
 
 def _following_loop(seed: int) -> ControlLoop:
-    cfg = load_config(SIM)
+    cfg = load_config(SIM_YAML)
     path = resolve_path(cfg)
     hal = open_hal(cfg, start=path.start_pose, seed=seed)
     loop = ControlLoop(cfg, hal)
@@ -52,7 +52,7 @@ def test_stamped_tick_behaves_exactly_like_tick() -> None:
 
 
 def test_tick_cost_small_run_is_well_inside_the_period() -> None:
-    tc = tick_cost.measure_tick_cost(load_config(SIM), ticks=3000, seed=3)
+    tc = tick_cost.measure_tick_cost(load_config(SIM_YAML), ticks=3000, seed=3)
     assert set(tc.stages) == set(tick_cost.STAGES)
     assert tc.restarts >= 1  # 15 s of ticks on a 12.5 s path: restarted, still all "following"
     assert 0.0 < tc.tick.p50_us < 1000.0
@@ -203,13 +203,28 @@ def test_population_robots_are_physically_consistent() -> None:
         assert 0.3 < speed_limits(cfg).v_max < 2.5
 
 
+# ------------------------------------------------------------------ section 9: paths as given
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["circle_1cm", "teach_repeat"])
+def test_recordings_closed_loop_meet_the_targets(name) -> None:
+    row = paths_as_given.measure_case(path_inputs.CASES[name](), seed=1, exact=False)
+    r = row.run
+    assert r.completed
+    assert r.time_s <= row.target_s
+    assert r.true_rms_m < path_inputs.TARGET_TRUE_RMS_M
+    assert r.domega_rms < path_inputs.TARGET_DOMEGA_RMS
+    assert r.saturated <= path_inputs.TARGET_SATURATION
+
+
 # ------------------------------------------------------------------ section 11: Foxglove, MCAP, velocity mode
 
 
 def test_velocity_mode_tick_cost_and_stop_within_the_bound() -> None:
-    r = velocity_mode.measure(load_config(SIM), ticks=2000)
+    r = velocity_mode.measure(load_config(SIM_YAML), ticks=2000)
     assert 0.0 < r.drive.p50_us < 1000.0 and 0.0 < r.follow.p50_us < 1000.0
-    assert [s.jerk_max for s in r.stops] == [load_config(SIM).drive.jerk_max, None]
+    assert [s.jerk_max for s in r.stops] == [load_config(SIM_YAML).drive.jerk_max, None]
     for s in r.stops:
         assert s.still_s <= s.bound_s + 0.05 and s.travel_m <= s.bound_m + 0.01, s
         assert s.travel_m > s.bound_m - 0.05  # it drove on through the timeout

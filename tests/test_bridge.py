@@ -25,16 +25,16 @@ from hal.real import RealHal
 from sim_hal.faults import FaultyI2cBus, SerialFaults, reset_mcu
 from sim_hal.mcu_emulator import DutyIntegratingEncoder, McuEmulator, PtyLink, TcpLink
 from sim_hal.mpu_emulator import ConstantGyro, MpuEmulator
+from tests.support.repo import SIM_YAML
 
 HELLO_REPLY = HelloReply(1, 8192, 200)
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def real_config(hal: dict, **sections: dict) -> Config:
     """A validated config with `hal.backend: real` and the given hal section (the seed robot)."""
     import yaml
 
-    robot = yaml.safe_load((ROOT / "configs" / "sim.yaml").read_text(encoding="utf-8"))["robot"]
+    robot = yaml.safe_load((SIM_YAML).read_text(encoding="utf-8"))["robot"]
     return config_from_mapping({"robot": robot, "hal": {"backend": "real", **hal}, **sections})
 
 

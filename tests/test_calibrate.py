@@ -10,19 +10,19 @@ import yaml
 
 from ddrt import calibrate as cal
 from ddrt.cli import main
-from ddrt.config import load_config
+from ddrt.config import Config, load_config
 from ddrt.core.types import Setpoint
 from ddrt.core.model import Dynamics
 from ddrt.path.spec import resolve_path
 from ddrt.simrun.runner import run_sim
 from hal.registry import open_hal
+from tests.support.repo import REPO
 
-ROOT = Path(__file__).resolve().parents[1]
-OFFSET = ROOT / "configs/sim-offset-mass.yaml"
+OFFSET = REPO / "configs/sim-offset-mass.yaml"
 # The seed's 4% encoder-radius error (robot r_3 0.050, plant 0.052); its path is not used by
 # calibrate, the seed circle is run after calibration with CIRCLE.
-UNCAL = ROOT / "configs/scenarios/figure8_slow_r3_uncalibrated.yaml"
-CIRCLE = {"path": str(ROOT / "configs/paths/seed_circle.yaml")}
+UNCAL = REPO / "configs/scenarios/figure8_slow_r3_uncalibrated.yaml"
+CIRCLE = {"path": str(REPO / "configs/paths/seed_circle.yaml")}
 
 
 @pytest.fixture(scope="module")
@@ -90,8 +90,8 @@ def test_area_too_small_is_refused() -> None:
         cal.excitation_path(load_config(OFFSET), 0.4, 0.4)
 
 
-def test_gyro_at_rest_measures_the_simulated_bias() -> None:
-    cfg = load_config(ROOT / "configs/sim.yaml")
+def test_gyro_at_rest_measures_the_simulated_bias(sim_config: Config) -> None:
+    cfg = sim_config
     res = cal.calibrate_gyro_at_rest(cfg, open_hal(cfg))
     assert math.degrees(res.bias_rad_s) == pytest.approx(cfg.sim.gyro.bias_dps, abs=0.05)
     assert 0.0 < math.degrees(res.std_rad_s) < 0.5

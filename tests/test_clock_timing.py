@@ -25,6 +25,7 @@ from hypothesis import strategies as st
 from ddrt.runtime import rt
 from ddrt.runtime.clock import ManualClock, MonotonicClock
 from ddrt.service.timing import RateScheduler, TimingStats, percentile
+from tests.support.repo import REPO
 
 SLACK = 0.05  # generous bound on oversleeping on a loaded 2-core CI machine
 
@@ -236,7 +237,7 @@ def test_timing_stats_rejects_bad_capacity() -> None:
 
 def _run_isolated(code: str) -> dict:
     out = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True,
-                         timeout=20, cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+                         timeout=20, cwd=REPO)
     assert out.returncode == 0, out.stderr
     return json.loads(out.stdout.strip().splitlines()[-1])
 

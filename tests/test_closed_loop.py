@@ -14,11 +14,11 @@ from ddrt.path.spec import resolve_path
 from ddrt.simrun.runner import run_sim
 from hal.base import Hal, HalIOError
 from hal.registry import open_hal
+from tests.support.repo import REPO, SIM_YAML
 
-ROOT = FsPath(__file__).resolve().parents[1]
 # The seed's scenarios last 80-180 s of simulated time each: the `slow` lane (pytest -m slow).
 SLOW_SCENARIOS = {"seed_circle", "seed_circle_offset_mass", "seed_ellipse", "seed_line45", "seed_square"}
-SCENARIO_FILES = sorted((ROOT / "configs" / "scenarios").glob("*.yaml"))
+SCENARIO_FILES = sorted((REPO / "configs" / "scenarios").glob("*.yaml"))
 SCENARIOS = [pytest.param(p, marks=pytest.mark.slow) if p.stem in SLOW_SCENARIOS else p for p in SCENARIO_FILES]
 
 # Regression bounds (mm), generous against the measured values in docs/BENCHMARKS.md.
@@ -68,7 +68,7 @@ def test_one_config_serves_every_path():
 
 @pytest.mark.parametrize("scenario", ["figure8_fast", "figure8_fast_offset_mass", "figure8_slow"])
 def test_dynamic_controller_beats_kinematic_baseline(scenario):
-    path = ROOT / "configs" / "scenarios" / f"{scenario}.yaml"
+    path = REPO / "configs" / "scenarios" / f"{scenario}.yaml"
     dyn = _run(path).metrics
     kin = _run(path, controller={"mode": "kinematic"}).metrics
     assert dyn["completed"] and kin["completed"]
@@ -76,14 +76,14 @@ def test_dynamic_controller_beats_kinematic_baseline(scenario):
 
 
 def test_seed_method_runs_and_is_worse():
-    path = ROOT / "configs" / "scenarios" / "figure8_slow.yaml"
+    path = REPO / "configs" / "scenarios" / "figure8_slow.yaml"
     seed = _run(path, controller={"mode": "seed"}).metrics
     dyn = _run(path).metrics
     assert seed["rms_tracking_m"] > 5 * dyn["rms_tracking_m"]
 
 
 def test_same_seed_same_run_different_seed_different_noise():
-    cfg = load_config(ROOT / "configs" / "scenarios" / "s_curve.yaml")
+    cfg = load_config(REPO / "configs" / "scenarios" / "s_curve.yaml")
     path = resolve_path(cfg)
     a = run_sim(cfg, path, seed=3).metrics
     b = run_sim(cfg, path, seed=3).metrics
@@ -95,14 +95,14 @@ def test_same_seed_same_run_different_seed_different_noise():
 def test_bad_path_file_is_a_clear_cli_error(tmp_path, capsys):
     bad = tmp_path / "bad.csv"
     bad.write_text("x,y\n0,0\n1,abc\n")
-    code = cli_main(["sim", str(ROOT / "configs" / "sim.yaml"), "--path", str(bad), "--out", str(tmp_path), "--quiet"])
+    code = cli_main(["sim", str(SIM_YAML), "--path", str(bad), "--out", str(tmp_path), "--quiet"])
     err = capsys.readouterr().err
     assert code == 2
     assert "bad.csv" in err and "line 3" in err
 
 
 def test_cli_sim_writes_telemetry_and_metrics(tmp_path):
-    code = cli_main(["sim", str(ROOT / "configs" / "scenarios" / "s_curve.yaml"), "--out", str(tmp_path), "--quiet"])
+    code = cli_main(["sim", str(REPO / "configs" / "scenarios" / "s_curve.yaml"), "--out", str(tmp_path), "--quiet"])
     assert code == 0
     header = (tmp_path / "telemetry.csv").read_text().splitlines()[0].split(",")
     for col in ("t", "x", "y", "theta", "v", "omega", "x_est", "y_est", "theta_est", "v_est", "omega_est",
@@ -158,7 +158,7 @@ def _following(scenario: str, wrap=None):
 
     `wrap(cfg, sim)` may return a HAL wrapped around the simulated one (fault injection).
     """
-    cfg = load_config(ROOT / "configs" / "scenarios" / f"{scenario}.yaml")
+    cfg = load_config(REPO / "configs" / "scenarios" / f"{scenario}.yaml")
     path = resolve_path(cfg)
     sim = open_hal(cfg, start=path.start_pose)
     hal = wrap(cfg, sim) if wrap is not None else sim
@@ -236,7 +236,7 @@ def test_controlled_stop_comes_to_rest_on_the_path():
 def test_gyro_lag_compensation_straightens_the_dead_reckoned_path(scenario):
     """Undoing the gyro low-pass's lag (estimator.gyro_delay_s from the HAL) cuts the true-pose
     error: measured 0.43 -> 0.07 mm nominal, 0.44 -> 0.18 mm with the hidden mass (seed 1)."""
-    base = ROOT / "configs" / "scenarios" / scenario
+    base = REPO / "configs" / "scenarios" / scenario
     with_lead = _run(base).metrics["rms_cross_track_m"]
     without = _run(base, estimator={"gyro_delay_s": 0.0}).metrics["rms_cross_track_m"]
     assert with_lead < 0.5 * without
@@ -245,7 +245,7 @@ def test_gyro_lag_compensation_straightens_the_dead_reckoned_path(scenario):
 def test_bad_gyro_delay_names_the_key():
     from ddrt.config.schema import ConfigError
     with pytest.raises(ConfigError, match="estimator.gyro_delay_s"):
-        load_config(ROOT / "configs" / "sim.yaml", {"estimator": {"gyro_delay_s": 0.2}})
+        load_config(SIM_YAML, {"estimator": {"gyro_delay_s": 0.2}})
 
 
 def _ticks(sim, loop, n: int) -> None:
@@ -287,7 +287,7 @@ def test_feedback_is_smooth_and_the_pose_ignores_the_model():
     """The split estimator: the controller's filters keep the motors calm (RMS tick-to-tick duty
     change measured 0.6%), the odometry filters keep the hidden mass out of the pose (true-pose
     RMS with the 2 kg mass measured 0.18 mm; with one filter per sensor 1.31 mm)."""
-    scen = ROOT / "configs" / "scenarios"
+    scen = REPO / "configs" / "scenarios"
     slow = _run(scen / "figure8_slow.yaml")
     steps = [b - a for col in ("duty_l", "duty_r") for a, b in zip(slow.column(col)[:-1], slow.column(col)[1:])]
     assert math.sqrt(sum(s * s for s in steps) / len(steps)) < 0.02

@@ -26,12 +26,11 @@ from ddrt.config.sections import INNER_PID, WHEEL_PID
 from ddrt.params.robot import RobotParams
 from ddrt.params.motor import MotorParams
 from ddrt.config.schema import ConfigError
+from tests.support.repo import REPO, SIM_YAML
 
-ROOT = Path(__file__).resolve().parents[1]
-SIM = ROOT / "configs" / "sim.yaml"
-OFFSET = ROOT / "configs" / "sim-offset-mass.yaml"
-DOC = ROOT / "docs" / "config.md"
-REAL_HAL = ROOT / "hal" / "real.py"
+OFFSET = REPO / "configs" / "sim-offset-mass.yaml"
+DOC = REPO / "docs" / "config.md"
+REAL_HAL = REPO / "hal" / "real.py"
 
 # The seed's Table 5.1 "estimate" column in SI (mm -> m, kg mm^2 -> 1e-6 kg m^2). r_3 is left
 # out: configs/sim.yaml holds a calibrated encoder-wheel radius instead of the seed's.
@@ -45,7 +44,7 @@ TABLE_5_1 = {
 
 def _sim_mapping() -> dict[str, Any]:
     """configs/sim.yaml as a plain mapping, without its path (tests need no path file)."""
-    data = yaml.safe_load(SIM.read_text(encoding="utf-8"))
+    data = yaml.safe_load(SIM_YAML.read_text(encoding="utf-8"))
     data.pop("path", None)
     return data
 
@@ -66,7 +65,7 @@ def _write(tmp_path: Path, name: str, data: Any) -> Path:
 
 
 def test_sim_config_holds_table_5_1_in_si() -> None:
-    cfg = load_config(SIM)
+    cfg = load_config(SIM_YAML)
     for name, value in TABLE_5_1.items():
         assert getattr(cfg.robot, name) == pytest.approx(value, rel=1e-12, abs=1e-15), name
     assert cfg.robot.r_3 == pytest.approx(0.052)
@@ -85,7 +84,7 @@ def test_sim_config_holds_table_5_1_in_si() -> None:
 
 
 def test_offset_mass_config_holds_table_5_2() -> None:
-    base = load_config(SIM)
+    base = load_config(SIM_YAML)
     cfg = load_config(OFFSET)
     assert cfg.plant.m_p == 2.8
     assert cfg.plant.m_p - base.plant.m_p == pytest.approx(2.0)  # the added 2 kg
@@ -100,7 +99,7 @@ def test_offset_mass_config_holds_table_5_2() -> None:
     assert "extends" not in cfg.raw
 
 
-@pytest.mark.parametrize("path", [SIM, OFFSET], ids=lambda p: p.name)
+@pytest.mark.parametrize("path", [SIM_YAML, OFFSET], ids=lambda p: p.name)
 def test_seed_configs_name_an_existing_path_file(path: Path) -> None:
     cfg = load_config(path)
     assert isinstance(cfg.path, str)
@@ -290,7 +289,7 @@ def test_config_error_is_a_value_error() -> None:
 
 
 def test_overrides_are_validated_with_the_file_name() -> None:
-    cfg = load_config(SIM)
+    cfg = load_config(SIM_YAML)
     with pytest.raises(ConfigError, match=r"sim\.yaml: limits\.duty_max"):
         with_overrides(cfg, {"limits": {"duty_max": 2.0}})
     assert with_overrides(cfg, {"limits": {"duty_max": 0.8}}).limits.duty_max == 0.8

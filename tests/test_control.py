@@ -4,19 +4,17 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from pathlib import Path as FsPath
 
 from ddrt.config import load_config
 from ddrt.core.control import DynamicController, KinematicController, _scale_to_limit
 from ddrt.core.types import Setpoint
 from ddrt.core.model import Dynamics
 from ddrt.core.motor import Motor
-
-ROOT = FsPath(__file__).resolve().parents[1]
+from tests.support.repo import SIM_YAML
 
 
 def _controller(kind=DynamicController, **limits):
-    cfg = load_config(ROOT / "configs" / "sim.yaml", {"limits": limits} if limits else None)
+    cfg = load_config(SIM_YAML, {"limits": limits} if limits else None)
     dyn = Dynamics.from_params(cfg.robot)
     return cfg, kind(dyn, Motor(cfg.robot_motor), cfg.controller, cfg.limits, 0.005)
 

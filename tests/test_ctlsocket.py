@@ -11,6 +11,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -679,12 +680,12 @@ def _cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def test_out_of_descriptors_still_serves_a_newcomer_without_spinning(sockdir: str) -> None:
+def test_out_of_descriptors_still_serves_a_newcomer_without_spinning(sockdir: str, repo_root: Path) -> None:
     import subprocess
     import sys
 
     path = os.path.join(sockdir, "fd.sock")
-    repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    repo = str(repo_root)
     env = dict(os.environ, PYTHONPATH=repo)
     child = subprocess.Popen([sys.executable, "-c", _EMFILE_CHILD, path], stdin=subprocess.PIPE,
                              stdout=subprocess.PIPE, env=env, cwd=repo)

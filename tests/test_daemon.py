@@ -13,7 +13,6 @@ Known defects are pinned with strict xfails whose reasons name the file and the 
 
 from __future__ import annotations
 
-import csv
 import json
 import os
 import random
@@ -23,27 +22,20 @@ import socket
 import subprocess
 import sys
 import tempfile
-import threading
 import time
-import contextlib
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
-from pathlib import Path
+from collections.abc import Iterator
+from dataclasses import dataclass
 from typing import Any
 
 import pytest
-import yaml
 
 from ddrt.service.ctlclient import ControlClientError, connect, request
-from ddrt.loop import COLUMNS, STATE_CODE
+from ddrt.loop import STATE_CODE
+from tests.support.daemon import (CALIBRATION_S, PATHS, RATE_HZ, START_TIMEOUT_S, DaemonProc, ctl, raw_exchange,
+                                  read_reply, start_daemon, wait_for, write_config)
+from tests.support.repo import REPO
 
-REPO = Path(__file__).resolve().parents[1]
-SIM_YAML = REPO / "configs" / "sim.yaml"
-PATHS = REPO / "configs" / "paths"
-CALIBRATION_S = 0.5  # >= 10 ticks at 200 Hz; the default 3 s would make every start slow
-RATE_HZ = 200.0
-START_TIMEOUT_S = 20.0
-NOOP_RELOADS = 10  # enough reloads that at least one shows the cost of parsing in the loop  # a cold interpreter on a loaded 2-core CI box, plus calibration
+NOOP_RELOADS = 10  # enough reloads that at least one shows the cost of parsing in the loop
 
 FOLLOWING = STATE_CODE["following"]
 FAULT = STATE_CODE["fault"]
@@ -53,217 +45,10 @@ STOPPED = STATE_CODE["stopped"]
 # ---------------------------------------------------------------------------- helpers
 
 
-def wait_for(cond: Callable[[], Any], timeout: float, what: str, interval: float = 0.02) -> Any:
-    """Poll `cond` until it returns something truthy; fail naming `what` after `timeout`."""
-    deadline = time.monotonic() + timeout
-    while True:
-        value = cond()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            pytest.fail(f"timed out after {timeout:g} s waiting for {what}")
-        time.sleep(interval)
-
-
-def write_config(cfg_path: Path, telemetry_dir: Path, **sections: Any) -> None:
-    """A config over configs/sim.yaml; written whole then renamed, so a reload never reads half."""
-    doc: dict[str, Any] = {
-        "extends": str(SIM_YAML),
-        # SCHED_FIFO where permitted (as configs/robot.yaml), so a busy CI box does not stall
-        # the loop past the estimator's 10-period sample-gap fault; elsewhere a warning.
-        "daemon": {"telemetry_dir": str(telemetry_dir), "rt_priority": 10},
-        "estimator": {"calibration_s": CALIBRATION_S},
-        "controller": {"inner": {"kp": 40.0}},
-        "path": str(PATHS / "figure8_slow.yaml"),
-    }
-    for key, value in sections.items():
-        if isinstance(value, dict) and isinstance(doc.get(key), dict):
-            merged = dict(doc[key])
-            merged.update(value)
-            doc[key] = merged
-        else:
-            doc[key] = value
-    tmp = cfg_path.with_suffix(".tmp")
-    tmp.write_text(yaml.safe_dump(doc, sort_keys=False))
-    os.replace(tmp, cfg_path)
-
-
-class NotifyListener:
-    """Stands in for systemd's notification socket; stamps each datagram on arrival."""
-
-    def __init__(self, path: str) -> None:
-        self.path = path
-        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-        self.sock.bind(path)
-        self.sock.settimeout(0.1)
-        self.messages: list[tuple[float, str]] = []  # (time.monotonic(), text)
-        self._lock = threading.Lock()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="notify-listener", daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            try:
-                data = self.sock.recv(4096)
-            except TimeoutError:
-                continue
-            except OSError:
-                return
-            with self._lock:
-                self.messages.append((time.monotonic(), data.decode()))
-
-    def snapshot(self) -> list[tuple[float, str]]:
-        with self._lock:
-            return list(self.messages)
-
-    def first(self, text: str, after: float = 0.0) -> float | None:
-        """Arrival time of the first datagram equal to `text` that arrived after `after`."""
-        return next((t for t, m in self.snapshot() if m == text and t > after), None)
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=2.0)
-        self.sock.close()
-
-
-@dataclass
-class DaemonProc:
-    """One `ddrt run` child with its files."""
-
-    proc: subprocess.Popen[bytes]
-    workdir: Path
-    config: Path
-    socket: str
-    telemetry_dir: Path
-    stats_json: Path
-    stderr_file: Path
-    t_start: float
-    notify: NotifyListener | None = None
-    _closed: bool = field(default=False, repr=False)
-
-    def request(self, payload: dict[str, Any], timeout: float = 3.0) -> dict[str, Any]:
-        try:
-            return request(self.socket, payload, timeout=timeout)
-        except (ControlClientError, TimeoutError):
-            self.check_alive()  # a dead daemon: fail with its log, not a socket error
-            raise
-
-    def status(self) -> dict[str, Any]:
-        reply = self.request({"cmd": "status"})
-        assert reply["ok"] is True, reply
-        return reply["status"]
-
-    def stderr(self) -> str:
-        return self.stderr_file.read_text(errors="replace")
-
-    def telemetry(self) -> list[dict[str, float]]:
-        with open(self.telemetry_dir / "telemetry.csv", newline="") as f:
-            reader = csv.reader(f)
-            header = next(reader)
-            assert tuple(header) == COLUMNS
-            return [dict(zip(header, map(float, row))) for row in reader if len(row) == len(header)]
-
-    def check_alive(self) -> None:
-        if self.proc.poll() is not None:
-            pytest.fail(f"daemon exited with {self.proc.returncode}:\n{self.stderr()}")
-
-    def wait_ready(self) -> None:
-        """Until the loop answers on its socket (the socket exists before calibration ends)."""
-        def answers() -> bool:
-            self.check_alive()
-            try:
-                return bool(self.request({"cmd": "status"}, timeout=1.0).get("ok"))
-            except (ControlClientError, TimeoutError):
-                return False
-        wait_for(answers, START_TIMEOUT_S, "the daemon's first status reply", interval=0.05)
-
-    def close(self) -> None:
-        """Kill the child if it still runs; close the notify socket; remove the files."""
-        if self._closed:
-            return
-        self._closed = True
-        if self.proc.poll() is None:
-            self.proc.kill()
-        try:
-            self.proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            pass
-        if self.notify is not None:
-            self.notify.close()
-        shutil.rmtree(self.workdir, ignore_errors=True)
-
-
-def start_daemon(*args: str, notify: bool = False, env_extra: dict[str, str] | None = None,
-                 **sections: Any) -> DaemonProc:
-    """Write a config (sim.yaml plus `sections`) and start `ddrt run` on it with `args`."""
-    workdir = Path(tempfile.mkdtemp(prefix="ddrtd-", dir="/tmp"))  # short: sun_path is 108 bytes
-    listener = None
-    try:
-        telemetry_dir = workdir / "tel"
-        config = workdir / "cfg.yaml"
-        write_config(config, telemetry_dir, **sections)
-        sock = str(workdir / "ctl.sock")
-        stats = workdir / "stats.json"
-        stderr_file = workdir / "stderr.log"
-        env = {k: v for k, v in os.environ.items()
-               if k not in ("NOTIFY_SOCKET", "WATCHDOG_USEC", "WATCHDOG_PID", "JOURNAL_STREAM", "LOGS_DIRECTORY")}
-        if notify:
-            listener = NotifyListener(str(workdir / "notify"))
-            env["NOTIFY_SOCKET"] = listener.path
-        env.update(env_extra or {})
-        cmd = [sys.executable, "-m", "ddrt.cli", "run", str(config), "--socket", sock,
-               "--stats-json", str(stats), *args]
-        with open(stderr_file, "wb") as err, open(workdir / "stdout.log", "wb") as out:
-            t_start = time.monotonic()
-            proc = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=out, stderr=err, stdin=subprocess.DEVNULL)
-    except BaseException:
-        if listener is not None:
-            listener.close()
-        shutil.rmtree(workdir, ignore_errors=True)
-        raise
-    return DaemonProc(proc, workdir, config, sock, telemetry_dir, stats, stderr_file, t_start, listener)
-
-
-@contextlib.contextmanager
-def ready_daemon(*args: str, **sections: Any) -> Iterator[DaemonProc]:
-    """A daemon started as start_daemon does, past its calibration, closed afterwards."""
-    d = start_daemon(*args, **sections)
-    try:
-        d.wait_ready()
-        yield d
-    finally:
-        d.close()
-
-
 def max_step(rows: list[dict[str, float]]) -> float:
     """Largest tick-to-tick change of either wheel's duty over consecutive rows."""
     return max((max(abs(b["duty_l"] - a["duty_l"]), abs(b["duty_r"] - a["duty_r"]))
                 for a, b in zip(rows, rows[1:])), default=0.0)
-
-
-def ctl(sock: str, *args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "ddrt.cli", "ctl", "--socket", sock, *args],
-                          cwd=REPO, capture_output=True, text=True, timeout=20)
-
-
-def raw_exchange(sock_path: str, data: bytes, timeout: float = 3.0) -> dict[str, Any]:
-    """Send raw bytes on a fresh connection and return the first reply line as JSON."""
-    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
-        s.settimeout(timeout)
-        s.connect(sock_path)
-        s.sendall(data)
-        return read_reply(s)
-
-
-def read_reply(s: socket.socket) -> dict[str, Any]:
-    buf = b""
-    while b"\n" not in buf:
-        chunk = s.recv(65536)
-        if not chunk:
-            raise AssertionError(f"connection closed without a reply (got {buf[:200]!r})")
-        buf += chunk
-    return json.loads(buf[: buf.index(b"\n")])
 
 
 # ------------------------------------------------- scripted run: notify, reloads, SIGTERM
@@ -581,16 +366,10 @@ def test_sigterm_leaves_a_record_of_zeroed_motors(recording: Recording) -> None:
 # ------------------------------------------------------ control socket on an idle daemon
 
 
-@pytest.fixture(scope="module")
-def idle_daemon() -> Iterator[DaemonProc]:
-    with ready_daemon() as d:
-        yield d
-
-
 @pytest.fixture()
-def daemon(idle_daemon: DaemonProc) -> DaemonProc:
-    """The shared daemon, back in idle whatever the previous test left."""
-    d = idle_daemon
+def daemon(module_daemon: DaemonProc) -> DaemonProc:
+    """The shared daemon (idle: no DAEMON_SECTIONS), back in idle whatever the previous test left."""
+    d = module_daemon
     assert d.proc.poll() is None, f"the shared daemon died:\n{d.stderr()}"
     reply = d.request({"cmd": "reset"})
     assert reply == {"ok": True, "state": "idle"}

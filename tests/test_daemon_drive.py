@@ -7,25 +7,18 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Iterator
 
 import pytest
 
 from ddrt.loop import STATE_CODE
-from test_daemon import DaemonProc, ctl, raw_exchange, ready_daemon, wait_for
+from tests.support.daemon import DaemonProc, ctl, raw_exchange, wait_for
 
 SETTLE_S = 15.0  # driving to rest on a loaded host (1.6 s of simulated braking at most)
 
 
-@pytest.fixture(scope="module")
-def drive_daemon() -> Iterator[DaemonProc]:
-    with ready_daemon() as d:
-        yield d
-
-
 @pytest.fixture()
-def dd(drive_daemon: DaemonProc) -> DaemonProc:
-    d = drive_daemon
+def dd(module_daemon: DaemonProc) -> DaemonProc:
+    d = module_daemon
     d.check_alive()
     d.request({"cmd": "stop"})
     wait_for(lambda: d.status()["state"] in ("idle", "stopped", "estop"), SETTLE_S, "the robot at rest")

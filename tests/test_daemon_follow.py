@@ -17,29 +17,23 @@ from __future__ import annotations
 import os
 import threading
 import time
-from collections.abc import Iterator
 from typing import Any
 
 import pytest
 
 from ddrt.service.ctlclient import request
-from test_daemon import DaemonProc, ready_daemon, start_daemon, wait_for
+from tests.support.daemon import DaemonProc, start_daemon, wait_for
 
 HUGE_CIRCLE = {"shape": "circle", "radius": 300.0, "speed": 0.3, "pose": [0.0, 0.0, 0.0]}  # 942 000 samples
 STALL_BOUND_S = 0.1  # the worst tick while a path is prepared; main stalled 1.2 to 143 s
 MISSED_BOUND = 20  # ticks skipped meanwhile (a 1.2 s stall skips 240)
 ANSWER_BOUND_S = 1.0  # estop / stop / status round trip from a client (10 ms is the target)
-
-
-@pytest.fixture(scope="module")
-def follow_daemon() -> Iterator[DaemonProc]:
-    with ready_daemon(paths={"max_file_bytes": 2_000_000}) as d:
-        yield d
+DAEMON_SECTIONS = {"paths": {"max_file_bytes": 2_000_000}}  # module_daemon's config
 
 
 @pytest.fixture()
-def fd(follow_daemon: DaemonProc) -> DaemonProc:
-    d = follow_daemon
+def fd(module_daemon: DaemonProc) -> DaemonProc:
+    d = module_daemon
     assert d.proc.poll() is None, f"the daemon died:\n{d.stderr()}"
     d.request({"cmd": "stop"})
     assert d.request({"cmd": "reset"}) == {"ok": True, "state": "idle"}

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from test_daemon import start_daemon, wait_for
+from tests.support.daemon import start_daemon, wait_for
 
 LINE = {"shape": "line", "length": 1.2, "speed": 0.3, "pose": [0.0, 0.0, 0.0]}
 

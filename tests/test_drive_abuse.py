@@ -10,7 +10,7 @@ import math
 import pytest
 
 from ddrt.config import with_overrides
-from test_drive import Robot
+from tests.support.drive_rigs import Robot
 
 
 def _true_accel_bound(r: Robot, n: int, drive: tuple[float, float] | None, every: int = 20) -> tuple[float, float]:

@@ -17,7 +17,7 @@ from hal.wire import (
     Drive, FrameDecoder, Hello, HelloReply, Packet, State, Stop, Unknown, decode_packet,
     encode_frame, encode_packet,
 )
-from firmware_tools import require
+from tests.support.firmware import require
 from sim_hal import firmware_build
 
 

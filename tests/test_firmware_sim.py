@@ -22,12 +22,12 @@ from ddrt.config import load_config
 from ddrt.path.spec import resolve_path
 from ddrt.simrun.runner import run_sim
 from hal.registry import backend_name
-from firmware_tools import require
-from loop_tools import following, tick_rows
+from tests.support.firmware import require
+from tests.support.following import following, tick_rows
+from tests.support.repo import REPO
 
-ROOT = Path(__file__).resolve().parents[1]
-FIRMWARE_CFG = ROOT / "configs" / "firmware-sim.yaml"
-SCENARIO = ROOT / "configs" / "scenarios" / "figure8_slow.yaml"
+FIRMWARE_CFG = REPO / "configs" / "firmware-sim.yaml"
+SCENARIO = REPO / "configs" / "scenarios" / "figure8_slow.yaml"
 EMULATED = {"hal": {"backend": "real", "imu": {"bus": "sim"},
                     "bridge": {"url": "ddrtsim://robot", "drive_timeout_ms": 100, "state_stale_s": 0.05}}}
 
@@ -124,7 +124,7 @@ def test_the_lockstep_is_deterministic() -> None:
 def test_ddrt_run_drives_the_firmware_paced_to_the_wall_clock(tmp_path: Path) -> None:
     """`ddrt run configs/firmware-sim.yaml`: the daemon, the harness on the wall clock."""
     stats = tmp_path / "stats.json"
-    env = dict(os.environ, LOGS_DIRECTORY=str(tmp_path / "telemetry"), PYTHONPATH=str(ROOT))
+    env = dict(os.environ, LOGS_DIRECTORY=str(tmp_path / "telemetry"), PYTHONPATH=str(REPO))
     # A shared CI machine can stall any process for tens of ms, and the loop's start-up
     # calibration then reads back to back (hal/real.py counts those as ticks without data):
     # the same daemon on the Python MCU model fails that way too (1 run in 5 at a load of 3

@@ -22,9 +22,8 @@ from ddrt.viz import optional
 from ddrt.viz.params import gain_keys, plan_for
 from ddrt.viz.ring import EXTRA, VizRing
 from ddrt.viz.teleop import parse_twist
+from tests.support.repo import REPO, SIM_YAML
 
-REPO = Path(__file__).resolve().parents[1]
-SIM = REPO / "configs" / "sim.yaml"
 needs_sdk = pytest.mark.skipif(not optional.available(), reason="foxglove-sdk not installed (pip install 'ddrt[foxglove]')")
 
 
@@ -66,7 +65,7 @@ def test_teleop_twist_gives_linear_x_and_angular_z() -> None:
 
 
 def test_gain_parameters_are_the_live_numeric_controller_keys() -> None:
-    keys = gain_keys(load_config(SIM))
+    keys = gain_keys(load_config(SIM_YAML))
     for k in ("controller.inner.kp", "controller.inner.ki", "controller.outer.k_y", "controller.outer.k_theta",
               "controller.wheel_pid.kp", "controller.heading_gain"):
         assert k in keys
@@ -76,7 +75,7 @@ def test_gain_parameters_are_the_live_numeric_controller_keys() -> None:
 
 
 def test_a_parameter_set_is_planned_as_a_reload_and_refused_whole() -> None:
-    cfg = load_config(SIM)
+    cfg = load_config(SIM_YAML)
     keys = gain_keys(cfg)
     plan = plan_for(cfg, {"controller.inner.kp": 33, "controller.outer.k_y": 300.0}, keys)
     assert set(plan.live) == {"controller.inner.kp", "controller.outer.k_y"}
@@ -97,14 +96,14 @@ def test_missing_sdk_is_a_clear_error_naming_the_key_and_the_pip_command(monkeyp
     from ddrt.viz.service import check_available
 
     monkeypatch.setattr(optional, "available", lambda: False)
-    cfg = with_overrides(load_config(SIM), {"daemon": {"foxglove": {"enabled": True}}})
+    cfg = with_overrides(load_config(SIM_YAML), {"daemon": {"foxglove": {"enabled": True}}})
     with pytest.raises(ConfigError, match=re.escape("daemon.foxglove.enabled: true needs the foxglove-sdk") + ".*"
                        + re.escape("pip install 'ddrt[foxglove]'")):
         check_available(cfg)
     with pytest.raises(ConfigError, match="daemon.telemetry_format: mcap"):
-        check_available(with_overrides(load_config(SIM), {"daemon": {"telemetry_format": "mcap"}}))
-    check_available(load_config(SIM))  # csv, Foxglove off: nothing needed
-    assert main(["sim", str(SIM), "--duration", "0.1", "--out", str(tmp_path), "--mcap", str(tmp_path / "r.mcap"),
+        check_available(with_overrides(load_config(SIM_YAML), {"daemon": {"telemetry_format": "mcap"}}))
+    check_available(load_config(SIM_YAML))  # csv, Foxglove off: nothing needed
+    assert main(["sim", str(SIM_YAML), "--duration", "0.1", "--out", str(tmp_path), "--mcap", str(tmp_path / "r.mcap"),
                  "--quiet"]) == 2
     err = capsys.readouterr().err
     assert "--mcap needs the foxglove-sdk package" in err and "pip install 'ddrt[foxglove]'" in err
@@ -114,7 +113,7 @@ def test_missing_sdk_is_a_clear_error_naming_the_key_and_the_pip_command(monkeyp
 def test_foxglove_config_is_typed() -> None:
     from ddrt.config import with_overrides
 
-    cfg = load_config(SIM)
+    cfg = load_config(SIM_YAML)
     assert (cfg.daemon.foxglove.enabled, cfg.daemon.foxglove.host, cfg.daemon.foxglove.port) == (False, "127.0.0.1", 8765)
     for bad, field in [({"foxglove": {"port": 70000}}, "daemon.foxglove.port"),
                        ({"foxglove": {"enabled": "yes"}}, "daemon.foxglove.enabled"),
@@ -192,7 +191,7 @@ def test_sim_mcap_has_one_message_per_tick_and_the_csvs_values(tmp_path: Path) -
     from ddrt.cli import main
 
     out = tmp_path / "out"
-    assert main(["sim", str(SIM), "--duration", "3", "--out", str(out), "--mcap", str(out / "run.mcap"), "--quiet"]) in (0, 1)
+    assert main(["sim", str(SIM_YAML), "--duration", "3", "--out", str(out), "--mcap", str(out / "run.mcap"), "--quiet"]) in (0, 1)
     ticks = json.loads((out / "metrics.json").read_text())["ticks"]
     with open(out / "telemetry.csv", newline="") as f:
         reader = csv.reader(f)
@@ -258,7 +257,7 @@ def _data_frame(msg: bytes) -> tuple[int, int, bytes]:
 @pytest.mark.slow
 def test_a_websocket_client_sees_the_channels_sets_gains_and_cannot_hurt_the_daemon() -> None:
     websockets = pytest.importorskip("websockets", reason="websockets is not installed (pip install 'ddrt[test]')")
-    from tests.test_daemon import START_TIMEOUT_S, start_daemon, wait_for
+    from tests.support.daemon import START_TIMEOUT_S, start_daemon, wait_for
 
     d = start_daemon("--follow", daemon={"foxglove": {"enabled": True, "port": 0}})
     try:
@@ -369,7 +368,7 @@ def test_foxglove_teleop_drives_the_robot_and_stops_when_it_stops_publishing() -
     daemon.command_timeout_s: publishing at 20 Hz holds the robot at the command, silence
     brings it to rest within the timeout plus its braking time."""
     websockets = pytest.importorskip("websockets", reason="websockets is not installed (pip install 'ddrt[test]')")
-    from tests.test_daemon import START_TIMEOUT_S, start_daemon, wait_for
+    from tests.support.daemon import START_TIMEOUT_S, start_daemon, wait_for
 
     d = start_daemon(daemon={"foxglove": {"enabled": True, "port": 0}})
     try:

@@ -1,10 +1,10 @@
 """Fuzz: seeded mutations of every file in configs/ (configs, path YAMLs, the CSV) through
-`ddrt sim` in this process (tests/fuzz_inputs.py). Every case must end on the clean path:
+`ddrt sim` in this process (tests/support/fuzz_inputs.py). Every case must end on the clean path:
 exit 0, 1 or 2, no traceback on stderr, no exception out of main(), within 5 s of CPU time
 (the case's own work: another job on the machine does not count against it).
 
 Deterministic (fixed seed): a failure names its case, which `Mutator(1).case(i)` rebuilds.
-Many more cases locally: `PYTHONPATH=. python tests/fuzz_inputs.py --cases 20000`.
+Many more cases locally: `python -m tests.support.fuzz_inputs --cases 20000`.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from fuzz_inputs import Mutator, copy_configs, run_case, seed_files
+from tests.support.fuzz_inputs import Mutator, copy_configs, run_case, seed_files
 
 SEED = 1
 N_CASES = 1200
@@ -45,7 +45,7 @@ def test_mutated_inputs_never_escape_the_clean_error_path(tmp_path: Path) -> Non
             "long", "many values", "alias bomb", "cell", "rows"} <= ops, ops
 
 
-def test_mutator_is_deterministic_and_covers_every_input_file() -> None:
+def test_mutator_is_deterministic_and_covers_every_input_file(repo_root: Path) -> None:
     a, b = Mutator(SEED), Mutator(SEED)
     for i in (0, 7, 999):
         ca, cb = a.case(i), b.case(i)
@@ -54,7 +54,7 @@ def test_mutator_is_deterministic_and_covers_every_input_file() -> None:
     files = seed_files()
     every = {p for ps in files.values() for p in ps}
     assert Path("sim.yaml") in every and Path("paths/waypoints_sparse.csv") in every
-    assert len(every) == len(list((Path(__file__).resolve().parents[1] / "configs").rglob("*.yaml"))) + 1
+    assert len(every) == len(list((repo_root / "configs").rglob("*.yaml"))) + 1
     seen = {case.origin for case in a.cases(N_CASES)}
     assert seen == every  # every file of configs/ is mutated at least once
     only = Mutator(SEED, kinds=("config",))

@@ -9,7 +9,6 @@ reference firmware in simavr as the microcontroller (simavr://, over a pseudo-te
 from __future__ import annotations
 
 import time
-from pathlib import Path as FsPath
 
 import pytest
 
@@ -18,10 +17,10 @@ from ddrt.path.spec import resolve_path
 from ddrt.simrun.runner import run_sim
 from hal.base import HalValueError, Sample
 from hal.registry import open_hal
-from loop_tools import following, tick_rows
+from tests.support.following import following, tick_rows
+from tests.support.repo import REPO
 
-ROOT = FsPath(__file__).resolve().parents[1]
-SCENARIO = ROOT / "configs" / "scenarios" / "figure8_slow.yaml"
+SCENARIO = REPO / "configs" / "scenarios" / "figure8_slow.yaml"
 EMULATED = {"hal": {"backend": "real", "imu": {"bus": "sim"},
                     "bridge": {"url": "ddrtsim://robot", "drive_timeout_ms": 100, "state_stale_s": 0.05}}}
 FIRMWARE = {"hal": {"backend": "real", "imu": {"bus": "sim"},
@@ -32,7 +31,7 @@ BACKENDS = {"sim": None, "real-emulated": EMULATED, "real-firmware": FIRMWARE}
 @pytest.fixture(params=sorted(BACKENDS))
 def backend(request):
     if request.param == "real-firmware":
-        from firmware_tools import require
+        from tests.support.firmware import require
 
         require("all", "sim")
     cfg = load_config(SCENARIO, BACKENDS[request.param])
@@ -214,7 +213,7 @@ def test_microcontroller_reset_is_reported_and_the_count_stays_continuous():
 
 
 def test_robot_config_validates_and_names_real_devices():
-    cfg = load_config(ROOT / "configs" / "robot.yaml")
+    cfg = load_config(REPO / "configs" / "robot.yaml")
     assert cfg.hal.backend == "real"
     assert cfg.hal.imu.bus == 1 and cfg.hal.imu.address == 0x68
     assert cfg.hal.bridge.url.startswith("/dev/")

@@ -19,8 +19,8 @@ from pathlib import Path
 import pytest
 
 from hal.registry import BACKENDS
+from tests.support.repo import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 FORBIDDEN_IN_COMPUTATION = ("ddrt.service", "ddrt.simrun", "ddrt.loop", "ddrt.calibrate", "ddrt.cli",
                             "hal", "sim_hal", "bench")
 

@@ -17,16 +17,15 @@ from ddrt.config import ConfigError, PathsConfig, load_config
 from ddrt.config.yamlio import load_yaml_text
 from ddrt.path import PathError, SpeedLimits, load_path
 from ddrt.path.spec import resolve_path, speed_limits
+from tests.support.repo import REPO, SIM_YAML
 
-ROOT = Path(__file__).resolve().parents[1]
-SIM = ROOT / "configs" / "sim.yaml"
-PATHS = ROOT / "configs" / "paths"
+PATHS = REPO / "configs" / "paths"
 
 
 def _config(tmp_path: Path, text: str, name: str = "cfg.yaml") -> Path:
     """A config that extends configs/sim.yaml with `text`."""
     p = tmp_path / name
-    p.write_text(f"extends: {SIM}\n{text}", encoding="utf-8")
+    p.write_text(f"extends: {SIM_YAML}\n{text}", encoding="utf-8")
     return p
 
 
@@ -79,8 +78,8 @@ def test_config_duplicate_key_names_file_line_and_key(tmp_path: Path) -> None:
 
 def test_config_not_utf8_names_file_and_byte_offset(tmp_path: Path) -> None:
     p = tmp_path / "latin.yaml"
-    p.write_bytes(f"extends: {SIM}\nname: caf\xe9\n".encode("latin-1"))
-    offset = len(f"extends: {SIM}\nname: caf".encode())
+    p.write_bytes(f"extends: {SIM_YAML}\nname: caf\xe9\n".encode("latin-1"))
+    offset = len(f"extends: {SIM_YAML}\nname: caf".encode())
     with pytest.raises(ConfigError, match=rf"latin\.yaml: not UTF-8 text: byte {offset} \(0xe9\)"):
         load_config(p)
 
@@ -116,7 +115,7 @@ def test_odd_config_values_name_the_key(tmp_path: Path, text: str, needle: str) 
 
 
 def _cases(tmp_path: Path) -> dict[str, list[str]]:
-    big = SIM.read_text(encoding="utf-8").replace("  m_p: 0.75", "  m_p: " + "9" * 400, 1)
+    big = SIM_YAML.read_text(encoding="utf-8").replace("  m_p: 0.75", "  m_p: " + "9" * 400, 1)
     (tmp_path / "big.yaml").write_text(big, encoding="utf-8")
     files = {
         "coords.yaml": "points: [[0, 0], [1e308, 0]]\n",
@@ -132,13 +131,13 @@ def _cases(tmp_path: Path) -> dict[str, list[str]]:
     return {
         "path: 5": [str(_config(tmp_path, "path: 5\n", "p5.yaml"))],
         "400-digit robot.m_p": [str(tmp_path / "big.yaml")],
-        "coordinates of 1e308": [str(SIM), "--path", str(tmp_path / "coords.yaml")],
-        "radius 1e-300": [str(SIM), "--path", str(tmp_path / "tiny.yaml")],
-        "laps 1e12": [str(SIM), "--path", str(tmp_path / "laps.yaml")],
-        "rectangle laps 1e12": [str(SIM), "--path", str(tmp_path / "rect.yaml")],
-        "rectangle 1e6 wide": [str(SIM), "--path", str(tmp_path / "huge_rect.yaml")],
-        "radius 1e-6": [str(SIM), "--path", str(tmp_path / "small.yaml")],
-        "speed 1e-9": [str(SIM), "--path", str(tmp_path / "slow.yaml")],
+        "coordinates of 1e308": [str(SIM_YAML), "--path", str(tmp_path / "coords.yaml")],
+        "radius 1e-300": [str(SIM_YAML), "--path", str(tmp_path / "tiny.yaml")],
+        "laps 1e12": [str(SIM_YAML), "--path", str(tmp_path / "laps.yaml")],
+        "rectangle laps 1e12": [str(SIM_YAML), "--path", str(tmp_path / "rect.yaml")],
+        "rectangle 1e6 wide": [str(SIM_YAML), "--path", str(tmp_path / "huge_rect.yaml")],
+        "radius 1e-6": [str(SIM_YAML), "--path", str(tmp_path / "small.yaml")],
+        "speed 1e-9": [str(SIM_YAML), "--path", str(tmp_path / "slow.yaml")],
     }
 
 
@@ -167,14 +166,14 @@ def test_sim_gives_one_line_not_a_traceback(case: str, tmp_path: Path, capsys: p
 def test_plot_without_matplotlib_says_how_to_install_it(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                                         monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib now fails
-    code = main(["sim", str(SIM), "--plot", "--duration", "0.01", "--quiet", "--out", str(tmp_path)])
+    code = main(["sim", str(SIM_YAML), "--plot", "--duration", "0.01", "--quiet", "--out", str(tmp_path)])
     err = capsys.readouterr().err
     assert code == 2 and "pip install 'ddrt[plot]'" in err and err.count("\n") == 1
     assert not (tmp_path / "telemetry.csv").exists()  # refused before the run, not after it
 
 
 def test_sim_refuses_a_config_that_drives_real_devices(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    code, err = _sim([str(ROOT / "configs" / "robot.yaml"), "--path", str(PATHS / "circle_1m.yaml")], tmp_path, capsys)
+    code, err = _sim([str(REPO / "configs" / "robot.yaml"), "--path", str(PATHS / "circle_1m.yaml")], tmp_path, capsys)
     assert code == 2 and "hal.imu.bus: sim" in err and err.count("\n") == 1
 
 

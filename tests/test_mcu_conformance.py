@@ -19,7 +19,7 @@ from hal.wire import (
     FLAG_BAD_FRAME, FLAG_OUTPUTS_ON, FLAG_WATCHDOG, Drive, FrameDecoder, Hello, HelloReply,
     Packet, State, Stop, Unknown, encode_frame, seq_gap,
 )
-from firmware_tools import require
+from tests.support.firmware import require
 from sim_hal.mcu_emulator import McuEmulator
 
 DUTY_TOL = 1.0 / 400 + 1e-6  # the firmware's PWM resolution (Timer1 TOP = 400)

@@ -21,13 +21,9 @@ from ddrt.core.model import Dynamics, forward_dynamics, inverse_dynamics, wheel_
 from ddrt.params.robot import RobotParams
 from ddrt.core.motor import Motor
 from ddrt.params.motor import MotorParams
+from tests.support.repo import SIM_YAML
+from tests.support.seed_robot import TABLE_5_1, TABLE_5_2
 
-TABLE_5_1 = dict(
-    H=0.115, L=0.108, R=0.108, r_L=0.049, r_R=0.051, r_3=0.052, d_xc=0.026, d_yc=0.0,
-    m_p=0.8, m_L=1.2, m_R=1.2, m_3=0.6, I_p=6.43e-3, I_L=3.5e-4, I_R=3.5e-4, I_3=6.55e-4,
-    I_wL=6.29e-4, I_wR=6.29e-4, I_w3=6.29e-4,
-)
-TABLE_5_2 = dict(TABLE_5_1, d_xc=0.056, d_yc=0.010, m_p=2.8)
 POSITIVE_FIELDS = [n for n in TABLE_5_1 if n not in ("d_xc", "d_yc")]
 
 
@@ -359,7 +355,6 @@ def test_implausible_robots_are_refused(name: str, value: float) -> None:
 
 def _seed_params_for_bounds():
     import yaml as _yaml
-    from pathlib import Path as _P
 
-    raw = _yaml.safe_load((_P(__file__).resolve().parents[1] / "configs" / "sim.yaml").read_text())["robot"]
+    raw = _yaml.safe_load(SIM_YAML.read_text())["robot"]
     return RobotParams(**{k: v for k, v in raw.items() if k != "motor"})

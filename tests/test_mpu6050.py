@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import errno
 import math
+from pathlib import Path
 
 import pytest
 
@@ -173,9 +174,7 @@ def test_reports_the_datasheet_delay_of_its_low_pass(cfg: int, delay_ms: float) 
     assert imu.gyro_delay_s == pytest.approx(delay_ms * 1e-3)
 
 
-def test_one_range_table_for_driver_simulator_and_config() -> None:
-    from pathlib import Path
-
+def test_one_range_table_for_driver_simulator_and_config(sim_yaml: Path) -> None:
     from ddrt.config import load_config
     from ddrt.config.schema import ConfigError
     from ddrt.params.gyro_scale import GYRO_LSB_PER_DPS, GYRO_RANGES_DPS
@@ -184,7 +183,6 @@ def test_one_range_table_for_driver_simulator_and_config() -> None:
 
     assert GYRO_RANGES_DPS == (250, 500, 1000, 2000)
     assert GYRO_FS_SEL == {250: 0, 500: 1, 1000: 2, 2000: 3}  # register 27, FS_SEL 0..3
-    sim_yaml = Path(__file__).resolve().parents[1] / "configs" / "sim.yaml"
     for rng in GYRO_RANGES_DPS:
         assert gyro_scale(rng)[0] * DEG == pytest.approx(GYRO_LSB_PER_DPS[rng])
         PlantConfig(gyro_range_dps=rng)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from pathlib import Path as FsPath
 
 import numpy as np
 import pytest
@@ -12,8 +11,9 @@ import yaml
 
 from ddrt.path import Path, PathError, SpeedLimits, load_path
 from ddrt.path.report import pivot_runs
+from tests.support.repo import REPO
 
-CONFIGS = FsPath(__file__).resolve().parent.parent / "configs" / "paths"
+CONFIGS = REPO / "configs" / "paths"
 EXAMPLES = sorted(p.name for p in CONFIGS.iterdir() if p.suffix in (".yaml", ".csv"))
 LIM = SpeedLimits()
 

@@ -10,7 +10,6 @@ from pathlib import Path as FsPath
 import numpy as np
 import pytest
 
-from bench import paths_as_given as pg
 from ddrt.cli import main as cli_main
 from ddrt.config import load_config
 from ddrt.config.sections import PathsConfig
@@ -20,10 +19,10 @@ from ddrt.path.geometry import GeometryOptions, polyline_geometry
 from ddrt.path.report import LABELS, active_limits, path_report
 from ddrt.path.sampled import Path
 from ddrt.path.spec import resolve_path, speed_limits
+from tests.support import path_inputs as pg
+from tests.support.repo import REPO, SIM_YAML
 
-ROOT = FsPath(__file__).resolve().parents[1]
-SIM = ROOT / "configs" / "sim.yaml"
-LIM = speed_limits(load_config(SIM))
+LIM = speed_limits(load_config(SIM_YAML))
 
 
 def _csv(tmp_path: FsPath, case: pg.Case) -> FsPath:
@@ -129,7 +128,7 @@ def test_random_grid_plans_turn_smoothly_within_their_cells() -> None:
         assert not pivot_runs(path)
         assert _yaw_accel_rms(path) <= pg.TARGET_DOMEGA_RMS, (cell, len(xy))
         assert c.deviation_m <= 0.5 * cell + 1e-9  # every point's cell is crossed
-        d = pg.curve_distance(pg._dense(xy), _xy(path)[::5])
+        d = pg.curve_distance(pg.dense(xy), _xy(path)[::5])
         assert d.max() <= 0.5 * math.sqrt(2.0) * cell  # never outside the planned cells' corridor
         assert np.sqrt(np.mean(d ** 2)) <= 0.2 * cell  # and close to the staircase on the whole
 
@@ -196,7 +195,7 @@ def test_speed_column_stays_a_cap(tmp_path) -> None:
 
 
 def test_sparse_waypoints_and_rectangles_are_built_as_before() -> None:
-    f = ROOT / "configs" / "paths" / "waypoints_sparse.csv"
+    f = REPO / "configs" / "paths" / "waypoints_sparse.csv"
     path = load_path(f, LIM)
     assert path.conditioning.mode == "waypoints" and path.deviation_m == 0.0
     data = np.loadtxt(f, delimiter=",", skiprows=3)
@@ -212,7 +211,7 @@ def test_sparse_waypoints_and_rectangles_are_built_as_before() -> None:
 
 def test_every_scenario_path_is_a_shape_or_waypoints() -> None:
     """The seed scenarios' paths do not go through the smoothing, so their accuracy is as before."""
-    for f in sorted((ROOT / "configs" / "scenarios").glob("*.yaml")):
+    for f in sorted((REPO / "configs" / "scenarios").glob("*.yaml")):
         path = resolve_path(load_config(f))
         c = path.conditioning
         assert c is None or c.mode == "waypoints", f.name
@@ -314,12 +313,12 @@ def test_where_the_motors_set_the_speed_the_report_says_so() -> None:
     is 'motors: accel', nothing is 'other'; with a limit well under the motors' (the seed's
     0.3 m/s^2 here) the same stretch is the config's 'accel' and the motors are never named."""
     shape = {"shape": "line", "length": 3.0, "speed": 0.6}
-    cfg = load_config(SIM, {"limits": {"v_max": None, "accel": None, "torque_max_nm": None}})
+    cfg = load_config(SIM_YAML, {"limits": {"v_max": None, "accel": None, "torque_max_nm": None}})
     rep = path_report(load_path(shape, speed_limits(cfg)), "line")
     assert rep.share_length["motors: accel"] > 0.003 and rep.share_length["motors: braking"] > 0.003
     assert rep.share_length["other"] == 0.0 and rep.share_length["accel"] == 0.0
     assert rep.stretches[0].label in ("rest", "motors: accel") and rep.stretches[1].label == "motors: accel"
-    slow = load_config(SIM, {"limits": {"accel": 0.3}})
+    slow = load_config(SIM_YAML, {"limits": {"accel": 0.3}})
     rep = path_report(load_path(shape, speed_limits(slow)), "line")
     assert rep.share_length["accel"] > 0.1
     assert all(rep.share_length[k] == 0.0 for k in ("motors: speed", "motors: accel", "motors: braking", "other"))
@@ -328,7 +327,7 @@ def test_where_the_motors_set_the_speed_the_report_says_so() -> None:
 def test_ddrt_path_reports_and_plots(tmp_path, capsys) -> None:
     case = pg.teach_and_repeat()
     f = _csv(tmp_path, case)
-    assert cli_main(["path", str(f), "--config", str(SIM), "--plot", "--out", str(tmp_path / "out")]) == 0
+    assert cli_main(["path", str(f), "--config", str(SIM_YAML), "--plot", "--out", str(tmp_path / "out")]) == 0
     out = capsys.readouterr().out
     for needle in ("length", "duration", "curvature     max", "corners       0 turned in place",
                    "samples of a curve", "deviation     largest", "speed set by", "point cap"):
@@ -354,21 +353,6 @@ def test_ddrt_path_bad_file_is_one_clear_line(tmp_path, capsys) -> None:
     assert "p.csv: line 3: column 'y': not a number" in capsys.readouterr().err
 
 
-# --------------------------------------------------------------------------- closed loop
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("name", ["circle_1cm", "teach_repeat"])
-def test_recordings_closed_loop_meet_the_targets(name) -> None:
-    row = pg.measure_case(pg.CASES[name](), seed=1, exact=False)
-    r = row.run
-    assert r.completed
-    assert r.time_s <= row.target_s
-    assert r.true_rms_m < pg.TARGET_TRUE_RMS_M
-    assert r.domega_rms < pg.TARGET_DOMEGA_RMS
-    assert r.saturated <= pg.TARGET_SATURATION
-
-
 # --------------------------------------------------------------------------- where it is reported
 
 
@@ -377,7 +361,7 @@ def test_ddrt_sim_and_a_follow_reply_report_the_deviation(tmp_path, capsys) -> N
 
     case = pg.teach_and_repeat()
     f = _csv(tmp_path, case)
-    cli_main(["sim", str(SIM), "--path", str(f), "--duration", "0.2", "--quiet", "--out", str(tmp_path / "out")])
+    cli_main(["sim", str(SIM_YAML), "--path", str(f), "--duration", "0.2", "--quiet", "--out", str(tmp_path / "out")])
     err = capsys.readouterr().err
     assert "teach_repeat.csv: 480 points as samples of a curve: smoothed within 10.0 mm (largest deviation" in err
 
@@ -388,7 +372,7 @@ def test_ddrt_sim_and_a_follow_reply_report_the_deviation(tmp_path, capsys) -> N
             self.path = path
 
     cfg = tmp_path / "d.yaml"
-    cfg.write_text(f"extends: {SIM}\ndaemon: {{socket: null, telemetry_dir: {tmp_path / 'tel'}}}\n")
+    cfg.write_text(f"extends: {SIM_YAML}\ndaemon: {{socket: null, telemetry_dir: {tmp_path / 'tel'}}}\n")
     d = Daemon(str(cfg))
     d.loop = _Loop()  # type: ignore[assignment]
     reply = d.handle({"cmd": "follow", "points": case.xy.tolist(), "speed": 0.6, "pose": [0, 0, 0]})

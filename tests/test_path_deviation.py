@@ -23,13 +23,14 @@ import tempfile
 import numpy as np
 import pytest
 
-from bench import paths_as_given as pg
-from bench.cusp_inputs import random_manoeuvre
 from ddrt.config import load_config
 from ddrt.path.report import path_report
 from ddrt.path.spec import PathError, load_path, speed_limits
+from tests.support import path_inputs as pg
+from tests.support.cusp_inputs import random_manoeuvre
+from tests.support.repo import SIM_YAML
 
-CFG = load_config(pg.SIM_CONFIG)
+CFG = load_config(SIM_YAML)
 LIM = speed_limits(CFG)
 
 
@@ -141,7 +142,7 @@ def test_the_measures_are_exact_on_shapes_whose_distances_are_known() -> None:
     assert np.allclose(got, np.abs(r - 1.0), atol=1e-6)
     # Chebyshev to an L shape, against a dense sampling of it, and turned with its points.
     corner = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]])
-    dense = pg._dense(corner, 1e-4)
+    dense = pg.dense(corner, 1e-4)
     q = rng.uniform(-0.5, 1.5, (200, 2))
     brute = np.min(np.max(np.abs(q[:, None, :] - dense[None]), axis=2), axis=1)
     assert np.allclose(chebyshev_to_polyline(corner, q, 0.0), brute, atol=1e-4)

@@ -23,9 +23,9 @@ from ddrt.path.spec import load_path, speed_limits
 from ddrt.core.types import Setpoint
 from ddrt.service.pathjob import BuildJob, check_path_file
 from ddrt.service.pathworker import PathWorker
+from tests.support.repo import REPO, SIM_YAML
 
-ROOT = FsPath(__file__).resolve().parents[1]
-CFG = load_config(ROOT / "configs" / "sim.yaml")
+CFG = load_config(SIM_YAML)
 LIMITS = speed_limits(CFG)
 
 
@@ -49,7 +49,7 @@ def _build(worker: PathWorker, source, paths=None, timeout: float = 60.0, **kw):
     {"shape": "rectangle", "width": 1.0, "height": 0.5, "speed": 0.3},  # pivots: bool series
     {"shape": "figure_eight", "width": 1.0, "height": 0.5, "speed": 0.5},
     {"points": [[0, 0], [0.5, 0], [0.5, 0.5], [1.0, 0.6]], "speed": 0.2},
-    str(ROOT / "configs" / "paths" / "circle_1m.yaml"),
+    str(REPO / "configs" / "paths" / "circle_1m.yaml"),
 ])
 def test_the_worker_builds_what_load_path_builds(worker: PathWorker, spec) -> None:
     b = _build(worker, spec, where="request")

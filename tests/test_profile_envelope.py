@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import math
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,10 +18,9 @@ from ddrt.core.model import Dynamics, inverse_dynamics, wheel_rates
 from ddrt.core.motor import Motor
 from ddrt.path import load_path
 from ddrt.path.spec import speed_limits
+from tests.support.repo import REPO, SIM_YAML
 
-ROOT = Path(__file__).resolve().parents[1]
-SIM = ROOT / "configs" / "sim.yaml"
-PATHS = ROOT / "configs" / "paths"
+PATHS = REPO / "configs" / "paths"
 DERIVED = {"limits": {"v_max": None, "accel": None, "torque_max_nm": None}}
 
 # Robots: the seed robot with its limits derived from its motors; a heavy, slow one whose
@@ -55,7 +53,7 @@ def _cfg(robot: str, headroom: float | None = None, extra: dict | None = None):
         over["limits"] = dict(over["limits"], feedback_headroom=headroom)
     for k, v in (extra or {}).items():
         over[k] = dict(over.get(k, {}), **v)
-    return load_config(SIM, over)
+    return load_config(SIM_YAML, over)
 
 
 def _path(cfg, spec):
@@ -178,7 +176,7 @@ def test_mirror_images_give_the_same_profile() -> None:
     r = cfg.robot.mirrored()
     names = r.__dataclass_fields__
     mirror_robot = {n: getattr(r, n) for n in names}
-    cfg_m = load_config(SIM, {**{k: v for k, v in ROBOTS["heavy_asymmetric"].items() if k != "robot"},
+    cfg_m = load_config(SIM_YAML, {**{k: v for k, v in ROBOTS["heavy_asymmetric"].items() if k != "robot"},
                               "robot": dict(mirror_robot, motor=ROBOTS["heavy_asymmetric"]["robot"]["motor"])})
     mirrored = _path(cfg_m, {"points": _mirror_points(pts)})
     np.testing.assert_allclose(mirrored.arrays()["u"], p.arrays()["u"], rtol=1e-9, atol=1e-12)
@@ -194,7 +192,7 @@ def test_mirror_images_give_the_same_profile() -> None:
 def test_a_heavier_robot_is_slower() -> None:
     base = _cfg("seed")
     r = base.robot
-    heavy = load_config(SIM, {**DERIVED, "robot": {"m_p": r.m_p + 4.0, "I_p": r.I_p * 3.0}})
+    heavy = load_config(SIM_YAML, {**DERIVED, "robot": {"m_p": r.m_p + 4.0, "I_p": r.I_p * 3.0}})
     for spec, slower in (("figure8", 1.02), ("rectangle", 1.02), ("sparse", 1.002)):  # sparse: its waypoints cap 0.3 m/s
         light_path = _path(base, SPECS[spec])
         heavy_path = _path(heavy, SPECS[spec])
@@ -215,13 +213,13 @@ def test_derived_limits_follow_the_motors() -> None:
     assert net == pytest.approx(0.0, abs=1e-9)
     assert res.limits.v_max == pytest.approx(Envelope(Dynamics.from_params(cfg.robot), m, headroom=0.0).top_speed())
     # The seed robot's configs keep their own caps: the user's numbers, below the motors'.
-    seed = load_config(SIM)
+    seed = load_config(SIM_YAML)
     assert resolve_limits(seed.limits, seed.robot, seed.robot_motor).limits.v_max == 1.0
     assert speed_limits(seed).v_max == 1.0 and speed_limits(seed).accel == 1.0
 
 
 def test_limits_above_the_motors_are_reported_naming_the_key() -> None:
-    cfg = load_config(SIM, {"limits": {"v_max": 5.0, "accel": 50.0, "torque_max_nm": 9.0}})
+    cfg = load_config(SIM_YAML, {"limits": {"v_max": 5.0, "accel": 50.0, "torque_max_nm": 9.0}})
     path = _path(cfg, SPECS["rectangle"])
     text = "\n".join(path.warnings)
     for key in ("limits.v_max", "limits.accel", "limits.torque_max_nm"):
@@ -229,7 +227,7 @@ def test_limits_above_the_motors_are_reported_naming_the_key() -> None:
     duty, tau = envelope_use(cfg, path)
     assert duty <= (1.0 - cfg.limits.feedback_headroom) * (1 + 1e-9)
     # A limit below the motors' is the user's to choose, and said nothing about.
-    quiet = load_config(SIM, {"limits": {"v_max": 0.5, "accel": 0.5}})
+    quiet = load_config(SIM_YAML, {"limits": {"v_max": 0.5, "accel": 0.5}})
     p = _path(quiet, SPECS["rectangle"])
     assert p.warnings == [] and max(p.v) <= 0.5 + 1e-12 and max(p.a) <= 0.5 + 1e-12
     # A path's own speed above what the motors give is clamped and reported.
@@ -364,7 +362,7 @@ def _tick(loop, hal, n: int) -> None:
 def test_a_heavier_robot_on_reload_re_profiles_the_rest_of_the_path() -> None:
     from ddrt.config import with_overrides
 
-    cfg = load_config(SIM, {**DERIVED, "estimator": {"calibration_s": 0.05}})
+    cfg = load_config(SIM_YAML, {**DERIVED, "estimator": {"calibration_s": 0.05}})
     loop, hal = _loop(cfg)
     path = _path(cfg, {"shape": "rectangle", "width": 1.2, "height": 0.8, "direction": "ccw"})
     loop.follow(path, (0.0, 0.0, 0.0))
@@ -392,3 +390,16 @@ def test_a_heavier_robot_on_reload_re_profiles_the_rest_of_the_path() -> None:
     _tick(loop, hal, int(new.duration / loop.period) + 400)
     assert loop.state == "stopped", loop.fault
     hal.close()
+
+
+@pytest.mark.parametrize("robot", ["seed", "heavy_asymmetric"])
+def test_a_reversed_profile_keeps_the_motors_within_their_envelope(robot: str) -> None:
+    """Inverse dynamics and the motor model at every sample of a reversed path, independent of
+    the profile's own coefficients: the duty within 1 - headroom, and the envelope used."""
+    c = _cfg(robot)
+    path = _path(c, {"shape": "figure_eight", "width": 1.2, "height": 0.6, "speed": 3.0, "reverse": True})
+    assert max(path.v) <= 0.0
+    duty, tau = envelope_use(c, path)
+    h = c.limits.feedback_headroom
+    assert duty <= (1.0 - h) * (1 + 1e-6) and tau <= (1.0 - h) * (1 + 1e-6)
+    assert max(duty, tau) > 0.9 * (1.0 - h)  # the motors, not some other cap, set the speed somewhere

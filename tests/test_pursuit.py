@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 import time
-from pathlib import Path as FsPath
 
 import numpy as np
 import pytest
@@ -13,8 +12,9 @@ from ddrt.path import Path, SpeedLimits, load_path
 from ddrt.core.types import Setpoint
 from ddrt.path.pursuit import PurePursuit, Reference
 from ddrt.path.reference import PathReference
+from tests.support.repo import REPO
 
-CONFIGS = FsPath(__file__).resolve().parent.parent / "configs" / "paths"
+CONFIGS = REPO / "configs" / "paths"
 LIM = SpeedLimits()
 
 

@@ -20,9 +20,7 @@ from ddrt.config import load_config, with_overrides
 from ddrt.loop import RecoveryCounters
 from ddrt.runtime.clock import ManualClock
 from ddrt.service.daemon import Daemon
-
-ROOT = Path(__file__).resolve().parents[1]
-SIM_YAML = ROOT / "configs" / "sim.yaml"
+from tests.support.repo import REPO, SIM_YAML
 
 
 # ---------------------------------------------------------------- the scheduler counts a stall
@@ -153,7 +151,7 @@ from ddrt.loop import ControlLoop, STATE_CODE  # noqa: E402
 from ddrt.path.spec import resolve_path  # noqa: E402
 from hal.registry import open_hal  # noqa: E402
 
-SCENARIOS = ROOT / "configs" / "scenarios"
+SCENARIOS = REPO / "configs" / "scenarios"
 WATCHDOG_S = 0.1  # the simulated motor driver's DRIVE watchdog (the microcontroller's default)
 
 
@@ -369,7 +367,7 @@ import signal  # noqa: E402
 import subprocess  # noqa: E402
 import time  # noqa: E402
 
-from test_daemon import PATHS, RATE_HZ, START_TIMEOUT_S, start_daemon, wait_for  # noqa: E402
+from tests.support.daemon import PATHS, RATE_HZ, START_TIMEOUT_S, start_daemon, wait_for  # noqa: E402
 
 HOLDING = STATE_CODE["holding"]
 

@@ -10,8 +10,9 @@ from pathlib import Path
 import pytest
 import yaml
 
-from fuzz_inputs import mutate
-from test_reload_live import REPO, Rig
+from tests.support.fuzz_inputs import mutate
+from tests.support.reload_rig import Rig
+from tests.support.repo import SIM_YAML
 
 CASES = 1000
 
@@ -21,7 +22,7 @@ SAFETY_STOPS = ("the path's reference point is", "non-finite value")
 
 def _full_config(rig: Rig) -> bytes:
     """The whole config in one file (not a few lines over `extends:`), so every section is hit."""
-    full = yaml.safe_load((REPO / "configs" / "sim.yaml").read_text())
+    full = yaml.safe_load(SIM_YAML.read_text())
     full.pop("path", None)
     full["estimator"] = {"calibration_s": 0.05}
     full["daemon"] = yaml.safe_load(rig.file.read_text())["daemon"]

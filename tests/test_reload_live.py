@@ -15,7 +15,6 @@ from pathlib import Path
 from typing import Any, Callable
 
 import pytest
-import yaml
 
 from ddrt.config.policy import leaf_modes, value_at
 from ddrt.config.schema import LIVE, NEXT_PATH, RESTART
@@ -26,58 +25,8 @@ from ddrt.path.spec import speed_limits
 from ddrt.runtime.clock import MonotonicClock
 from ddrt.service.daemon import Daemon
 from hal.registry import open_hal
-
-REPO = Path(__file__).resolve().parents[1]
-SIM = REPO / "configs" / "sim.yaml"
-PATH = {"shape": "circle", "radius": 0.5, "speed": 0.2, "laps": 3}
-
-
-def _write(path: Path, tmp: Path, over: dict[str, Any]) -> None:
-    base: dict[str, Any] = {
-        "extends": str(SIM),
-        "estimator": {"calibration_s": 0.05},
-        "daemon": {"telemetry_dir": str(tmp / "tel"), "socket": ""},
-    }
-    path.write_text(yaml.safe_dump(_merge(base, over)), encoding="utf-8")
-
-
-def _merge(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
-    out = dict(a)
-    for k, v in b.items():
-        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
-    return out
-
-
-class Rig:
-    """A daemon's parts as `ddrt run` builds them, driven tick by tick in simulated time."""
-
-    def __init__(self, tmp: Path) -> None:
-        self.file = tmp / "ddrt.yaml"
-        self.tmp = tmp
-        _write(self.file, tmp, {})
-        d = Daemon(str(self.file))
-        self.d = d
-        d.hal = open_hal(d.cfg, start=(0.0, 0.0, 0.0))
-        d.clock = MonotonicClock(spin_s=d.cfg.daemon.spin_us * 1e-6)
-        d.loop = ControlLoop(d.cfg, d.hal)
-        d._open_telemetry()
-        d.loop.calibrate(d.hal.sleep_until, d.hal.now)
-        self.path = load_path(PATH, speed_limits(d.cfg))
-        d.loop.follow(self.path)
-        self.ticks(20)
-
-    def ticks(self, n: int) -> None:
-        loop, hal = self.d.loop, self.d.hal
-        for _ in range(n):
-            hal.sleep_until(hal.now() + loop.period)
-            loop.tick()
-
-    def reload(self, over: dict[str, Any]) -> dict[str, Any]:
-        _write(self.file, self.tmp, over)
-        return self.d.reload()
-
-    def close(self) -> None:
-        self.d._shutdown()
+from tests.support.reload_rig import Rig, write_config
+from tests.support.repo import SIM_YAML
 
 
 def _nested(key: str, value: Any) -> dict[str, Any]:
@@ -167,7 +116,7 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Rig:
 def _cases() -> list[tuple[str, str]]:
     from ddrt.config import load_config
 
-    cfg = load_config(SIM)
+    cfg = load_config(SIM_YAML)
     return [(k, m) for k, m in leaf_modes(cfg) if _changed(k, value_at(cfg, k)) is not None
             and not k.startswith(("plant.motor_l", "plant.motor_r"))]
 
@@ -243,7 +192,7 @@ def test_calibrated_encoder_radius_takes_effect_on_reload(tmp_path: Path) -> Non
     changes the metres per count at once without a jump in the estimated position, and the
     estimate then follows the true travel."""
     file = tmp_path / "ddrt.yaml"
-    _write(file, tmp_path, {"robot": {"r_3": 0.050}})
+    write_config(file, tmp_path, {"robot": {"r_3": 0.050}})
     d = Daemon(str(file))
     d.hal = open_hal(d.cfg, start=(0.0, 0.0, 0.0))
     d.clock = MonotonicClock()
@@ -262,7 +211,7 @@ def test_calibrated_encoder_radius_takes_effect_on_reload(tmp_path: Path) -> Non
     x_true0 = robot.pose[0]
     x_est0 = loop.estimator.x
     assert x_est0 < 0.97 * x_true0  # the small radius under-reads by 4%
-    _write(file, tmp_path, {"robot": {"r_3": 0.052}})
+    write_config(file, tmp_path, {"robot": {"r_3": 0.052}})
     reply = d.reload()
     assert reply["ok"] and reply["applied"] == ["robot.r_3"], reply
     assert loop.estimator.metres_per_count == pytest.approx(2 * math.pi * 0.052 / 8192)

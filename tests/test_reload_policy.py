@@ -4,7 +4,6 @@ the config it puts in force, what it reports as waiting for a restart is not."""
 from __future__ import annotations
 
 import copy
-from pathlib import Path
 from typing import Any
 
 import pytest
@@ -13,12 +12,11 @@ import yaml
 from ddrt.config import ConfigError, config_from_mapping, load_config, with_overrides
 from ddrt.config.policy import leaf_modes, value_at, plan_reload
 from ddrt.config.schema import APPLY_MODES, LIVE, NEXT_PATH, RESTART
-
-SIM = Path(__file__).resolve().parents[1] / "configs" / "sim.yaml"
+from tests.support.repo import REPO, SIM_YAML
 
 
 def test_gain_change_is_live() -> None:
-    old = load_config(SIM)
+    old = load_config(SIM_YAML)
     new = with_overrides(old, {"controller": {"inner": {"kp": 33.0}}})
     plan = plan_reload(old, new)
     assert plan.live == ("controller.inner.kp",)
@@ -27,7 +25,7 @@ def test_gain_change_is_live() -> None:
 
 
 def test_rate_change_waits_for_a_restart_and_the_rest_applies() -> None:
-    old = load_config(SIM)
+    old = load_config(SIM_YAML)
     new = with_overrides(old, {"controller": {"rate_hz": 100.0, "heading_gain": 4.0}})
     plan = plan_reload(old, new)
     assert plan.restart == ("controller.rate_hz",)
@@ -37,7 +35,7 @@ def test_rate_change_waits_for_a_restart_and_the_rest_applies() -> None:
 
 
 def test_values_equal_to_the_running_ones_are_no_change() -> None:
-    old = load_config(SIM)
+    old = load_config(SIM_YAML)
     same = with_overrides(old, {"controller": {"rate_hz": old.controller.rate_hz,
                                                "inner": {"kp": old.controller.inner.kp}}})
     assert plan_reload(old, same).report() == {"applied": [], "next_path": [], "restart": []}
@@ -59,12 +57,12 @@ def test_values_equal_to_the_running_ones_are_no_change() -> None:
     ("pursuit.lookahead_m", NEXT_PATH), ("path", RESTART), ("start", RESTART),
 ])
 def test_declared_mode(key: str, mode: str) -> None:
-    modes = dict(leaf_modes(load_config(SIM)))
+    modes = dict(leaf_modes(load_config(SIM_YAML)))
     assert modes[key] == mode
 
 
 def test_every_leaf_has_one_known_mode_and_a_key_that_reads_back() -> None:
-    cfg = load_config(SIM)
+    cfg = load_config(SIM_YAML)
     leaves = list(leaf_modes(cfg))
     keys = [k for k, _ in leaves]
     assert len(keys) == len(set(keys)) > 100
@@ -76,7 +74,7 @@ def test_every_leaf_has_one_known_mode_and_a_key_that_reads_back() -> None:
 
 @pytest.mark.parametrize("direction", ["added", "removed"])
 def test_rate_change_in_an_added_or_removed_section_waits_for_a_restart(direction: str) -> None:
-    base = {"robot": copy.deepcopy(yaml.safe_load(SIM.read_text())["robot"])}
+    base = {"robot": copy.deepcopy(yaml.safe_load(SIM_YAML.read_text())["robot"])}
     with_rate = copy.deepcopy(base)
     with_rate["controller"] = {"rate_hz": 100.0}
     a, b = config_from_mapping(base), config_from_mapping(with_rate)
@@ -89,7 +87,7 @@ def test_rate_change_in_an_added_or_removed_section_waits_for_a_restart(directio
 def test_a_mix_of_running_and_new_values_is_validated_whole() -> None:
     """Raising the gyro range (restart) and omega_max (next path) in one reload must not put
     the new omega_max in force against the old range."""
-    old = load_config(SIM)
+    old = load_config(SIM_YAML)
     new = with_overrides(old, {"sensors": {"gyro_range_dps": 500}, "limits": {"omega_max": 6.0}})
     with pytest.raises(ConfigError, match="limits.omega_max.*restart"):
         plan_reload(old, new)
@@ -98,8 +96,8 @@ def test_a_mix_of_running_and_new_values_is_validated_whole() -> None:
 def test_every_changed_leaf_is_reported_once_and_put_in_force_by_its_mode() -> None:
     """Change every numeric leaf at once; each key appears in exactly the list of its mode,
     and the config in force shows the new value exactly for the applied ones."""
-    old = load_config(SIM)
-    raw = yaml.safe_load(SIM.read_text())
+    old = load_config(SIM_YAML)
+    raw = yaml.safe_load(SIM_YAML.read_text())
     overrides: dict[str, Any] = {}
     changed: list[str] = []
     for key, _mode in leaf_modes(old):
@@ -160,7 +158,7 @@ def _deep_merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
 
 
 def _documented_modes() -> dict[str, str]:
-    text = (Path(__file__).resolve().parents[1] / "docs" / "config.md").read_text(encoding="utf-8")
+    text = (REPO / "docs" / "config.md").read_text(encoding="utf-8")
     section = text[text.index("## Changing a running daemon's config"):]
     rows: dict[str, str] = {}
     for line in section.splitlines():
@@ -175,7 +173,7 @@ def test_docs_state_the_declared_mode_of_every_setting() -> None:
     rows = _documented_modes()
     assert set(rows.values()) <= set(APPLY_MODES)
     used: set[str] = set()
-    for key, mode in leaf_modes(load_config(SIM)):
+    for key, mode in leaf_modes(load_config(SIM_YAML)):
         candidates = [k for k in rows if k == key or (k.endswith(".*") and key.startswith(k[:-1]))]
         assert candidates, f"docs/config.md does not say how {key} applies"
         best = max(candidates, key=len)
@@ -185,7 +183,7 @@ def test_docs_state_the_declared_mode_of_every_setting() -> None:
 
 
 def test_backend_change_waits_for_a_restart() -> None:
-    old = load_config(SIM)
+    old = load_config(SIM_YAML)
     # The real backend needs its devices named (hal.imu.bus, hal.bridge.url) to validate.
     new = with_overrides(old, {"hal": {"backend": "real", "imu": {"bus": 1}, "bridge": {"url": "/dev/ttyACM0"}}})
     plan = plan_reload(old, new)

@@ -8,7 +8,6 @@ the reversing leg, which meets the forward leg in line (a cusp with no turn in p
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,34 +15,13 @@ import pytest
 from ddrt.config import load_config
 from ddrt.path.spec import PathError, load_path, speed_limits
 from ddrt.simrun.runner import run_sim
-from tests.test_profile_envelope import _cfg, _path, envelope_use
-
-ROOT = Path(__file__).resolve().parents[1]
-SIM = ROOT / "configs" / "sim.yaml"
-
-THREE_POINT = """x,y,v
-0,0,0.3
-0.6,0,0.3
-0.3,0.3,-0.25
-0.9,0.45,0.3
-"""
-
-
-def _parallel_park() -> dict:
-    """Forward 1 m along x, then back into a slot 0.3 m to the right along a smooth S (samples
-    every 1 cm), the robot facing +x throughout."""
-    fwd = [[0.01 * k, 0.0, 0.3] for k in range(0, 101)]
-    back = []
-    for k in range(1, 61):
-        x = 1.0 - 0.01 * k
-        f = (1.0 - x) / 0.6
-        back.append([x, -0.3 * (3 * f * f - 2 * f ** 3), -0.2])
-    return {"points": fwd + back}
+from tests.support.repo import SIM_YAML
+from tests.support.reverse_paths import THREE_POINT, parallel_park_points
 
 
 @pytest.fixture(scope="module")
 def cfg():
-    return load_config(SIM)
+    return load_config(SIM_YAML)
 
 
 def _run(cfg, path):
@@ -82,7 +60,7 @@ def test_a_three_point_turn_from_a_csv_is_driven_backwards_where_it_says(cfg, tm
 
 
 def test_a_parallel_park_yaml_reverses_in_line_and_parks(cfg) -> None:
-    path = load_path(_parallel_park(), speed_limits(cfg), paths=cfg.paths)
+    path = load_path(parallel_park_points(), speed_limits(cfg), paths=cfg.paths)
     assert len(path.cusps) == 1
     # In line: at most the few degrees by which the two smoothed legs' end tangents differ.
     turned = sum(b - a for a, b, p in zip(path.sigma, path.sigma[1:], path.seg_pivot) if p) / path.pivot_radius
@@ -108,19 +86,6 @@ def test_a_path_driven_in_reverse_matches_its_mirror_image_driven_forward(cfg) -
     assert mb["completed"] and mf["completed"]
     for key in ("rms_cross_track_m", "rms_tracking_m"):
         assert abs(mb[key] - mf[key]) <= max(0.3 * mf[key], 3e-5), (key, mb[key], mf[key])
-
-
-@pytest.mark.parametrize("robot", ["seed", "heavy_asymmetric"])
-def test_a_reversed_profile_keeps_the_motors_within_their_envelope(robot: str) -> None:
-    """Inverse dynamics and the motor model at every sample of a reversed path, independent of
-    the profile's own coefficients: the duty within 1 - headroom, and the envelope used."""
-    c = _cfg(robot)
-    path = _path(c, {"shape": "figure_eight", "width": 1.2, "height": 0.6, "speed": 3.0, "reverse": True})
-    assert max(path.v) <= 0.0
-    duty, tau = envelope_use(c, path)
-    h = c.limits.feedback_headroom
-    assert duty <= (1.0 - h) * (1 + 1e-6) and tau <= (1.0 - h) * (1 + 1e-6)
-    assert max(duty, tau) > 0.9 * (1.0 - h)  # the motors, not some other cap, set the speed somewhere
 
 
 def test_an_unmarked_reversal_names_the_file_and_line(cfg, tmp_path) -> None:
@@ -202,7 +167,7 @@ def test_the_cusp_estimate_recovers_the_point_and_heading_from_noisy_runs() -> N
     """Over 40 noisy recordings of a three-point turn (1.5 mm noise, 1 cm apart) the shared
     fit finds the cusp's point across the tangent and its heading to within what the noise
     allows."""
-    from bench.cusp_inputs import three_point_turn
+    from tests.support.cusp_inputs import three_point_turn
     from ddrt.path.cusp import estimate_cusp
 
     m = three_point_turn()
@@ -232,7 +197,7 @@ def test_the_cusp_estimate_recovers_the_point_and_heading_from_noisy_runs() -> N
 def test_a_recorded_three_point_turn_meets_at_each_cusp_without_a_shift(cfg) -> None:
     """Both cusps shared: the runs end and start on one point with one heading (no turn in
     place, no shift), and that point is the recorded cusp sample's within the tolerance."""
-    from bench.cusp_inputs import three_point_turn
+    from tests.support.cusp_inputs import three_point_turn
 
     m = three_point_turn()
     xy, v = m.recording(np.random.default_rng(11), 0.3, noise=0.0015)

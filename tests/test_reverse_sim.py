@@ -6,7 +6,6 @@ on a reverse leg, the estimator's sign, and the energy of a reversed path agains
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
@@ -17,14 +16,12 @@ from ddrt.loop import ControlLoop
 from ddrt.path.spec import load_path, speed_limits
 from ddrt.simrun.runner import run_sim
 from hal.registry import open_hal
-from tests.test_reverse import THREE_POINT, _parallel_park
-
-ROOT = Path(__file__).resolve().parents[1]
-SIM = ROOT / "configs" / "sim.yaml"
+from tests.support.repo import SIM_YAML
+from tests.support.reverse_paths import THREE_POINT, parallel_park_points
 
 
 def _cfg(**overrides: Any):
-    cfg = load_config(SIM)
+    cfg = load_config(SIM_YAML)
     return with_overrides(cfg, overrides) if overrides else cfg
 
 
@@ -68,7 +65,7 @@ def test_a_three_point_turn_under_each_mode(tmp_path, overrides, xt_max) -> None
 
 def test_the_estimated_speed_has_the_true_speed_sign_on_reverse_legs(tmp_path) -> None:
     cfg = _cfg()
-    path = load_path(_parallel_park(), speed_limits(cfg), paths=cfg.paths)
+    path = load_path(parallel_park_points(), speed_limits(cfg), paths=cfg.paths)
     r = run_sim(cfg, path, seed=3, keep_rows=True)
     v, v_est = r.column("v"), r.column("v_est")
     back = v < -0.02
@@ -144,7 +141,7 @@ def _on_reverse_leg(path, past: float) -> Callable[[_Stepper], bool]:
 
 def test_a_stop_on_a_reverse_leg_brakes_towards_zero_and_never_backs_faster() -> None:
     cfg = _cfg()
-    path = load_path(_parallel_park(), speed_limits(cfg), paths=cfg.paths)
+    path = load_path(parallel_park_points(), speed_limits(cfg), paths=cfg.paths)
     s = _Stepper(cfg, path)
     try:
         s.run(_on_reverse_leg(path, 0.15))
@@ -170,7 +167,7 @@ def test_a_stop_on_a_reverse_leg_brakes_towards_zero_and_never_backs_faster() ->
 
 def test_a_sensor_gap_on_a_reverse_leg_holds_and_resumes_backwards() -> None:
     cfg = _cfg()
-    path = load_path(_parallel_park(), speed_limits(cfg), paths=cfg.paths)
+    path = load_path(parallel_park_points(), speed_limits(cfg), paths=cfg.paths)
     s = _Stepper(cfg, path)
     try:
         s.run(_on_reverse_leg(path, 0.1))
@@ -242,16 +239,16 @@ def test_a_reversed_path_takes_the_energy_of_its_mirror_image_driven_forward() -
 
 
 def test_random_marked_reverse_manoeuvres_are_driven_end_to_end() -> None:
-    """~50 random three-point turns, parking manoeuvres and zig-zags (bench/cusp_inputs.py),
+    """~50 random three-point turns, parking manoeuvres and zig-zags (tests/support/cusp_inputs.py),
     recorded with 1-2 mm of noise at 5-15 mm spacing and marked with negative v on the reverse
     legs, loaded and driven: each completes or is refused at load with a PathError, and the
     driven ones meet issue 13's targets: the true pose within 3 mm RMS of the curve the
     samples came from on every run, the reference within the tolerance of every input point
     (the runs share each cusp, ddrt/path/cusp.py, so nothing is shifted onto it), and no turn
     in place where the curve has none."""
-    from bench.cusp_inputs import random_manoeuvre
-    from bench.paths_as_given import curve_distance
     from ddrt.path.spec import PathError
+    from tests.support.cusp_inputs import random_manoeuvre
+    from tests.support.path_inputs import curve_distance
 
     cfg = _cfg()
     lim = speed_limits(cfg)

@@ -10,7 +10,6 @@ import os
 import subprocess
 import sys
 import tracemalloc
-from pathlib import Path as FsPath
 
 import numpy as np
 import pytest
@@ -21,9 +20,9 @@ from ddrt.path.spec import resolve_path
 from ddrt.simrun.metrics import (WINDOW, PolylineDistance, TrackingAccumulator, path_polyline, tracking_metrics,
                                  wrap_angles)
 from ddrt.simrun.runner import SIM_COLUMNS, SimResult, TelemetryStream, format_rows, run_sim, write_outputs
+from tests.support.repo import REPO
 
-ROOT = FsPath(__file__).resolve().parent.parent
-SCENARIOS = ROOT / "configs" / "scenarios"
+SCENARIOS = REPO / "configs" / "scenarios"
 COL = {name: i for i, name in enumerate(SIM_COLUMNS)}
 
 
@@ -284,12 +283,12 @@ def test_ddrt_sim_peak_memory_does_not_grow_with_run_length(tmp_path) -> None:
     in a fresh process: the long run may not hold its rows (58 000 of them)."""
     code = ("import resource, sys; from ddrt.cli import main; main(sys.argv[1:]); "
             "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)")
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    env = dict(os.environ, PYTHONPATH=str(REPO))
 
     def peak_kb(*extra: str) -> int:
         p = subprocess.run([sys.executable, "-c", code, "sim", str(SCENARIOS / "seed_square.yaml"), "--quiet",
                             "--out", str(tmp_path / f"out{len(extra)}"), *extra],
-                           cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+                           cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
         return int(p.stdout.strip().splitlines()[-1])
 
     short = peak_kb("--duration", "20")

@@ -20,9 +20,8 @@ from ddrt.path.spec import load_path, speed_limits
 from ddrt.path.start import StartReference
 from ddrt.simrun.runner import run_sim
 from hal.registry import open_hal
-from pathlib import Path as FsPath
+from tests.support.repo import SIM_YAML
 
-SIM = FsPath(__file__).resolve().parents[1] / "configs" / "sim.yaml"
 QUICK = {"sim": {"start_delay_s": 0.2}, "estimator": {"calibration_s": 0.3}}
 SPEED = 0.3
 SPEED_MARGIN = 0.05  # m/s over the path's speed (the inner loop's overshoot; was +0.39)
@@ -32,7 +31,7 @@ DUTY_BOUND = 0.7  # the worst measured is 0.49 (was 0.98)
 def _cfg(**extra):
     overrides = dict(QUICK)
     overrides.update(extra)
-    return load_config(SIM, overrides)
+    return load_config(SIM_YAML, overrides)
 
 
 def _line(cfg, speed: float = SPEED, length: float = 1.0):

@@ -13,9 +13,9 @@ import subprocess
 from pathlib import Path
 
 import pytest
+from tests.support.repo import REPO
 
-ROOT = Path(__file__).resolve().parent.parent
-SYSTEMD = ROOT / "systemd"
+SYSTEMD = REPO / "systemd"
 UNIT = SYSTEMD / "ddrt.service"
 MAX_EXPOSURE = 1.5
 REAL_EXEC = "/opt/ddrt/venv/bin/ddrt"

@@ -12,9 +12,8 @@ from pathlib import Path
 import pytest
 
 from ddrt.viz import optional
+from tests.support.repo import REPO, SIM_YAML
 
-REPO = Path(__file__).resolve().parents[1]
-SIM = REPO / "configs" / "sim.yaml"
 needs_sdk = pytest.mark.skipif(not optional.available(), reason="foxglove-sdk not installed (pip install 'ddrt[foxglove]')")
 
 # Run ddrt's CLI with the SDK's native extension failing to load (a wheel for another CPU or
@@ -39,14 +38,14 @@ def _cli_with_broken_sdk(*args: str) -> subprocess.CompletedProcess[str]:
 
 @needs_sdk
 def test_an_sdk_that_is_installed_but_does_not_import_is_a_clear_error_not_a_traceback(tmp_path: Path) -> None:
-    out = _cli_with_broken_sdk("sim", str(SIM), "--duration", "0.1", "--out", str(tmp_path / "sim"),
+    out = _cli_with_broken_sdk("sim", str(SIM_YAML), "--duration", "0.1", "--out", str(tmp_path / "sim"),
                                "--mcap", str(tmp_path / "r.mcap"), "--quiet")
     assert out.returncode == 2, out.stderr
     assert "--mcap needs the foxglove-sdk package, which is installed but does not import" in out.stderr
     assert "GLIBC_2.38" in out.stderr and "pip install 'ddrt[foxglove]'" in out.stderr
     assert "Traceback" not in out.stderr
     cfg = tmp_path / "cfg.yaml"
-    cfg.write_text(f"extends: {SIM}\ndaemon: {{telemetry_dir: {tmp_path / 'tel'}, foxglove: {{enabled: true, port: 0}}}}\n")
+    cfg.write_text(f"extends: {SIM_YAML}\ndaemon: {{telemetry_dir: {tmp_path / 'tel'}, foxglove: {{enabled: true, port: 0}}}}\n")
     out = _cli_with_broken_sdk("run", str(cfg), "--socket", str(tmp_path / "s.sock"), "--duration", "1")
     assert out.returncode == 2, out.stderr
     assert "daemon.foxglove.enabled: true needs the foxglove-sdk package, which is installed but does not import" \
@@ -71,9 +70,8 @@ class _Param:
 def viz_rig(tmp_path: Path):
     """A VizService (no server, no MCAP) on an in-process Daemon whose loop runs on the
     unpaced simulated robot: the parameter path from the SDK's thread to between_ticks."""
-    from test_drive import DaemonRig
-
     from ddrt.viz.service import VizService
+    from tests.support.drive_rigs import DaemonRig
 
     rig = DaemonRig(tmp_path)
     svc = VizService(rig.d, 40, truth=False, mcap_dir=None)
@@ -179,7 +177,7 @@ def test_sim_mcap_to_a_path_that_cannot_be_written_names_the_flag_without_a_trac
     path = {"directory": str(tmp_path), "missing": "/proc/ddrt-nope/run.mcap", "full": "/dev/full"}[target]
     if target == "full" and not Path("/dev/full").exists():
         pytest.skip("no /dev/full")
-    out = subprocess.run([sys.executable, "-m", "ddrt.cli", "sim", str(SIM), "--duration", "5", "--out",
+    out = subprocess.run([sys.executable, "-m", "ddrt.cli", "sim", str(SIM_YAML), "--duration", "5", "--out",
                           str(tmp_path / "sim"), "--mcap", path, "--quiet"], cwd=REPO, capture_output=True, text=True,
                          timeout=120)
     assert out.returncode == 1, out.stderr

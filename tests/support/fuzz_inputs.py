@@ -1,7 +1,7 @@
 """Seeded mutations of every input file in configs/ (YAML configs, path YAMLs, the CSV), and
 an in-process harness that feeds them to `ddrt sim`. Reusable by any fuzz test:
 
-    from fuzz_inputs import Mutator, copy_configs, run_case      # tests/ is on sys.path
+    from tests.support.fuzz_inputs import Mutator, copy_configs, run_case
 
     root = copy_configs(tmp_path)                 # a private copy of configs/
     for case in Mutator(seed=1, kinds=("config",)).cases(1000):
@@ -11,7 +11,7 @@ an in-process harness that feeds them to `ddrt sim`. Reusable by any fuzz test:
 Case i of a seed is the same on every run and on every machine (`Mutator(seed).case(i)`
 rebuilds it alone); `case.ops` says what was done to it. Run many more locally with
 
-    PYTHONPATH=. python tests/fuzz_inputs.py --cases 20000 [--seed 1] [--kinds config,path,csv]
+    python -m tests.support.fuzz_inputs --cases 20000 [--seed 1] [--kinds config,path,csv]
 
 which prints every case whose outcome is not a clean one (exit 0, 1 or 2, no traceback, within
 the time limit) with the command that reproduces it. The limit is on the case's CPU time, so
@@ -33,8 +33,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterator, Sequence
 
-ROOT = Path(__file__).resolve().parents[1]
-CONFIGS = ROOT / "configs"
+from tests.support.repo import REPO
+
+CONFIGS = REPO / "configs"
 
 # Numbers as they are written in a file: ordinary, huge, tiny, negative, not finite, beyond
 # the float and C ranges, in every notation YAML and people use.
