@@ -1,6 +1,7 @@
 """The summary's figures, when matplotlib is installed (the `plot` extra): the error
-distribution for each value of each axis (box plots), and for a two-axis sweep a heat map of
-the pass rate with each cell's median error written in it.
+distribution for each value of each axis (box plots), and for a campaign with two `axes:` a
+heat map of the pass rate over them (everything else pooled in each cell) with each cell's
+median error written in it.
 
 matplotlib's object API (Figure, no pyplot), so drawing changes no global backend or state
 of a program that calls this in its own process (a benchmark).
@@ -102,8 +103,9 @@ def write_figures(plan: Plan, rows: Sequence[Row], out: FsPath) -> list[FsPath]:
             dest = folder / f"{_safe(metric)}_by_{_safe(column)}.png"
             box_plot(plan, rows, column, metric, dest)
             written.append(dest)
-    if len(columns) == 2:
-        x, y = columns
+    swept = [a.key for a in plan.campaign.axes if len(a.values) > 1]
+    if len(swept) == 2:  # the other columns (seeds, variants, robots) pooled in each cell
+        x, y = swept
         dest = folder / f"pass_rate_{_safe(x)}_x_{_safe(y)}.png"
         heat_map(plan, rows, x, y, metric, dest)
         written.append(dest)
