@@ -374,3 +374,15 @@ def test_only_the_command_imports_the_sweep_package_and_only_when_it_runs() -> N
                                                                                           "pyarrow"):
                         found.append((f.relative_to(REPO).as_posix(), id(node) in top_level, name))
     assert found and all(path == "ddrt/cli.py" and not top for path, top, _ in found), found
+
+
+def test_the_example_campaign_and_the_documented_keys() -> None:
+    """configs/campaigns/ expands as written; docs/sweep.md's table has every campaign key."""
+    from ddrt.sweep.campaign import KEYS
+
+    plan = expand(load_campaign(REPO / "configs" / "campaigns" / "gains.yaml"))
+    assert plan.columns == ("variant", "controller.outer.k_y", "controller.outer.k_theta", "seed")
+    assert len(plan.cases) == 2 * 5 * 3 * 3
+    doc = (REPO / "docs" / "sweep.md").read_text(encoding="utf-8")
+    missing = [k for k in KEYS if f"| `{k}` |" not in doc and f"| `{k}." not in doc]
+    assert missing == []

@@ -94,9 +94,6 @@ class Campaign:
     run: RunSettings = RunSettings()
     summary_metrics: tuple[str, ...] = (DEFAULT_SUMMARY_METRIC,)
 
-    def fail(self, key: str, problem: str) -> CampaignError:
-        return CampaignError(f"{self.source}: {key}: {problem}")
-
 
 def load_campaign(path: str | FsPath) -> Campaign:
     """Read and check a campaign file."""

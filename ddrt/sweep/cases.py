@@ -60,6 +60,7 @@ class _Choice:
 
     shown: Any
     layer: dict[str, Any]  # merged over the config (a `path` entry is merged over the path)
+    folder: str | None = None  # a base's: where its config's relative names start
     robot: Robot | None = None
     path: str | dict[str, Any] | None = None
     seed: int | None = None
@@ -122,9 +123,6 @@ class _Builder:
         self.configs: dict[str, Config] = {}
         self.paths: dict[str, Path] = {}
 
-    def fail(self, key: str, problem: str) -> CampaignError:
-        return self.camp.fail(key, problem)
-
     def dimensions(self) -> list[tuple[str, list[_Choice]]]:
         camp = self.camp
         dims: list[tuple[str, list[_Choice]]] = []
@@ -134,13 +132,13 @@ class _Builder:
                 raw = load_config(f).raw
             except (ConfigError, PathError) as exc:
                 raise CampaignError(f"{camp.source}: base: {exc}") from None
-            bases.append(_Choice(label, dict(raw, _folder=str(f.parent))))
+            bases.append(_Choice(label, raw, folder=str(f.parent)))
         if camp.base_axis:
             dims.append(("base", bases))
         elif bases:
             dims.append(("", bases))  # one base file: not a column
         else:
-            dims.append(("", [_Choice(None, {"_folder": str(camp.folder)})]))
+            dims.append(("", [_Choice(None, {}, folder=str(camp.folder))]))  # no base: every key at default
         if camp.variants:
             dims.append(("variant", [_Choice(name, over) for name, over in camp.variants.items()]))
         if camp.population is not None:
@@ -161,8 +159,8 @@ class _Builder:
         replace the base's, its sim: merges); the path chosen; the robot's speed on it;
         overrides:; then the variant and the axes in the campaign's order."""
         first, *rest = list(choices)
-        data = dict(first.layer)
-        folder = data.pop("_folder")
+        data = copy.deepcopy(first.layer)
+        folder = str(first.folder)
         robot = next((c.robot for c in rest if c.robot is not None), None)
         path = next((c.path for c in rest if c.path is not None), None)
         seed = next((c.seed for c in rest if c.seed is not None), None)
