@@ -39,6 +39,11 @@ class Side:
     runs_s: float  # first submission to last row
     cpu_s: float  # the runs' own wall times summed (what one core would need without overhead)
 
+    @property
+    def busy(self) -> float:
+        """The fraction of the workers' time between first submission and last row spent in runs."""
+        return self.cpu_s / (self.workers * self.runs_s)
+
     def per_s(self, runs: int) -> float:
         return runs / self.wall_s
 
@@ -69,7 +74,10 @@ class Throughput:
             f"{self.expand_s:.1f} s.", "", *rows, "",
             f"Dask on {self.dask.workers} workers: {speedup:.2f}x the sequential loop's throughput "
             f"(runs alone: {self.sequential.runs_s / self.dask.runs_s:.2f}x); the summed run times were "
-            f"{self.sequential.cpu_s:.1f} s in this process and {self.dask.cpu_s:.1f} s on the workers. "
+            f"{self.sequential.cpu_s:.1f} s in this process and {self.dask.cpu_s:.1f} s on the workers, which "
+            f"were busy with runs {self.dask.busy:.0%} of the time (the rest is Dask's own cost per task); "
+            f"a run took {self.dask.cpu_s / self.sequential.cpu_s:.2f}x as long on a worker as in the loop "
+            f"(above 1: the workers compete for the cores, with each other and the machine's other load). "
             f"Tables equal (wall time aside): {'yes' if self.identical else '**NO**'}.",
         ]
 
