@@ -173,7 +173,8 @@ def render(res: PopulationResult) -> list[str]:
     masses = [r.mass for r in res.robots]
     volts = [r.supply_v for r in res.robots]
     lines = [
-        f"{len(res.robots)} robots from a fixed-seed generator (`bench/population.py`, seed {SEED}): "
+        f"{len(res.robots)} robots from a fixed-seed generator (`ddrt/sweep/population.py`, seed {SEED}; "
+        "`bench/population.py` runs them as the campaign bench/campaigns/population.yaml): "
         f"{min(masses):.1f}-{max(masses):.1f} kg, {min(volts):.1f}-{max(volts):.1f} V motors, different wheels, "
         "tracks and inertias consistent with mass and size, a few percent between belief (`robot:`) and truth "
         "(`plant:`), 0.5-3 ms latency; each given as its `robot:` section with every other key at default "
