@@ -213,3 +213,27 @@ def test_ctrl_c_keeps_what_finished_and_resume_runs_only_the_rest(cluster: Clust
     assert m is not None and (int(m.group(1)), int(m.group(2))) == (CASES - kept, kept)
     assert rows_in(tmp_path) == CASES  # no case ran twice
     assert without_wall_time(read_table(tmp_path / "results.parquet")).equals(reference)
+
+
+def test_ctrl_c_at_a_terminal_stops_a_local_cluster_cleanly(campaign: Path, tmp_path: Path) -> None:
+    """A terminal's Ctrl-C reaches the whole process group, the LocalCluster's workers too:
+    only `ddrt sweep` answers it (no worker prints a traceback), keeps what finished, and no
+    process of the group outlives it."""
+    import os
+
+    sweep = subprocess.Popen(sweep_cmd(campaign, tmp_path, "--workers", "2"), cwd=REPO, stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        wait_for("a row", lambda: rows_in(tmp_path) >= 1 or sweep.poll() is not None, timeout=RUN_TIMEOUT_S)
+        os.killpg(sweep.pid, signal.SIGINT)
+        out, err = sweep.communicate(timeout=RUN_TIMEOUT_S)
+    finally:
+        if sweep.poll() is None:
+            sweep.kill()
+    kept = rows_in(tmp_path)
+    assert sweep.returncode == 130, (out, err)
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
+    assert 1 <= kept < CASES and read_table(tmp_path / "results.parquet").num_rows == kept
+    ps = subprocess.run(["ps", "-o", "pid=,stat=,args=", "-g", str(sweep.pid)], capture_output=True, text=True).stdout
+    alive = [line for line in ps.splitlines() if line.split()[1][0] != "Z"]  # a zombie has exited already
+    assert alive == []

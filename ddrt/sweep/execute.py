@@ -11,8 +11,11 @@ rerun gives the same row); a case whose workers keep dying becomes a failed row.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
+import signal
+import threading
 from typing import Any, Iterator, Mapping, Sequence
 
 from ddrt.path import Path
@@ -52,6 +55,21 @@ def _path_of(path: Path) -> Path:
     return path
 
 
+@contextlib.contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """SIGINT ignored while the local worker processes start, so they inherit that: a Ctrl-C
+    at the terminal (sent to the whole process group) reaches only `ddrt sweep`, which keeps
+    what finished and shuts the cluster down, instead of every worker printing a traceback."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def _quiet() -> None:
     for name in ("distributed", "distributed.worker", "distributed.nanny", "distributed.scheduler"):
         logging.getLogger(name).setLevel(logging.ERROR)
@@ -84,8 +102,9 @@ class DaskCluster:
             except (OSError, ValueError) as exc:
                 raise OSError(f"cannot reach the Dask scheduler at {self.scheduler}: {exc}") from None
         else:
-            self.cluster = LocalCluster(n_workers=self.requested or machine_workers(), threads_per_worker=1,
-                                        processes=True, dashboard_address=None, silence_logs=logging.ERROR)
+            with _sigint_ignored():
+                self.cluster = LocalCluster(n_workers=self.requested or machine_workers(), threads_per_worker=1,
+                                            processes=True, dashboard_address=None, silence_logs=logging.ERROR)
             self.client = Client(self.cluster)
         return self
 
