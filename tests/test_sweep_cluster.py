@@ -70,10 +70,11 @@ def run_sweep(campaign: Path, out: Path, *extra: str) -> subprocess.CompletedPro
 
 
 def stop(procs: list[subprocess.Popen]) -> None:
-    for p in procs:
+    """Each worker, then the scheduler, one at a time: stopped together, a worker waits for
+    its scheduler's goodbye that never comes."""
+    for p in reversed(procs):
         if p.poll() is None:
             p.terminate()
-    for p in procs:
         try:
             p.wait(timeout=10)
         except subprocess.TimeoutExpired:
