@@ -364,8 +364,8 @@ def build_parser() -> argparse.ArgumentParser:
     swp = sub.add_parser("sweep", help="a campaign of simulated runs on Dask: a table, a summary, figures "
                                        "(pip install 'ddrt[sweep]')")
     swp.add_argument("campaign", help="campaign file (YAML; docs/sweep.md)")
-    swp.add_argument("--out", required=True, help="output folder: results.parquet, results.csv, summary.md, figures/")
-    swp.add_argument("--workers", type=int, help="local worker processes (default: one per core)")
+    swp.add_argument("--out", required=True, metavar="DIR", help="output folder: results.parquet, results.csv, summary.md, figures/")
+    swp.add_argument("--workers", type=int, metavar="N", help="local worker processes (default: one per core)")
     swp.add_argument("--scheduler", metavar="ADDRESS", help="run on this Dask scheduler (tcp://host:8786) instead "
                                                             "of a local cluster")
     swp.add_argument("--resume", action="store_true", help="keep the rows already in --out and run the rest")
