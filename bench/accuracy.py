@@ -1,15 +1,16 @@
 """Accuracy: every scenario x the three controllers on the same robot, sensors and noise seeds.
 
 The kinematic baseline is given its best chance: a sweep of pure-pursuit lookaheads over the
-whole scenario set, keeping the one whose worst scenario is best. Runs are independent, so
-they go to a small process pool; each returns only its metrics, never its telemetry.
+whole scenario set, keeping the one whose worst scenario is best. The grid is two campaigns
+run by the sweep runner (`ddrt sweep`'s, ddrt/sweep/): the dynamic and seed controllers as
+variants over every scenario file and seed, and the kinematic lookahead sweep as an axis
+(`pursuit.lookahead_m`) over the same; on a Dask LocalCluster of `workers` processes, or in
+this process for one. Each run returns only its metrics, never its telemetry.
 """
 
 from __future__ import annotations
 
-import logging
 import math
-import multiprocessing
 import statistics
 import sys
 import time
@@ -17,9 +18,10 @@ from dataclasses import dataclass, field
 from pathlib import Path as FsPath
 from typing import Callable, Iterable, Sequence
 
-from ddrt.config import load_config
-from ddrt.path.spec import resolve_path
-from ddrt.simrun.runner import run_sim
+from ddrt.sweep.campaign import Campaign, campaign_from_mapping
+from ddrt.sweep.cases import Case, Plan, expand
+from ddrt.sweep.driver import make_executor
+from ddrt.sweep.run import Row
 
 CONTROLLERS = ("dynamic", "kinematic", "seed")
 LOOKAHEADS_M = (0.02, 0.03, 0.05, 0.08, 0.12)
@@ -66,73 +68,55 @@ def scenario_files(directory: str | FsPath) -> list[FsPath]:
     return files
 
 
-def _overrides(job: Job) -> dict:
-    over: dict = {"controller": {"mode": job.controller}}
-    if job.lookahead_m is not None:
-        over["pursuit"] = {"lookahead_m": job.lookahead_m}
-    if job.controller == "seed":
+def campaigns(files: Sequence[FsPath], seeds: Sequence[int], lookaheads: Sequence[float]) -> list[Campaign]:
+    """Dynamic and seed at each config's settings, kinematic at every lookahead; every seed."""
+    common = {"base": [str(f) for f in files], "seeds": [int(s) for s in seeds],
+              "metrics": list(METRICS) + ["completed"]}
+    controllers = dict(common, name="accuracy: dynamic and seed controllers", variants={
+        "dynamic": {"controller": {"mode": "dynamic"}},
         # The seed's method strays metres from its reference; measure it instead of stopping it.
-        over["limits"] = {"max_path_error_m": SEED_MAX_PATH_ERROR_M}
-    return over
+        "seed": {"controller": {"mode": "seed"}, "limits": {"max_path_error_m": SEED_MAX_PATH_ERROR_M}},
+    })
+    kinematic = dict(common, name="accuracy: kinematic lookahead sweep",
+                     overrides={"controller": {"mode": "kinematic"}},
+                     axes={"pursuit.lookahead_m": [float(la) for la in lookaheads]})
+    return [campaign_from_mapping(c, source=f"bench/accuracy.py ({c['name']})") for c in (controllers, kinematic)]
 
 
-def run_job(job: Job) -> RunRecord:
-    """Run one job to completion (or its time limit) and keep its metrics."""
-    cfg = load_config(job.config_path, _overrides(job))
-    result = run_sim(cfg, resolve_path(cfg), seed=job.seed)
-    m = result.metrics
-    return RunRecord(job=job, metrics={k: float(m[k]) for k in METRICS},
-                     completed=bool(m["completed"]), fault=str(m.get("fault") or ""))
+def _start_offset(case: Case, plan: Plan) -> float:
+    """How far the robot starts from the path's first point."""
+    path = plan.paths[case.path_key]
+    pose = case.config.start or path.start_pose
+    first = path.at(0.0)
+    return math.hypot(pose[0] - first.x, pose[1] - first.y)
 
 
-def _quiet_worker() -> None:
-    # A run that faults logs it; the fault is in the record, so the pool stays silent.
-    logging.getLogger("ddrt").setLevel(logging.CRITICAL)
+def _record(row: Row, case: Case, plan: Plan) -> RunRecord:
+    if row["status"] != "ok":
+        raise RuntimeError(f"accuracy: case {case.label}: {row['error']}")
+    base = str(row["base"])
+    job = Job(FsPath(base).stem, base, str(row.get("variant", "kinematic")), int(row["seed"]),
+              row.get("pursuit.lookahead_m"), case.expected_s, _start_offset(case, plan))
+    return RunRecord(job=job, metrics={k: float(row[k]) for k in METRICS}, completed=bool(row["completed"]),
+                     fault=str(row["fault"] or ""))
 
 
-def run_jobs(jobs: Sequence[Job], workers: int = 2,
-             progress: Callable[[int, int], None] | None = None) -> list[RunRecord]:
-    """All jobs, longest first, on `workers` processes (1: in this process)."""
-    ordered = sorted(jobs, key=lambda j: -j.expected_s)
+def run_plans(plans: Sequence[Plan], workers: int = 2,
+              progress: Callable[[int, int], None] | None = None) -> list[RunRecord]:
+    """Every case of `plans` in one go on `workers` processes (1: in this process)."""
+    cases = [c for p in plans for c in p.cases]
+    owner = {c.case_id: p for p in plans for c in p.cases}
+    paths = {k: v for p in plans for k, v in p.paths.items()}
+    settings = plans[0].campaign.run
+    assert all(p.campaign.run == settings for p in plans), "the plans keep different columns"
     out: list[RunRecord] = []
-    if workers <= 1:
-        logger = logging.getLogger("ddrt")
-        level = logger.level
-        _quiet_worker()
-        try:
-            for job in ordered:
-                out.append(run_job(job))
-                if progress:
-                    progress(len(out), len(ordered))
-        finally:
-            logger.setLevel(level)  # in-process: leave the caller's logging as it was
-        return out
-    ctx = multiprocessing.get_context("fork")
-    with ctx.Pool(workers, initializer=_quiet_worker) as pool:
-        for rec in pool.imap_unordered(run_job, ordered, chunksize=1):
-            out.append(rec)
+    with make_executor(workers) as ex:
+        for row in ex.run(sorted(cases, key=lambda c: -c.expected_s), paths, settings):
+            plan = owner[row["case_id"]]
+            out.append(_record(row, plan.cases[row["case"]], plan))
             if progress:
-                progress(len(out), len(ordered))
+                progress(len(out), len(cases))
     return out
-
-
-def make_jobs(files: Iterable[FsPath], seeds: Sequence[int], lookaheads: Sequence[float]) -> list[Job]:
-    """Dynamic and seed at the config's settings, kinematic at every lookahead, every seed."""
-    jobs: list[Job] = []
-    for f in files:
-        cfg = load_config(f)
-        path = resolve_path(cfg)
-        expected = path.duration
-        pose = cfg.start or path.start_pose
-        first = path.at(0.0)
-        offset = math.hypot(pose[0] - first.x, pose[1] - first.y)
-        name = f.stem
-        for seed in seeds:
-            for mode in ("dynamic", "seed"):
-                jobs.append(Job(name, str(f), mode, seed, None, expected, offset))
-            for la in lookaheads:
-                jobs.append(Job(name, str(f), "kinematic", seed, float(la), expected, offset))
-    return jobs
 
 
 # --------------------------------------------------------------------------- aggregation
@@ -259,7 +243,7 @@ def measure_accuracy(scenario_dir: str | FsPath, seeds: Sequence[int], lookahead
             raise FileNotFoundError(f"{scenario_dir}: no scenario named {missing[0]!r}")
         files = [f for f in files if f.stem in only]
     t0 = time.perf_counter()
-    records = run_jobs(make_jobs(files, seeds, lookaheads), workers, progress)
+    records = run_plans([expand(c) for c in campaigns(files, seeds, lookaheads)], workers, progress)
     res = build_result(records, [f.stem for f in files], seeds, lookaheads)
     res.wall_s = time.perf_counter() - t0
     return res

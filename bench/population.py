@@ -3,24 +3,10 @@
 `python -m bench.population [--robots 40] [--workers 2]` prints the table; bench/run.py renders it as a
 section of BENCHMARKS.md.
 
-A fixed-seed generator draws physically consistent differential-drive robots:
-- total mass 1-19 kg; size from the mass (the seed robot's half track 0.108 m at 4.34 kg,
-  scaled by the cube root of the mass, +-20 %); drive wheels 0.3-0.55 of the half track,
-  the omni-wheel 0.8-1.3 half tracks ahead of the axle;
-- masses split into the two wheel assemblies (each 12-30 %), the omni-wheel (5-15 %) and the
-  platform (the rest), its centre of mass -0.2..0.6 of H ahead of the axle and within 3 %
-  of the half track sideways; yaw inertias of a box (the platform, 1.3 (H + r) long, 1.8 L
-  wide) and of cylinders (the wheel assemblies), spin inertias of discs (35 % of each
-  assembly's mass in its wheel);
-- a gearmotor per robot: supply 6-24 V, full-voltage no-load ground speed 0.7-2.2 m/s, stall
-  torque 0.4-1.2 x M g r / 2 (each wheel can push 20-60 % of the robot's weight), friction at
-  no load 4-10 % of the stall torque (half Coulomb, half viscous);
-- the truth (`plant:`) departs from the belief (`robot:`) by a few percent: every mass,
-  inertia, length and the drive wheels' radii by N(0, 2 %) (clipped at 5 %), each wheel's
-  motor constants by N(0, 3 %) (clipped at 8 %); the encoder wheel's radius by N(0, 0.05 %)
-  (calibrated: `ddrt calibrate odometry` gets it within 0.1 %; an uncalibrated radius is a
-  dead-reckoning error no controller sees, configs/scenarios/figure8_slow_r3_uncalibrated.yaml);
-- latency: commands 0.5-3 ms, sensors 0.5-2 ms.
+The robots come from ddrt/sweep/population.py (the generator a campaign's `population:`
+draws from; its module doc says how each is drawn), and the runs are a campaign,
+bench/campaigns/population.yaml, run by the sweep runner (`ddrt sweep`'s: a Dask
+LocalCluster of `--workers` processes, or this process for one).
 
 Each robot drives the figure-eight (1.2 x 0.6 m) and the rectangle (1.2 x 0.8 m, pivots at
 the corners) of configs/paths/ at a speed drawn from 50-90 % of its motors' full-voltage
@@ -31,123 +17,43 @@ when it clamps). Controllers: dynamic (the default), dynamic with adaptation, ki
 from __future__ import annotations
 
 import argparse
-import math
-import random
 import statistics
 import sys
 import time
 from dataclasses import dataclass, field
+from pathlib import Path as FsPath
 from typing import Any, Sequence
 
-from bench.common import pooled_by_key
 from ddrt.config import config_from_mapping
-from ddrt.params.robot import RobotParams
-from ddrt.path.spec import resolve_path
-from ddrt.simrun.runner import run_sim
+from ddrt.config.yamlio import read_yaml
+from ddrt.sweep.campaign import Campaign, CampaignError, campaign_from_mapping
+from ddrt.sweep.cases import expand, merge
+from ddrt.sweep.driver import run_plan
+from ddrt.sweep.population import SEED, Robot
+from ddrt.sweep.population import population as draw
+from ddrt.sweep.run import Row
 
-SEED = 20261201
+CAMPAIGN = FsPath(__file__).resolve().parent / "campaigns" / "population.yaml"
 ROBOTS = 40
-PATHS = {
-    "figure8": {"shape": "figure_eight", "width": 1.2, "height": 0.6},
-    "rectangle": {"shape": "rectangle", "width": 1.2, "height": 0.8, "direction": "ccw"},
-}
-VARIANTS = ("dynamic", "dynamic+adapt", "kinematic")
+_SPEC = read_yaml(CAMPAIGN, CampaignError)
+PATHS: dict[str, dict[str, Any]] = _SPEC["paths"]
+VARIANTS = tuple(_SPEC["variants"])
 EST_TARGET_M = 1e-3
 TRUE_TARGET_M = 5e-3
 SAT_TARGET = 0.02
 PASS_TARGET = 79  # of 80
 ADAPT_HARM = (0.10, 0.02e-3)  # "worse" is more than 10 % and more than 0.02 mm
-G = 9.81
-
-
-@dataclass(frozen=True)
-class Robot:
-    """One drawn robot: its config sections and the figures the table shows."""
-
-    name: str
-    mass: float
-    supply_v: float
-    half_track: float
-    wheel_r: float
-    top_speed: float  # full-voltage no-load ground speed (m/s)
-    speed: float  # the speed its paths ask for
-    sections: dict[str, Any] = field(repr=False)
-
-
-def _u(rng: random.Random, lo: float, hi: float) -> float:
-    return rng.uniform(lo, hi)
-
-
-def _jitter(rng: random.Random, x: float, sd: float, clip: float) -> float:
-    return x * (1.0 + max(-clip, min(clip, rng.gauss(0.0, sd))))
-
-
-def make_robot(rng: random.Random, i: int) -> Robot:
-    """One physically consistent robot (see the module doc), with its belief and truth."""
-    while True:
-        mass = _u(rng, 1.0, 19.0)
-        L = 0.108 * (mass / 4.34) ** (1.0 / 3.0) * _u(rng, 0.8, 1.2)
-        r = L * _u(rng, 0.3, 0.55)
-        H = L * _u(rng, 0.8, 1.3)
-        r3 = r * _u(rng, 0.6, 1.1)
-        m_w = mass * _u(rng, 0.12, 0.30)
-        m_3 = mass * _u(rng, 0.05, 0.15)
-        m_p = mass - 2.0 * m_w - m_3
-        if m_p < 0.15 * mass:
-            continue
-        d_xc = H * _u(rng, -0.2, 0.6)
-        d_yc = L * _u(rng, -0.03, 0.03)
-        length, width = 1.3 * (H + r), 1.8 * L
-        I_p = m_p * (length ** 2 + width ** 2) / 12.0 * _u(rng, 0.7, 1.3)
-        I_wheel_yaw = m_w * (3.0 * (0.6 * r) ** 2 + r ** 2) / 12.0
-        I_3 = m_3 * (3.0 * (0.6 * r3) ** 2 + r3 ** 2) / 12.0
-        I_w = 0.5 * 0.35 * m_w * r * r
-        I_w3 = 0.5 * 0.5 * m_3 * r3 * r3
-        robot = dict(H=H, L=L, R=L, r_L=r, r_R=r, r_3=r3, d_xc=d_xc, d_yc=d_yc, m_p=m_p, m_L=m_w, m_R=m_w,
-                     m_3=m_3, I_p=I_p, I_L=I_wheel_yaw, I_R=I_wheel_yaw, I_3=I_3, I_wL=I_w, I_wR=I_w, I_w3=I_w3)
-        volts = _u(rng, 6.0, 24.0)
-        v_nl = _u(rng, 0.7, 2.2)
-        k = volts / (v_nl / r)
-        stall = _u(rng, 0.4, 1.2) * mass * G * r / 2.0
-        res = k * volts / stall
-        fric = _u(rng, 0.04, 0.10) * stall
-        motor = dict(supply_v=volts, resistance_ohm=res, k_nm_per_a=k, viscous_nms=0.5 * fric / (v_nl / r),
-                     coulomb_nm=0.5 * fric)
-        plant = {key: (_jitter(rng, v, 0.0005, 0.001) if key == "r_3" else
-                       v if key == "d_yc" else _jitter(rng, v, 0.02, 0.05)) for key, v in robot.items()}
-        plant["d_yc"] = robot["d_yc"] + rng.gauss(0.0, 0.01 * L)
-        plant["r_L"] = _jitter(rng, r, 0.02, 0.05)
-        plant["r_R"] = _jitter(rng, r, 0.02, 0.05)
-        for side in ("motor_l", "motor_r"):
-            plant[side] = {key: _jitter(rng, motor[key], 0.03, 0.08)
-                           for key in ("resistance_ohm", "k_nm_per_a", "viscous_nms", "coulomb_nm")}
-        try:
-            RobotParams(**robot)
-            RobotParams(**{key: v for key, v in plant.items() if not key.startswith("motor")})
-        except ValueError:
-            continue
-        speed = v_nl * _u(rng, 0.5, 0.9)
-        sections = {
-            "robot": dict(robot, motor=motor),
-            "plant": plant,
-            "sim": {"seed": i + 1, "command_latency_s": _u(rng, 0.0005, 0.003),
-                    "sensor_latency_s": _u(rng, 0.0005, 0.002)},
-        }
-        return Robot(f"r{i:02d}", mass, volts, L, r, v_nl, speed, sections)
 
 
 def population(n: int = ROBOTS, seed: int = SEED) -> list[Robot]:
-    rng = random.Random(seed)
-    return [make_robot(rng, i) for i in range(n)]
+    return draw(n, seed)
 
 
 def config_of(robot: Robot, path: str, variant: str):
-    """The robot's config: its sections, a path, a controller; every other key at its default."""
-    data: dict[str, Any] = dict(robot.sections)
-    data["path"] = dict(PATHS[path], speed=round(robot.speed, 4))
-    mode = "kinematic" if variant == "kinematic" else "dynamic"
-    data["controller"] = {"mode": mode, "adaptation": {"enabled": variant == "dynamic+adapt"}}
-    data["daemon"] = {"socket": None}
+    """The config the campaign gives this robot on `path` with `variant`: its sections, the path
+    at its speed, the campaign's overrides and the variant; every other key at its default."""
+    data: dict[str, Any] = dict(robot.sections, path=dict(PATHS[path], speed=robot.path_speed))
+    data = merge(merge(data, _SPEC["overrides"]), _SPEC["variants"][variant])
     return config_from_mapping(data, source=f"population/{robot.name}")
 
 
@@ -165,23 +71,22 @@ class Run:
     warnings: int
 
 
-def _run(job: tuple[Robot, str, str]) -> tuple[tuple[str, str, str], Run]:
-    import logging
+def _record(row: Row) -> Run:
+    if row["status"] != "ok":
+        raise RuntimeError(f"population: {row['robot']} {row['path']} {row['variant']}: {row['error']}")
+    return Run(row["robot"], row["path"], row["variant"], float(row["rms_tracking_m"]),
+               float(row["rms_cross_track_m"]), float(row["saturated_fraction"]), bool(row["completed"]),
+               str(row["fault"] or ""), float(row["sim_duration_s"]), int(row["path_warnings"]))
 
-    logger = logging.getLogger("ddrt")
-    level = logger.level
-    logger.setLevel(logging.CRITICAL)  # a run that faults logs it; the fault is in the record
-    try:
-        robot, path, variant = job
-        cfg = config_of(robot, path, variant)
-        p = resolve_path(cfg)
-        m = run_sim(cfg, p).metrics
-    finally:
-        logger.setLevel(level)
-    run = Run(robot.name, path, variant, float(m["rms_tracking_m"]), float(m["rms_cross_track_m"]),
-              float(m["saturated_fraction"]), bool(m["completed"]), str(m.get("fault") or ""),
-              float(m["sim_duration_s"]), len(getattr(p, "warnings", [])))
-    return (robot.name, path, variant), run
+
+def campaign(n: int = ROBOTS, variants: Sequence[str] = VARIANTS, seed: int = SEED) -> Campaign:
+    """bench/campaigns/population.yaml with `n` robots from `seed` and the variants asked for."""
+    unknown = sorted(set(variants) - set(VARIANTS))
+    if unknown:
+        raise ValueError(f"unknown variant {unknown[0]!r} (known: {', '.join(VARIANTS)})")
+    data = dict(_SPEC, population=dict(_SPEC["population"], robots=n, seed=seed),
+                variants={v: _SPEC["variants"][v] for v in variants})
+    return campaign_from_mapping(data, source=str(CAMPAIGN), folder=CAMPAIGN.parent)
 
 
 @dataclass
@@ -196,10 +101,9 @@ class PopulationResult:
 def measure_population(n: int = ROBOTS, workers: int = 2, variants: Sequence[str] = VARIANTS,
                        seed: int = SEED) -> PopulationResult:
     robots = population(n, seed)
-    jobs = [(r, p, v) for v in variants for r in robots for p in PATHS]
     t0 = time.perf_counter()
-    grouped = pooled_by_key(_run, jobs, workers)
-    runs = {k: v[0][0] for k, v in grouped.items()}
+    rows = run_plan(expand(campaign(n, variants, seed)), workers)
+    runs = {(r["robot"], r["path"], r["variant"]): _record(r) for r in rows}
     res = PopulationResult(robots, runs, tuple(variants), time.perf_counter() - t0)
     res.verdict = verdicts(res)
     return res
@@ -269,7 +173,8 @@ def render(res: PopulationResult) -> list[str]:
     masses = [r.mass for r in res.robots]
     volts = [r.supply_v for r in res.robots]
     lines = [
-        f"{len(res.robots)} robots from a fixed-seed generator (`bench/population.py`, seed {SEED}): "
+        f"{len(res.robots)} robots from a fixed-seed generator (`ddrt/sweep/population.py`, seed {SEED}; "
+        "`bench/population.py` runs them as the campaign bench/campaigns/population.yaml): "
         f"{min(masses):.1f}-{max(masses):.1f} kg, {min(volts):.1f}-{max(volts):.1f} V motors, different wheels, "
         "tracks and inertias consistent with mass and size, a few percent between belief (`robot:`) and truth "
         "(`plant:`), 0.5-3 ms latency; each given as its `robot:` section with every other key at default "

@@ -1,4 +1,4 @@
-"""The `ddrt` command: sim, path, run, ctl, calibrate."""
+"""The `ddrt` command: sim, path, run, ctl, calibrate, sweep."""
 
 from __future__ import annotations
 
@@ -112,6 +112,15 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     print(f"wrote {args.out}/telemetry.csv and {args.out}/metrics.json" + (" and figures" if args.plot else "")
           + (f" and {args.mcap}" if args.mcap else ""))
     return sim_exit_status(result.metrics, args.duration is not None)
+
+
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    from ddrt.sweep.driver import SweepRequest, sweep
+
+    report = sweep(SweepRequest(args.campaign, Path(args.out), workers=args.workers, scheduler=args.scheduler,
+                                resume=args.resume, limit=args.limit, quiet=args.quiet))
+    print(report.text())
+    return report.exit_status
 
 
 def _cmd_path(args: argparse.Namespace) -> int:
@@ -360,6 +369,18 @@ def build_parser() -> argparse.ArgumentParser:
     ctl.add_argument("--for", dest="for_s", type=float, metavar="S",
                      help="drive: re-send the command at 10 Hz for S seconds, then stop")
     ctl.set_defaults(func=_cmd_ctl)
+
+    swp = sub.add_parser("sweep", help="a campaign of simulated runs on Dask: a table, a summary, figures "
+                                       "(pip install 'ddrt[sweep]')")
+    swp.add_argument("campaign", help="campaign file (YAML; docs/sweep.md)")
+    swp.add_argument("--out", required=True, metavar="DIR", help="output folder: results.parquet, results.csv, summary.md, figures/")
+    swp.add_argument("--workers", type=int, metavar="N", help="local worker processes (default: one per core)")
+    swp.add_argument("--scheduler", metavar="ADDRESS", help="run on this Dask scheduler (tcp://host:8786) instead "
+                                                            "of a local cluster")
+    swp.add_argument("--resume", action="store_true", help="keep the rows already in --out and run the rest")
+    swp.add_argument("--limit", type=int, metavar="N", help="run at most N of the cases left")
+    swp.add_argument("--quiet", action="store_true", help="no progress bar")
+    swp.set_defaults(func=_cmd_sweep)
 
     cal = sub.add_parser("calibrate", help="gyro at rest, dynamic identification, odometry")
     cal_sub = cal.add_subparsers(dest="kind", required=True)

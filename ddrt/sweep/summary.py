@@ -1,0 +1,119 @@
+"""The summary beside the table (summary.md): how many runs passed, and the spread of the
+campaign's error figures for each value of each axis.
+
+The question a sweep answers is "where does it break": so for every column that varies, each
+of its values gets its runs, how many ran to the end, how many passed, and percentiles of
+the summary metrics (by default the ones the pass criteria name) over the runs that ended.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+
+from ddrt.sweep.cases import Plan
+from ddrt.sweep.run import Row
+
+SUMMARY = "summary.md"
+PERCENTILES = (50, 90, 99)
+MAX_FAILURES_LISTED = 10
+
+
+@dataclass(frozen=True)
+class Group:
+    """The runs that share one value of one column."""
+
+    value: Any
+    runs: int
+    ok: int
+    passed: int
+    spread: dict[str, tuple[float, ...] | None]  # metric -> percentiles and max; None: no values
+
+    @property
+    def pass_rate(self) -> float:
+        return self.passed / self.runs if self.runs else math.nan
+
+
+def spread(rows: Sequence[Row], metric: str) -> tuple[float, ...] | None:
+    values = np.array([r[metric] for r in rows if r.get("status") == "ok" and isinstance(r.get(metric), (int, float))
+                       and not isinstance(r.get(metric), bool)], dtype=float)
+    values = values[np.isfinite(values)]
+    if len(values) == 0:
+        return None
+    return tuple(float(v) for v in np.percentile(values, PERCENTILES)) + (float(values.max()),)
+
+
+def group(rows: Sequence[Row], value: Any, metrics: Sequence[str]) -> Group:
+    return Group(value, len(rows), sum(r.get("status") == "ok" for r in rows), sum(bool(r.get("pass")) for r in rows),
+                 {m: spread(rows, m) for m in metrics})
+
+
+def varied(plan: Plan, rows: Sequence[Row]) -> list[str]:
+    """The parameter columns that take more than one value in these rows."""
+    return [c for c in plan.columns if len({value_key(r.get(c)) for r in rows}) > 1]
+
+
+def value_key(v: Any) -> Any:
+    """A column's value as something hashable (a list value as its text)."""
+    return repr(v) if isinstance(v, (list, dict)) else v
+
+
+def by_value(plan: Plan, rows: Sequence[Row], column: str) -> list[Group]:
+    """One Group per value of `column`, in the campaign's order of values."""
+    ordered = sorted(rows, key=lambda r: r["case"])
+    buckets: dict[Any, list[Row]] = {}
+    shown: dict[Any, Any] = {}
+    for r in ordered:
+        k = value_key(r.get(column))
+        buckets.setdefault(k, []).append(r)
+        shown.setdefault(k, r.get(column))
+    return [group(b, shown[k], plan.campaign.summary_metrics) for k, b in buckets.items()]
+
+
+def _num(x: float) -> str:
+    return f"{x:.4g}"
+
+
+def _table(title: str, groups: Iterable[Group], metrics: Sequence[str]) -> list[str]:
+    head = [title, "runs", "ok", "pass"]
+    for m in metrics:
+        head += [f"{m} p{p}" for p in PERCENTILES] + [f"{m} max"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for g in groups:
+        cells = [str(g.value), str(g.runs), str(g.ok), f"{g.passed} ({g.pass_rate:.0%})" if g.runs else "0"]
+        for m in metrics:
+            s = g.spread[m]
+            cells += [_num(v) for v in s] if s is not None else ["-"] * (len(PERCENTILES) + 1)
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
+def summary_text(plan: Plan, rows: Sequence[Row]) -> str:
+    """summary.md's content."""
+    camp = plan.campaign
+    metrics = camp.summary_metrics
+    status = {s: sum(r.get("status") == s for r in rows) for s in ("ok", "failed", "timeout")}
+    passed = sum(bool(r.get("pass")) for r in rows)
+    lines = [f"# Sweep: {camp.name or camp.source}", "",
+             f"Campaign `{camp.source}`: {len(rows)} runs of {len(plan.cases)} cases "
+             f"({status['ok']} ok, {status['failed']} failed, {status['timeout']} timed out); "
+             f"{passed} passed ({passed / len(rows):.1%})." if rows else
+             f"Campaign `{camp.source}`: no runs yet of {len(plan.cases)} cases.",
+             "", "Pass: " + " and ".join(f"`{c.text}`" for c in camp.run.criteria) + " (and the run ended: status ok).",
+             "", f"Percentiles are over the runs that ended (status ok); metrics: {', '.join(metrics)}.", ""]
+    lines += _table("all runs", [group(rows, "all", metrics)], metrics)
+    for column in varied(plan, rows):
+        lines += ["", f"## By {column}", ""]
+        lines += _table(column, by_value(plan, rows, column), metrics)
+    bad = [r for r in sorted(rows, key=lambda r: r["case"]) if r.get("status") != "ok"]
+    if bad:
+        lines += ["", "## Runs that did not end", ""]
+        for r in bad[:MAX_FAILURES_LISTED]:
+            label = ", ".join(f"{c}={r.get(c)}" for c in plan.columns)
+            lines.append(f"- case {r['case']} ({label}): {r['status']}: {r.get('error', '')}")
+        if len(bad) > MAX_FAILURES_LISTED:
+            lines.append(f"- and {len(bad) - MAX_FAILURES_LISTED} more (the table's `error` column)")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,388 @@
+"""`ddrt sweep` without a cluster: campaign files, their cases, malformed campaigns refused
+before anything runs, pass criteria, the journal, the table, the summary and the figures.
+(tests/test_sweep_cluster.py runs campaigns on real Dask clusters.)"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from ddrt import cli
+from ddrt.sweep import run as sweep_run
+from ddrt.sweep.campaign import CampaignError, campaign_from_mapping, load_campaign
+from ddrt.sweep.cases import expand
+from ddrt.sweep.columns import KNOWN_METRICS, NUMERIC_METRICS, TEXT_METRICS, flatten
+from ddrt.sweep.criteria import parse_criterion, passes
+from ddrt.sweep.driver import run_plan, write_results
+from ddrt.sweep.journal import ROWS, Journal, read_rows
+from ddrt.sweep.progress import Progress
+from ddrt.sweep.summary import summary_text
+from ddrt.sweep.table import arrow_table, read_table, without_wall_time
+
+REPO = Path(__file__).resolve().parents[1]
+S_CURVE = REPO / "configs" / "scenarios" / "s_curve.yaml"
+SHORT = {"duration_s": 0.5}  # after the 1 s calibration at rest: a fraction of a second of wall time
+QUICK_START = {"sim": {"start_delay_s": 0.0}}
+
+
+def write_campaign(tmp_path: Path, text: str, name: str = "campaign.yaml") -> Path:
+    p = tmp_path / name
+    p.write_text(text.replace("BASE", str(S_CURVE)))
+    return p
+
+
+def mapping(**keys) -> dict:
+    return dict({"base": str(S_CURVE), "overrides": QUICK_START, "run": SHORT}, **keys)
+
+
+# ------------------------------------------------------------------ the campaign file
+
+
+def test_ranges_lists_and_the_product_of_axes() -> None:
+    camp = campaign_from_mapping(mapping(
+        axes={"controller.outer.k_y": {"start": 100, "stop": 400, "step": 100},
+              "controller.outer.k_theta": {"start": 10, "stop": 40, "num": 3, "scale": "log"},
+              "pursuit.lookahead_m": {"start": 0.1, "stop": 0.3, "step": 0.1},
+              "sim.slip.probability": [0.0, 0.25]},
+        seeds=2))
+    k_y, k_th, la, slip = (a.values for a in camp.axes)
+    assert k_y == (100, 200, 300, 400) and all(type(v) is int for v in k_y)
+    assert k_th == (10.0, 20.0, 40.0)
+    assert la == (0.1, 0.2, 0.3)  # 0.1 + 2 * 0.1 without its 0.30000000000000004
+    assert slip == (0.0, 0.25) and camp.seeds == (1, 2)
+    plan = expand(camp)
+    assert len(plan.cases) == 4 * 3 * 3 * 2 * 2
+    assert plan.columns == ("controller.outer.k_y", "controller.outer.k_theta", "pursuit.lookahead_m",
+                            "sim.slip.probability", "seed")
+    last = plan.cases[-1]
+    assert last.params == {"controller.outer.k_y": 400, "controller.outer.k_theta": 40.0,
+                           "pursuit.lookahead_m": 0.3, "sim.slip.probability": 0.25, "seed": 2}
+    assert last.config.controller.outer.k_y == 400 and last.config.pursuit.lookahead_m == 0.3
+    assert last.config.sim.slip.probability == 0.25 and last.seed == 2
+    assert len({c.case_id for c in plan.cases}) == len(plan.cases)
+    assert len(plan.paths) == 1  # one path, built once for 144 cases
+    assert expand(camp).fingerprint == plan.fingerprint
+
+
+def test_population_paths_variants_and_path_speed() -> None:
+    """The robots of ddrt/sweep/population.py, each on its own speed; a path file's speed as an axis."""
+    from bench import population as bench_population
+
+    camp = campaign_from_mapping({
+        "population": {"robots": 3, "seed": 7},
+        "paths": {"eight": {"shape": "figure_eight", "width": 1.2, "height": 0.6},
+                  "circle": str(REPO / "configs" / "paths" / "circle_1m.yaml")},
+        "variants": {"dyn": {"controller": {"mode": "dynamic"}}, "kin": {"controller": {"mode": "kinematic"}}},
+        "overrides": {"daemon": {"socket": None}},
+    })
+    plan = expand(camp)
+    assert plan.columns == ("variant", "robot", "path", "seed")
+    assert len(plan.cases) == 2 * 3 * 2
+    robots = bench_population.population(3, 7)
+    for case in plan.cases:
+        robot = robots[int(str(case.params["robot"])[1:])]
+        assert case.config.robot.m_p == robot.sections["robot"]["m_p"]
+        assert case.params["seed"] == robot.sections["sim"]["seed"]  # no seeds: the config's own
+        path = plan.paths[case.path_key]
+        assert case.config.path["speed"] == robot.path_speed  # a YAML path file, inlined to set its speed
+        assert path.duration > 0
+    # bench/population.py's campaign gives each robot the config its config_of() describes.
+    bench_plan = expand(bench_population.campaign(2))
+    for case in bench_plan.cases:
+        r = bench_population.population(2)[int(str(case.params["robot"])[1:])]
+        assert case.config.raw == bench_population.config_of(r, case.params["path"], case.params["variant"]).raw
+
+
+def test_axes_on_a_path_file_set_keys_of_the_path() -> None:
+    plan = expand(campaign_from_mapping(mapping(axes={"path.speed": [0.2, 0.4]})))
+    speeds = [max(plan.paths[c.path_key].v) for c in plan.cases]
+    assert speeds[0] == pytest.approx(0.2, rel=1e-6) and speeds[1] == pytest.approx(0.4, rel=1e-6)
+
+
+BAD = [
+    # (campaign text, what the one-line error must name)
+    ("bse: BASE\n", ["campaign.yaml: bse: unknown key"]),
+    ("", ["campaign.yaml: the campaign is empty"]),
+    ("- BASE\n", ["campaign.yaml: the top level must be a mapping"]),
+    ("name: x\n", ["campaign.yaml: base: missing"]),
+    ("base: nowhere.yaml\n", ["campaign.yaml: base: no such file 'nowhere.yaml'"]),
+    ("base: BASE\npaths: [nope.yaml]\n", ["campaign.yaml: paths[0]: no such file 'nope.yaml'"]),
+    ("base: BASE\npaths: {p: missing/path.csv}\n", ["paths.p: no such file"]),
+    ("base: BASE\naxes: {controller.outer.k_y: {start: 10, stop: 1, step: 1}}\n",
+     ["axes.controller.outer.k_y: the range has no values"]),
+    ("base: BASE\naxes: {controller.outer.k_y: {start: 1, stop: 10, num: 0}}\n",
+     ["axes.controller.outer.k_y: the range has no values"]),
+    ("base: BASE\naxes: {controller.outer.k_y: []}\n", ["axes.controller.outer.k_y: the list of values is empty"]),
+    ("base: BASE\naxes: {}\n", ["campaign.yaml: axes: empty"]),
+    ("base: BASE\naxes: []\n", ["campaign.yaml: axes: expected a mapping"]),
+    ("base: BASE\naxes: {controller.outer.k_y: 400}\n", ["axes.controller.outer.k_y: expected a list of values or a range"]),
+    ("base: BASE\naxes: {controller.outer.k_y: {start: a, stop: 3, step: 1}}\n",
+     ["axes.controller.outer.k_y.start: expected a finite number"]),
+    ("base: BASE\naxes: {controller.outer.k_y: {start: 1, stop: 3, step: 1, num: 3}}\n",
+     ["exactly one of step and num"]),
+    ("base: BASE\naxes: {controller.outer.k_y: {from: 1}}\n", ["axes.controller.outer.k_y.from: unknown range key"]),
+    ("base: BASE\naxes: {controller.outer.k_y: [1, 2, 1]}\n", ["is listed twice"]),
+    ("base: BASE\nseeds: three\n", ["campaign.yaml: seeds: expected a count"]),
+    ("base: BASE\nseeds: [1, x]\n", ["campaign.yaml: seeds[1]: expected a whole number"]),
+    ("base: BASE\nseeds: 0\n", ["campaign.yaml: seeds: expected a count >= 1"]),
+    ("base: BASE\nrun: {duration_s: long}\n", ["campaign.yaml: run.duration_s: expected seconds > 0"]),
+    ("base: BASE\nrun: {laps: 2}\n", ["campaign.yaml: run.laps: unknown key"]),
+    ("base: BASE\npopulation: {robots: 2.5}\n", ["population.robots: expected a whole number"]),
+    ("base: BASE\nmetrics: [rms_cross_track_m, nope]\n", ["metrics[1]: unknown metric 'nope'"]),
+    ("base: BASE\npass: 'rms < 3'\n", ["campaign.yaml: pass: unknown metric 'rms'"]),
+    ("base: BASE\npass: ['completed == 1']\n", ["pass[0]: completed is true or false"]),
+    ("base: BASE\npass: ['rms_cross_track_m is small']\n", ["pass[0]: expected METRIC OP VALUE"]),
+    ("base: BASE\nvariants: {fast: 3}\n", ["campaign.yaml: variants.fast: expected a mapping"]),
+    # Axis values that make a config invalid: the case is named by its axis values, then the key.
+    ("base: BASE\naxes: {plant.m_p: [0.8, -1.0]}\n",
+     ["campaign.yaml: case 1 (plant.m_p=-1.0): plant.m_p: must be > 0"]),
+    ("base: BASE\naxes: {controller.outer.k_yy: [1]}\nseeds: [4]\n",
+     ["case 0 (controller.outer.k_yy=1, seed=4): controller.outer.k_yy: unknown key"]),
+    ("base: BASE\naxes: {controller.mode: [dynamic, flying]}\n",
+     ["case 1 (controller.mode=flying): controller.mode: must be one of"]),
+    ("base: BASE\naxes: {controller.outer: [1]}\n", ["case 0 (controller.outer=1): controller.outer"]),
+    ("base: BASE\npaths: {p: {shape: circle, radius: -1}}\n", ["case 0 (path=p): path: key 'radius': must be > 0"]),
+    ("base: BASE\nvariants: {a: {controller: {mode: kinematic}}, b: {controller: {mode: kinematic}}}\n",
+     ["case 1 (variant=b): the same run as case 0"]),
+    ("base: BASE\noverrides: {hal: {backend: real, imu: {bus: 1}, bridge: {url: /dev/ttyACM0}}}\n",
+     ["case 0: hal.backend: real"]),
+    ("base: BASE\naxes: {path: [a.yaml]}\n", ["axes.path: not a config key to sweep"]),
+]
+
+
+@pytest.mark.parametrize("text, expected", BAD, ids=[f"bad{i}" for i in range(len(BAD))])
+def test_malformed_campaigns_are_refused_before_anything_runs(tmp_path: Path, text: str, expected: list[str],
+                                                              capsys: pytest.CaptureFixture[str]) -> None:
+    camp = write_campaign(tmp_path, text)
+    out = tmp_path / "out"
+    assert cli.main(["sweep", str(camp), "--out", str(out), "--workers", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("ddrt: error: ") and "Traceback" not in err
+    for fragment in expected:
+        assert fragment in err, err
+    assert not out.exists()  # nothing ran, nothing was written
+
+
+def test_the_metric_lists_are_those_of_metrics_json() -> None:
+    """columns.py lists metrics.json's figures so campaigns are checked before running: a real
+    run's metrics must be exactly these (wall_s is the row's own column)."""
+    from ddrt.config import load_config
+    from ddrt.path.spec import resolve_path
+    from ddrt.simrun.runner import run_sim
+
+    cfg = load_config(S_CURVE, QUICK_START)
+    m = flatten(run_sim(cfg, resolve_path(cfg), duration=0.1).metrics)
+    assert set(m) - {"wall_s", "controller"} == set(KNOWN_METRICS)
+    assert all(isinstance(m[k], (int, float)) for k in NUMERIC_METRICS)
+    assert all(isinstance(m[k], str) for k in TEXT_METRICS)
+
+
+# ------------------------------------------------------------------ criteria
+
+
+def test_criteria() -> None:
+    small = parse_criterion("rms_cross_track_m < 0.005", "pass")
+    done = parse_criterion("completed == true", "pass")
+    clean = parse_criterion("fault == ''", "pass")
+    row = {"status": "ok", "rms_cross_track_m": 0.001, "completed": True, "fault": ""}
+    assert small.holds(row) and done.holds(row) and clean.holds(row) and passes(row, (small, done, clean))
+    assert not small.holds(dict(row, rms_cross_track_m=0.01))
+    assert not small.holds(dict(row, rms_cross_track_m=None))  # no value fails
+    assert not clean.holds(dict(row, fault="gyro saturated"))
+    assert not passes(dict(row, status="timeout"), (small,))  # a run that did not end never passes
+    assert parse_criterion("saturated_fraction<=0.02", "x").text == "saturated_fraction<=0.02"
+    with pytest.raises(ValueError, match="needs a number"):
+        parse_criterion("completed < true", "pass")
+    with pytest.raises(ValueError, match="is a number"):
+        parse_criterion("rms_cross_track_m < true", "pass")
+    with pytest.raises(ValueError, match="is text"):
+        parse_criterion("fault == 3", "pass")
+
+
+def test_default_criteria_follow_ddrt_sims_exit_status() -> None:
+    assert [c.text for c in campaign_from_mapping({"base": str(S_CURVE)}).run.criteria] == ["completed == true"]
+    assert [c.text for c in campaign_from_mapping(mapping()).run.criteria] == ["fault == ''"]
+
+
+# ------------------------------------------------------------------ running in this process
+
+
+@pytest.fixture(scope="module")
+def small_plan():
+    return expand(campaign_from_mapping(mapping(axes={"controller.outer.k_y": [100, 400],
+                                                      "controller.outer.k_theta": [20, 40]},
+                                                **{"pass": ["rms_cross_track_m < 1e-4", "fault == ''"]})))
+
+
+@pytest.fixture(scope="module")
+def small_rows(small_plan):
+    return run_plan(small_plan, workers=1)
+
+
+def test_rows_are_deterministic_and_typed(small_plan, small_rows) -> None:
+    assert [r["case"] for r in small_rows] == [0, 1, 2, 3]
+    again = run_plan(small_plan, workers=1)
+    t1, t2 = arrow_table(small_plan, small_rows), arrow_table(small_plan, list(reversed(again)))
+    assert without_wall_time(t1).equals(without_wall_time(t2))
+    assert not t1.equals(t2.set_column(t2.schema.get_field_index("rms_cross_track_m"), "rms_cross_track_m",
+                                       t2.column("rms_tracking_m")))  # the comparison does see the numbers
+    for r in small_rows:
+        assert r["status"] == "ok" and r["error"] == "" and r["sim_duration_s"] == pytest.approx(0.5)
+        assert r["pass"] == (r["rms_cross_track_m"] < 1e-4 and r["fault"] == "")
+    assert str(t1.schema.field("controller.outer.k_y").type) == "int64"
+    assert str(t1.schema.field("rms_cross_track_m").type) == "double"
+    assert str(t1.schema.field("completed").type) == "bool"
+
+
+def test_a_failed_or_timed_out_run_is_a_row_with_its_error(small_plan, monkeypatch: pytest.MonkeyPatch) -> None:
+    case = small_plan.cases[0]
+    path = small_plan.paths[case.path_key]
+    slow = small_plan.campaign.run.__class__(**{**small_plan.campaign.run.__dict__, "timeout_s": 1e-9})
+    row = sweep_run.run_case(case, path, slow)
+    assert row["status"] == "timeout" and "run.timeout_s" in row["error"] and row["pass"] is False
+    assert row["rms_cross_track_m"] is None and row["case_id"] == case.case_id
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("the plant\nexploded")
+
+    monkeypatch.setattr(sweep_run, "run_sim", broken)
+    row = sweep_run.run_case(case, path, small_plan.campaign.run)
+    assert row["status"] == "failed" and row["error"] == "RuntimeError: the plant exploded"
+    table = arrow_table(small_plan, [row])  # a table of failures only keeps its column types
+    assert str(table.schema.field("rms_cross_track_m").type) == "double"
+
+
+def test_outputs_summary_and_figures(tmp_path: Path, small_plan, small_rows) -> None:
+    figures = write_results(small_plan, small_rows, tmp_path)
+    table = read_table(tmp_path / "results.parquet")
+    assert table.num_rows == 4 and table.column("case").to_pylist() == [0, 1, 2, 3]
+    csv_lines = (tmp_path / "results.csv").read_text().splitlines()
+    assert len(csv_lines) == 5 and csv_lines[0].startswith('"case","case_id","controller.outer.k_y"')
+    text = (tmp_path / "summary.md").read_text()
+    assert "## By controller.outer.k_y" in text and "## By controller.outer.k_theta" in text
+    assert "| 400 | 2 | 2 |" in text and "rms_cross_track_m p90" in text
+    names = sorted(p.name for p in (tmp_path / "figures").glob("*.png"))
+    assert figures == 3 and "pass_rate_controller.outer.k_y_x_controller.outer.k_theta.png" in names
+
+
+def test_summary_lists_runs_that_did_not_end(small_plan, small_rows) -> None:
+    rows = [dict(small_rows[0], status="failed", error="KilledWorker: gone", rms_cross_track_m=None, **{"pass": False})]
+    text = summary_text(small_plan, rows + small_rows[1:])
+    assert "3 ok, 1 failed, 0 timed out" in text and "KilledWorker: gone" in text
+
+
+# ------------------------------------------------------------------ the journal and resuming
+
+
+def test_the_journal_keeps_whole_rows_and_refuses_another_campaign(tmp_path: Path, small_plan, small_rows) -> None:
+    j = Journal(tmp_path, small_plan, resume=False)
+    for r in small_rows[:2]:
+        j.append(r)
+    j.close()
+    with open(tmp_path / ROWS, "a") as fh:
+        fh.write('{"case": 2, "case_id": "cut sho')  # a kill in the middle of a line
+    rows, _ = read_rows(tmp_path / ROWS)
+    assert [r["case"] for r in rows] == [0, 1]
+    with pytest.raises(CampaignError, match="already holds 2 rows"):
+        Journal(tmp_path, small_plan, resume=False)
+    j = Journal(tmp_path, small_plan, resume=True)
+    assert j.resumed == 2
+    j.append(small_rows[2])
+    j.close()
+    assert [r["case"] for r in read_rows(tmp_path / ROWS)[0]] == [0, 1, 2]  # the cut line is gone
+    other = expand(campaign_from_mapping(mapping(axes={"controller.outer.k_y": [100, 200]})))
+    with pytest.raises(CampaignError, match="rows are of another campaign"):
+        Journal(tmp_path, other, resume=True)
+
+
+def test_resume_and_limit_through_the_command(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    """--limit runs some, --resume the rest (the cases run in this process: see run_in_process)."""
+    import ddrt.sweep.driver as driver
+
+    monkeypatch.setattr(driver, "DaskCluster", lambda workers, scheduler: driver.InProcess())
+    camp = write_campaign(tmp_path, "base: BASE\noverrides: {sim: {start_delay_s: 0}}\nrun: {duration_s: 0.3}\n"
+                                    "axes: {controller.outer.k_y: [100, 200, 400]}\n")
+    out = tmp_path / "out"
+    assert cli.main(["sweep", str(camp), "--out", str(out), "--limit", "1", "--quiet"]) == 0
+    assert "1 of 3 cases have rows (1 run now, 0 kept" in capsys.readouterr().out
+    assert cli.main(["sweep", str(camp), "--out", str(out), "--quiet"]) == 2
+    assert "--resume continues it" in capsys.readouterr().err
+    assert cli.main(["sweep", str(camp), "--out", str(out), "--resume", "--quiet"]) == 0
+    assert "3 of 3 cases have rows (2 run now, 1 kept from before)" in capsys.readouterr().out
+    assert read_table(out / "results.parquet").column("controller.outer.k_y").to_pylist() == [100, 200, 400]
+    assert len((out / ROWS).read_text().splitlines()) == 3
+
+
+def test_progress_bar_shows_rate_and_eta() -> None:
+    now = [0.0]
+    stream = io.StringIO()
+    bar = Progress(4, stream=stream, clock=lambda: now[0])
+    now[0] = 2.0
+    bar.update(True)
+    assert "sweep 1/4 [######" in stream.getvalue() and "0.50 runs/s ETA 0:00:06" in stream.getvalue()
+    now[0] = 8.0
+    for ok in (False, True, True):
+        bar.update(ok)
+    assert stream.getvalue().splitlines()[-1].endswith("took 0:00:08, 1 failed")
+
+
+def test_ddrt_sim_never_imports_dask(tmp_path: Path) -> None:
+    """The sweep extra stays optional: `ddrt sim` loads neither dask, pyarrow nor ddrt.sweep."""
+    import subprocess
+    import sys
+
+    code = (f"import json, sys\nfrom ddrt import cli\n"
+            f"cli.main(['sim', {str(S_CURVE)!r}, '--duration', '0.2', '--quiet', '--out', {str(tmp_path)!r}])\n"
+            "print(json.dumps(sorted(m for m in sys.modules if m.split('.')[0] in ('dask', 'distributed', 'pyarrow')"
+            " or m.startswith('ddrt.sweep'))))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=REPO)
+    assert out.returncode == 0, out.stderr
+    assert json.loads(out.stdout.splitlines()[-1]) == []
+
+
+def test_load_campaign_names_relative_files_from_its_folder(tmp_path: Path) -> None:
+    (tmp_path / "sub").mkdir()
+    camp = write_campaign(tmp_path / "sub", "base: ../base.yaml\npaths: [../p.yaml]\n")
+    (tmp_path / "base.yaml").write_text(f"extends: {S_CURVE}\n")
+    (tmp_path / "p.yaml").write_text("shape: circle\nradius: 0.5\nspeed: 0.2\n")
+    c = load_campaign(camp)
+    assert c.bases == ((tmp_path / "base.yaml").resolve(),) and c.paths == {"p": str((tmp_path / "p.yaml").resolve())}
+    assert math.isclose(expand(c).cases[0].expected_s, expand(c).paths[expand(c).cases[0].path_key].duration)
+
+
+def test_only_the_command_imports_the_sweep_package_and_only_when_it_runs() -> None:
+    """docs/design.md: ddrt.sweep is a leaf of the command; dask and pyarrow stay optional."""
+    import ast
+
+    found = []
+    for folder in ("ddrt", "hal", "sim_hal"):
+        for f in sorted((REPO / folder).rglob("*.py")):
+            if (REPO / "ddrt" / "sweep") in f.parents:
+                continue
+            tree = ast.parse(f.read_text(encoding="utf-8"))
+            top_level = {id(node) for node in tree.body}
+            for node in ast.walk(tree):
+                names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                         [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+                for name in names:
+                    if name.split(".")[:2] == ["ddrt", "sweep"] or name.split(".")[0] in ("dask", "distributed",
+                                                                                          "pyarrow"):
+                        found.append((f.relative_to(REPO).as_posix(), id(node) in top_level, name))
+    assert found and all(path == "ddrt/cli.py" and not top for path, top, _ in found), found
+
+
+def test_the_example_campaign_and_the_documented_keys() -> None:
+    """configs/campaigns/ expands as written; docs/sweep.md's table has every campaign key."""
+    from ddrt.sweep.campaign import KEYS
+
+    plan = expand(load_campaign(REPO / "configs" / "campaigns" / "gains.yaml"))
+    assert plan.columns == ("variant", "controller.outer.k_y", "controller.outer.k_theta", "seed")
+    assert len(plan.cases) == 2 * 5 * 3 * 3
+    doc = (REPO / "docs" / "sweep.md").read_text(encoding="utf-8")
+    missing = [k for k in KEYS if f"| `{k}` |" not in doc and f"| `{k}." not in doc]
+    assert missing == []
