@@ -35,7 +35,7 @@ import pytest
 import yaml
 
 from ddrt.service.ctlsocket import ControlClientError, request
-from ddrt.loop import COLUMNS, STATE_CODE
+from ddrt.loop import COLUMNS, LoopState
 
 REPO = Path(__file__).resolve().parents[1]
 SIM_YAML = REPO / "configs" / "sim.yaml"
@@ -45,9 +45,9 @@ RATE_HZ = 200.0
 START_TIMEOUT_S = 20.0
 NOOP_RELOADS = 10  # enough reloads that at least one shows the cost of parsing in the loop  # a cold interpreter on a loaded 2-core CI box, plus calibration
 
-FOLLOWING = STATE_CODE["following"]
-FAULT = STATE_CODE["fault"]
-STOPPED = STATE_CODE["stopped"]
+FOLLOWING = LoopState.FOLLOWING
+FAULT = LoopState.FAULT
+STOPPED = LoopState.STOPPED
 
 
 # ---------------------------------------------------------------------------- helpers

@@ -40,7 +40,7 @@ from ddrt.config.policy import ReloadPlan, plan_reload
 from ddrt.service.ctlsocket import ControlServer, Deferred, finite_or_null
 from ddrt.service.drivecmd import drive_fields, drive_status
 from ddrt.service.instance import AlreadyRunning, InstanceLock, lock_path_for
-from ddrt.loop import COLUMNS, ControlLoop
+from ddrt.loop import COLUMNS, ControlLoop, LoopState
 from ddrt.path import PathError
 from ddrt.config.schema import ConfigError
 from ddrt.service.sdnotify import Notifier
@@ -341,13 +341,13 @@ class Daemon:
         # the timed part, so a tick's compute time is the controller's alone.
         advance_plant = self.hal.advance_to_wall_clock if self.hal.owns_time else None
         viz = self.viz
-        truth = getattr(self.hal, "robot", None) if viz is not None else None
+        truth = self.hal.robot if viz is not None else None
         while not self.stop_requested:
             deadline = sched.next_deadline()
             woke = clock.sleep_until(deadline)
             if self.estop_signalled:  # SIGUSR1 (any time since the last tick, or before start)
                 self.estop_signalled = False
-                if loop.state != "estop":
+                if loop.state != LoopState.ESTOP:
                     log.warning("estop: SIGUSR1 received; motors zeroed, latched until reset")
                     loop.estop("estop: SIGUSR1")
             # Lateness is how late the tick really starts (takes its sample), not when the
@@ -373,7 +373,7 @@ class Daemon:
             if viz is not None:
                 viz.put(loop.row, started - deadline, compute, started,
                         truth.pose + truth.velocity if truth is not None else None)
-            if loop.state == "fault":
+            if loop.state == LoopState.FAULT:
                 self._fail(f"stopping after fault: {loop.fault}")
                 self.exit_code = 1
                 break
@@ -441,7 +441,7 @@ class Daemon:
     def status_line(self) -> str:
         loop = self.loop
         s = self.stats.summary()
-        state = loop.state if loop else "starting"
+        state = loop.state.label if loop else "starting"
         p99 = s.get("compute_p99_us")
         if p99 is None:
             return state
@@ -475,7 +475,7 @@ class Daemon:
             "exit_code": self.exit_code,
             "error": self.error,
             "final_duty": [self.loop.duty_l, self.loop.duty_r] if self.loop is not None else None,
-            "final_state": self.loop.state if self.loop is not None else None,
+            "final_state": self.loop.state.label if self.loop is not None else None,
             "reloads": dict(self.reloads),
             "recovery": self.recovery_report(),
         }
@@ -486,14 +486,14 @@ class Daemon:
         est = loop.estimator
         ref = loop.reference
         progress = None
-        if ref is not None and loop.path is not None and loop.state != "driving":
+        if ref is not None and loop.path is not None and loop.state != LoopState.DRIVING:
             progress = {"sigma_m": ref.sigma, "length_m": loop.path.length,
                         "fraction": ref.sigma / loop.path.length if loop.path.length else 1.0,
                         "cross_track_m": ref.cross_track,
                         # turn (in place to the start heading), join, release, follow: ddrt/path/start.py
-                        "phase": getattr(ref, "phase", "follow")}
+                        "phase": ref.phase}
         return {
-            "state": loop.state,
+            "state": loop.state.label,
             "fault": loop.fault,
             **drive_status(loop),
             "pose": {"x": est.x, "y": est.y, "theta": est.theta},
@@ -512,11 +512,8 @@ class Daemon:
         }
 
     def _hal_counters(self) -> dict[str, Any]:
-        # RealHal's is a property (a dict); a backend without one has none.
-        counters = getattr(self.hal, "fault_counters", None)
-        if callable(counters):
-            counters = counters()
-        return dict(counters) if isinstance(counters, dict) else {}
+        counters = self.hal.fault_counters
+        return dict(counters) if counters is not None else {}
 
     # ------------------------------------------------------------------ commands
 
@@ -534,11 +531,11 @@ class Daemon:
         if cmd == "stop":
             cancelled = self._cancel_follow("cancelled by stop")
             loop.stop()
-            return {"ok": True, "state": loop.state, **cancelled}
+            return {"ok": True, "state": loop.state.label, **cancelled}
         if cmd == "estop":
             loop.estop("estop requested over the control socket")
             cancelled = self._cancel_follow("cancelled by estop")
-            return {"ok": True, "state": loop.state, **cancelled}
+            return {"ok": True, "state": loop.state.label, **cancelled}
         if cmd == "resume":
             # After a hold ended stopped (daemon.on_recover: wait): the path from where the
             # robot stands, the schedule ramping up from rest.
@@ -547,10 +544,10 @@ class Daemon:
             except ValueError as exc:
                 return {"ok": False, "error": f"resume: {exc} (only a path interrupted by a hold, "
                                               "with daemon.on_recover: wait, is resumed)"}
-            return {"ok": True, "state": loop.state}
+            return {"ok": True, "state": loop.state.label}
         if cmd == "reset":
             loop.reset()
-            return {"ok": True, "state": loop.state}
+            return {"ok": True, "state": loop.state.label}
         if cmd == "reload":
             return self.reload()
         if cmd == "drive":
@@ -560,7 +557,7 @@ class Daemon:
                 return {"ok": False, "error": f"drive: {exc}"}
             return self.drive(v, omega, "control socket")
         if cmd == "follow":
-            if loop.state == "stopping":
+            if loop.state == LoopState.STOPPING:
                 return {"ok": False, "error": "follow: not started: the robot is still stopping on its last path; "
                                               "send follow again once status says 'stopped' "
                                               "(estop stops it at once)"}
@@ -583,7 +580,7 @@ class Daemon:
             return {"ok": False, "error": f"drive: {exc}"}
         if old is not None and loop.path is None and self.paths is not None:
             self.paths.dispose(old)  # the last path's samples are freed off the loop
-        reply: dict[str, Any] = {"ok": True, "state": loop.state, "v": v_lim, "omega": w_lim,
+        reply: dict[str, Any] = {"ok": True, "state": loop.state.label, "v": v_lim, "omega": w_lim,
                                  "timeout_s": self.cfg.daemon.command_timeout_s}
         if clamped:
             reply["clamped"] = list(clamped)
@@ -598,9 +595,9 @@ class Daemon:
         """
         loop = self.loop
         assert loop is not None
-        if loop.state in ("following", "stopping", "driving"):
+        if loop.state in (LoopState.FOLLOWING, LoopState.STOPPING, LoopState.DRIVING):
             return {"ok": False, "error": f"already {loop.state}: send stop first"}
-        if loop.state in ("estop", "fault"):
+        if loop.state in (LoopState.ESTOP, LoopState.FAULT):
             return {"ok": False, "error": f"in {loop.state}: send reset first"}
         if self._pending is not None:
             return {"ok": False, "error": f"busy: still preparing {self._pending.what} "
@@ -672,7 +669,7 @@ class Daemon:
         path, build.path = build.path, None
         old = getattr(loop, "path", None)
         try:
-            if loop.state in ("following", "stopping", "driving"):
+            if loop.state in (LoopState.FOLLOWING, LoopState.STOPPING, LoopState.DRIVING):
                 raise ValueError(f"already {loop.state}")
             loop.follow(path, p.pose)
         except (ValueError, RuntimeError) as exc:
@@ -689,7 +686,7 @@ class Daemon:
         log.info("following %s: %.2f m, %.1f s (prepared in %.2f s)", p.what, path.length, path.duration,
                  build.elapsed_s)
         reply: dict[str, Any] = {
-            "ok": True, "state": loop.state, "length_m": path.length, "duration_s": path.duration,
+            "ok": True, "state": loop.state.label, "length_m": path.length, "duration_s": path.duration,
         }
         if path.warnings:
             reply["warnings"] = list(path.warnings)
