@@ -10,13 +10,14 @@ drive has no progress along a path and is never resumed).
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 from ddrt.core.types import Setpoint
 
 __all__ = ["Reference"]
 
 
+@runtime_checkable
 class Reference(Protocol):
     """One reference stage, as ddrt.loop's tick, hold and status use it."""
 

@@ -116,8 +116,9 @@ class HoldMachine:
     # ------------------------------------------------------------------ outside a hold
 
     def persistent(self, gaps: SensorGaps) -> str:
-        """Why the fault latches now (blind for estimator.fault_latch_s), counted; else ''."""
-        if gaps.blind_s < self.bounds.latch_s:
+        """Why the fault latches now (blind for estimator.fault_latch_s), counted; else ''.
+        (Never while blind_s is 0: fault_latch_s > max_gap_s > 0, ddrt.config.)"""
+        if not gaps.blind_s >= self.bounds.latch_s:
             return ""
         self.counters.latched += 1
         what = (f"sensor read timed out ({self.read_error})" if self.read_error

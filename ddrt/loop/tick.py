@@ -358,10 +358,11 @@ class ControlLoop:
         if state != FAULT and state != ESTOP:
             if est.health.fault:
                 self.enter_fault(est.health.fault)
-            elif why := holds.persistent(est):
-                self.enter_fault(why)
-            elif state in MOVING and (why := holds.transient(est)):
-                holds.enter(self, why, sample.t, stall=est.stall_s > 0.0)
+            elif est.blind_s or est.gap_s or holds.read_error:  # a sample missed or late: the hold's rules
+                if why := holds.persistent(est):
+                    self.enter_fault(why)
+                elif state in MOVING and (why := holds.transient(est)):
+                    holds.enter(self, why, sample.t, stall=est.stall_s > 0.0)
             state = self.state
         ref = self.reference
         if state == HOLDING:
