@@ -26,16 +26,16 @@ from typing import TYPE_CHECKING, Callable, Protocol
 
 from ddrt.config import Config
 from ddrt.core.estimator import EstimatorHealth
+from ddrt.core.types import Sample
 from ddrt.loop.states import LoopState
-from hal.base import Sample
 
 if TYPE_CHECKING:
     from ddrt.loop.tick import ControlLoop
 
-log = logging.getLogger("ddrt.loop")
-
 __all__ = ["ActiveHold", "DEFAULT_ZERO_AFTER_S", "HoldBounds", "HoldMachine", "RECOVER_FRESH_TICKS",
            "RecoveryCounters", "SensorGaps"]
+
+log = logging.getLogger("ddrt.loop")
 
 RECOVER_FRESH_TICKS = 10  # fresh samples in a row before a hold may end
 DEFAULT_ZERO_AFTER_S = 0.1  # a HAL whose motors have no watchdog: the microcontroller's default
@@ -250,7 +250,7 @@ class HoldMachine:
         if not self.braking:
             loop.zero_motors()
         elif loop.reference is not None:
-            loop.reference.request_stop(hold_decel(loop))
+            loop.reference.request_stop(_hold_decel(loop))
         log.warning("holding: %s; %s", cause,
                     "decelerating to a stop along the path" if self.braking else "motors zeroed")
 
@@ -276,7 +276,7 @@ class HoldMachine:
             self._end(loop)
             return
         lim = loop.limits.limits  # numbers, even where the config's are null
-        if why := self.overdue(lim.v_max, min(hold_decel(loop), lim.accel)):
+        if why := self.overdue(lim.v_max, min(_hold_decel(loop), lim.accel)):
             loop.enter_fault(why)
 
     def _end(self, loop: ControlLoop) -> None:
@@ -296,7 +296,7 @@ class HoldMachine:
             log.info("hold ended (%s): stopped, waiting for a command", h.cause)
 
 
-def hold_decel(loop: ControlLoop) -> float:
+def _hold_decel(loop: ControlLoop) -> float:
     """The hardest braking the path's limits allow (the speed profile's own)."""
     if loop.path is not None:
         return loop.path.limits.decel_eff  # may be inf: the stop then brakes as the motors allow
