@@ -11,7 +11,6 @@ Three measurements on the simulated robot:
 
 from __future__ import annotations
 
-import math
 import statistics
 import time
 from dataclasses import dataclass
@@ -20,7 +19,7 @@ from typing import Sequence
 
 from bench.common import REPO, pooled_by_key
 from ddrt import calibrate as cal
-from ddrt.config import load_config, with_overrides
+from ddrt.config import load_config
 from ddrt.path.spec import resolve_path
 from ddrt.simrun.runner import run_sim
 from hal.registry import open_hal

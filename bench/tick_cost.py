@@ -9,7 +9,6 @@ region, and is reported on its own: on the robot that time is the motors' and th
 
 from __future__ import annotations
 
-import math
 import time
 from array import array
 from dataclasses import dataclass
@@ -18,7 +17,8 @@ import numpy as np
 
 from bench.common import percentile
 from ddrt.config import Config
-from ddrt.loop import ControlLoop
+from ddrt.loop import ControlLoop, LoopState
+from ddrt.loop.states import MOVING
 from ddrt.path.spec import resolve_path
 from hal.registry import open_hal
 
@@ -93,7 +93,7 @@ def timed_tick(loop: ControlLoop, out: list[array], i: int, stamps: StageStamps 
     state = loop.state
     loop.tick(stamps)
     ns = stamps.ns
-    if len(ns) != len(STAGES) + 1 or loop.state == "fault" or state not in ("following", "stopping", "driving"):
+    if len(ns) != len(STAGES) + 1 or loop.state == LoopState.FAULT or state not in MOVING:
         raise TickBenchError(f"loop not following (state {loop.state}, fault {loop.fault!r})")
     for k in range(len(STAGES)):
         out[k][i] = ns[k + 1] - ns[k]
@@ -126,7 +126,7 @@ def measure_tick_cost(cfg: Config, ticks: int = 100_000, seed: int | None = None
         restarts = 0
         ns = time.perf_counter_ns
         for i in range(ticks):
-            if loop.state != "following" or loop.reference is None or loop.reference.done:
+            if loop.state != LoopState.FOLLOWING or loop.reference is None or loop.reference.done:
                 loop.follow(path)
                 restarts += 1
             a = ns()
@@ -155,7 +155,7 @@ def render(tc: TickCost) -> list[str]:
         f"{tc.ticks} ticks of `ControlLoop` on the simulated backend (configs/sim.yaml, figure-eight at 0.3 m/s, "
         f"restarted {tc.restarts} times so every tick is following a path), period {period_us:.0f} us. "
         "The real `ControlLoop.tick` stamps `time.perf_counter_ns` after each stage "
-        "(`hal.read`, `estimator.update`, `reference.update`, `controller.update`, `hal.write`, `loop._record`); "
+        "(`hal.read`, `estimator.update`, `reference.update`, `controller.update`, `hal.write`, `fill_row`); "
         "write includes the done/finite checks before it. Ticks run back to back (the CPU's caches stay "
         "warm); section 3 shows the same tick in the paced daemon. The simulated robot's own integration "
         "(`hal.sleep_until`, between ticks) is excluded from the tick and shown on its own line. "

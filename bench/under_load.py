@@ -3,7 +3,7 @@ compete for the CPUs?
 
 Target: with two CPU burners on a 2-core machine, a 60 s `ddrt run --follow` on the
 simulated robot (paced to the wall clock) finishes its path in 3 runs of 3 without exiting.
-Before sensor gaps were held and recovered (ddrt/loop.py, `holding`), a stall of ~150 ms
+Before sensor gaps were held and recovered (ddrt/loop/hold.py, `holding`), a stall of ~150 ms
 under such load faulted the loop ("sensor gap") and the daemon exited within seconds.
 
 Each run is a fresh daemon process on a config in a temp dir that extends configs/sim.yaml

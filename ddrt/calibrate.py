@@ -19,7 +19,7 @@ from ddrt.core.adapt import NAMES, DynamicsAdapter
 from ddrt.config import Config
 from ddrt.core.types import Setpoint
 from ddrt.core.wrap import wrap_angle
-from ddrt.loop import ControlLoop
+from ddrt.loop import ControlLoop, LoopState
 from ddrt.core.model import Dynamics
 from ddrt.params.robot import RobotParams
 from ddrt.path import Path, load_path
@@ -58,9 +58,9 @@ def _drive(loop: ControlLoop, clock: Any, limit_s: float) -> None:
             cause = loop.recovery.last_cause
             loop.estop("calibration run interrupted")
             raise CalibrationRunError(f"the calibration run was interrupted ({cause}): run it again")
-        if loop.state == "stopped":
+        if loop.state == LoopState.STOPPED:
             return
-        if loop.state == "fault":
+        if loop.state == LoopState.FAULT:
             raise CalibrationRunError(f"the robot faulted during calibration: {loop.fault}")
     loop.estop("calibration run timed out")
     raise CalibrationRunError(f"the calibration run did not finish within {limit_s:.0f} s")
@@ -179,7 +179,7 @@ def identify(cfg: Config, hal: Hal, width: float, height: float, max_s: float = 
     prev = [0.0, 0.0]
 
     def feed(lp: ControlLoop) -> None:
-        if lp.state in ("following", "stopping"):
+        if lp.state in (LoopState.FOLLOWING, LoopState.STOPPING):
             adapter.update(lp.estimator.v, lp.estimator.yaw.w, prev[0], prev[1])
         prev[0], prev[1] = lp.duty_l, lp.duty_r
 
@@ -254,7 +254,13 @@ def identify_fragment(cfg: Config, res: IdentifyResult) -> str:
 
 
 class SpinReference:
-    """Turn in place by `angle` rad about the start pose (trapezoidal yaw rate)."""
+    """Turn in place by `angle` rad about the start pose (trapezoidal yaw rate); a
+    ddrt.core.reference.Reference whose stop ends the turn at once (it is never part way
+    through a stop) and which is never resumed (an interrupted run is run again)."""
+
+    stopping = False
+    phase = "turn"
+    resumable = False
 
     def __init__(self, pose: tuple[float, float, float], angle: float, omega_max: float, alpha_max: float,
                  period_s: float) -> None:
@@ -270,6 +276,9 @@ class SpinReference:
 
     def request_stop(self, decel: float) -> None:
         self.t = max(self.t, self.turn.t_end)
+
+    def resume(self, x: float, y: float, theta: float) -> None:
+        raise ValueError("a calibration spin is not resumed: run the calibration again")
 
     def update(self, x: float, y: float, theta: float, sp: Setpoint, dt: float | None = None) -> None:
         self.t += self.period if dt is None else dt
@@ -293,7 +302,7 @@ class OdometryRun:
 
 
 def _truth(hal: Hal) -> tuple[float, float, float] | None:
-    robot = getattr(hal, "robot", None)
+    robot = hal.robot
     return None if robot is None else robot.pose
 
 

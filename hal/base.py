@@ -8,11 +8,12 @@ as a `Hal`. What a backend must and may override is in `Hal`'s docstring.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from typing import Protocol
 
 from ddrt.core.types import HalInfo, Sample
 
 __all__ = ["Hal", "HalError", "HalInfo", "HalInitError", "HalIOError", "HalTimeoutError",
-           "HalValueError", "Sample", "check_duty"]
+           "HalValueError", "Sample", "TrueMotion", "check_duty"]
 
 
 class HalError(Exception):
@@ -35,17 +36,37 @@ class HalValueError(HalError, ValueError):
     """A value handed to the HAL is out of range or not finite (a duty of 1.5, a NaN)."""
 
 
+class TrueMotion(Protocol):
+    """What a simulated robot knows and a real one cannot tell: where it really is and how
+    fast it really moves (sim_hal.plant.SimRobot)."""
+
+    @property
+    def pose(self) -> tuple[float, float, float]:
+        """(x, y, theta): the true pose (m, m, rad; theta continuous)."""
+
+    @property
+    def velocity(self) -> tuple[float, float]:
+        """(v, omega): the true forward speed (m/s) and yaw rate (rad/s)."""
+
+
 class Hal(ABC):
     """A robot as the controller sees it: sensors to read, two motors to drive.
 
     The public calls are template methods: `write` checks both duties and then calls the
     backend's `_write`; `close` runs the backend's `_close` once, however often it is called.
     A backend MUST override `read`, `_write`, `stop` and `_close` (and set `info`). It MAY
-    override `__enter__`/`__exit__` (the default closes) and, when its robot lives in
-    simulated time, `owns_time` and `advance_to_wall_clock` (see there).
+    override `__enter__`/`__exit__` (the default closes); when its robot lives in simulated
+    time, `owns_time` and `advance_to_wall_clock`; and the optional capabilities, each None
+    here for a backend that has none: `robot` (the simulated robot's true motion) and
+    `fault_counters` (what it counted of the faults it absorbed). See each.
     """
 
     info: HalInfo
+
+    #: The simulated robot behind a simulated backend, whose true pose and speeds the daemon's
+    #: viewer, `ddrt sim`'s telemetry and calibration's report show beside the estimate. None:
+    #: a real robot (nothing knows its true motion).
+    robot: TrueMotion | None = None
 
     #: True for a backend whose robot runs in simulated time (the simulator, the real drivers
     #: on emulated devices). Such a backend is also a clock (`now()`, `sleep_until()`, see
@@ -89,6 +110,12 @@ class Hal(ABC):
     def _close(self) -> None:
         """Stop the motors and release every device; called at most once, by `close`. It must
         cope with a half-built object (attributes the constructor never set)."""
+
+    @property
+    def fault_counters(self) -> dict[str, int] | None:
+        """Counts of the faults the backend absorbed (retries, errors, watchdog trips) by name,
+        for status; None when it keeps none."""
+        return None
 
     def advance_to_wall_clock(self) -> None:
         """Bring a paced simulated robot up to the wall clock (backends that own time); the

@@ -29,6 +29,7 @@ class SimHal(Hal):
     """A HAL whose sensors and motors are those of a simulated robot; its own clock."""
 
     owns_time = True
+    robot: SimRobot  # Hal's optional capability: the truth behind the readings
 
     def __init__(self, robot: SimRobot, paced: bool = False, drive_timeout_s: float | None = 0.1) -> None:
         if drive_timeout_s is not None and not (math.isfinite(drive_timeout_s) and drive_timeout_s > 0):
@@ -143,6 +144,6 @@ class SimHal(Hal):
             self._driving = False
 
     def _close(self) -> None:
-        robot = getattr(self, "robot", None)
+        robot = self.robot  # None (Hal's default) on a half-built object
         if robot is not None:
             robot.command(0.0, 0.0)

@@ -84,6 +84,7 @@ class EmulatedRealHal(Hal):
     """RealHal (the real drivers) over EmulatedDevices; also the clock, like SimHal."""
 
     owns_time = True
+    robot: SimRobot  # Hal's optional capability: the truth behind the readings
 
     def __init__(self, real: RealHal, devices: EmulatedDevices) -> None:
         self.real = real

@@ -8,8 +8,8 @@ from pathlib import Path as FsPath
 import pytest
 
 from ddrt.cli import main as cli_main
-from ddrt.config import load_config, with_overrides
-from ddrt.loop import ControlLoop
+from ddrt.config import load_config
+from ddrt.loop import ControlLoop, LoopState
 from ddrt.path.spec import resolve_path
 from ddrt.simrun.runner import run_sim
 from hal.base import Hal, HalIOError
@@ -180,9 +180,9 @@ def test_sensor_faults_stop_the_motors(mode):
         t += loop.period
         sim.sleep_until(t)
         loop.tick()
-        if loop.state == "fault":
+        if loop.state == LoopState.FAULT:
             break
-    assert loop.state == "fault", mode
+    assert loop.state == LoopState.FAULT, mode
     assert loop.fault
     assert hal.duties[-1] == (0.0, 0.0)
     # Motors really at zero in the plant once the command latency has passed.
@@ -203,14 +203,14 @@ def test_non_finite_estimate_faults_and_estop_latches():
     t += loop.period
     sim.sleep_until(t)
     loop.tick()
-    assert loop.state == "fault"
+    assert loop.state == LoopState.FAULT
     assert loop.duty_l == 0.0 and loop.duty_r == 0.0
     loop.reset()
-    assert loop.state == "idle"
+    assert loop.state == LoopState.IDLE
     loop.estop("test")
     with pytest.raises(RuntimeError):
         loop.follow(path)
-    assert loop.state == "estop"
+    assert loop.state == LoopState.ESTOP
 
 
 def test_controlled_stop_comes_to_rest_on_the_path():
@@ -222,10 +222,10 @@ def test_controlled_stop_comes_to_rest_on_the_path():
         loop.tick()
         if i == 600:
             loop.stop()
-            assert loop.state == "stopping"
-        if loop.state == "stopped":
+            assert loop.state == LoopState.STOPPING
+        if loop.state == LoopState.STOPPED:
             break
-    assert loop.state == "stopped"
+    assert loop.state == LoopState.STOPPED
     v, w = sim.robot.velocity
     assert abs(v) < 0.005
     assert abs(loop.reference.cross_track) < 0.001
@@ -259,13 +259,13 @@ def test_leaving_the_path_faults_and_zeroes_the_motors():
     """A robot knocked 0.4 m sideways (beyond limits.max_path_error_m = 0.3) stops, not chases."""
     cfg, path, sim, _, loop = _following("s_curve")
     _ticks(sim, loop, 100)
-    assert loop.state == "following"
+    assert loop.state == LoopState.FOLLOWING
     loop.estimator.y += 0.25  # within the limit: keeps following
     _ticks(sim, loop, 1)
-    assert loop.state == "following"
+    assert loop.state == LoopState.FOLLOWING
     loop.estimator.y += 0.15
     _ticks(sim, loop, 1)
-    assert loop.state == "fault"
+    assert loop.state == LoopState.FAULT
     assert "limits.max_path_error_m" in loop.fault
     assert loop.duty_l == 0.0 and loop.duty_r == 0.0
     sim.sleep_until(sim.now() + 0.01)
@@ -278,9 +278,9 @@ def test_a_path_that_starts_far_away_is_refused():
     far = (path.start_pose[0] + 0.5, path.start_pose[1], path.start_pose[2])
     with pytest.raises(ValueError, match="limits.max_path_error_m"):
         loop.follow(path, far)
-    assert loop.state == "idle"
+    assert loop.state == LoopState.IDLE
     loop.follow(path, path.start_pose)  # at the start it is accepted
-    assert loop.state == "following"
+    assert loop.state == LoopState.FOLLOWING
 
 
 def test_feedback_is_smooth_and_the_pose_ignores_the_model():

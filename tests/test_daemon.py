@@ -29,17 +29,17 @@ from typing import Any
 
 import pytest
 
-from ddrt.service.ctlclient import ControlClientError, connect, request
-from ddrt.loop import STATE_CODE
+from ddrt.service.ctlclient import connect
+from ddrt.loop import LoopState
 from tests.support.daemon import (CALIBRATION_S, PATHS, RATE_HZ, START_TIMEOUT_S, DaemonProc, ctl, raw_exchange,
                                   read_reply, start_daemon, wait_for, write_config)
 from tests.support.repo import REPO
 
 NOOP_RELOADS = 10  # enough reloads that at least one shows the cost of parsing in the loop
 
-FOLLOWING = STATE_CODE["following"]
-FAULT = STATE_CODE["fault"]
-STOPPED = STATE_CODE["stopped"]
+FOLLOWING = LoopState.FOLLOWING
+FAULT = LoopState.FAULT
+STOPPED = LoopState.STOPPED
 
 
 # ---------------------------------------------------------------------------- helpers

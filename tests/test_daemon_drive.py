@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from ddrt.loop import STATE_CODE
+from ddrt.loop import LoopState
 from tests.support.daemon import DaemonProc, ctl, raw_exchange, wait_for
 
 SETTLE_S = 15.0  # driving to rest on a loaded host (1.6 s of simulated braking at most)
@@ -36,7 +36,7 @@ def test_ctl_drive_for_drives_then_stops(dd: DaemonProc) -> None:
     assert s["drive"]["braking_for"] == "stop" and s["drive"]["timeouts"] == 0
     assert s["duty"] == {"l": 0.0, "r": 0.0}
     rows = dd.telemetry()
-    driving = [r for r in rows if r["state"] == STATE_CODE["driving"]]
+    driving = [r for r in rows if r["state"] == LoopState.DRIVING]
     assert driving and max(r["v_ref"] for r in driving) == pytest.approx(0.4)
     assert max(r["v_est"] for r in driving) == pytest.approx(0.4, abs=0.03)
 

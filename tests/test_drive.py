@@ -17,7 +17,7 @@ from ddrt.config import with_overrides
 from ddrt.config.sections import LimitsConfig
 from ddrt.core.drive import REFUSE_FACTOR, check_command
 from ddrt.core.ramp import Ramp
-from ddrt.loop import STATE_CODE
+from ddrt.loop import LoopState
 from ddrt.path import load_path
 from ddrt.path.spec import speed_limits
 from ddrt.service.drivecmd import drive_for
@@ -112,7 +112,7 @@ def test_the_setpoint_keeps_the_limits_and_the_robot_reaches_the_command(robot: 
             if k % 20 == 0:
                 loop.drive(v, w)
             robot.ticks(1)
-            assert loop.state == "driving", loop.fault
+            assert loop.state == LoopState.DRIVING, loop.fault
             assert abs(sp.v_d) <= lim.v_max and abs(sp.omega_d) <= lim.omega_max
             assert abs(sp.a_d) <= lim.accel * (1 + 1e-9) and abs(sp.alpha_d) <= lim.alpha_max * (1 + 1e-9)
             assert abs(sp.a_d - prev[0]) <= drv.jerk_max * dt * (1 + 1e-9)
@@ -121,7 +121,7 @@ def test_the_setpoint_keeps_the_limits_and_the_robot_reaches_the_command(robot: 
         assert (sp.v_d, sp.omega_d) == (v, w)  # 1.5 s is enough for every step above
         tv, tw = robot.true_v()
         assert tv == pytest.approx(v, abs=0.01) and tw == pytest.approx(w, abs=0.05)
-    assert loop.row[21] == STATE_CODE["driving"]
+    assert loop.row[21] == LoopState.DRIVING
 
 
 def test_the_kinematic_baseline_drives_too_and_the_seeds_method_is_refused() -> None:
@@ -136,7 +136,7 @@ def test_the_kinematic_baseline_drives_too_and_the_seeds_method_is_refused() -> 
     try:
         with pytest.raises(ValueError, match="seed"):
             r.loop.drive(0.3, 0.0)
-        assert r.loop.state == "idle" and r.loop.reference is None
+        assert r.loop.state == LoopState.IDLE and r.loop.reference is None
     finally:
         r.close()
 
@@ -170,7 +170,7 @@ def test_after_the_last_command_at_1_m_s_the_robot_stands_still_in_time_and_dist
                 still_t = None
             elif still_t is None:
                 still_t = r.hal.now() - t0
-        assert loop.state == "stopped" and loop.duty_l == loop.duty_r == 0.0
+        assert loop.state == LoopState.STOPPED and loop.duty_l == loop.duty_r == 0.0
         assert r.plant.applied_duty == (0.0, 0.0)
         assert still_t is not None and still_t <= timeout + braking_s + 0.05, still_t  # 10 ticks of lag
         assert travel <= allowed_m + 0.01, (travel, allowed_m)  # the plant lags the setpoint by ~1 cm
@@ -183,9 +183,9 @@ def test_after_the_last_command_at_1_m_s_the_robot_stands_still_in_time_and_dist
 def test_commands_within_the_timeout_keep_it_driving_and_a_late_one_resumes(robot: Robot) -> None:
     loop = robot.loop
     robot.ticks(810, drive=(0.3, 0.0), every=90)  # every 0.45 s: inside the 0.5 s timeout
-    assert loop.state == "driving" and loop.reference.timeouts == 0 and loop.reference.braking == ""
+    assert loop.state == LoopState.DRIVING and loop.reference.timeouts == 0 and loop.reference.braking == ""
     robot.ticks(30)  # 0.6 s of silence since the last: braking (for 0.4 s from 0.3 m/s)
-    assert loop.reference.braking == "timeout" and loop.state == "driving"
+    assert loop.reference.braking == "timeout" and loop.state == LoopState.DRIVING
     loop.drive(0.3, 0.0)  # the joystick's next message: on again
     robot.ticks(200, drive=(0.3, 0.0))
     assert loop.reference.braking == "" and loop.setpoint.v_d == 0.3
@@ -195,8 +195,8 @@ def test_stop_during_drive_brakes_to_rest_then_the_motors_are_zero(robot: Robot)
     loop, cfg = robot.loop, robot.cfg
     robot.ticks(400, drive=(0.8, 1.0))
     loop.stop()
-    assert loop.state == "driving" and loop.reference.braking == "stop"
-    took = robot.until(lambda: loop.state == "stopped", 3.0)
+    assert loop.state == LoopState.DRIVING and loop.reference.braking == "stop"
+    took = robot.until(lambda: loop.state == LoopState.STOPPED, 3.0)
     braking = 0.8 / cfg.limits.accel + cfg.limits.accel / cfg.drive.jerk_max
     assert braking - 2 * loop.period <= took <= braking + 0.3
     assert loop.duty_l == loop.duty_r == 0.0
@@ -208,17 +208,17 @@ def test_estop_during_drive_zeroes_the_motors_at_once_and_drive_is_refused_until
     loop = robot.loop
     robot.ticks(300, drive=(0.5, 0.0))
     loop.estop("test")
-    assert loop.duty_l == loop.duty_r == 0.0 and loop.state == "estop"
+    assert loop.duty_l == loop.duty_r == 0.0 and loop.state == LoopState.ESTOP
     robot.hal.sleep_until(robot.hal.now() + 0.005)  # the command latency
     assert robot.plant.applied_duty == (0.0, 0.0)
     with pytest.raises(RuntimeError, match="reset first"):
         loop.drive(0.5, 0.0)
     robot.ticks(10)
-    assert loop.state == "estop" and loop.duty_l == 0.0
+    assert loop.state == LoopState.ESTOP and loop.duty_l == 0.0
     loop.reset()
     robot.until(lambda: abs(robot.true_v()[0]) < 0.002, 3.0)
     loop.drive(0.2, 0.0)
-    assert loop.state == "driving"
+    assert loop.state == LoopState.DRIVING
 
 
 def test_drive_while_faulted_is_refused_and_changes_nothing(robot: Robot) -> None:
@@ -226,7 +226,7 @@ def test_drive_while_faulted_is_refused_and_changes_nothing(robot: Robot) -> Non
     loop.enter_fault("test")
     with pytest.raises(RuntimeError, match="fault"):
         loop.drive(0.1, 0.0)
-    assert loop.state == "fault" and loop.reference is None
+    assert loop.state == LoopState.FAULT and loop.reference is None
 
 
 def test_drive_does_not_take_over_a_path_and_follow_does_not_take_over_a_drive(robot: Robot) -> None:
@@ -235,17 +235,17 @@ def test_drive_does_not_take_over_a_path_and_follow_does_not_take_over_a_drive(r
     loop.follow(path)
     robot.ticks(50)
     ref = loop.reference
-    for state in ("following", "stopping"):
+    for state in (LoopState.FOLLOWING, LoopState.STOPPING):
         with pytest.raises(ValueError, match="does not take over a path"):
             loop.drive(0.2, 0.0)
         assert loop.state == state and loop.reference is ref
         loop.stop()
-    robot.until(lambda: loop.state == "stopped", 5.0)
+    robot.until(lambda: loop.state == LoopState.STOPPED, 5.0)
     loop.drive(0.2, 0.0)  # once stopped
-    assert loop.state == "driving"
+    assert loop.state == LoopState.DRIVING
     with pytest.raises(ValueError, match="driving: send stop first"):
         loop.follow(path)
-    assert loop.state == "driving"
+    assert loop.state == LoopState.DRIVING
 
 
 def test_a_sensor_gap_while_driving_holds_brakes_and_ends_stopped_refusing_drive_meanwhile(robot: Robot) -> None:
@@ -253,11 +253,11 @@ def test_a_sensor_gap_while_driving_holds_brakes_and_ends_stopped_refusing_drive
     robot.ticks(300, drive=(0.5, 0.0))
     hal.freeze(hal.now() + 0.001, 0.06)
     robot.ticks(14)
-    assert loop.state == "holding"
+    assert loop.state == LoopState.HOLDING
     with pytest.raises(ValueError, match="holding"):
         loop.drive(0.5, 0.0)
-    robot.until(lambda: loop.state != "holding", 3.0)
-    assert loop.state == "stopped" and loop.recovery.waits == 1  # a drive is not resumed
+    robot.until(lambda: loop.state != LoopState.HOLDING, 3.0)
+    assert loop.state == LoopState.STOPPED and loop.recovery.waits == 1  # a drive is not resumed
     assert abs(robot.true_v()[0]) < 0.005
 
 
@@ -315,7 +315,7 @@ def test_drive_while_a_follow_is_prepared_is_refused(rig: DaemonRig) -> None:
     d = rig.d
     d._pending = _PendingFollow(Build(BuildJob(LINE, speed_limits(d.cfg), d.cfg.paths)), None, None, "shape line", 0)
     reply = d.handle({"cmd": "drive", "v": 0.1, "omega": 0.0})
-    assert reply["ok"] is False and "preparing shape line" in reply["error"] and d.loop.state == "idle"
+    assert reply["ok"] is False and "preparing shape line" in reply["error"] and d.loop.state == LoopState.IDLE
 
 
 def test_follow_while_driving_is_refused_over_handle(rig: DaemonRig) -> None:
@@ -359,7 +359,7 @@ def test_a_few_thousand_random_requests_never_crash_the_loop_and_refusals_change
             assert abs(reply["v"]) <= lim.v_max and abs(reply["omega"]) <= lim.omega_max
         if i % 5 == 0:
             rig.ticks(1)
-        assert d.loop.state != "fault", d.loop.fault
+        assert d.loop.state != LoopState.FAULT, d.loop.fault
         assert all(math.isfinite(x) for x in (d.loop.duty_l, d.loop.duty_r, d.loop.setpoint.v_d))
     assert refused > 1000 and accepted > 50, (refused, accepted)
 

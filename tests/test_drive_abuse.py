@@ -10,6 +10,7 @@ import math
 import pytest
 
 from ddrt.config import with_overrides
+from ddrt.loop import LoopState
 from tests.support.drive_rigs import Robot
 
 
@@ -55,7 +56,7 @@ def test_a_reload_that_lowers_v_max_at_speed_brakes_within_the_limits(resend: bo
             assert sp.v_d == 0.3 and r.true_v()[0] == pytest.approx(0.3, abs=0.01)
         assert worst <= 1.3 * cfg.limits.accel, worst  # the plant follows the ramp, with its lag
         assert lowest >= 0.3 - 0.01 if resend else lowest >= -0.01, lowest
-        assert loop.state in ("driving", "stopped") and loop.fault == ""
+        assert loop.state in (LoopState.DRIVING, LoopState.STOPPED) and loop.fault == ""
     finally:
         r.close()
 

@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 
 from ddrt.config import load_config
+from ddrt.loop import LoopState
 from ddrt.path.spec import resolve_path
 from ddrt.simrun.runner import run_sim
 from hal.registry import backend_name
@@ -70,7 +71,7 @@ def test_a_host_that_stops_talking_is_stopped_by_the_firmware() -> None:
     hal, loop = following(cfg)
     try:
         tick_rows(hal, loop, 100)
-        assert loop.state == "following"
+        assert loop.state == LoopState.FOLLOWING
         assert hal.robot.applied_duty != (0.0, 0.0)
         t_last = hal.now()  # the last DRIVE went out in the last tick
         timeout = cfg.hal.bridge.drive_timeout_ms / 1000.0
@@ -100,7 +101,7 @@ def test_a_firmware_reset_mid_path_is_counted_and_the_count_stays_continuous() -
         hal.devices.sim.reset()  # the RESET pin: the AVR reboots, outputs off, count 0
         rows = tick_rows(hal, loop, 150)
         assert hal.fault_counters["bridge.mcu_resets"] == 1
-        assert loop.state == "following", loop.fault
+        assert loop.state == LoopState.FOLLOWING, loop.fault
         assert abs(loop.reference.cross_track) < 0.005
         assert rows[-1]["fresh"] == 1.0
     finally:

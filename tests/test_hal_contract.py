@@ -13,6 +13,7 @@ import time
 import pytest
 
 from ddrt.config import load_config
+from ddrt.loop import LoopState
 from ddrt.path.spec import resolve_path
 from ddrt.simrun.runner import run_sim
 from hal.base import HalValueError, Sample
@@ -154,7 +155,7 @@ def test_corrupted_serial_bytes_are_counted_and_the_loop_keeps_going():
 
     hal.devices.link.to_host_filter = corrupt
     rows = tick_rows(hal, loop, 400)
-    assert loop.state == "following", loop.fault
+    assert loop.state == LoopState.FOLLOWING, loop.fault
     counters = hal.fault_counters
     assert counters["bridge.crc_errors"] + counters["bridge.undecodable"] > 0
     assert rows[-1]["hal_fault_ticks"] > 0  # the reaction is visible in telemetry
@@ -168,10 +169,10 @@ def test_a_silent_microcontroller_ends_in_a_safe_stop():
     cfg = load_config(SCENARIO, {**EMULATED, "estimator": {"fault_latch_s": 0.08}})
     hal, loop = following(cfg)
     tick_rows(hal, loop, 200)
-    assert loop.state == "following"
+    assert loop.state == LoopState.FOLLOWING
     hal.devices.link.to_host_filter = lambda data: b""  # the MCU stops answering
     rows = tick_rows(hal, loop, 100)
-    assert loop.state == "fault"
+    assert loop.state == LoopState.FAULT
     assert "STATE" in loop.fault or "no new data" in loop.fault or "stale" in loop.fault
     assert len(rows) <= 20  # held for a bounded number of ticks, then stopped
     assert rows[-1]["fresh"] == 0.0 or rows[-1]["state"] == 5.0
@@ -206,8 +207,8 @@ def test_microcontroller_reset_is_reported_and_the_count_stays_continuous():
     assert hal.fault_counters["bridge.mcu_resets"] >= 1
     # The MCU zeroed its outputs on reboot; the loop's next DRIVE re-applies them and the
     # stitched count keeps the estimator on the path.
-    assert loop.state in ("following", "fault")
-    if loop.state == "following":
+    assert loop.state in (LoopState.FOLLOWING, LoopState.FAULT)
+    if loop.state == LoopState.FOLLOWING:
         assert abs(loop.reference.cross_track) < 0.005
     hal.close()
 

@@ -15,6 +15,7 @@ import pytest
 from ddrt.cli import main
 from ddrt.config import ConfigError, PathsConfig, load_config
 from ddrt.config.yamlio import load_yaml_text
+from ddrt.loop import LoopState
 from ddrt.path import PathError, SpeedLimits, load_path
 from ddrt.path.spec import resolve_path, speed_limits
 from tests.support.repo import REPO, SIM_YAML
@@ -320,14 +321,14 @@ def test_the_gyro_margin_holds_for_every_path(tmp_path: Path) -> None:
 
 
 class _FakeLoop:
-    state = "idle"
+    state = LoopState.IDLE
 
     def __init__(self) -> None:
         self.followed: list[Any] = []
 
     def follow(self, path: Any, pose: Any = None) -> None:
         self.followed.append((path, pose))
-        self.state = "following"
+        self.state = LoopState.FOLLOWING
 
 
 @pytest.fixture

@@ -13,6 +13,7 @@ import pytest
 from ddrt.cli import main as cli_main
 from ddrt.config import load_config
 from ddrt.config.sections import PathsConfig
+from ddrt.loop import LoopState
 from ddrt.path.report import pivot_runs
 from ddrt.path import PathError, load_path
 from ddrt.path.geometry import GeometryOptions, polyline_geometry
@@ -366,7 +367,7 @@ def test_ddrt_sim_and_a_follow_reply_report_the_deviation(tmp_path, capsys) -> N
     assert "teach_repeat.csv: 480 points as samples of a curve: smoothed within 10.0 mm (largest deviation" in err
 
     class _Loop:
-        state = "idle"
+        state = LoopState.IDLE
 
         def follow(self, path, pose=None) -> None:
             self.path = path

@@ -16,6 +16,7 @@ from ddrt.config import load_config
 from ddrt.core.envelope import Envelope, resolve_limits
 from ddrt.core.model import Dynamics, inverse_dynamics, wheel_rates
 from ddrt.core.motor import Motor
+from ddrt.loop import LoopState
 from ddrt.path import load_path
 from ddrt.path.spec import speed_limits
 from tests.support.repo import REPO, SIM_YAML
@@ -355,7 +356,7 @@ def _tick(loop, hal, n: int) -> None:
     for _ in range(n):
         hal.sleep_until(hal.now() + loop.period)
         loop.tick()
-        if loop.state != "following":
+        if loop.state != LoopState.FOLLOWING:
             break
 
 
@@ -367,7 +368,7 @@ def test_a_heavier_robot_on_reload_re_profiles_the_rest_of_the_path() -> None:
     path = _path(cfg, {"shape": "rectangle", "width": 1.2, "height": 0.8, "direction": "ccw"})
     loop.follow(path, (0.0, 0.0, 0.0))
     _tick(loop, hal, 150)
-    assert loop.state == "following"
+    assert loop.state == LoopState.FOLLOWING
     t_sched = loop.reference.t_sched
     before = path.at_time(t_sched)
     # Lighter: the profile is still within the motors: nothing changes.
@@ -388,7 +389,7 @@ def test_a_heavier_robot_on_reload_re_profiles_the_rest_of_the_path() -> None:
     assert path.envelope_excess(speed_limits(heavy).envelope, first) > 1e-3
     assert new.envelope_excess(speed_limits(heavy).envelope, first) <= 1e-9
     _tick(loop, hal, int(new.duration / loop.period) + 400)
-    assert loop.state == "stopped", loop.fault
+    assert loop.state == LoopState.STOPPED, loop.fault
     hal.close()
 
 

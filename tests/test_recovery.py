@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 
 from ddrt.config import load_config, with_overrides
-from ddrt.loop import RecoveryCounters
+from ddrt.loop import LoopState, RecoveryCounters
 from ddrt.runtime.clock import ManualClock
 from ddrt.service.daemon import Daemon
 from tests.support.repo import REPO, SIM_YAML
@@ -68,7 +68,7 @@ class _FakeLoop:
     def __init__(self, clock: ManualClock, fault_on: int | None = None,
                  stall_in_tick_on: int | None = None, stall_s: float = 0.0) -> None:
         self.clock = clock
-        self.state = "following"
+        self.state = LoopState.FOLLOWING
         self.fault = ""
         self.row: list[float] = []
         self.ticks = 0
@@ -83,7 +83,7 @@ class _FakeLoop:
         if self.ticks == self.stall_in_tick_on:
             self.clock.advance(self.stall_s)
         if self.ticks == self.fault_on:
-            self.state = "fault"
+            self.state = LoopState.FAULT
             self.fault = "injected"
 
 
@@ -147,7 +147,7 @@ def test_a_thread_preempted_right_after_its_sleep_returns_is_late(tmp_path: Path
 
 # ---------------------------------------------------------------- holds on the simulated robot
 
-from ddrt.loop import ControlLoop, STATE_CODE  # noqa: E402
+from ddrt.loop import ControlLoop  # noqa: E402
 from ddrt.path.spec import resolve_path  # noqa: E402
 from hal.registry import open_hal  # noqa: E402
 
@@ -183,7 +183,7 @@ class _Run:
                           "x_est": self.loop.estimator.x, "y_est": self.loop.estimator.y})
 
     def run_until(self, t_rel: float) -> None:
-        while self.t - self.t0 < t_rel - 1e-9 and self.loop.state not in ("stopped", "fault"):
+        while self.t - self.t0 < t_rel - 1e-9 and self.loop.state not in (LoopState.STOPPED, LoopState.FAULT):
             self.tick()
 
     def stall(self, seconds: float) -> None:
@@ -211,7 +211,7 @@ def _max_true_offset(run: _Run) -> float:
 
 def _completed(run: _Run) -> bool:
     ref = run.loop.reference
-    return run.loop.state == "stopped" and ref is not None and ref.done and ref.sigma > run.path.length - 0.01
+    return run.loop.state == LoopState.STOPPED and ref is not None and ref.done and ref.sigma > run.path.length - 0.01
 
 
 FREEZES = ((2.0, 0.060), (5.0, 0.150), (8.0, 0.400))  # (start after the path began, length) in s
@@ -235,15 +235,15 @@ def test_sensor_freezes_while_following_hold_and_resume_and_the_path_completes()
         for start, length in FREEZES:
             frozen = [r for r in rows if start + 0.001 <= r["t"] < start + length - 0.001]
             assert frozen and not any(r["fresh"] for r in frozen)
-            assert all(r["state"] in ("following", "holding") for r in frozen)
-            assert any(r["state"] == "holding" for r in frozen)
+            assert all(r["state"] in (LoopState.FOLLOWING, LoopState.HOLDING) for r in frozen)
+            assert any(r["state"] == LoopState.HOLDING for r in frozen)
             if length > WATCHDOG_S:
                 # Blind beyond the watchdog: the motors are at zero until the samples return.
                 late = [r for r in frozen if r["t"] >= start + WATCHDOG_S + latency + 0.006]
                 assert late and all(r["applied"] == (0.0, 0.0) for r in late)
             # Back on the path after each hold.
             after = [r for r in rows if start + length + 1.0 <= r["t"] < start + length + 1.5]
-            assert after and all(r["state"] == "following" for r in after)
+            assert after and all(r["state"] == LoopState.FOLLOWING for r in after)
         # Across the gaps the estimate stays within a centimetre of the truth (without gaps:
         # 1 mm; what remains is the heading dead-reckoned blind through the 400 ms), and so
         # does the robot of its path.
@@ -259,7 +259,7 @@ def test_a_freeze_that_persists_latches_with_the_motors_at_zero() -> None:
         run.hal.freeze(run.t0 + 2.0)  # for good
         run.finish(10.0)
         loop = run.loop
-        assert loop.state == "fault" and "sensors stale" in loop.fault and "fault_latch_s" in loop.fault
+        assert loop.state == LoopState.FAULT and "sensors stale" in loop.fault and "fault_latch_s" in loop.fault
         assert loop.recovery.holds == 1 and loop.recovery.latched == 1 and loop.recovery.resumes == 0
         t_fault = run.rows[-1]["t"]
         assert t_fault - 2.0 == pytest.approx(run.cfg.estimator.fault_latch_s, abs=0.011)
@@ -282,7 +282,7 @@ def test_a_stalled_loop_holds_and_resumes(stall_s: float) -> None:
         assert (run.robot.applied_duty == (0.0, 0.0)) == (stall_s > WATCHDOG_S)
         run.tick()
         loop = run.loop
-        assert loop.state == "holding" and "sensor gap" in loop.recovery.last_cause
+        assert loop.state == LoopState.HOLDING and "sensor gap" in loop.recovery.last_cause
         assert loop.recovery.zeroed == (1 if stall_s > WATCHDOG_S else 0)
         assert loop.estimator.health.gaps == 1
         assert loop.estimator.health.longest_gap_s == pytest.approx(stall_s + loop.period, abs=1e-6)
@@ -301,10 +301,10 @@ def test_on_recover_wait_stops_and_resume_continues_the_path() -> None:
         run.stall(0.159)
         run.finish()
         loop = run.loop
-        assert loop.state == "stopped" and not loop.reference.done
+        assert loop.state == LoopState.STOPPED and not loop.reference.done
         assert loop.recovery.waits == 1 and loop.recovery.resumes == 0
         loop.resume()
-        assert loop.state == "following"
+        assert loop.state == LoopState.FOLLOWING
         run.finish(60.0)
         assert _completed(run), (loop.state, loop.fault)
     finally:
@@ -318,7 +318,7 @@ def test_sensors_that_keep_failing_latch_after_max_holds() -> None:
             run.hal.freeze(run.t0 + 2.0 + 2.0 * k, 0.150)
         run.finish()
         loop = run.loop
-        assert loop.state == "fault" and "estimator.max_holds = 2" in loop.fault
+        assert loop.state == LoopState.FAULT and "estimator.max_holds = 2" in loop.fault
         assert loop.recovery.holds == 2 and loop.recovery.resumes == 2 and loop.recovery.latched == 1
         assert (loop.duty_l, loop.duty_r) == (0.0, 0.0)
         assert run.rows[-1]["t"] == pytest.approx(6.0 + 0.055, abs=0.011)  # at the third hold
@@ -349,11 +349,11 @@ def test_a_gap_while_standing_still_is_no_hold() -> None:
     try:
         run.finish()
         assert _completed(run)
-        run.loop.state = "stopped"
+        run.loop.state = LoopState.STOPPED
         run.stall(0.5)
         for _ in range(5):
             run.tick()
-        assert run.loop.state == "stopped" and run.loop.recovery.holds == 0
+        assert run.loop.state == LoopState.STOPPED and run.loop.recovery.holds == 0
         assert run.loop.estimator.health.gaps == 0
     finally:
         run.close()
@@ -369,7 +369,7 @@ import time  # noqa: E402
 
 from tests.support.daemon import PATHS, RATE_HZ, START_TIMEOUT_S, start_daemon, wait_for  # noqa: E402
 
-HOLDING = STATE_CODE["holding"]
+HOLDING = LoopState.HOLDING
 
 
 @pytest.mark.slow
@@ -491,13 +491,13 @@ def test_a_state_stream_that_stops_for_150_ms_is_held_and_the_path_resumes() -> 
         t0 = hal.now()
         t = t0
         states = []
-        while t - t0 < 5.0 and loop.state not in ("fault", "stopped"):
+        while t - t0 < 5.0 and loop.state not in (LoopState.FAULT, LoopState.STOPPED):
             t += loop.period
             hal.sleep_until(t)
             mute.mute = t0 + 2.0 <= t < t0 + 2.15
             loop.tick()
             states.append((t - t0, loop.state, hal.robot.applied_duty))
-        assert loop.state == "following", loop.fault
+        assert loop.state == LoopState.FOLLOWING, loop.fault
         rec = loop.recovery
         assert rec.holds == 1 and rec.resumes == 1 and rec.zeroed == 1 and rec.latched == 0, rec
         assert "sensor read timed out" in rec.last_cause and "STATE" in rec.last_cause

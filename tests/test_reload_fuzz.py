@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from ddrt.loop import LoopState
 from tests.support.fuzz_inputs import mutate
 from tests.support.reload_rig import Rig
 from tests.support.repo import SIM_YAML
@@ -65,12 +66,12 @@ def test_a_following_daemon_survives_any_reload(tmp_path_factory: pytest.TempPat
         for _ in range(20):
             rig.ticks(1)
             assert max(abs(d.loop.duty_l), abs(d.loop.duty_r)) <= duty_max + 1e-12, f"case {i} ({ops})"
-            if d.loop.state != "following":
+            if d.loop.state != LoopState.FOLLOWING:
                 break
-        if d.loop.state != "following":
-            if d.loop.state != "stopped":  # stopped: the path's end, after many cases
+        if d.loop.state != LoopState.FOLLOWING:
+            if d.loop.state != LoopState.STOPPED:  # stopped: the path's end, after many cases
                 assert reply["ok"], f"case {i} ({ops}): rejected, yet {d.loop.state}: {d.loop.fault}"
-                assert d.loop.state == "fault" and d.loop.fault.startswith(SAFETY_STOPS), (i, ops, d.loop.fault)
+                assert d.loop.state == LoopState.FAULT and d.loop.fault.startswith(SAFETY_STOPS), (i, ops, d.loop.fault)
                 stops += 1
             assert d.loop.duty_l == d.loop.duty_r == 0.0
             rig.close()

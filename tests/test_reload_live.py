@@ -19,7 +19,7 @@ import pytest
 from ddrt.config.policy import leaf_modes, value_at
 from ddrt.config.schema import LIVE, NEXT_PATH, RESTART
 from ddrt.core.model import Dynamics
-from ddrt.loop import ControlLoop
+from ddrt.loop import ControlLoop, LoopState
 from ddrt.path import load_path
 from ddrt.path.spec import speed_limits
 from ddrt.runtime.clock import MonotonicClock
@@ -139,7 +139,7 @@ def test_reload_one_key(rig: Rig, key: str, mode: str) -> None:
     probe_before = _probe(rig, key)
     reference_before = d.loop.reference
     profile_before = d.loop.path.limits if d.loop.path is not None else None
-    assert d.loop.state == "following"
+    assert d.loop.state == LoopState.FOLLOWING
     reply = rig.reload(_nested(key, new))
     try:
         assert reply["ok"], reply
@@ -166,7 +166,7 @@ def test_reload_one_key(rig: Rig, key: str, mode: str) -> None:
             if section_of(key) == "limits" and key.rsplit(".", 1)[1] in dataclasses.asdict(profile_before):
                 assert getattr(speed_limits(d.cfg), key.rsplit(".", 1)[1]) == new
         rig.ticks(5)
-        assert d.loop.state == "following", d.loop.fault
+        assert d.loop.state == LoopState.FOLLOWING, d.loop.fault
     finally:
         back = rig.reload({})
         assert back["ok"], back
@@ -221,5 +221,5 @@ def test_calibrated_encoder_radius_takes_effect_on_reload(tmp_path: Path) -> Non
     travelled_true = robot.pose[0] - x_true0
     travelled_est = loop.estimator.x - x_est0
     assert travelled_est == pytest.approx(travelled_true, rel=0.01)
-    assert loop.state in ("following", "stopped")
+    assert loop.state in (LoopState.FOLLOWING, LoopState.STOPPED)
     d.hal.close()

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from ddrt.config import load_config, with_overrides
-from ddrt.loop import ControlLoop
+from ddrt.loop import ControlLoop, LoopState
 from ddrt.path.spec import load_path, speed_limits
 from ddrt.simrun.runner import run_sim
 from hal.registry import open_hal
@@ -122,7 +122,7 @@ class _Stepper:
         self.rows: list[dict[str, float | str]] = []
 
     def run(self, until: Callable[["_Stepper"], bool], limit_s: float = 40.0) -> None:
-        while not until(self) and self.t - self.t0 < limit_s and self.loop.state not in ("fault",):
+        while not until(self) and self.t - self.t0 < limit_s and self.loop.state not in (LoopState.FAULT,):
             self.t += self.loop.period
             self.hal.sleep_until(self.t)
             self.loop.tick()
@@ -149,9 +149,9 @@ def test_a_stop_on_a_reverse_leg_brakes_towards_zero_and_never_backs_faster() ->
         assert v0 < -0.15
         n0 = len(s.rows)
         s.loop.stop()
-        s.run(lambda st: st.loop.state == "stopped", limit_s=s.t - s.t0 + 3.0)
+        s.run(lambda st: st.loop.state == LoopState.STOPPED, limit_s=s.t - s.t0 + 3.0)
         after = s.rows[n0:]
-        assert s.loop.state == "stopped" and not s.loop.path_completed
+        assert s.loop.state == LoopState.STOPPED and not s.loop.path_completed
         v_ref = np.array([r["v_ref"] for r in after])
         v = np.array([r["v"] for r in after])
         assert np.all(v_ref <= 1e-12) and np.all(np.diff(v_ref) >= -1e-12)  # towards zero from below
@@ -173,11 +173,11 @@ def test_a_sensor_gap_on_a_reverse_leg_holds_and_resumes_backwards() -> None:
         s.run(_on_reverse_leg(path, 0.1))
         t_freeze = s.t - s.t0
         s.hal.freeze(s.t + 0.005, 0.150)
-        s.run(lambda st: st.loop.state == "stopped")
+        s.run(lambda st: st.loop.state == LoopState.STOPPED)
         rec = s.loop.recovery
         assert s.loop.path_completed, (s.loop.state, s.loop.fault, rec)
         assert rec.holds == 1 and rec.resumes == 1 and rec.latched == 0, rec
-        held = [r for r in s.rows if r["state"] == "holding"]
+        held = [r for r in s.rows if r["state"] == LoopState.HOLDING]
         assert held and held[0]["t"] >= t_freeze
         # Held and resumed backwards: the reference never goes forward on the reverse leg.
         later = [r for r in s.rows if r["t"] >= t_freeze]
@@ -198,7 +198,7 @@ def _energy(cfg, spec: dict) -> tuple[float, float, float]:
     path = load_path(spec, speed_limits(cfg), paths=cfg.paths)
     s = _Stepper(cfg, path)
     try:
-        s.run(lambda st: st.loop.state == "stopped")
+        s.run(lambda st: st.loop.state == LoopState.STOPPED)
         assert s.loop.path_completed
         e = s.robot.energy
         v, w = s.robot.velocity

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from ddrt.config import load_config
-from ddrt.loop import ControlLoop
+from ddrt.loop import ControlLoop, LoopState
 from ddrt.path.spec import load_path, speed_limits
 from ddrt.path.start import StartReference
 from ddrt.simrun.runner import run_sim
@@ -119,7 +119,7 @@ def test_start_turn_refuse_refuses_a_path_that_needs_a_turn_naming_the_key() -> 
     loop.calibrate(hal.sleep_until, hal.now)
     with pytest.raises(ValueError, match=r"starts 90 deg from the robot's heading.*pursuit.max_start_heading_deg = 40"):
         loop.follow(path, (0.0, 0.0, math.radians(90.0)))
-    assert loop.state == "idle" and loop.reference is None
+    assert loop.state == LoopState.IDLE and loop.reference is None
     # Within the angle it is accepted, and joined.
     loop.follow(path, (0.0, 0.0, math.radians(30.0)))
     assert isinstance(loop.reference, StartReference) and loop.reference.phase == "join"
@@ -141,9 +141,9 @@ def test_a_stop_during_the_turn_brakes_it_and_ends_there() -> None:
         if ticks == 40:  # 0.2 s into the turn, at speed
             assert loop.reference.phase == "turn" and abs(hal.robot.velocity[1]) > 1.0
             loop.stop()
-        if loop.state == "stopped":
+        if loop.state == LoopState.STOPPED:
             break
-    assert loop.state == "stopped", loop.state
+    assert loop.state == LoopState.STOPPED, loop.state
     assert ticks * loop.period < 2.0  # braked at alpha_max, not turned to the end
     x, y, _ = hal.robot.pose
     assert math.hypot(x, y) < 0.02 and loop.reference.phase == "turn"  # the path was never started

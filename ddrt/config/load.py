@@ -7,7 +7,6 @@ file raises ConfigError with the file name and the dotted key.
 from __future__ import annotations
 
 import copy
-import math
 from pathlib import Path as FsPath
 from typing import Any, Mapping
 

@@ -13,7 +13,7 @@ from ddrt.params.robot import RobotParams
 from ddrt.params.gyro_scale import GYRO_RANGES_DPS
 from ddrt.params.motor import MotorParams
 from ddrt.config.schema import (
-    LIVE, NEXT_PATH, RESTART, ConfigError, applies, build, next_path, non_negative, positive, restart,
+    LIVE, NEXT_PATH, RESTART, ConfigError, applies, non_negative, positive, restart,
 )
 
 # --------------------------------------------------------------------------- sections

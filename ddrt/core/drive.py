@@ -59,11 +59,12 @@ def check_command(v: object, omega: object, limits: LimitsConfig) -> tuple[float
 
 
 class DriveReference:
-    """Velocity commands with a timeout, as a reference stage (PathReference's interface:
-    update, done, stopping, request_stop, sigma, cross_track)."""
+    """Velocity commands with a timeout, as a reference stage (a ddrt.core.reference.Reference)."""
 
     sigma = 0.0  # no path: no progress along one, no cross-track error
     cross_track = 0.0
+    phase = "drive"
+    resumable = False  # a drive interrupted by a hold ends stopped: the sender drives again
 
     def __init__(self, limits: LimitsConfig, drive: DriveConfig, timeout_s: float, period_s: float) -> None:
         self.period = period_s
@@ -113,6 +114,9 @@ class DriveReference:
     @property
     def stopping(self) -> bool:
         return bool(self.braking)
+
+    def resume(self, x: float, y: float, theta: float) -> None:
+        raise ValueError("a drive is not resumed: send drive again")
 
     @property
     def done(self) -> bool:

@@ -13,7 +13,7 @@ sensors were stale) re-anchors the estimate instead of fusing across the gap: th
 and the count are re-synced, the distance the encoder counted meanwhile is put into the pose
 (less what dead reckoning already put there), the speeds are re-learnt from the next samples,
 and no motion is invented for the time nobody looked. Whether a gap stops the robot is the
-loop's decision (ddrt/loop.py: the `holding` state); `health.fault` is only set for faults
+loop's decision (ddrt/loop/hold.py: the `holding` state); `health.fault` is only set for faults
 that must latch at once (a stuck or saturated gyro, a stuck encoder).
 """
 

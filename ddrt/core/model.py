@@ -10,7 +10,6 @@ reproduces its model only so the seed's method can be benchmarked against ours.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 from ddrt.params.robot import RobotParams

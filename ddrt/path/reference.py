@@ -29,7 +29,11 @@ CORNER_TOL_M = 0.003
 
 
 class PathReference:
-    """Nearest-point geometry plus a governed time schedule along the speed profile."""
+    """Nearest-point geometry plus a governed time schedule along the speed profile (a
+    ddrt.core.reference.Reference)."""
+
+    phase = "follow"  # the path itself (a StartReference's last phase)
+    resumable = True
 
     def __init__(self, path: Path, lookahead_m: float, search_window_m: float, period_s: float,
                  max_lead_m: float = 0.05, time_indexed: bool = False) -> None:

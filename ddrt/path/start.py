@@ -108,8 +108,11 @@ class TurnProfile:
 class StartReference:
     """Turn in place (optional), join at bounded speed, then the path's reference as is.
 
-    Has PathReference's interface (update, done, sigma, cross_track, request_stop, path).
+    A ddrt.core.reference.Reference, with the path's too (`path`). Not resumable: a hold
+    during the start ends stopped, and the path is followed again from where the robot stands.
     """
+
+    resumable = False
 
     def __init__(self, inner: PathReference, pose: tuple[float, float, float], limits: SpeedLimits,
                  period_s: float, *, turn: bool, join: bool, y_cap: float = math.inf) -> None:
@@ -166,6 +169,9 @@ class StartReference:
                 self._brake = (ang, w, self.t)
         else:
             self.inner.request_stop(decel)
+
+    def resume(self, x: float, y: float, theta: float) -> None:
+        raise ValueError("the start of a path is not resumed: follow the path again")
 
     def update(self, x: float, y: float, theta: float, sp: Setpoint, dt: float | None = None) -> None:
         step = self.period if dt is None else dt

@@ -31,7 +31,7 @@ from typing import Any, Mapping
 from ddrt.config import Config, load_config
 from ddrt.config.policy import ReloadPlan
 from ddrt.config.schema import ConfigError
-from ddrt.loop import COLUMNS, ControlLoop
+from ddrt.loop import COLUMNS, ControlLoop, LoopState
 from ddrt.path import PathError
 from ddrt.path.spec import path_source, speed_limits
 from ddrt.runtime import rt
@@ -322,13 +322,13 @@ class Daemon:
         # the timed part, so a tick's compute time is the controller's alone.
         advance_plant = self.hal.advance_to_wall_clock if self.hal.owns_time else None
         viz = self.viz
-        truth = getattr(self.hal, "robot", None) if viz is not None else None
+        truth = self.hal.robot if viz is not None else None
         while not self.stop_requested:
             deadline = sched.next_deadline()
             woke = clock.sleep_until(deadline)
             if self.estop_signalled:  # SIGUSR1 (any time since the last tick, or before start)
                 self.estop_signalled = False
-                if loop.state != "estop":
+                if loop.state != LoopState.ESTOP:
                     log.warning("estop: SIGUSR1 received; motors zeroed, latched until reset")
                     loop.estop("estop: SIGUSR1")
             # Lateness is how late the tick really starts (takes its sample), not when the
@@ -354,7 +354,7 @@ class Daemon:
             if viz is not None:
                 viz.put(loop.row, started - deadline, compute, started,
                         truth.pose + truth.velocity if truth is not None else None)
-            if loop.state == "fault":
+            if loop.state == LoopState.FAULT:
                 self._fail(f"stopping after fault: {loop.fault}")
                 self.exit_code = 1
                 break

@@ -32,10 +32,12 @@ def drive_status(loop: Any) -> dict[str, Any]:
     """`mode` (drive, follow or none) and, once the velocity mode has run, its `drive` block:
     the velocities as commanded, as limited, the ramped setpoint, the time since the last
     command."""
+    from ddrt.loop import LoopState  # here: `ddrt ctl` imports this module and needs no loop
+
     ref = loop.reference
     state = loop.state
     is_drive = isinstance(ref, DriveReference)
-    if state in ("driving", "following", "stopping", "holding") and ref is not None:
+    if state in (LoopState.DRIVING, LoopState.FOLLOWING, LoopState.STOPPING, LoopState.HOLDING) and ref is not None:
         mode = "drive" if is_drive else "follow"
     else:
         mode = "none"

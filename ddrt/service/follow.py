@@ -21,6 +21,7 @@ from ddrt.path.spec import speed_limits
 from ddrt.service.ctlqueue import Deferred
 from ddrt.service.pathjob import Build, BuildJob, build_path, describe
 from ddrt.service.timing import select_quantiles
+from ddrt.loop import LoopState
 
 if TYPE_CHECKING:
     from ddrt.service.daemon import Daemon
@@ -62,9 +63,9 @@ def start_follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
     """
     loop = d.loop
     assert loop is not None
-    if loop.state in ("following", "stopping", "driving"):
+    if loop.state in (LoopState.FOLLOWING, LoopState.STOPPING, LoopState.DRIVING):
         return {"ok": False, "error": f"already {loop.state}: send stop first"}
-    if loop.state in ("estop", "fault"):
+    if loop.state in (LoopState.ESTOP, LoopState.FAULT):
         return {"ok": False, "error": f"in {loop.state}: send reset first"}
     if d._pending is not None:
         return {"ok": False, "error": f"busy: still preparing {d._pending.what} "
@@ -139,7 +140,7 @@ def switch(d: Daemon, p: PendingFollow, build: Build) -> dict[str, Any]:
     path, build.path = build.path, None
     old = getattr(loop, "path", None)
     try:
-        if loop.state in ("following", "stopping", "driving"):
+        if loop.state in (LoopState.FOLLOWING, LoopState.STOPPING, LoopState.DRIVING):
             raise ValueError(f"already {loop.state}")
         loop.follow(path, p.pose)
     except (ValueError, RuntimeError) as exc:
@@ -156,7 +157,7 @@ def switch(d: Daemon, p: PendingFollow, build: Build) -> dict[str, Any]:
     log.info("following %s: %.2f m, %.1f s (prepared in %.2f s)", p.what, path.length, path.duration,
              build.elapsed_s)
     reply: dict[str, Any] = {
-        "ok": True, "state": loop.state, "length_m": path.length, "duration_s": path.duration,
+        "ok": True, "state": loop.state.label, "length_m": path.length, "duration_s": path.duration,
     }
     if path.warnings:
         reply["warnings"] = list(path.warnings)

@@ -16,6 +16,7 @@ from ddrt.service.commands import COMMANDS
 from ddrt.service.ctlqueue import Deferred
 from ddrt.service.drivecmd import drive_fields
 from ddrt.service.follow import cancel_follow, start_follow
+from ddrt.loop import LoopState
 
 if TYPE_CHECKING:
     from ddrt.service.daemon import Daemon
@@ -50,7 +51,7 @@ def drive(d: Daemon, v: object, omega: object, source: str) -> dict[str, Any]:
         return {"ok": False, "error": f"drive: {exc}"}
     if old is not None and loop.path is None and d.paths is not None:
         d.paths.dispose(old)  # the last path's samples are freed off the loop
-    reply: dict[str, Any] = {"ok": True, "state": loop.state, "v": v_lim, "omega": w_lim,
+    reply: dict[str, Any] = {"ok": True, "state": loop.state.label, "v": v_lim, "omega": w_lim,
                              "timeout_s": d.cfg.daemon.command_timeout_s}
     if clamped:
         reply["clamped"] = list(clamped)
@@ -76,7 +77,7 @@ def _stop(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
     assert loop is not None
     cancelled = cancel_follow(d, "cancelled by stop")
     loop.stop()
-    return {"ok": True, "state": loop.state, **cancelled}
+    return {"ok": True, "state": loop.state.label, **cancelled}
 
 
 def _estop(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
@@ -84,7 +85,7 @@ def _estop(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
     assert loop is not None
     loop.estop("estop requested over the control socket")
     cancelled = cancel_follow(d, "cancelled by estop")
-    return {"ok": True, "state": loop.state, **cancelled}
+    return {"ok": True, "state": loop.state.label, **cancelled}
 
 
 def _resume(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
@@ -97,14 +98,14 @@ def _resume(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
     except ValueError as exc:
         return {"ok": False, "error": f"resume: {exc} (only a path interrupted by a hold, "
                                       "with daemon.on_recover: wait, is resumed)"}
-    return {"ok": True, "state": loop.state}
+    return {"ok": True, "state": loop.state.label}
 
 
 def _reset(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
     loop = d.loop
     assert loop is not None
     loop.reset()
-    return {"ok": True, "state": loop.state}
+    return {"ok": True, "state": loop.state.label}
 
 
 def _reload(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
@@ -122,7 +123,7 @@ def _drive(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
 def _follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
     loop = d.loop
     assert loop is not None
-    if loop.state == "stopping":
+    if loop.state == LoopState.STOPPING:
         return {"ok": False, "error": "follow: not started: the robot is still stopping on its last path; "
                                       "send follow again once status says 'stopped' "
                                       "(estop stops it at once)"}

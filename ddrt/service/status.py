@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 from ddrt.service.drivecmd import drive_status
 from ddrt.service.follow import preparing
 from ddrt.service.jsonlines import finite_or_null
+from ddrt.loop import LoopState
 
 if TYPE_CHECKING:
     from ddrt.service.daemon import Daemon
@@ -29,7 +30,7 @@ def status_line(d: Daemon) -> str:
     """One line for systemd's status (sd_notify STATUS=), once a second."""
     loop = d.loop
     s = d.stats.summary()
-    state = loop.state if loop else "starting"
+    state = loop.state.label if loop else "starting"
     p99 = s.get("compute_p99_us")
     if p99 is None:
         return state
@@ -66,7 +67,7 @@ def stats_report(d: Daemon) -> dict[str, Any]:
         "exit_code": d.exit_code,
         "error": d.error,
         "final_duty": [d.loop.duty_l, d.loop.duty_r] if d.loop is not None else None,
-        "final_state": d.loop.state if d.loop is not None else None,
+        "final_state": d.loop.state.label if d.loop is not None else None,
         "reloads": dict(d.reloads),
         "recovery": recovery_report(d),
     }
@@ -88,14 +89,14 @@ def daemon_status(d: Daemon) -> dict[str, Any]:
     est = loop.estimator
     ref = loop.reference
     progress = None
-    if ref is not None and loop.path is not None and loop.state != "driving":
+    if ref is not None and loop.path is not None and loop.state != LoopState.DRIVING:
         progress = {"sigma_m": ref.sigma, "length_m": loop.path.length,
                     "fraction": ref.sigma / loop.path.length if loop.path.length else 1.0,
                     "cross_track_m": ref.cross_track,
                     # turn (in place to the start heading), join, release, follow: ddrt/path/start.py
-                    "phase": getattr(ref, "phase", "follow")}
+                    "phase": ref.phase}
     return {
-        "state": loop.state,
+        "state": loop.state.label,
         "fault": loop.fault,
         **drive_status(loop),
         "pose": {"x": est.x, "y": est.y, "theta": est.theta},
@@ -115,11 +116,8 @@ def daemon_status(d: Daemon) -> dict[str, Any]:
 
 
 def _hal_counters(d: Daemon) -> dict[str, Any]:
-    # RealHal's is a property (a dict); a backend without one has none.
-    counters = getattr(d.hal, "fault_counters", None)
-    if callable(counters):
-        counters = counters()
-    return dict(counters) if isinstance(counters, dict) else {}
+    counters = d.hal.fault_counters
+    return dict(counters) if counters is not None else {}
 
 
 def peak_rss_kb() -> int:

@@ -17,7 +17,6 @@ import os
 import sys
 import threading
 from array import array
-from pathlib import Path
 from typing import Iterable, Sequence
 
 from ddrt.runtime.rotation import FileRotation, positive_int

@@ -25,7 +25,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ddrt.config import Config
-from ddrt.loop import COLUMNS, ControlLoop
+from ddrt.loop import COLUMNS, ControlLoop, LoopState
 from ddrt.simrun.metrics import TrackingAccumulator, wrap_angles
 from ddrt.path import Path
 from hal.registry import open_hal
@@ -119,7 +119,7 @@ class TelemetryStream:
         m: dict[str, Any] = self.tracking.result()
         m.update({
             "completed": loop.path_completed,
-            "state": loop.state,
+            "state": loop.state.label,
             "fault": loop.fault,
             "ticks": self.ticks,
             "sim_duration_s": self.last_t if self.ticks else 0.0,
@@ -185,6 +185,8 @@ def run_sim(cfg: Config, path: Path, *, duration: float | None = None, seed: int
     hal = open_hal(cfg, start=pose, seed=seed)
     try:
         robot = hal.robot  # the truth, for telemetry only
+        if robot is None:
+            raise ValueError(f"hal.backend: {cfg.hal.backend} has no simulated robot: run_sim needs one")
         loop = ControlLoop(cfg, hal)
         wall0 = time.perf_counter()
         stream = TelemetryStream(path, telemetry, keep, chunk_rows, sink=recording.chunk if recording else None)
@@ -197,7 +199,7 @@ def run_sim(cfg: Config, path: Path, *, duration: float | None = None, seed: int
             for i in range(int(round(cfg.sim.start_delay_s / loop.period))):
                 hal.sleep_until(t_idle + (i + 1) * loop.period)
                 loop.tick()
-            if loop.state not in ("estop", "fault"):  # a fault at rest: one tick records it, below
+            if loop.state not in (LoopState.ESTOP, LoopState.FAULT):  # a fault at rest: one tick records it, below
                 loop.follow(path, pose)
             t0 = hal.now()
             limit = duration if duration is not None else 1.5 * path.duration + 10.0
@@ -207,6 +209,7 @@ def run_sim(cfg: Config, path: Path, *, duration: float | None = None, seed: int
             buf = stream.buf
             size = len(buf)
             sleep_until, tick, r = hal.sleep_until, loop.tick, loop.row
+            ended = (LoopState.STOPPED, LoopState.FAULT)
             wall_loop0 = time.perf_counter()
             for i in range(n_ticks):
                 sleep_until(t0 + (i + 1) * period)
@@ -220,7 +223,7 @@ def run_sim(cfg: Config, path: Path, *, duration: float | None = None, seed: int
                 if n == size:
                     stream.n, n = n, 0
                     stream.flush()
-                if loop.state in ("stopped", "fault"):
+                if loop.state in ended:
                     break
                 if progress is not None and i % report_every == 0:
                     progress(hal.now() - t0, limit)

@@ -24,7 +24,7 @@ from types import ModuleType
 from typing import Callable, Sequence
 
 from ddrt.core.wrap import wrap_angle
-from ddrt.loop import COLUMNS, STATES
+from ddrt.loop import COLUMNS, LoopState, state_label
 
 ODOM, BASE, BASE_TRUE = "odom", "base_link", "base_link_true"
 TOPICS = ("/tf", "/tf_true", "/reference", "/state", "/timing", "/path", "/log")
@@ -121,17 +121,16 @@ class Channels:
                        _finite(math.hypot(xr - x, yr - y))]
             values += [_finite(v) for v in truth] if truth is not None else [None] * len(TRUTH)
             doc = dict(zip(STATE_FIELDS, values))
-            doc["state_name"] = STATES[code] if 0 <= code < len(STATES) else str(code)
+            doc["state_name"] = state_label(code)
             self.state.log(json.dumps(doc).encode(), log_time=log_ns)
         if timing is not None and self.timing is not None and self.timing.has_sinks():
             self.timing.log(json.dumps({"tick": self.ticks, "late_us": _finite(timing[0] * 1e6),
                                         "tick_us": _finite(timing[1] * 1e6)}).encode(), log_time=log_ns)
         if code != self._last_state:
             if self._last_state >= 0:
-                old = STATES[self._last_state] if self._last_state < len(STATES) else str(self._last_state)
-                new = STATES[code] if 0 <= code < len(STATES) else str(code)
-                why = fault() if fault is not None and new in ("fault", "estop") else ""
-                level = 4 if new == "fault" else 3 if new in ("estop", "holding") else 2
+                old, new = state_label(self._last_state), state_label(code)
+                why = fault() if fault is not None and code in (LoopState.FAULT, LoopState.ESTOP) else ""
+                level = 4 if code == LoopState.FAULT else 3 if code in (LoopState.ESTOP, LoopState.HOLDING) else 2
                 self.publish_log(level, f"state {old} -> {new}" + (f": {why}" if why else ""), "ddrt.loop", log_ns)
             self._last_state = code
 

@@ -24,13 +24,16 @@ import os
 import threading
 import time
 from collections import deque
-from typing import Any, Mapping, Protocol
+from typing import TYPE_CHECKING, Any, Mapping, Protocol
 
 from ddrt.config import Config, ConfigError
 from ddrt.viz import params as gains
 from ddrt.viz.optional import foxglove
 from ddrt.viz.ring import VizRing
 from ddrt.viz.teleop import TOPICS as TELEOP_TOPICS, DropLog, parse_twist
+
+if TYPE_CHECKING:
+    from hal.base import Hal
 
 log = logging.getLogger("ddrt.viz")
 PENDING_SETS = 4  # parameter sets waiting for the loop; more are refused as busy
@@ -67,7 +70,7 @@ def wanted(cfg: Config) -> bool:
     return cfg.daemon.foxglove.enabled or cfg.daemon.telemetry_format != "csv"
 
 
-def start_service(host: VizHost, width: int, hal: Any) -> "VizService | None":
+def start_service(host: VizHost, width: int, hal: Hal) -> "VizService | None":
     """The daemon's service as its config asks (None: neither Foxglove nor MCAP)."""
     cfg = host.cfg
     if not wanted(cfg):
@@ -81,7 +84,7 @@ def start_service(host: VizHost, width: int, hal: Any) -> "VizService | None":
         except OSError as exc:
             log.warning("MCAP telemetry disabled: cannot write to %s: %s", mcap_dir, exc)
             mcap_dir = None
-    return VizService(host, width, truth=hasattr(hal, "robot"), mcap_dir=mcap_dir)
+    return VizService(host, width, truth=hal.robot is not None, mcap_dir=mcap_dir)
 
 
 class LogTap(logging.Handler):

@@ -6,7 +6,7 @@ from __future__ import annotations
 from typing import Any
 
 from ddrt.config import Config
-from ddrt.loop import COLUMNS, ControlLoop
+from ddrt.loop import COLUMNS, ControlLoop, LoopState
 from ddrt.path.spec import resolve_path
 from hal.registry import open_hal
 
@@ -30,6 +30,6 @@ def tick_rows(hal: Any, loop: ControlLoop, n: int) -> list[dict[str, float]]:
         hal.sleep_until(t)
         loop.tick()
         rows.append(dict(zip(COLUMNS, loop.row)))
-        if loop.state == "fault":
+        if loop.state == LoopState.FAULT:
             break
     return rows
