@@ -1,5 +1,5 @@
 """The firmware's protocol code (firmware/src/proto.c), compiled for the host, held byte for
-byte against hal/protocol.py: CRC, frames it encodes, and the decoder's packets and error
+byte against hal/wire.py: CRC, frames it encodes, and the decoder's packets and error
 counters on any byte stream (valid frames, corrupted ones, garbage, oversize, empty)."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""CRC, COBS, protocol v1 packets and frame decoding (hal/crc.py, cobs.py, protocol.py)."""
+"""CRC, COBS, protocol v1 packets and frame decoding (hal/crc.py, cobs.py, wire.py)."""
 
 from __future__ import annotations
 
