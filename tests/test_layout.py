@@ -195,3 +195,22 @@ def test_the_package_map_names_every_module() -> None:
             if f.name != "__init__.py" and f"`{f.name}`" not in row:
                 missing.append(f"{pkg}{f.name}")
     assert not missing, f"not in docs/design.md's package map: {missing}"
+
+
+MAX_MODULE_LINES = 600  # a module longer than this holds more than one job (issue 19)
+MAX_CLASS_LINES = {("ddrt/loop/tick.py", "ControlLoop"): 400, ("ddrt/service/daemon.py", "Daemon"): 400}
+
+
+def test_no_module_outgrows_one_job() -> None:
+    long = [f"{f.relative_to(REPO)}: {n} lines" for folder in ("ddrt", "hal", "sim_hal")
+            for f in sorted((REPO / folder).rglob("*.py"))
+            if (n := len(f.read_text(encoding="utf-8").splitlines())) > MAX_MODULE_LINES]
+    assert long == [], f"over {MAX_MODULE_LINES} lines: split by job: {long}"
+
+
+@pytest.mark.parametrize("where", sorted(MAX_CLASS_LINES))
+def test_the_tick_and_the_daemon_stay_small(where: tuple[str, str]) -> None:
+    path, name = where
+    tree = ast.parse((REPO / path).read_text(encoding="utf-8"))
+    cls = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == name)
+    assert cls.end_lineno - cls.lineno + 1 <= MAX_CLASS_LINES[where]
