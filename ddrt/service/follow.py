@@ -18,6 +18,7 @@ import numpy as np
 
 from ddrt.path import PathError
 from ddrt.path.spec import speed_limits
+from ddrt.service.audit import peer_text
 from ddrt.service.ctlqueue import Deferred
 from ddrt.service.pathjob import Build, BuildJob, build_path, describe
 from ddrt.service.timing import select_quantiles
@@ -34,10 +35,11 @@ PREPARE_SAMPLES = 1 << 14  # lateness samples kept while a path is prepared (82 
 class PendingFollow:
     """A follow whose path is being built in the worker; the loop switches to it when ready."""
 
-    __slots__ = ("build", "pose", "reply", "what", "ticks", "late", "missed0")
+    __slots__ = ("build", "pose", "reply", "what", "ticks", "late", "missed0", "who")
 
     def __init__(self, build: Build, pose: tuple[float, float, float] | None, reply: Deferred | None,
-                 what: str, missed0: int) -> None:
+                 what: str, missed0: int, who: str = "") -> None:
+        self.who = who  # who asked, over which channel (the log's audit line)
         self.build = build
         self.pose = pose
         self.reply = reply
@@ -93,6 +95,7 @@ def start_follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
             return {"ok": False, "error": "follow: pose: expected [x, y, theta]"}
         pose = (float(pose[0]), float(pose[1]), float(pose[2]))
     job = BuildJob(source, speed_limits(d.cfg), d.cfg.paths, where="request")
+    who = peer_text(d.server.peer if d.server is not None else "")
     what = describe(source)
     if d.paths is None:
         # A Daemon that is not running (tests, tools): no loop to protect, build here.
@@ -101,10 +104,10 @@ def start_follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
             build._finish(path=build_path(job))
         except (PathError, ValueError, TypeError, OSError) as exc:
             return {"ok": False, "error": f"follow: {exc}"}
-        return switch(d, PendingFollow(build, pose, None, what, d.stats.missed), build)
+        return switch(d, PendingFollow(build, pose, None, what, d.stats.missed, who), build)
     build = d.paths.submit(job)
     reply = Deferred()
-    d._pending = PendingFollow(build, pose, reply, what, d.stats.missed)
+    d._pending = PendingFollow(build, pose, reply, what, d.stats.missed, who)
     log.info("follow: preparing %s", what)
     return reply
 
@@ -142,6 +145,7 @@ def switch(d: Daemon, p: PendingFollow, build: Build) -> dict[str, Any]:
     try:
         if loop.state in (LoopState.FOLLOWING, LoopState.STOPPING, LoopState.DRIVING):
             raise ValueError(f"already {loop.state}")
+        d.audit.note(f"follow of {p.what} {p.who or 'at start-up (--follow)'}", always=False)
         loop.follow(path, p.pose)
     except (ValueError, RuntimeError) as exc:
         if d.paths is not None:

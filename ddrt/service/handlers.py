@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping
 
+from ddrt.service.audit import peer_text
 from ddrt.service.commands import COMMANDS
 from ddrt.service.ctlqueue import Deferred
 from ddrt.service.drivecmd import drive_fields
@@ -35,7 +36,7 @@ def command_table(handlers: Mapping[str, CommandHandler], commands: Iterable[str
     return dict(handlers)
 
 
-def drive(d: Daemon, v: object, omega: object, source: str) -> dict[str, Any]:
+def drive(d: Daemon, v: object, omega: object, source: str, channel: str = "") -> dict[str, Any]:
     """Velocity mode (ddrt/core/drive.py): hold (v, omega) until the next drive, a stop
     or daemon.command_timeout_s without one. The one entry for every caller (the control
     socket, a teleop bridge), between two ticks; a refusal changes nothing."""
@@ -49,6 +50,7 @@ def drive(d: Daemon, v: object, omega: object, source: str) -> dict[str, Any]:
         v_lim, w_lim, clamped = loop.drive(v, omega, source)
     except (ValueError, RuntimeError) as exc:
         return {"ok": False, "error": f"drive: {exc}"}
+    d.audit.note(f"drive {channel or 'over ' + source}", always=False)
     if old is not None and loop.path is None and d.paths is not None:
         d.paths.dispose(old)  # the last path's samples are freed off the loop
     reply: dict[str, Any] = {"ok": True, "state": loop.state.label, "v": v_lim, "omega": w_lim,
@@ -56,6 +58,11 @@ def drive(d: Daemon, v: object, omega: object, source: str) -> dict[str, Any]:
     if clamped:
         reply["clamped"] = list(clamped)
     return reply
+
+
+def who(d: Daemon) -> str:
+    """'over the control socket (pid P, uid U)': the request being answered."""
+    return peer_text(d.server.peer if d.server is not None else "")
 
 
 def vars_of(obj: Any) -> dict[str, Any]:
@@ -75,6 +82,7 @@ def _gains(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
 def _stop(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
     loop = d.loop
     assert loop is not None
+    d.audit.note(f"stop {who(d)}")
     cancelled = cancel_follow(d, "cancelled by stop")
     loop.stop()
     return {"ok": True, "state": loop.state.label, **cancelled}
@@ -83,6 +91,7 @@ def _stop(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
 def _estop(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
     loop = d.loop
     assert loop is not None
+    d.audit.note(f"estop {who(d)}")
     loop.estop("estop requested over the control socket")
     cancelled = cancel_follow(d, "cancelled by estop")
     return {"ok": True, "state": loop.state.label, **cancelled}
@@ -95,6 +104,7 @@ def _resume(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
     assert loop is not None
     try:
         loop.resume()
+        d.audit.note(f"resume {who(d)}")
     except ValueError as exc:
         return {"ok": False, "error": f"resume: {exc} (only a path interrupted by a hold, "
                                       "with daemon.on_recover: wait, is resumed)"}
@@ -104,6 +114,7 @@ def _resume(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
 def _reset(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
     loop = d.loop
     assert loop is not None
+    d.audit.note(f"reset {who(d)}")
     loop.reset()
     return {"ok": True, "state": loop.state.label}
 
@@ -117,7 +128,7 @@ def _drive(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
         v, omega = drive_fields(req)
     except ValueError as exc:
         return {"ok": False, "error": f"drive: {exc}"}
-    return drive(d, v, omega, "control socket")
+    return drive(d, v, omega, "control socket", who(d))
 
 
 def _follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
