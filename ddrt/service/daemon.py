@@ -33,7 +33,7 @@ from ddrt.config.policy import ReloadPlan
 from ddrt.config.schema import ConfigError
 from ddrt.loop import COLUMNS, ControlLoop, LoopState
 from ddrt.path import PathError
-from ddrt.path.spec import path_source, speed_limits
+from ddrt.path.spec import config_path_error, path_source, speed_limits
 from ddrt.runtime import rt
 from ddrt.runtime.clock import MonotonicClock
 from ddrt.service.audit import StateLog
@@ -110,7 +110,15 @@ class Daemon:
         self.clock = MonotonicClock(spin_s=cfg.daemon.spin_us * 1e-6)
         start = cfg.start or (0.0, 0.0, 0.0)
         if cfg.start is None and cfg.path is not None:
-            start = self._wait_start_path().start_pose
+            try:
+                start = self._wait_start_path().start_pose
+            except PathError as exc:
+                if self.follow_at_start:
+                    raise  # it was to be followed: a bad start-up input, exit 2
+                # Only the simulated robot's start pose came from it: not a reason to stop.
+                log.warning("%s; not followed (no --follow), so the daemon goes on: the robot starts "
+                            "at (0, 0, 0)", exc)
+                self._start_build = None
         # Every backend takes the options it needs. One whose robot runs in simulated time
         # (Hal.owns_time) starts it at `start` and, paced, brings it up to the wall clock on
         # every read, so the loop is scheduled (and its lateness measured) on the real
@@ -402,7 +410,7 @@ class Daemon:
                    else "after a fault" if before == LoopState.FAULT
                    else "--duration is over" if self.exit_code == 0 and self.duration is not None
                    else f"exit code {self.exit_code}")
-            log.warning("shutdown (%s): state %s -> %s, motors zeroed", why, before.label, self.loop.state.label)
+            log.info("shutdown (%s): state %s -> %s, motors zeroed", why, before.label, self.loop.state.label)
             if self.ring is not None:
                 self.ring.append(self.loop.row)
         elif self.hal is not None:
@@ -442,7 +450,7 @@ class Daemon:
                 raise PathError("stopped while the start path was being built")
             time.sleep(0.01)
         if build.error:
-            raise PathError(build.error)
+            raise PathError(config_path_error(self.cfg, build.error))
         return build.path
 
     def _apply(self, plan: ReloadPlan) -> None:

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ddrt.path import PathError
-from ddrt.path.spec import speed_limits
+from ddrt.path.spec import config_path_error, speed_limits
 from ddrt.service.audit import peer_text
 from ddrt.service.ctlqueue import Deferred
 from ddrt.service.pathjob import Build, BuildJob, build_path, describe
@@ -131,7 +131,7 @@ def follow_step(d: Daemon, late_s: float) -> None:
         p.reply.complete(reply)
     elif build.error:
         # The start path (--follow) does not load: a bad start-up input like a bad config.
-        d.error = f"{p.what}: {build.error}"
+        d.error = config_path_error(d.cfg, build.error)  # names the config file and `path:`
         d.exit_code = 2
         d.stop_requested = True
 
