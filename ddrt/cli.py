@@ -178,7 +178,11 @@ def _cmd_ctl(args: argparse.Namespace) -> int:
     if args.command_name == "follow":
         if not args.args:
             raise ValueError("ctl follow: give a path file")
-        payload["path"] = str(Path(args.args[0]).resolve())
+        try:
+            payload.update(_follow_content(args.args[0], args))
+        except ValueError as exc:  # as the daemon's refusal would look: a JSON reply, exit 1
+            print(json.dumps({"ok": False, "error": f"follow: {exc}"}, indent=2, sort_keys=True))
+            return 1
     timeout = args.timeout
     if timeout is None:
         # A follow is answered once its path is built and followed (within the daemon's
@@ -192,6 +196,47 @@ def _cmd_ctl(args: argparse.Namespace) -> int:
         return 1
     print(json.dumps(reply, indent=2, sort_keys=True))
     return 0 if reply.get("ok") else 1
+
+
+def _follow_content(fname: str, args: argparse.Namespace) -> dict:
+    """`ddrt ctl follow FILE` sends the file's content, not its name: a sandboxed service
+    (ProtectHome, PrivateTmp, its own user) cannot see a user's files. Held to
+    paths.max_file_bytes (of --config, else the default) here too; the daemon checks again."""
+    import os
+    import stat
+
+    from ddrt.config.sections import PathsConfig
+
+    limit = PathsConfig().max_file_bytes
+    if args.config:
+        from ddrt.config import load_config
+
+        limit = load_config(args.config).paths.max_file_bytes
+    low = fname.lower()
+    fmt = "csv" if low.endswith(".csv") else "yaml" if low.endswith((".yaml", ".yml")) else None
+    if fmt is None:
+        raise ValueError(f"{fname}: unknown path file type (expected .csv, .yaml or .yml)")
+    try:
+        fd = os.open(fname, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError as exc:
+        raise ValueError(f"{fname}: cannot read: {exc.strerror or exc}") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise ValueError(f"{fname}: not a regular file")
+        if st.st_size > limit:
+            raise ValueError(f"{fname}: {st.st_size} bytes, more than paths.max_file_bytes = {limit}")
+        with os.fdopen(fd, "rb", closefd=False) as fh:
+            data = fh.read(limit + 1)
+    finally:
+        os.close(fd)
+    if len(data) > limit:
+        raise ValueError(f"{fname}: more than paths.max_file_bytes = {limit} bytes")
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{fname}: not UTF-8 text (byte {exc.start})") from None
+    return {"content": text, "format": fmt, "name": Path(fname).name}
 
 
 def _number(text: str, what: str) -> float:

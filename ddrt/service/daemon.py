@@ -267,7 +267,8 @@ class Daemon:
             try:
                 FsPath(self.socket_path).parent.mkdir(parents=True, exist_ok=True)
                 self.server = ControlServer(self.socket_path, commands=COMMANDS, priority=PRIORITY,
-                                            never_refused=NEVER_REFUSED)
+                                            never_refused=NEVER_REFUSED,
+                                            max_request_bytes=request_line_limit(cfg.paths.max_file_bytes))
             except OSError as exc:
                 self._fail(f"cannot open the control socket: {exc.strerror or exc}")
                 return 1
@@ -467,6 +468,13 @@ class Daemon:
         if self.viz is not None:
             self.viz.set_rotation(d.telemetry_max_bytes, d.telemetry_max_files)
         self.cfg = cfg
+
+
+def request_line_limit(max_file_bytes: int) -> int:
+    """The socket's longest request line: a path file's content (`follow` with `content`) up to
+    paths.max_file_bytes, JSON-escaped (a newline takes two bytes: +25% for lines of 8 bytes
+    or more), with room for the rest; 64 KiB at least. Set at start-up."""
+    return max(65536, max_file_bytes + max_file_bytes // 4 + 65536)
 
 
 def run_daemon(config_path: str, socket_path: str | None, duration: float | None, stats_json: str | None,

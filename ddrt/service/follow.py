@@ -20,7 +20,7 @@ from ddrt.path import PathError
 from ddrt.path.spec import config_path_error, speed_limits
 from ddrt.service.audit import peer_text
 from ddrt.service.ctlqueue import Deferred
-from ddrt.service.pathjob import Build, BuildJob, build_path, describe
+from ddrt.service.pathjob import Build, BuildJob, build_path, content_source, describe
 from ddrt.service.timing import select_quantiles
 from ddrt.loop import LoopState
 
@@ -79,6 +79,12 @@ def start_follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
             return {"ok": False, "error": "follow: path: expected a file name"}
         if not source or "\0" in source:
             return {"ok": False, "error": f"follow: path: not a file name: {source!r}"}
+    elif "content" in req:
+        # A path file's content (ddrt ctl follow FILE): read as that file would be.
+        try:
+            source = content_source(req, d.cfg.paths.max_file_bytes)
+        except ValueError as exc:
+            return {"ok": False, "error": f"follow: {exc}"}
     elif "points" in req or "shape" in req:
         # An inline spec: every key but the request's own goes to the path loader, which
         # refuses unknown ones and clamps limits above the config's (reported below).
@@ -86,7 +92,8 @@ def start_follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
         if "points" in source:
             source.setdefault("speed", min(0.3, speed_limits(d.cfg).v_max))
     else:
-        return {"ok": False, "error": "follow: give path (a file), points ([[x, y], ...]) or shape"}
+        return {"ok": False, "error": "follow: give path (a file the daemon reads), content (a file's text, "
+                                      "with format csv or yaml), points ([[x, y], ...]) or shape"}
     pose = req.get("pose")
     if pose is not None:
         if (not isinstance(pose, list) or len(pose) != 3
