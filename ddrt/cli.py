@@ -172,6 +172,8 @@ def _cmd_ctl(args: argparse.Namespace) -> int:
 
     if args.for_s is not None and args.command_name != "drive":
         raise ValueError("ctl: --for is for drive only")
+    if args.here and args.command_name != "follow":
+        raise ValueError("ctl: --here is for follow only")
     payload: dict = {"cmd": args.command_name}
     if args.command_name == "drive":
         return _ctl_drive(args)
@@ -183,6 +185,14 @@ def _cmd_ctl(args: argparse.Namespace) -> int:
         except ValueError as exc:  # as the daemon's refusal would look: a JSON reply, exit 1
             print(json.dumps({"ok": False, "error": f"follow: {exc}"}, indent=2, sort_keys=True))
             return 1
+        if args.here:
+            payload["here"] = True  # the daemon moves the path to start at the robot's pose
+    elif args.command_name == "pose":
+        if len(args.args) != 3:
+            raise ValueError("ctl pose: give X Y THETA (metres, metres, radians)")
+        payload["pose"] = [_number(v, name, "pose") for v, name in zip(args.args, ("X", "Y", "THETA"))]
+    elif args.args:
+        raise ValueError(f"ctl {args.command_name}: takes no arguments, got {' '.join(args.args)!r}")
     timeout = args.timeout
     if timeout is None:
         # A follow is answered once its path is built and followed (within the daemon's
@@ -239,15 +249,15 @@ def _follow_content(fname: str, args: argparse.Namespace) -> dict:
     return {"content": text, "format": fmt, "name": Path(fname).name}
 
 
-def _number(text: str, what: str) -> float:
+def _number(text: str, what: str, command: str = "drive") -> float:
     import math
 
     try:
         value = float(text)
     except ValueError:
-        raise ValueError(f"ctl drive: {what}: expected a number, got {text!r}") from None
+        raise ValueError(f"ctl {command}: {what}: expected a number, got {text!r}") from None
     if not math.isfinite(value):
-        raise ValueError(f"ctl drive: {what}: must be finite, got {text!r}")
+        raise ValueError(f"ctl {command}: {what}: must be finite, got {text!r}")
     return value
 
 
@@ -410,7 +420,10 @@ def build_parser() -> argparse.ArgumentParser:
                      help=f"seconds to wait for the reply (default 2; {FOLLOW_TIMEOUT_S:g} for follow)")
     ctl.add_argument("command_name", metavar="COMMAND",
                      choices=COMMANDS)
-    ctl.add_argument("args", nargs="*", help="follow: the path file; drive: V (m/s) and OMEGA (rad/s)")
+    ctl.add_argument("args", nargs="*", help="follow: the path file (its content is sent); drive: V (m/s) and "
+                                             "OMEGA (rad/s); pose: X Y THETA (m, m, rad) sets the robot's pose")
+    ctl.add_argument("--here", action="store_true",
+                     help="follow: place the path so that it starts at the robot's current pose and heading")
     ctl.add_argument("--for", dest="for_s", type=float, metavar="S",
                      help="drive: re-send the command at 10 Hz for S seconds, then stop")
     ctl.set_defaults(func=_cmd_ctl)

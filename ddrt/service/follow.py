@@ -88,7 +88,7 @@ def start_follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
     elif "points" in req or "shape" in req:
         # An inline spec: every key but the request's own goes to the path loader, which
         # refuses unknown ones and clamps limits above the config's (reported below).
-        source = {k: v for k, v in req.items() if k not in ("cmd", "id", "pose")}
+        source = {k: v for k, v in req.items() if k not in ("cmd", "id", "pose", "here")}
         if "points" in source:
             source.setdefault("speed", min(0.3, speed_limits(d.cfg).v_max))
     else:
@@ -101,7 +101,15 @@ def start_follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
                            for v in pose)):
             return {"ok": False, "error": "follow: pose: expected [x, y, theta]"}
         pose = (float(pose[0]), float(pose[1]), float(pose[2]))
-    job = BuildJob(source, speed_limits(d.cfg), d.cfg.paths, where="request")
+    here = req.get("here", False)
+    if not isinstance(here, bool):
+        return {"ok": False, "error": "follow: here: expected true or false"}
+    if here and pose is not None:
+        return {"ok": False, "error": "follow: here and pose: give one (here places the path at the robot's "
+                                      "pose; pose says where the robot is)"}
+    # here: the path is moved (in the worker) so that it starts at the robot's pose and heading
+    place_at = loop.estimator_pose() if here else None
+    job = BuildJob(source, speed_limits(d.cfg), d.cfg.paths, where="request", place_at=place_at)
     who = peer_text(d.server.peer if d.server is not None else "")
     what = describe(source)
     if d.paths is None:

@@ -17,7 +17,7 @@ from typing import Any, Mapping
 
 
 CONTENT_FORMATS = {"csv": ".csv", "yaml": ".yaml"}
-CONTENT_KEYS = ("cmd", "id", "pose", "content", "format", "name")
+CONTENT_KEYS = ("cmd", "id", "pose", "here", "content", "format", "name")
 
 
 @dataclass(frozen=True)
@@ -71,6 +71,7 @@ class BuildJob:
     paths: Any  # ddrt.config.sections.PathsConfig
     base_dir: str | None = None
     where: str = "<mapping>"
+    place_at: tuple[float, float, float] | None = None  # --here: the path moved to start at this pose
 
 
 @dataclass(eq=False)
@@ -155,7 +156,13 @@ def _nested_file(data: Any, base_dir: str | None) -> str | None:
 
 
 def build_path(job: BuildJob) -> Any:
-    """Check the files, then load_path (in the worker; also usable in-process)."""
+    """Check the files, then load_path (in the worker; also usable in-process); moved to
+    start at `job.place_at` when given (follow --here)."""
+    path = _load(job)
+    return path if job.place_at is None else path.moved(job.place_at)
+
+
+def _load(job: BuildJob) -> Any:
     from ddrt.config.yamlio import read_yaml
     from ddrt.path.spec import PathError, load_path
 
