@@ -172,13 +172,27 @@ def _cmd_ctl(args: argparse.Namespace) -> int:
 
     if args.for_s is not None and args.command_name != "drive":
         raise ValueError("ctl: --for is for drive only")
+    if args.here and args.command_name != "follow":
+        raise ValueError("ctl: --here is for follow only")
     payload: dict = {"cmd": args.command_name}
     if args.command_name == "drive":
         return _ctl_drive(args)
     if args.command_name == "follow":
         if not args.args:
             raise ValueError("ctl follow: give a path file")
-        payload["path"] = str(Path(args.args[0]).resolve())
+        try:
+            payload.update(_follow_content(args.args[0], args))
+        except ValueError as exc:  # as the daemon's refusal would look: a JSON reply, exit 1
+            print(json.dumps({"ok": False, "error": f"follow: {exc}"}, indent=2, sort_keys=True))
+            return 1
+        if args.here:
+            payload["here"] = True  # the daemon moves the path to start at the robot's pose
+    elif args.command_name == "pose":
+        if len(args.args) != 3:
+            raise ValueError("ctl pose: give X Y THETA (metres, metres, radians)")
+        payload["pose"] = [_number(v, name, "pose") for v, name in zip(args.args, ("X", "Y", "THETA"))]
+    elif args.args:
+        raise ValueError(f"ctl {args.command_name}: takes no arguments, got {' '.join(args.args)!r}")
     timeout = args.timeout
     if timeout is None:
         # A follow is answered once its path is built and followed (within the daemon's
@@ -194,15 +208,56 @@ def _cmd_ctl(args: argparse.Namespace) -> int:
     return 0 if reply.get("ok") else 1
 
 
-def _number(text: str, what: str) -> float:
+def _follow_content(fname: str, args: argparse.Namespace) -> dict:
+    """`ddrt ctl follow FILE` sends the file's content, not its name: a sandboxed service
+    (ProtectHome, PrivateTmp, its own user) cannot see a user's files. Held to
+    paths.max_file_bytes (of --config, else the default) here too; the daemon checks again."""
+    import os
+    import stat
+
+    from ddrt.config.sections import PathsConfig
+
+    limit = PathsConfig().max_file_bytes
+    if args.config:
+        from ddrt.config import load_config
+
+        limit = load_config(args.config).paths.max_file_bytes
+    low = fname.lower()
+    fmt = "csv" if low.endswith(".csv") else "yaml" if low.endswith((".yaml", ".yml")) else None
+    if fmt is None:
+        raise ValueError(f"{fname}: unknown path file type (expected .csv, .yaml or .yml)")
+    try:
+        fd = os.open(fname, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError as exc:
+        raise ValueError(f"{fname}: cannot read: {exc.strerror or exc}") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise ValueError(f"{fname}: not a regular file")
+        if st.st_size > limit:
+            raise ValueError(f"{fname}: {st.st_size} bytes, more than paths.max_file_bytes = {limit}")
+        with os.fdopen(fd, "rb", closefd=False) as fh:
+            data = fh.read(limit + 1)
+    finally:
+        os.close(fd)
+    if len(data) > limit:
+        raise ValueError(f"{fname}: more than paths.max_file_bytes = {limit} bytes")
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{fname}: not UTF-8 text (byte {exc.start})") from None
+    return {"content": text, "format": fmt, "name": Path(fname).name}
+
+
+def _number(text: str, what: str, command: str = "drive") -> float:
     import math
 
     try:
         value = float(text)
     except ValueError:
-        raise ValueError(f"ctl drive: {what}: expected a number, got {text!r}") from None
+        raise ValueError(f"ctl {command}: {what}: expected a number, got {text!r}") from None
     if not math.isfinite(value):
-        raise ValueError(f"ctl drive: {what}: must be finite, got {text!r}")
+        raise ValueError(f"ctl {command}: {what}: must be finite, got {text!r}")
     return value
 
 
@@ -365,7 +420,10 @@ def build_parser() -> argparse.ArgumentParser:
                      help=f"seconds to wait for the reply (default 2; {FOLLOW_TIMEOUT_S:g} for follow)")
     ctl.add_argument("command_name", metavar="COMMAND",
                      choices=COMMANDS)
-    ctl.add_argument("args", nargs="*", help="follow: the path file; drive: V (m/s) and OMEGA (rad/s)")
+    ctl.add_argument("args", nargs="*", help="follow: the path file (its content is sent); drive: V (m/s) and "
+                                             "OMEGA (rad/s); pose: X Y THETA (m, m, rad) sets the robot's pose")
+    ctl.add_argument("--here", action="store_true",
+                     help="follow: place the path so that it starts at the robot's current pose and heading")
     ctl.add_argument("--for", dest="for_s", type=float, metavar="S",
                      help="drive: re-send the command at 10 Hz for S seconds, then stop")
     ctl.set_defaults(func=_cmd_ctl)

@@ -141,6 +141,9 @@ def test_last_line_without_newline_at_eof_is_answered(server: ControlServer, loo
     (b'{"command": "status"}', "missing field 'cmd'"),
     (b'{"cmd": 5}', "must be a string"),
     (b'{"cmd": "fly", "id": "x"}', "unknown command 'fly'"),
+    # issue 22 item 14: a duplicate key is refused, naming it (it used to run the last one)
+    (b'{"cmd":"estop","cmd":"status"}', "duplicate key 'cmd'"),
+    (b'{"cmd":"follow","pose":{"a":1,"a":2}}', "duplicate key 'a'"),
     (b"[" * 5000 + b"]" * 5000, None),  # too large here; deeply nested otherwise
 ])
 def test_bad_requests_never_reach_the_loop(server: ControlServer, loop: Loop, line: bytes,

@@ -233,7 +233,7 @@ def test_sighup_applies_new_gains_live(recording: Recording) -> None:
     assert rec.gains_before["ok"] and rec.gains_before["inner"]["kp"] == 40.0
     assert rec.gains_after_hup["inner"]["kp"] == 60.0
     assert rec.gains_after_hup["inner"]["ki"] == rec.gains_before["inner"]["ki"]
-    assert rec.status_after_hup["reloads"] == {"applied": 1, "rejected": 0}
+    assert rec.status_after_hup["reloads"] == {"applied": 1, "unchanged": 0, "rejected": 0}
     assert rec.status_after_hup["state"] == "following"
     assert "reload applied: controller.inner" in rec.stderr
 
@@ -244,7 +244,7 @@ def test_bad_reload_is_rejected_and_following_goes_on(recording: Recording) -> N
     assert rec.bad_reply["ok"] is False
     assert "controller.inner.kp" in rec.bad_reply["error"]
     assert rec.status_after_bad["state"] == "following"
-    assert rec.status_after_bad["reloads"] == {"applied": 1, "rejected": 1}
+    assert rec.status_after_bad["reloads"] == {"applied": 1, "unchanged": 0, "rejected": 1}
     assert rec.gains_after_bad["inner"]["kp"] == 60.0  # the last valid gains stay
     assert "reload rejected" in rec.stderr and "controller.inner.kp" in rec.stderr
     # The loop kept ticking through the rejected reload and after it.
@@ -259,7 +259,7 @@ def test_restart_only_key_is_reported_not_applied(recording: Recording) -> None:
     reply = rec.restart_reply
     assert reply["ok"] is True
     assert "need a restart" in reply["message"] and "controller.rate_hz" in reply["message"]
-    assert rec.status_after_restart["reloads"] == {"applied": 2, "rejected": 1}
+    assert rec.status_after_restart["reloads"] == {"applied": 1, "unchanged": 1, "rejected": 1}
     assert rec.stats["rate_hz"] == RATE_HZ
     assert "controller.rate_hz changed but need a restart" in rec.stderr
     # Still 200 ticks a second after the reload, not 100.
@@ -338,7 +338,7 @@ def test_sigterm_exits_zero_within_one_second(recording: Recording) -> None:
     assert rec.returncode == 0, rec.stderr
     assert rec.t_exit - rec.t_term < 1.0, f"exit took {rec.t_exit - rec.t_term:.2f} s"
     assert rec.stats["exit_code"] == 0
-    assert rec.stats["reloads"] == {"applied": 2 + NOOP_RELOADS, "rejected": 1}
+    assert rec.stats["reloads"] == {"applied": 1, "unchanged": 1 + NOOP_RELOADS, "rejected": 1}
     assert not rec.socket_left  # the control socket file is removed on the way out
 
 
@@ -468,7 +468,9 @@ def test_reload_over_socket_on_unchanged_file(daemon: DaemonProc) -> None:
     reply = daemon.request({"cmd": "reload"})
     assert reply == {"ok": True, "message": "applied: nothing changed", "applied": [], "next_path": [], "restart": []}
     after = daemon.status()["reloads"]
-    assert after == {"applied": before["applied"] + 1, "rejected": before["rejected"]}
+    # issue 22 item 14: a reload that changed nothing is not counted as applied
+    assert after == {"applied": before["applied"], "unchanged": before["unchanged"] + 1,
+                     "rejected": before["rejected"]}
 
 
 def test_follow_shape_with_pose(daemon: DaemonProc) -> None:
@@ -893,3 +895,4 @@ def test_peak_rss_is_the_processs_own_not_its_parents() -> None:
                                              check=True, env=env).stdout.split())
     assert own < 200 * 1024, own
     assert inherited > 300 * 1024  # what ru_maxrss says: the parent's (the defect this pins)
+

@@ -197,6 +197,28 @@ class Path:
         new.warnings = list(self.warnings)
         return new
 
+    def moved(self, pose: tuple[float, float, float]) -> "Path":
+        """The same path moved rigidly so that its start pose is `pose` (x, y, heading): every
+        sample rotated about the start and translated; speeds, times and curvature unchanged."""
+        x0, y0, th0 = self.start_pose
+        x1, y1, th1 = (float(v) for v in pose)
+        dth = wrap_angle(th1 - th0)
+        c, s = math.cos(dth), math.sin(dth)
+        a = self._np
+        dx, dy = a["x"] - x0, a["y"] - y0
+        x = x1 + c * dx - s * dy
+        y = y1 + s * dx + c * dy
+        theta = a["theta"] + dth
+        new = copy.copy(self)
+        new._np = dict(a, x=x, y=y, theta=theta)
+        for arr in (x, y, theta):
+            arr.flags.writeable = False
+        new.x, new.y, new.theta = x.tolist(), y.tolist(), theta.tolist()
+        new.tx, new.ty = np.cos(theta).tolist(), np.sin(theta).tolist()
+        new.start_pose = (x1, y1, th0 + dth)
+        new.warnings = list(self.warnings)
+        return new
+
     def envelope_excess(self, envelope: "Envelope", first: int = 0) -> float:
         """How far this path's profile from sample `first` on goes beyond `envelope`, as a fraction
         of the bound exceeded (<= 0: within): is it still what that robot can drive?"""

@@ -36,7 +36,7 @@ from ddrt.path.smoothing import EndPin
 if TYPE_CHECKING:
     from ddrt.config import Config
 
-__all__ = ["PathError", "load_path", "path_source", "read_points_csv", "resolve_path", "speed_limits"]
+__all__ = ["PathError", "config_path_error", "load_path", "path_source", "read_points_csv", "resolve_path", "speed_limits"]
 
 
 class PathError(ValueError):
@@ -406,9 +406,26 @@ def speed_limits(cfg: "Config") -> SpeedLimits:
 
 
 def resolve_path(cfg: "Config", path_arg: str | None = None) -> Path:
-    """The path named on the command line, else the config's `path:` entry."""
+    """The path named on the command line, else the config's `path:` entry (its errors name
+    the config file and the key)."""
     source, kwargs = path_source(cfg, path_arg)
-    return load_path(source, speed_limits(cfg), **kwargs)
+    try:
+        return load_path(source, speed_limits(cfg), **kwargs)
+    except PathError as exc:
+        if path_arg is not None:
+            raise
+        raise PathError(config_path_error(cfg, str(exc))) from None
+
+
+def config_path_error(cfg: "Config", message: str) -> str:
+    """`message` (about the config's `path:`) naming the config file and the key, and where a
+    relative file name was looked for."""
+    where = f"{cfg.source}: path"
+    text = message if message.startswith(where) else f"{where}: {message}"
+    if (isinstance(cfg.path, str) and "cannot read" in message
+            and FsPath(cfg.path).is_relative_to(cfg.base_dir)):
+        text += f" (a relative path: resolved against the config's directory, {cfg.base_dir})"
+    return text
 
 
 def path_source(cfg: "Config", path_arg: str | None = None) -> tuple[Any, dict[str, Any]]:

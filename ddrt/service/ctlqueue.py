@@ -101,6 +101,7 @@ class LoopQueue:
         self._ring: deque[Client] = deque()
         self._seq = 0
         self._cut: dict[str, tuple[int, str]] = {}
+        self.serving: Client | None = None  # whose request the handler is answering (loop thread)
 
     def poll(self, handler: Handler, max_requests: int = 4) -> int:
         """Answer waiting requests; return how many. Never blocks.
@@ -155,6 +156,7 @@ class LoopQueue:
             data = error_line(f"{cmd} not run: the {cut[1]} sent after it was served first; "
                               f"send {cmd} again if you still mean it", rid)
         else:
+            self.serving = conn
             try:
                 reply = handler(request)
             except Exception as exc:  # the loop must survive any command
@@ -165,4 +167,6 @@ class LoopQueue:
                     reply._bind(self, conn, request)  # answered by reply.complete(), later
                     return
                 data = reply_line(reply, rid, cmd)
+            finally:
+                self.serving = None
         self.replies.append((conn, data, cmd in self.never_refused))

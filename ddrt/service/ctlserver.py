@@ -42,6 +42,7 @@ import math
 import os
 import selectors
 import socket
+import struct
 import threading
 import time
 from collections import deque
@@ -49,7 +50,7 @@ from dataclasses import dataclass, field
 from typing import Any, Iterable, Mapping
 
 from ddrt.service.ctlqueue import Handler, LoopQueue
-from ddrt.service.jsonlines import error_line, find_non_finite, strict_loads
+from ddrt.service.jsonlines import DuplicateKey, error_line, find_non_finite, strict_loads
 from ddrt.service.sockfile import listen_unix, remove_if_ours
 
 log = logging.getLogger(__name__)
@@ -60,6 +61,16 @@ _READ_CHUNK = 4096
 _LISTEN_BACKLOG = 128
 _FD_ERRORS = (errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM)
 _ACCEPT_PAUSE_S = 0.1
+
+
+def _peer_of(sock: socket.socket) -> str:
+    """The client's process and user, as the kernel tells (Linux SO_PEERCRED); '' elsewhere."""
+    try:
+        pid, uid, _gid = struct.unpack("3i", sock.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED,
+                                                             struct.calcsize("3i")))
+    except (AttributeError, OSError, struct.error):
+        return ""
+    return f"pid {pid}, uid {uid}"
 
 
 @dataclass(eq=False)
@@ -80,6 +91,7 @@ class _Conn:
     closed: bool = False
     writing: bool = False  # registered for EVENT_WRITE
     queue: deque = field(default_factory=deque)  # (seq, request) waiting for poll: loop thread only
+    peer: str = ""  # "pid P, uid U" of the client (SO_PEERCRED), for the log's audit lines
 
 
 class ControlServer:
@@ -192,6 +204,12 @@ class ControlServer:
         return self._queue.poll(handler, max_requests)
 
     @property
+    def peer(self) -> str:
+        """Who sent the request being answered ("pid P, uid U"), '' outside a handler."""
+        conn = self._queue.serving
+        return getattr(conn, "peer", "") if conn is not None else ""
+
+    @property
     def queued(self) -> int:
         """Valid requests handed to the loop whose reply has not come back yet."""
         return self._outstanding + self._outstanding_exempt
@@ -284,7 +302,7 @@ class ControlServer:
                 self._evict_one(f"too many clients (max {self.max_clients})")
             now = time.monotonic()
             conn = _Conn(sock=sock, opened=now, last_command=now, tokens=float(self.rate_burst), tokens_t=now,
-                         round=self._accept_round)
+                         round=self._accept_round, peer=_peer_of(sock))
             self._conns[sock.fileno()] = conn
             self._sel.register(sock, selectors.EVENT_READ, conn)
 
@@ -377,6 +395,9 @@ class ControlServer:
     def _handle_line(self, conn: _Conn, line: bytes, now: float) -> None:
         try:
             request, non_finite = strict_loads(line)
+        except DuplicateKey as exc:
+            self._reject(conn, f"request refused: {exc}")
+            return
         except (ValueError, RecursionError) as exc:
             self._reject(conn, f"malformed JSON: {exc}")
             return

@@ -33,9 +33,10 @@ from ddrt.config.policy import ReloadPlan
 from ddrt.config.schema import ConfigError
 from ddrt.loop import COLUMNS, ControlLoop, LoopState
 from ddrt.path import PathError
-from ddrt.path.spec import path_source, speed_limits
+from ddrt.path.spec import config_path_error, path_source, speed_limits
 from ddrt.runtime import rt
 from ddrt.runtime.clock import MonotonicClock
+from ddrt.service.audit import StateLog
 from ddrt.service.commands import COMMANDS, NEVER_REFUSED, PRIORITY
 from ddrt.service.ctlqueue import Deferred
 from ddrt.service.ctlserver import ControlServer
@@ -76,6 +77,8 @@ class Daemon:
         self.stop_requested = False
         self.reload_requested = False
         self.estop_signalled = False  # SIGUSR1: latched by the loop on its next tick
+        self.stop_signal = ""  # the signal's name (SIGTERM, SIGINT) that asked the daemon to stop
+        self.audit = StateLog(LoopState.IDLE)  # the journal's line per change of state (audit.py)
         self.exit_code = 0
         self.error: str | None = None  # why the daemon could not run or stopped on a fault
         self.lock: InstanceLock | None = None
@@ -107,7 +110,15 @@ class Daemon:
         self.clock = MonotonicClock(spin_s=cfg.daemon.spin_us * 1e-6)
         start = cfg.start or (0.0, 0.0, 0.0)
         if cfg.start is None and cfg.path is not None:
-            start = self._wait_start_path().start_pose
+            try:
+                start = self._wait_start_path().start_pose
+            except PathError as exc:
+                if self.follow_at_start:
+                    raise  # it was to be followed: a bad start-up input, exit 2
+                # Only the simulated robot's start pose came from it: not a reason to stop.
+                log.warning("%s; not followed (no --follow), so the daemon goes on: the robot starts "
+                            "at (0, 0, 0)", exc)
+                self._start_build = None
         # Every backend takes the options it needs. One whose robot runs in simulated time
         # (Hal.owns_time) starts it at `start` and, paced, brings it up to the wall clock on
         # every read, so the loop is scheduled (and its lateness measured) on the real
@@ -169,7 +180,7 @@ class Daemon:
         """A Foxglove teleop command (between two ticks): the velocity mode, as a socket
         `drive`. A refusal is logged once until the reason changes (a panel publishing at
         20 Hz while a path runs must not flood the log)."""
-        reply = drive(self, v, omega, "foxglove")
+        reply = drive(self, v, omega, "foxglove", "over Foxglove teleop")
         error = "" if reply.get("ok") else str(reply.get("error", ""))
         if error and error != self._teleop_refusal:
             log.warning("foxglove teleop refused: %s", error)
@@ -181,6 +192,7 @@ class Daemon:
     def _signals(self) -> None:
         def on_stop(signum: int, _frame: object) -> None:
             self.stop_requested = True
+            self.stop_signal = signal.Signals(signum).name
 
         def on_hup(_signum: int, _frame: object) -> None:
             self.reload_requested = True
@@ -255,7 +267,8 @@ class Daemon:
             try:
                 FsPath(self.socket_path).parent.mkdir(parents=True, exist_ok=True)
                 self.server = ControlServer(self.socket_path, commands=COMMANDS, priority=PRIORITY,
-                                            never_refused=NEVER_REFUSED)
+                                            never_refused=NEVER_REFUSED,
+                                            max_request_bytes=request_line_limit(cfg.paths.max_file_bytes))
             except OSError as exc:
                 self._fail(f"cannot open the control socket: {exc.strerror or exc}")
                 return 1
@@ -271,6 +284,7 @@ class Daemon:
     def _run_opened(self) -> int:
         cfg = self.cfg
         self.loop = loop = ControlLoop(cfg, self.hal)
+        self.audit.last = loop.state
         self._open_telemetry()
         if not self._open_viz():
             return 1
@@ -323,13 +337,14 @@ class Daemon:
         advance_plant = self.hal.advance_to_wall_clock if self.hal.owns_time else None
         viz = self.viz
         truth = self.hal.robot if viz is not None else None
+        audit = self.audit
         while not self.stop_requested:
             deadline = sched.next_deadline()
             woke = clock.sleep_until(deadline)
             if self.estop_signalled:  # SIGUSR1 (any time since the last tick, or before start)
                 self.estop_signalled = False
+                self.audit.note("estop: SIGUSR1 received; motors zeroed, latched until reset")
                 if loop.state != LoopState.ESTOP:
-                    log.warning("estop: SIGUSR1 received; motors zeroed, latched until reset")
                     loop.estop("estop: SIGUSR1")
             # Lateness is how late the tick really starts (takes its sample), not when the
             # sleep returned: the thread can lose the CPU or the GIL after waking (a busy
@@ -351,6 +366,7 @@ class Daemon:
                 ring.append(loop.row)
             compute = perf() - t0
             stats.record(compute, started - deadline, skipped)
+            audit.check(loop)  # one comparison unless the state changed
             if viz is not None:
                 viz.put(loop.row, started - deadline, compute, started,
                         truth.pose + truth.velocity if truth is not None else None)
@@ -371,6 +387,7 @@ class Daemon:
             if self.reload_requested:
                 self.reload_requested = False
                 self.reload()
+            audit.check(loop)  # a command's change of state, with who asked
             now = woke
             if now >= next_watchdog and skipped == 0:
                 notifier.watchdog()
@@ -388,7 +405,13 @@ class Daemon:
         self.notifier.stopping()
         cancel_follow(self, "the daemon is stopping")
         if self.loop is not None:
+            before = self.loop.state
             self.loop.shutdown()
+            why = (f"{self.stop_signal} received" if self.stop_signal
+                   else "after a fault" if before == LoopState.FAULT
+                   else "--duration is over" if self.exit_code == 0 and self.duration is not None
+                   else f"exit code {self.exit_code}")
+            log.info("shutdown (%s): state %s -> %s, motors zeroed", why, before.label, self.loop.state.label)
             if self.ring is not None:
                 self.ring.append(self.loop.row)
         elif self.hal is not None:
@@ -428,7 +451,7 @@ class Daemon:
                 raise PathError("stopped while the start path was being built")
             time.sleep(0.01)
         if build.error:
-            raise PathError(build.error)
+            raise PathError(config_path_error(self.cfg, build.error))
         return build.path
 
     def _apply(self, plan: ReloadPlan) -> None:
@@ -445,6 +468,13 @@ class Daemon:
         if self.viz is not None:
             self.viz.set_rotation(d.telemetry_max_bytes, d.telemetry_max_files)
         self.cfg = cfg
+
+
+def request_line_limit(max_file_bytes: int) -> int:
+    """The socket's longest request line: a path file's content (`follow` with `content`) up to
+    paths.max_file_bytes, JSON-escaped (a newline takes two bytes: +25% for lines of 8 bytes
+    or more), with room for the rest; 64 KiB at least. Set at start-up."""
+    return max(65536, max_file_bytes + max_file_bytes // 4 + 65536)
 
 
 def run_daemon(config_path: str, socket_path: str | None, duration: float | None, stats_json: str | None,

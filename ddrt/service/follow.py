@@ -17,9 +17,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ddrt.path import PathError
-from ddrt.path.spec import speed_limits
+from ddrt.path.spec import config_path_error, speed_limits
+from ddrt.service.audit import peer_text
 from ddrt.service.ctlqueue import Deferred
-from ddrt.service.pathjob import Build, BuildJob, build_path, describe
+from ddrt.service.pathjob import Build, BuildJob, build_path, content_source, describe
 from ddrt.service.timing import select_quantiles
 from ddrt.loop import LoopState
 
@@ -34,10 +35,11 @@ PREPARE_SAMPLES = 1 << 14  # lateness samples kept while a path is prepared (82 
 class PendingFollow:
     """A follow whose path is being built in the worker; the loop switches to it when ready."""
 
-    __slots__ = ("build", "pose", "reply", "what", "ticks", "late", "missed0")
+    __slots__ = ("build", "pose", "reply", "what", "ticks", "late", "missed0", "who")
 
     def __init__(self, build: Build, pose: tuple[float, float, float] | None, reply: Deferred | None,
-                 what: str, missed0: int) -> None:
+                 what: str, missed0: int, who: str = "") -> None:
+        self.who = who  # who asked, over which channel (the log's audit line)
         self.build = build
         self.pose = pose
         self.reply = reply
@@ -77,14 +79,21 @@ def start_follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
             return {"ok": False, "error": "follow: path: expected a file name"}
         if not source or "\0" in source:
             return {"ok": False, "error": f"follow: path: not a file name: {source!r}"}
+    elif "content" in req:
+        # A path file's content (ddrt ctl follow FILE): read as that file would be.
+        try:
+            source = content_source(req, d.cfg.paths.max_file_bytes)
+        except ValueError as exc:
+            return {"ok": False, "error": f"follow: {exc}"}
     elif "points" in req or "shape" in req:
         # An inline spec: every key but the request's own goes to the path loader, which
         # refuses unknown ones and clamps limits above the config's (reported below).
-        source = {k: v for k, v in req.items() if k not in ("cmd", "id", "pose")}
+        source = {k: v for k, v in req.items() if k not in ("cmd", "id", "pose", "here")}
         if "points" in source:
             source.setdefault("speed", min(0.3, speed_limits(d.cfg).v_max))
     else:
-        return {"ok": False, "error": "follow: give path (a file), points ([[x, y], ...]) or shape"}
+        return {"ok": False, "error": "follow: give path (a file the daemon reads), content (a file's text, "
+                                      "with format csv or yaml), points ([[x, y], ...]) or shape"}
     pose = req.get("pose")
     if pose is not None:
         if (not isinstance(pose, list) or len(pose) != 3
@@ -92,7 +101,16 @@ def start_follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
                            for v in pose)):
             return {"ok": False, "error": "follow: pose: expected [x, y, theta]"}
         pose = (float(pose[0]), float(pose[1]), float(pose[2]))
-    job = BuildJob(source, speed_limits(d.cfg), d.cfg.paths, where="request")
+    here = req.get("here", False)
+    if not isinstance(here, bool):
+        return {"ok": False, "error": "follow: here: expected true or false"}
+    if here and pose is not None:
+        return {"ok": False, "error": "follow: here and pose: give one (here places the path at the robot's "
+                                      "pose; pose says where the robot is)"}
+    # here: the path is moved (in the worker) so that it starts at the robot's pose and heading
+    place_at = loop.estimator_pose() if here else None
+    job = BuildJob(source, speed_limits(d.cfg), d.cfg.paths, where="request", place_at=place_at)
+    who = peer_text(d.server.peer if d.server is not None else "")
     what = describe(source)
     if d.paths is None:
         # A Daemon that is not running (tests, tools): no loop to protect, build here.
@@ -101,10 +119,10 @@ def start_follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
             build._finish(path=build_path(job))
         except (PathError, ValueError, TypeError, OSError) as exc:
             return {"ok": False, "error": f"follow: {exc}"}
-        return switch(d, PendingFollow(build, pose, None, what, d.stats.missed), build)
+        return switch(d, PendingFollow(build, pose, None, what, d.stats.missed, who), build)
     build = d.paths.submit(job)
     reply = Deferred()
-    d._pending = PendingFollow(build, pose, reply, what, d.stats.missed)
+    d._pending = PendingFollow(build, pose, reply, what, d.stats.missed, who)
     log.info("follow: preparing %s", what)
     return reply
 
@@ -128,7 +146,7 @@ def follow_step(d: Daemon, late_s: float) -> None:
         p.reply.complete(reply)
     elif build.error:
         # The start path (--follow) does not load: a bad start-up input like a bad config.
-        d.error = f"{p.what}: {build.error}"
+        d.error = config_path_error(d.cfg, build.error)  # names the config file and `path:`
         d.exit_code = 2
         d.stop_requested = True
 
@@ -142,6 +160,7 @@ def switch(d: Daemon, p: PendingFollow, build: Build) -> dict[str, Any]:
     try:
         if loop.state in (LoopState.FOLLOWING, LoopState.STOPPING, LoopState.DRIVING):
             raise ValueError(f"already {loop.state}")
+        d.audit.note(f"follow of {p.what} {p.who or 'at start-up (--follow)'}", always=False)
         loop.follow(path, p.pose)
     except (ValueError, RuntimeError) as exc:
         if d.paths is not None:

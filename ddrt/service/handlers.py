@@ -10,16 +10,22 @@ completes later (a follow, once its path is built).
 
 from __future__ import annotations
 
+import logging
+import math
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping
 
+from ddrt.service.audit import peer_text
 from ddrt.service.commands import COMMANDS
 from ddrt.service.ctlqueue import Deferred
 from ddrt.service.drivecmd import drive_fields
 from ddrt.service.follow import cancel_follow, start_follow
+from ddrt.core.wrap import wrap_angle
 from ddrt.loop import LoopState
 
 if TYPE_CHECKING:
     from ddrt.service.daemon import Daemon
+
+log = logging.getLogger("ddrt.service.daemon")
 
 CommandHandler = Callable[["Daemon", dict[str, Any]], "dict[str, Any] | Deferred"]
 
@@ -35,7 +41,7 @@ def command_table(handlers: Mapping[str, CommandHandler], commands: Iterable[str
     return dict(handlers)
 
 
-def drive(d: Daemon, v: object, omega: object, source: str) -> dict[str, Any]:
+def drive(d: Daemon, v: object, omega: object, source: str, channel: str = "") -> dict[str, Any]:
     """Velocity mode (ddrt/core/drive.py): hold (v, omega) until the next drive, a stop
     or daemon.command_timeout_s without one. The one entry for every caller (the control
     socket, a teleop bridge), between two ticks; a refusal changes nothing."""
@@ -49,6 +55,7 @@ def drive(d: Daemon, v: object, omega: object, source: str) -> dict[str, Any]:
         v_lim, w_lim, clamped = loop.drive(v, omega, source)
     except (ValueError, RuntimeError) as exc:
         return {"ok": False, "error": f"drive: {exc}"}
+    d.audit.note(f"drive {channel or 'over ' + source}", always=False)
     if old is not None and loop.path is None and d.paths is not None:
         d.paths.dispose(old)  # the last path's samples are freed off the loop
     reply: dict[str, Any] = {"ok": True, "state": loop.state.label, "v": v_lim, "omega": w_lim,
@@ -56,6 +63,11 @@ def drive(d: Daemon, v: object, omega: object, source: str) -> dict[str, Any]:
     if clamped:
         reply["clamped"] = list(clamped)
     return reply
+
+
+def who(d: Daemon) -> str:
+    """'over the control socket (pid P, uid U)': the request being answered."""
+    return peer_text(d.server.peer if d.server is not None else "")
 
 
 def vars_of(obj: Any) -> dict[str, Any]:
@@ -75,6 +87,7 @@ def _gains(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
 def _stop(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
     loop = d.loop
     assert loop is not None
+    d.audit.note(f"stop {who(d)}")
     cancelled = cancel_follow(d, "cancelled by stop")
     loop.stop()
     return {"ok": True, "state": loop.state.label, **cancelled}
@@ -83,6 +96,7 @@ def _stop(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
 def _estop(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
     loop = d.loop
     assert loop is not None
+    d.audit.note(f"estop {who(d)}")
     loop.estop("estop requested over the control socket")
     cancelled = cancel_follow(d, "cancelled by estop")
     return {"ok": True, "state": loop.state.label, **cancelled}
@@ -95,6 +109,7 @@ def _resume(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
     assert loop is not None
     try:
         loop.resume()
+        d.audit.note(f"resume {who(d)}")
     except ValueError as exc:
         return {"ok": False, "error": f"resume: {exc} (only a path interrupted by a hold, "
                                       "with daemon.on_recover: wait, is resumed)"}
@@ -104,8 +119,42 @@ def _resume(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
 def _reset(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
     loop = d.loop
     assert loop is not None
+    d.audit.note(f"reset {who(d)}")
     loop.reset()
+    # The pose starts again from (0, 0, 0): a path is placed in this frame (or with --here).
+    loop.estimator.set_pose((0.0, 0.0, 0.0))
     return {"ok": True, "state": loop.state.label}
+
+
+POSE_BOUND_M = 1e6
+
+
+def _pose(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
+    """Set the estimator's pose: {"cmd": "pose", "pose": [x, y, theta]} (m, m, rad). Refused
+    while the robot moves along a reference or a follow is prepared; changes nothing then."""
+    loop = d.loop
+    assert loop is not None
+    extra = sorted(k for k in req if k not in ("cmd", "id", "pose"))
+    if extra:
+        return {"ok": False, "error": f"pose: {extra[0]}: unknown key (give pose: [x, y, theta])"}
+    pose = req.get("pose")
+    if not isinstance(pose, list) or len(pose) != 3:
+        return {"ok": False, "error": "pose: pose: expected [x, y, theta] (metres, metres, radians)"}
+    for name, v in zip(("x", "y", "theta"), pose):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            return {"ok": False, "error": f"pose: {name}: expected a finite number, got {v!r:.40}"}
+        if abs(v) > POSE_BOUND_M:
+            return {"ok": False, "error": f"pose: {name}: {v:g} is beyond +-{POSE_BOUND_M:g}"}
+    if loop.state in (LoopState.FOLLOWING, LoopState.STOPPING, LoopState.DRIVING, LoopState.HOLDING):
+        return {"ok": False, "error": f"pose: refused while {loop.state}: send stop, and set the pose once "
+                                      "status says 'stopped'"}
+    if d._pending is not None:
+        return {"ok": False, "error": f"pose: refused while preparing {d._pending.what} to follow: "
+                                      "send stop to cancel it"}
+    x, y, theta = float(pose[0]), float(pose[1]), wrap_angle(float(pose[2]))
+    loop.estimator.set_pose((x, y, theta))
+    log.info("pose set to (%.4f, %.4f, %.4f) %s", x, y, theta, who(d))
+    return {"ok": True, "state": loop.state.label, "pose": [x, y, theta]}
 
 
 def _reload(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
@@ -117,7 +166,7 @@ def _drive(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
         v, omega = drive_fields(req)
     except ValueError as exc:
         return {"ok": False, "error": f"drive: {exc}"}
-    return drive(d, v, omega, "control socket")
+    return drive(d, v, omega, "control socket", who(d))
 
 
 def _follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
@@ -132,5 +181,5 @@ def _follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
 
 HANDLERS = command_table({
     "status": _status, "follow": _follow, "drive": _drive, "stop": _stop, "resume": _resume,
-    "estop": _estop, "reset": _reset, "gains": _gains, "reload": _reload,
+    "estop": _estop, "reset": _reset, "gains": _gains, "reload": _reload, "pose": _pose,
 }, COMMANDS)

@@ -1,5 +1,5 @@
 """Strict JSON lines, the control socket's framing both ways: one JSON value per line, and no
-NaN or Infinity (they are not JSON).
+NaN or Infinity (they are not JSON), and no key twice in one object.
 
 A request that holds one is refused with an error naming the field (`strict_loads` marks
 them, `find_non_finite` says where); a reply that would hold one goes out with null there
@@ -24,9 +24,26 @@ class NonFinite:
         self.token = token
 
 
+class DuplicateKey(ValueError):
+    """An object gives the same key twice: which value was meant is not for the server to guess."""
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    obj = dict(pairs)
+    if len(obj) != len(pairs):
+        seen: set[str] = set()
+        for key, _ in pairs:
+            if key in seen:
+                raise DuplicateKey(f"duplicate key {key!r}: each key at most once per object")
+            seen.add(key)
+    return obj
+
+
 def strict_loads(line: bytes | str) -> tuple[Any, bool]:
-    """json.loads that turns NaN, Infinity, -Infinity and 1e999 into NonFinite markers;
-    returns (value, whether any was found), so a clean request costs no second walk."""
+    """json.loads that turns NaN, Infinity, -Infinity and 1e999 into NonFinite markers and
+    refuses an object with a duplicate key (DuplicateKey, a ValueError naming it: the config's
+    YAML reader refuses them too); returns (value, whether a non-finite number was found), so
+    a clean request costs no second walk."""
     found = False
 
     def constant(token: str) -> NonFinite:
@@ -38,7 +55,7 @@ def strict_loads(line: bytes | str) -> tuple[Any, bool]:
         value = float(token)
         return value if math.isfinite(value) else constant(token)
 
-    value = json.loads(line, parse_constant=constant, parse_float=number)
+    value = json.loads(line, parse_constant=constant, parse_float=number, object_pairs_hook=_unique_keys)
     return (value, found)
 
 

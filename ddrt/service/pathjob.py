@@ -16,6 +16,52 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 
+CONTENT_FORMATS = {"csv": ".csv", "yaml": ".yaml"}
+CONTENT_KEYS = ("cmd", "id", "pose", "here", "content", "format", "name")
+
+
+@dataclass(frozen=True)
+class PathContent:
+    """A path file's content sent over the socket (`ddrt ctl follow FILE`), so a sandboxed
+    daemon (ProtectHome, PrivateTmp) follows a file it cannot see: read as that file would be."""
+
+    text: str
+    format: str  # "csv" or "yaml"
+    name: str  # the file's name on the client's side, for messages
+
+    @property
+    def label(self) -> str:
+        return f"{self.name} (sent as content)"
+
+
+def content_source(req: Mapping[str, Any], max_bytes: int) -> PathContent:
+    """The follow request's content form, checked as strictly as a file; ValueError naming
+    the field."""
+    extra = sorted(k for k in req if k not in CONTENT_KEYS)
+    if extra:
+        raise ValueError(f"{extra[0]}: not a key of the content form (it takes content, format, name, pose)")
+    text = req["content"]
+    if not isinstance(text, str):
+        raise ValueError("content: expected the file's text as a string")
+    name = req.get("name", "content")
+    if not isinstance(name, str) or not name or "\0" in name or "/" in name or len(name) > 255:
+        raise ValueError(f"name: expected a file name without a directory, got {name!r:.80}")
+    fmt = req.get("format")
+    if fmt is None:
+        fmt = next((f for f, ext in CONTENT_FORMATS.items() if name.lower().endswith(ext)), None)
+        if fmt is None and name.lower().endswith(".yml"):
+            fmt = "yaml"
+    if fmt not in CONTENT_FORMATS:
+        raise ValueError(f"format: expected 'csv' or 'yaml', got {fmt!r:.40}")
+    try:
+        size = len(text.encode("utf-8"))
+    except UnicodeEncodeError:
+        raise ValueError(f"content: {name} is not valid UTF-8 text") from None
+    if size > max_bytes:
+        raise ValueError(f"content: {name}: {size} bytes, more than paths.max_file_bytes = {max_bytes}")
+    return PathContent(text, fmt, name)
+
+
 @dataclass(frozen=True)
 class BuildJob:
     """What to build: load_path's arguments (picklable), and where to name it in messages."""
@@ -25,6 +71,7 @@ class BuildJob:
     paths: Any  # ddrt.config.sections.PathsConfig
     base_dir: str | None = None
     where: str = "<mapping>"
+    place_at: tuple[float, float, float] | None = None  # --here: the path moved to start at this pose
 
 
 @dataclass(eq=False)
@@ -52,6 +99,8 @@ class Build:
 
 def describe(source: Any) -> str:
     """A short name of a path source for logs and status."""
+    if isinstance(source, PathContent):
+        return source.label
     if isinstance(source, str):
         return source
     if isinstance(source, Mapping):
@@ -107,12 +156,20 @@ def _nested_file(data: Any, base_dir: str | None) -> str | None:
 
 
 def build_path(job: BuildJob) -> Any:
-    """Check the files, then load_path (in the worker; also usable in-process)."""
+    """Check the files, then load_path (in the worker; also usable in-process); moved to
+    start at `job.place_at` when given (follow --here)."""
+    path = _load(job)
+    return path if job.place_at is None else path.moved(job.place_at)
+
+
+def _load(job: BuildJob) -> Any:
     from ddrt.config.yamlio import read_yaml
     from ddrt.path.spec import PathError, load_path
 
     limit = job.paths.max_file_bytes
     src = job.source
+    if isinstance(src, PathContent):
+        return _build_content(job, src)
     nested = None
     if isinstance(src, (str, os.PathLike)):
         fname = os.fspath(src)
@@ -131,3 +188,37 @@ def build_path(job: BuildJob) -> Any:
         except PathError as exc:
             raise PathError(f"{where}: key 'file': {exc}") from None
     return load_path(src, job.limits, base_dir=job.base_dir, paths=job.paths, where=job.where)
+
+
+def _build_content(job: BuildJob, content: PathContent) -> Any:
+    """A path sent as content: written to a private temporary file and loaded as a file is
+    (the same size, UTF-8 and loader checks); messages name the client's file name."""
+    import tempfile
+
+    from ddrt.config.yamlio import load_yaml_text
+    from ddrt.path.spec import PathError
+
+    label = content.label
+    if content.format == "yaml":
+        data = load_yaml_text(content.text, label, PathError)
+        if isinstance(data, Mapping) and "file" in data:
+            fname = data["file"]
+            if not isinstance(fname, str) or not os.path.isabs(fname):
+                raise PathError(f"{label}: key 'file': {fname!r} is relative, and a path sent as content has "
+                                "no directory to resolve it against: send the CSV itself "
+                                "(ddrt ctl follow FILE.csv), or name it by an absolute path the daemon can read")
+            try:
+                check_path_file(fname, job.paths.max_file_bytes, PathError)
+            except PathError as exc:
+                raise PathError(f"{label}: key 'file': {exc} (the daemon reads that file itself, as uid "
+                                f"{os.getuid()}: a sandboxed service (ProtectHome, PrivateTmp) cannot see "
+                                "/home or /tmp; send the CSV itself)") from None
+    with tempfile.TemporaryDirectory(prefix="ddrt-follow-") as tmp:
+        base = os.path.splitext(content.name)[0] or "content"
+        fname = os.path.join(tmp, base + CONTENT_FORMATS[content.format])
+        with open(fname, "w", encoding="utf-8") as fh:
+            fh.write(content.text)
+        try:
+            return build_path(BuildJob(fname, job.limits, job.paths, None, label))
+        except PathError as exc:
+            raise PathError(str(exc).replace(fname, label)) from None

@@ -4,8 +4,9 @@ put in force by the daemon between two ticks, bumplessly.
 
 A file that does not load, or whose mix with the running restart-only values breaks a rule,
 changes nothing; the reply lists exactly what was applied (live, or from the next path) and
-what waits for a restart. The tally of applied and rejected reloads goes to status and
---stats-json.
+what waits for a restart. The tally of reloads goes to status and --stats-json: `applied`
+(something new put in force), `unchanged` (valid, nothing new in force: nothing changed, or
+only restart-only keys) and `rejected`.
 """
 
 from __future__ import annotations
@@ -42,7 +43,9 @@ class Reloader:
         self.notifier = notifier
         self._running = running
         self._put_in_force = put_in_force
-        self.counts = {"applied": 0, "rejected": 0}
+        # applied: put something new in force (live or from the next path); unchanged: valid,
+        # but nothing new in force (nothing changed, or only keys that need a restart).
+        self.counts = {"applied": 0, "unchanged": 0, "rejected": 0}
         self._version = file_version(config_path)
 
     def reload(self) -> dict[str, Any]:
@@ -61,7 +64,7 @@ class Reloader:
                 self._put_in_force(plan)
             except (ValueError, TypeError, ArithmeticError) as exc:
                 return self._reject(f"{self.config_path}: not applied: {exc}")
-            self.counts["applied"] += 1
+            self._count(plan)
             if plan.restart:
                 log.warning("reload: %s changed but need a restart to take effect", ", ".join(plan.restart))
             log.info("reload %s", plan.summary())
@@ -84,9 +87,12 @@ class Reloader:
             self._put_in_force(plan)
         except (ConfigError, ValueError, TypeError, ArithmeticError) as exc:
             return self._reject(f"{who}: {exc}")
-        self.counts["applied"] += 1
+        self._count(plan)
         log.info("%s: %s", who, plan.summary())
         return {"ok": True, "message": plan.summary(), **plan.report()}
+
+    def _count(self, plan: ReloadPlan) -> None:
+        self.counts["applied" if plan.live or plan.next_path else "unchanged"] += 1
 
     def changed_on_disk(self) -> bool:
         """daemon.watch_config: has the file changed since it was last read?"""
