@@ -715,3 +715,33 @@ def test_out_of_descriptors_still_serves_a_newcomer_without_spinning(sockdir: st
             s.close()
         child.kill()
         child.wait(timeout=10)
+
+
+def test_large_unfinished_lines_share_one_budget(sockdir: str) -> None:
+    """A line limit sized for a path sent as content lets two such lines be received at a
+    time, not one per client: the third is refused (and discarded), the first two go through."""
+    limit = 300_000
+    srv = ControlServer(os.path.join(sockdir, "big.sock"), commands=COMMANDS, max_request_bytes=limit)
+    lp = Loop(srv)
+    try:
+        pad = b"x" * (limit - 1000)
+        head = b'{"cmd": "gains", "arg": "'
+        socks = [raw(srv) for _ in range(3)]
+        for s in socks[:2]:
+            s.sendall(head + pad)
+        # Both unfinished lines are held before the third one arrives.
+        t_end = time.monotonic() + 60.0
+        while srv._large_buffered() < 2 * len(pad) and time.monotonic() < t_end:
+            time.sleep(0.01)
+        socks[2].sendall(head + pad[:100_000])
+        refused = read_line(socks[2])
+        assert refused["ok"] is False and "other large requests" in refused["error"]
+        for s in socks[:2]:
+            s.sendall(b'"}\n')
+            reply = read_line(s)
+            assert reply["ok"] is True and len(reply["arg"]) == len(pad)
+        for s in socks:
+            s.close()
+    finally:
+        lp.stop()
+        srv.close()

@@ -73,6 +73,9 @@ def _peer_of(sock: socket.socket) -> str:
     return f"pid {pid}, uid {uid}"
 
 
+SMALL_LINE_BYTES = 65536  # every command but a follow with content fits in this
+
+
 @dataclass(eq=False)
 class _Conn:
     sock: socket.socket
@@ -145,6 +148,9 @@ class ControlServer:
             if unknown:
                 raise ValueError(f"ControlServer: priority/never_refused name unknown commands {sorted(unknown)}")
         self.max_request_bytes = max_request_bytes
+        # Unfinished lines over SMALL_LINE_BYTES share one budget, so a large line limit (a
+        # path sent as content) lets two such requests in at a time, not one per client.
+        self.max_large_buffered = 2 * max_request_bytes
         self.max_clients = max_clients
         self.max_queued = max_queued
         self.max_pending_per_client = max_pending_per_client
@@ -376,6 +382,10 @@ class ControlServer:
                     self._reject(conn, f"request too large (max {self.max_request_bytes} bytes per line)")
                     buf.clear()
                     conn.discarding = True
+                elif len(buf) > SMALL_LINE_BYTES and self._large_buffered() > self.max_large_buffered:
+                    self._reject(conn, "request refused: other large requests are being received; send it again")
+                    buf.clear()
+                    conn.discarding = True
                 break
             line = bytes(buf[:i])
             del buf[: i + 1]
@@ -391,6 +401,10 @@ class ControlServer:
                 conn.line_started = now
         else:
             conn.line_started = None
+
+    def _large_buffered(self) -> int:
+        """Bytes held in unfinished lines longer than SMALL_LINE_BYTES, over every client."""
+        return sum(len(c.buf) for c in self._conns.values() if len(c.buf) > SMALL_LINE_BYTES)
 
     def _handle_line(self, conn: _Conn, line: bytes, now: float) -> None:
         try:
