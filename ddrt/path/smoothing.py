@@ -40,14 +40,16 @@ from typing import Callable
 import numpy as np
 
 from ddrt.path.geometry import GeometryOptions, Piece, line_piece, polyline_geometry
+from ddrt.path.noise import arc_parameter, chase_floor
 
 __all__ = ["CurveStops", "EndPin", "FitError", "FitRequest", "FittedLeg", "ToleranceUnmet", "chord_length",
-           "estimate_noise", "fit_leg"]
+           "fit_leg", "staircase_noise"]
 
 DISCREPANCY = 1.1  # RMS lateral residual allowed, in estimated noise sigmas
 MAX_SMOOTHING_M = 4.0  # longest smoothing length tried
 MAX_SMOOTHING_KNOTS = 40.0  # and at most this many knots (beyond, the normal equations lose precision)
 _FIX_WEIGHT = 1e6  # weight (relative to the largest) of a leg end fixed at a corner
+CUSP_SWING = 0.25 * math.pi  # rad: a heading turning this much within an eighth of a knot stops and reverses
 SEARCH_POINTS = 4000  # a longer leg chooses its smoothing on windows of this many points
 
 
@@ -298,12 +300,11 @@ def _project(sp: _Spline, p: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.
     return sign * dist, uu
 
 
-def _residual_share(ell_over_knot: float) -> float:
-    """RMS share of white noise a Whittaker smoother of this length leaves in the residuals."""
-    w = np.linspace(0.0, math.pi, 2001)[1:]
-    g = ell_over_knot ** 6 * (2.0 * np.sin(0.5 * w)) ** 6
-    return float(np.sqrt(np.mean((g / (1.0 + g)) ** 2)))
-
+def _spread(d: np.ndarray) -> float:
+    """The residuals' noise-like spread: 1.4826 x their median absolute value, which a few points
+    bent off by a pinned end or a tight bend do not raise (the tolerance deals with those, point
+    by point), where an RMS would make the whole leg follow the noise for them."""
+    return float(1.4826 * np.median(np.abs(d))) if len(d) else 0.0
 
 
 def chord_length(p: np.ndarray) -> np.ndarray:
@@ -352,6 +353,11 @@ def _sample_piece(sp: _Spline, step: float, start: np.ndarray | None, end: np.nd
     speed = np.hypot(dx, dy)
     if not np.all(speed > 1e-6 * float(np.max(speed))):
         raise CurveStops(float(uf[int(np.argmin(speed))]))
+    # A heading that swings by more than CUSP_SWING within an eighth of a knot is a cusp the
+    # speed test missed (the curve nearly stops and turns back).
+    swing = np.abs(np.arctan2(dx[:-1] * dy[1:] - dy[:-1] * dx[1:], dx[:-1] * dx[1:] + dy[:-1] * dy[1:]))
+    if swing.size and float(swing.max()) > CUSP_SWING:
+        raise CurveStops(float(uf[int(np.argmax(swing))]))
     sf = np.concatenate(([0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(uf))))
     total = float(sf[-1])
     n = max(2, int(math.ceil(total / step - 1e-9)))
@@ -404,7 +410,7 @@ def _choose_smoothing(q: np.ndarray, u: np.ndarray, w: np.ndarray, fixed: np.nda
         except FitError:  # smoothing so heavy the system is ill-conditioned: too heavy
             return False
         d, _ = _project(sp, q, u)
-        return float(np.sqrt(np.mean(d[~fixed] ** 2))) <= DISCREPANCY * noise
+        return _spread(d[~fixed]) <= DISCREPANCY * noise
 
     total = float(u[-1])
     ladder = [ell_lo * 2.0 ** (k / 2.0) for k in range(40)]
@@ -462,7 +468,7 @@ def fit_leg(req: FitRequest) -> FittedLeg:
     if wrap is not None:
         core = slice(len(wrap[0]), len(wrap[0]) + len(q))
         q = np.concatenate((wrap[0], q, wrap[1]))
-    u = chord_length(q)
+    u = chord_length(q) if cell_axis is not None else arc_parameter(q, req.noise)
     h = np.diff(u)
     w = 0.5 * (np.concatenate((h, [0.0])) + np.concatenate(([0.0], h)))
     fixed = np.zeros(len(q), dtype=bool)  # not checked against the tolerance
@@ -478,8 +484,11 @@ def fit_leg(req: FitRequest) -> FittedLeg:
     fit = _LegFit(q, u, w, knot, held)
     nrow = fit.nc - 3
     kn = fit.spline.knot
-    ell_min = 0.5 * kn
     ell, fits = _choose_smoothing(q, u, w, fixed, knot, req.noise, held)
+    # The tolerance may lower the smoothing round a point that is out, but not so far that the
+    # curve follows the noise (noise.chase_floor; a grid plan's staircase is not noise).
+    floor = 0.0 if cell_axis is not None else chase_floor(req.noise, float(u[-1]) / max(len(u) - 1, 1))
+    ell_min = max(0.5 * kn, min(floor, ell))
     lam = np.full(nrow, fit.lam(ell))
     lam_min = fit.lam(ell_min)
     reach = int(math.ceil(ell / kn)) + 3
@@ -497,8 +506,9 @@ def fit_leg(req: FitRequest) -> FittedLeg:
         np.add.at(rows, np.clip(jb + reach + 1, 0, nrow), -1.0)
         near = np.cumsum(rows)[:nrow] > 0
         if np.all(lam[near] <= lam_min * (1.0 + 1e-9)):
-            # Smoothing as low as it goes: let the points that are still out pull harder.
-            if np.all(fit.w[bad] >= 256.0 * w[bad]):
+            # Smoothing as low as it goes: where the noise does not set that floor, let the
+            # points that are still out pull harder.
+            if ell_min > 0.5 * kn * (1.0 + 1e-9) or np.all(fit.w[bad] >= 256.0 * w[bad]):
                 break
             fit.set_weights(np.where(bad, fit.w * 4.0, fit.w))
         else:
@@ -515,12 +525,21 @@ def fit_leg(req: FitRequest) -> FittedLeg:
     return FittedLeg([piece], float(piece.theta[0]), float(piece.theta[-1]), sig, dev[core], ell, fits)
 
 
-def estimate_noise(p: np.ndarray, knot: float) -> float:
-    """Lateral noise of the points (1 sigma): residuals of a light fit, scaled by the share it
-    leaves (on three windows of a long polyline); 0 for too few points. Raises FitError."""
+def _residual_share(ell_over_knot: float) -> float:
+    """RMS share of white noise a Whittaker smoother of this length leaves in the residuals."""
+    w = np.linspace(0.0, math.pi, 2001)[1:]
+    g = ell_over_knot ** 6 * (2.0 * np.sin(0.5 * w)) ** 6
+    return float(np.sqrt(np.mean((g / (1.0 + g)) ** 2)))
+
+
+def staircase_noise(p: np.ndarray, knot: float) -> float:
+    """A grid plan's zig-zag about the curve it stands for, as a noise level (1 sigma): the
+    residuals of a light fit (3 cells), scaled by the share of white noise it leaves (on three
+    windows of a long plan); 0 for too few points. The smoothing removes that much. (Recordings
+    have ddrt/path/noise.py: a staircase is not white noise, and its steps are the cells.)"""
     if len(p) > SEARCH_POINTS:
         starts = np.linspace(0, len(p) - SEARCH_POINTS, 3).astype(int).tolist()
-        return float(np.median([estimate_noise(p[a:a + SEARCH_POINTS], knot) for a in starts]))
+        return float(np.median([staircase_noise(p[a:a + SEARCH_POINTS], knot) for a in starts]))
     u = chord_length(p)
     if len(p) < 8 or u[-1] < 6.0 * knot:
         return 0.0
@@ -530,4 +549,3 @@ def estimate_noise(p: np.ndarray, knot: float) -> float:
     sp = fit.solve(np.full(fit.nc - 3, fit.lam(3.0 * fit.spline.knot)))
     d, _ = _project(sp, p, u)
     return float(1.4826 * np.median(np.abs(d)) / _residual_share(3.0))
-
