@@ -287,8 +287,8 @@ def _leg_pins(ends: tuple[EndPin | None, EndPin | None], corners: list[CornerPin
     stops: list[EndPin | None] = []
     for c in corners:
         held = tangents and c.into is not None and c.out is not None
-        stops.append(EndPin(c.point, c.into if held else None))
-        starts.append(EndPin(c.point, c.out if held else None))
+        stops.append(EndPin(c.point, c.into if held else None, c.settle))
+        starts.append(EndPin(c.point, c.out if held else None, c.settle))
     stops.append(ends[1])
     return list(zip(starts, stops))
 
@@ -363,7 +363,7 @@ def _fit(plan: _Plan, j: int, a: int, b: int, where: str, names: Sequence[str]) 
 
 def _point_only(pin: EndPin | None, at_corner: bool) -> EndPin | None:
     """A corner's pin without its tangent (the polyline's own ends are kept as given)."""
-    return EndPin(pin.point) if at_corner and pin is not None and pin.slope is not None else pin
+    return EndPin(pin.point, None, pin.settle) if at_corner and pin is not None and pin.slope is not None else pin
 
 
 def _assemble(plan: _Plan, caps: np.ndarray | None, info: Conditioning, where: str,

@@ -114,10 +114,13 @@ def find_corners(p: np.ndarray, u: np.ndarray, scale: float, threshold: float,
 
 
 class CornerPin:
-    """Where a corner is, and the directions of travel into it and out of it (None: free)."""
+    """Where a corner is, the directions of travel into it and out of it (None: free), and the
+    length either side over which the legs leave their points to meet there (`settle`: a
+    reversal's corner lies midway between its legs, off both)."""
 
-    def __init__(self, point: np.ndarray, into: np.ndarray | None = None, out: np.ndarray | None = None) -> None:
-        self.point, self.into, self.out = point, into, out
+    def __init__(self, point: np.ndarray, into: np.ndarray | None = None, out: np.ndarray | None = None,
+                 settle: float = 0.0) -> None:
+        self.point, self.into, self.out, self.settle = point, into, out, settle
 
 
 def _side_line(p: np.ndarray, sel: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
@@ -161,7 +164,8 @@ def refine_corner(p: np.ndarray, u: np.ndarray, k: int, scale: float, tol: float
         return CornerPin(p[k].copy())
     (c1, d1), (c2, d2) = before, after
     den = d1[0] * d2[1] - d1[1] * d2[0]
-    if abs(den) >= math.sin(math.radians(10.0)):
+    parallel = abs(den) < math.sin(math.radians(10.0))
+    if not parallel:
         r = c2 - c1
         x = c1 + (r[0] * d2[1] - r[1] * d2[0]) / den * d1
     else:
@@ -171,4 +175,4 @@ def refine_corner(p: np.ndarray, u: np.ndarray, k: int, scale: float, tol: float
     zone = np.flatnonzero(np.abs(u - u[k]) <= 0.5 * scale)
     if float(np.max(_ray_distance(p[zone], x, d1, d2))) > tol:
         return None
-    return CornerPin(x, d1, d2)
+    return CornerPin(x, d1, d2, scale if parallel else 0.0)

@@ -179,7 +179,9 @@ def _joined_conditioning(pts: list[Point], names: list[str],
     corners = tuple(replace(k, index=k.index + a) for a, c in conds for k in c.corners)
     xy = np.array([(p[0], p[1]) for p in pts], dtype=float)
     seg = np.hypot(*np.diff(xy, axis=0).T)
-    out = Conditioning(first.mode, first.tolerance_m, xy, names, deviation_m=worst.deviation_m,
+    # Each run's tolerance (`auto` sets one per run, from the pooled noise and its points).
+    tol = max((c.tolerance_m for _, c in conds if c.mode != WAYPOINTS), default=first.tolerance_m)
+    out = Conditioning(first.mode, tol, xy, names, deviation_m=worst.deviation_m, auto=first.auto,
                        worst=worst_a + worst.worst, noise_m=max(c.noise_m for _, c in conds),
                        grid_cell_m=first.grid_cell_m, smoothing_m=tuple(e for _, c in conds for e in c.smoothing_m),
                        corners=corners, spacing_m=float(np.median(seg)) if len(seg) else 0.0,

@@ -80,10 +80,14 @@ class EndPin:
     """A fitted polyline's start or end held at `point`, with dr/du = `slope` there (u the
     points' chord length: |slope| is the pace of the points' progress per chord, about 1);
     `slope` None: the point only, the tangent free (a corner; or a cusp's sample, where no
-    tangent is shared: the run then meets the other at one point, ddrt/path/reversal.py)."""
+    tangent is shared: the run then meets the other at one point, ddrt/path/reversal.py).
+    `settle`: the length (of chord) near the pin over which the curve is meant to leave the
+    points (a reversal's corner midway between its legs): left out of the smoothing's choice,
+    which is about the noise."""
 
     point: np.ndarray
     slope: np.ndarray | None = None
+    settle: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -300,13 +304,6 @@ def _project(sp: _Spline, p: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.
     return sign * dist, uu
 
 
-def _spread(d: np.ndarray) -> float:
-    """The residuals' noise-like spread: 1.4826 x their median absolute value, which a few points
-    bent off by a pinned end or a tight bend do not raise (the tolerance deals with those, point
-    by point), where an RMS would make the whole leg follow the noise for them."""
-    return float(1.4826 * np.median(np.abs(d))) if len(d) else 0.0
-
-
 def chord_length(p: np.ndarray) -> np.ndarray:
     """The chord length u at each point: the spline's parameter."""
     return np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T))))
@@ -383,10 +380,10 @@ def _sample_piece(sp: _Spline, step: float, start: np.ndarray | None, end: np.nd
 def _choose_smoothing(q: np.ndarray, u: np.ndarray, w: np.ndarray, fixed: np.ndarray, knot: float,
                       noise: float, slopes: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
                       ) -> tuple[float, int]:
-    """The largest smoothing length on a sqrt(2) ladder whose RMS lateral residual is within
-    DISCREPANCY noise sigmas (bisection); a long leg takes the smallest over three windows
-    (the choice is about the noise, which a window shows as well as the whole). `slopes`:
-    the leg's held end tangents (a leg short enough to be chosen whole)."""
+    """The largest smoothing length on a sqrt(2) ladder whose RMS lateral residual (over the
+    points not `fixed`) is within DISCREPANCY noise sigmas (bisection); a long leg takes the
+    smallest over three windows (the choice is about the noise, which a window shows as well
+    as the whole). `slopes`: the leg's held end tangents (a leg short enough to be chosen whole)."""
     n = len(q)
     if n > SEARCH_POINTS:
         starts = np.linspace(0, n - SEARCH_POINTS, 3).astype(int).tolist()
@@ -410,7 +407,7 @@ def _choose_smoothing(q: np.ndarray, u: np.ndarray, w: np.ndarray, fixed: np.nda
         except FitError:  # smoothing so heavy the system is ill-conditioned: too heavy
             return False
         d, _ = _project(sp, q, u)
-        return _spread(d[~fixed]) <= DISCREPANCY * noise
+        return float(np.sqrt(np.mean(d[~fixed] ** 2))) <= DISCREPANCY * noise
 
     total = float(u[-1])
     ladder = [ell_lo * 2.0 ** (k / 2.0) for k in range(40)]
@@ -436,6 +433,16 @@ def _cell_distance(sp: _Spline, q: np.ndarray, uf: np.ndarray, axis: float) -> n
     ex, ey = q[:, 0] - x, q[:, 1] - y
     c, s = math.cos(axis), math.sin(axis)
     return np.maximum(np.abs(c * ex + s * ey), np.abs(c * ey - s * ex))
+
+
+def _settling(req: FitRequest, u: np.ndarray) -> np.ndarray:
+    """Points within a pin's `settle` of its end, where the curve is meant to leave them."""
+    out = np.zeros(len(u), dtype=bool)
+    if req.start is not None and req.start.settle > 0.0:
+        out |= u - u[0] < req.start.settle
+    if req.end is not None and req.end.settle > 0.0:
+        out |= u[-1] - u < req.end.settle
+    return out
 
 
 def fit_leg(req: FitRequest) -> FittedLeg:
@@ -472,19 +479,18 @@ def fit_leg(req: FitRequest) -> FittedLeg:
     h = np.diff(u)
     w = 0.5 * (np.concatenate((h, [0.0])) + np.concatenate(([0.0], h)))
     fixed = np.zeros(len(q), dtype=bool)  # not checked against the tolerance
-    if fix0 is not None:
-        fixed[0] = True
-    if fix1 is not None:
-        fixed[-1] = True
+    fixed[core.start] = fix0 is not None
+    fixed[core.stop - 1] = fix1 is not None
     w[fixed] = _FIX_WEIGHT * float(w.max())
     fixed[:core.start] = True
     fixed[core.stop:] = True
     held = (req.start.slope if req.start is not None and wrap is None else None,
             req.end.slope if req.end is not None and wrap is None else None)
+    choice = fixed | _settling(req, u)
+    ell, fits = _choose_smoothing(q, u, w, choice if not choice.all() else fixed, knot, req.noise, held)
     fit = _LegFit(q, u, w, knot, held)
     nrow = fit.nc - 3
     kn = fit.spline.knot
-    ell, fits = _choose_smoothing(q, u, w, fixed, knot, req.noise, held)
     # The tolerance may lower the smoothing round a point that is out, but not so far that the
     # curve follows the noise (noise.chase_floor; a grid plan's staircase is not noise).
     floor = 0.0 if cell_axis is not None else chase_floor(req.noise, float(u[-1]) / max(len(u) - 1, 1))
