@@ -36,7 +36,7 @@ AUTO_MARGIN_SIGMAS = 1.0  # the fit's own error on top of the largest noise excu
 SPAN_SIGMAS = 8.0  # a noise window spans at least this many sigmas along the points
 MIN_WINDOW = 7  # points in the shortest noise window (a cubic leaves 3 degrees of freedom)
 MAX_WINDOW = 201  # and the longest
-MAX_WINDOWS = 20000  # windows measured (evenly spread over a longer polyline)
+MAX_WINDOWS = 5000  # windows measured (evenly spread over a longer polyline)
 TRIM = 0.1  # share of the largest residuals left out of the noise
 TRIMMED_SHARE = 0.7893  # RMS of a unit Gaussian's |z| below its 90 % quantile
 PRESMOOTH_SIGMAS = 3.0  # the parameter's averaging window spans this many sigmas
@@ -56,6 +56,15 @@ def _windows(p: np.ndarray, m: int) -> np.ndarray:
     return p[_starts(len(p), m)[:, None] + np.arange(m)[None, :]]
 
 
+def _cubic(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per window (rows of x, scaled to [-1, 1]): the cubic design matrix and its (X^T X)^-1,
+    for the windows whose points spread enough to fit one (`ok`, a mask of the rows kept)."""
+    design = np.stack([np.ones_like(x), x, x * x, x * x * x], axis=2)  # (k, m, 4)
+    gram = np.einsum("kmi,kmj->kij", design, design)
+    ok = np.linalg.det(gram) > 1e-9 * x.shape[1] ** 4
+    return design[ok], np.linalg.inv(gram[ok]) if ok.any() else np.zeros((0, 4, 4)), ok
+
+
 def _centre_residuals(w: np.ndarray) -> np.ndarray:
     """Each window's centre residual from a cubic in its own frame, divided by sqrt(1 - leverage):
     a draw of the lateral noise, whatever the curve does within the window."""
@@ -71,13 +80,8 @@ def _centre_residuals(w: np.ndarray) -> np.ndarray:
     y = -sa * d[:, :, 0] + ca * d[:, :, 1]
     half = np.max(np.abs(x), axis=1, keepdims=True)
     x = x / np.where(half > 0.0, half, 1.0)
-    design = np.stack([np.ones_like(x), x, x * x, x * x * x], axis=2)  # (k, m, 4)
-    gram = np.einsum("kmi,kmj->kij", design, design) + 1e-12 * np.eye(4)
-    ok = np.linalg.cond(gram) < 1e10
-    design, gram, y = design[ok], gram[ok], y[ok]
-    if not len(y):
-        return np.zeros(0)
-    inv = np.linalg.inv(gram)
+    design, inv, ok = _cubic(x)
+    y = y[ok]
     coef = np.einsum("kij,kmj,km->ki", inv, design, y)
     i = m // 2
     xc = design[:, i, :]
@@ -95,13 +99,8 @@ def _parametric_residuals(w: np.ndarray, t: np.ndarray) -> np.ndarray:
     tc = t - t[:, i:i + 1]
     half = np.max(np.abs(tc), axis=1, keepdims=True)
     tc = tc / np.where(half > 0.0, half, 1.0)
-    design = np.stack([np.ones_like(tc), tc, tc * tc, tc * tc * tc], axis=2)
-    gram = np.einsum("kmi,kmj->kij", design, design) + 1e-12 * np.eye(4)
-    ok = np.linalg.cond(gram) < 1e10
-    if not ok.any():
-        return np.zeros(0)
-    design, gram, w = design[ok], gram[ok], w[ok]
-    inv = np.linalg.inv(gram)
+    design, inv, ok = _cubic(tc)
+    w = w[ok]
     coef = np.einsum("kij,kmj,kmc->kic", inv, design, w)  # (k, 4, 2)
     res = w[:, i, :] - coef[:, 0, :]  # the centre is at t = 0
     tang = coef[:, 1, :]
