@@ -51,7 +51,7 @@ from typing import Sequence
 import numpy as np
 
 from ddrt.path.corners import CornerPin, corner_scale, find_corners, line_turns, refine_corner
-from ddrt.path.geometry import Geometry, GeometryOptions, Piece, pivot_piece, polyline_geometry
+from ddrt.path.geometry import Geometry, GeometryOptions, Piece, line_piece, pivot_piece, polyline_geometry
 from ddrt.path.noise import TOLERANCE_FLOOR_M, arc_parameter, auto_tolerance, estimate_noise
 from ddrt.path.smoothing import (
     CurveStops, EndPin, FitError, FitRequest, FittedLeg, ToleranceUnmet, chord_length, fit_leg, staircase_noise,
@@ -208,7 +208,7 @@ def _loop_wrap(p: np.ndarray, knot: float, scale: float, threshold: float, tol: 
     ext = np.concatenate((pre, p[:k_post + 1]))
     ue = chord_length(ext)
     for sc in (scale, 0.5 * scale):
-        t = line_turns(ext, ue, sc)[len(pre)]
+        t = line_turns(ext, ue, sc)[0][len(pre)]
         if not np.isfinite(t) or abs(t) > threshold:
             return None
     return pre, post
@@ -288,7 +288,7 @@ def _leg_pins(ends: tuple[EndPin | None, EndPin | None], corners: list[CornerPin
     for c in corners:
         held = tangents and c.into is not None and c.out is not None
         stops.append(EndPin(c.point, c.into if held else None, c.settle))
-        starts.append(EndPin(c.point, c.out if held else None, c.settle))
+        starts.append(EndPin(c.point if c.cap is None or not held else c.cap, c.out if held else None, c.settle))
     stops.append(ends[1])
     return list(zip(starts, stops))
 
@@ -314,10 +314,14 @@ def _plan(p: np.ndarray, mode: str, tol: float, cell: float | None, noise: float
     corners = sorted(corners + [(k, math.pi) for k in forced if all(k != c for c, _ in corners)])
     mids = [0.5 * (u[a] + u[b]) for (a, _), (b, _) in zip(corners[:-1], corners[1:])]
     bounds = list(zip([-math.inf, *mids], [*mids, math.inf]))
-    refined = [(c, refine_corner(p, u, c[0], scale, tol, bounds[i])) for i, c in enumerate(corners)]
-    refined = [(c, CornerPin(p[c[0]].copy()) if pin is None and c[0] in forced else pin) for c, pin in refined]
-    corners = [c for c, pin in refined if pin is not None]
-    found = [pin for _, pin in refined if pin is not None]
+    refined = [((k, t), refine_corner(p, u, k, scale, tol, bounds[i])) for i, (k, t) in enumerate(corners)]
+    # A forced corner (the fit turned back there) stays at its point whatever its sides say.
+    refined = [((k, t), (k, CornerPin(p[k].copy()))) if pin is None and k in forced else ((at, t), (at, pin))
+               for (k, t), (at, pin) in refined]
+    kept = [((at, t), pin) for (_, t), (at, pin) in refined if pin is not None and 0 < at < len(p) - 1]
+    kept = [c for i, c in enumerate(kept) if i == 0 or c[0][0] > kept[i - 1][0][0]]  # in order, no two at one point
+    corners = [c for c, _ in kept]
+    found = [pin for _, pin in kept]
     pinned = ends[0] is not None or ends[1] is not None
     wrap = _loop_wrap(p, knot, scale, threshold, tol, spacing) if not corners and not pinned else None
     pins = _leg_pins(ends, found, mode == SAMPLES)
@@ -388,19 +392,18 @@ def _assemble(plan: _Plan, caps: np.ndarray | None, info: Conditioning, where: s
         info.iterations += leg.fits
         if leg.smoothing_m is not None:
             ells.append(leg.smoothing_m)
+        theta0 = leg.theta0
         if heading is not None:
-            turn = float(_wrap(np.array(leg.theta0 - heading)))
-            if abs(turn) > 1e-9:
-                corner = plan.pins[j][0]
-                assert corner is not None
-                c = corner.point
-                pieces.append(pivot_piece(float(c[0]), float(c[1]), heading, turn, opt.pivot_radius, opt.step))
-                kept.append(Corner(a, turn, float(c[0]), float(c[1])))
+            x1, x2 = _corner_ends(plan, j)
+            joint, theta0, turns = _joint(x1, x2, heading, leg.theta0, opt)
+            for turn, x, y in turns:
+                kept.append(Corner(a, turn, x, y))
+            for pc in joint:
                 if caps is not None:
                     cap_s.append(sigma)
                     cap_v.append(float(caps[a]))
-                sigma += pieces[-1].length
-        theta0 = leg.theta0 if heading is None else heading + float(_wrap(np.array(leg.theta0 - heading)))
+                pieces.append(pc)
+                sigma += pc.length
         for pc in leg.pieces:  # keep theta continuous across legs
             shift = theta0 - leg.theta0
             if shift:
@@ -410,9 +413,9 @@ def _assemble(plan: _Plan, caps: np.ndarray | None, info: Conditioning, where: s
         sl = slice(a, b + 1)
         sig_pts[sl] = sigma + leg.sigma
         devs[sl] = np.maximum(devs[sl], leg.dev)
-        for k, pin in ((a, plan.pins[j][0]), (b, plan.pins[j][1])):  # a corner's own point against the corner
-            if pin is not None:
-                devs[k] = max(devs[k], float(math.hypot(*(p[k] - pin.point))))
+        for k, (x1, x2) in ((a, _corner_ends(plan, j)), (b, _corner_ends(plan, j + 1))):
+            if x1 is not None and x2 is not None:  # a corner's own point against the corner
+                devs[k] = max(devs[k], _segment_distance(p[k], x1, x2))
         if caps is not None:
             cap_s.extend((sigma + leg.sigma).tolist())
             cap_v.extend(caps[sl].tolist())
@@ -427,6 +430,52 @@ def _assemble(plan: _Plan, caps: np.ndarray | None, info: Conditioning, where: s
     info.smoothing_m = tuple(ells)
     info.point_sigma = sig_pts
     return geo
+
+
+def _corner_ends(plan: _Plan, j: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Where leg j - 1 ends and leg j starts (one point, or a reversal's cap across its legs);
+    None for the polyline's own ends (and for pins the fit was given from outside)."""
+    if j == 0 or j == len(plan.pins):
+        return None, None
+    end, start = plan.pins[j - 1][1], plan.pins[j][0]
+    return (None if end is None else end.point), (None if start is None else start.point)
+
+
+def _segment_distance(q: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> float:
+    d = x2 - x1
+    n2 = float(d @ d)
+    t = min(max(float((q - x1) @ d) / n2, 0.0), 1.0) if n2 > 0.0 else 0.0
+    return float(math.hypot(*(q - x1 - t * d)))
+
+
+def _joint(x1: np.ndarray | None, x2: np.ndarray | None, heading: float, theta0: float,
+           opt: GeometryOptions) -> tuple[list[Piece], float, list[tuple[float, float, float]]]:
+    """The pieces from one leg's end (at x1, facing `heading`) to the next leg's start (at x2,
+    facing theta0): a turn in place, or, where a reversal's legs lie farther apart than that
+    can bridge (a cap, corners.py), a turn onto the cap, the cap, and a turn onto the leg. Also
+    the next leg's heading kept continuous, and each turn (rad, x, y)."""
+    assert x1 is not None and x2 is not None
+    pieces: list[Piece] = []
+    turns: list[tuple[float, float, float]] = []
+    gap = x2 - x1
+    length = float(math.hypot(*gap))
+    if length > 1e-9:
+        across = heading + float(_wrap(np.array(math.atan2(gap[1], gap[0]) - heading)))
+        pieces, heading, turns = _pivot(x1, heading, across, opt)
+        pieces.append(line_piece(float(x1[0]), float(x1[1]), heading, length, opt.step))
+    final = heading + float(_wrap(np.array(theta0 - heading)))
+    more, final, more_turns = _pivot(x2, heading, final, opt)
+    return pieces + more, final, turns + more_turns
+
+
+def _pivot(x: np.ndarray, heading: float, to: float,
+           opt: GeometryOptions) -> tuple[list[Piece], float, list[tuple[float, float, float]]]:
+    """A turn in place at x from `heading` to `to` (nothing for a turn below 1e-9 rad)."""
+    turn = to - heading
+    if abs(turn) <= 1e-9:
+        return [], heading, []
+    return ([pivot_piece(float(x[0]), float(x[1]), heading, turn, opt.pivot_radius, opt.step)], to,
+            [(turn, float(x[0]), float(x[1]))])
 
 
 def _needed(deviation: float) -> float:
