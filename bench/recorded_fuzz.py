@@ -104,7 +104,8 @@ def _arc(rng: np.random.Generator) -> tuple[np.ndarray, str]:
     radius = float(rng.uniform(0.4, 3.0))
     sweep = min(math.radians(float(rng.uniform(45.0, 270.0))), 4.0 / radius)
     sign = float(rng.choice([-1.0, 1.0]))
-    return _integrate(lambda s: np.full_like(s, sign / radius), radius * sweep), f"R {radius:.2f} m, {math.degrees(sweep):.0f} deg"
+    curve = _integrate(lambda s: np.full_like(s, sign / radius), radius * sweep)
+    return curve, f"R {radius:.2f} m, {math.degrees(sweep):.0f} deg"
 
 
 def _s_curve(rng: np.random.Generator) -> tuple[np.ndarray, str]:

@@ -120,7 +120,8 @@ def _u_turn(seed: int, gap: float = 0.02) -> np.ndarray:
     leg = np.arange(0.0, 1.0, 0.01)
     r = 0.5 * gap
     phi = np.linspace(-0.5 * math.pi, 0.5 * math.pi, 5)[1:-1]
-    xy = np.vstack((np.column_stack((leg, np.zeros_like(leg))), np.column_stack((1.0 + r * np.cos(phi), r + r * np.sin(phi))),
+    xy = np.vstack((np.column_stack((leg, np.zeros_like(leg))),
+                    np.column_stack((1.0 + r * np.cos(phi), r + r * np.sin(phi))),
                     np.column_stack((leg[::-1], np.full_like(leg, gap)))))
     return xy + rng.normal(0.0, 0.0015, xy.shape)
 
@@ -170,4 +171,5 @@ def test_the_readme_and_config_md_state_the_rule() -> None:
     assert ("a reversal the file does not mark (the direction turns back, up to 180 degrees) is a turn in place"
             in readme)
     config = " ".join((ROOT / "docs" / "config.md").read_text(encoding="utf-8").split())
-    assert "**Reversals: one rule for every input.**" in config and "is a turn in place where the file does not mark it" in config
+    assert "**Reversals: one rule for every input.**" in config
+    assert "is a turn in place where the file does not mark it" in config

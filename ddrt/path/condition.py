@@ -17,9 +17,10 @@ A CSV or `points:` list arrives as a polyline. Three kinds are told apart (`clas
   RMS of v^2 dkappa/ds over it (ddrt/path/turnspeed.py).
 - **samples**: anything denser. The points are samples of a curve with noise (a recording,
   a planner's output, an exported curve). The reference is a smoothing spline through them
-  that stays within `tolerance` (`paths.tolerance_m`, 10 mm) of every point; genuine corners
-  (the direction turns by more than `corner_pivot_deg` within a few tolerances of one point,
-  at two scales) become turns in place between separately fitted legs.
+  that stays within the tolerance of every point; genuine corners (the direction turns by
+  more than `corner_pivot_deg` within a few tolerances of one point, at two scales, and the
+  points round it lie on the two sides: ddrt/path/corners.py) become turns in place between
+  separately fitted legs, each held on its side's line at the corner.
 
 The smoothing spline through each leg, its choice of smoothing and how it keeps every point
 within the tolerance are ddrt/path/smoothing.py's; this module decides what the legs are
@@ -33,7 +34,10 @@ Reversals, one rule for every kind of input: a direction that turns back (by mor
 `corner_pivot_deg`, up to 180 degrees, within a corner's scale) is a corner like any other,
 a turn in place where the file does not mark it, for waypoints, samples and grid plans alike:
 the robot keeps facing the way it travels. To drive back instead (a cusp: stop and reverse),
-the file marks the points reached in reverse with a negative v (reversal.py).
+the file marks the points reached in reverse with a negative v (reversal.py). A reversal whose
+legs lie apart (a narrow U-turn) turns in place midway between them, or, legs up to three
+tolerances apart, turns a quarter onto the cap across their ends and a quarter off it; a
+wider one is a U-turn, fitted smooth. A fit that still stops and turns back gets a corner there.
 
 Tolerance: `paths.tolerance_m` (or the path's `tolerance:`) is a number or `auto` (the
 default): the tolerance set from the points' estimated noise (ddrt/path/noise.py), never
@@ -490,7 +494,8 @@ def _unmet(exc: ToleranceUnmet, plan: _Plan, a: int, where: str, names: Sequence
         f"{where}: {names[k]}: the reference cannot stay within {plan.tol:g} m of the point "
         f"({exc.x:.6g}, {exc.y:.6g}) without following the points' noise (~{plan.noise * 1000:.3g} mm): "
         f"the closest smooth curve passes {exc.deviation * 1000:.3g} mm away; a tolerance of "
-        f"{_needed(exc.deviation):g} m would work (raise paths.tolerance_m or the path's tolerance:, or set it to auto)")
+        f"{_needed(exc.deviation):g} m would work (raise paths.tolerance_m or the path's tolerance:, "
+        "or set it to auto)")
 
 
 AUTO_RETRIES = 3  # `auto` widens itself this many times where a point is still out (an outlier)

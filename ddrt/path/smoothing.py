@@ -1,8 +1,10 @@
 """The smoothing spline through one leg of samples: a P-spline that stays within a tolerance
 of every point (ddrt/path/condition.py decides what a leg is: the points between two corners).
 
-Each leg is a uniform cubic B-spline in the input's chord length u (knots at the median point
-spacing), fitted by penalised least squares (a P-spline):
+Each leg is a uniform cubic B-spline in the distance u the points stand for along the curve
+(their chord length, averaged over a few noise sigmas where the noise is larger than a share
+of the spacing: ddrt/path/noise.py; a grid plan's plain chord length), knots at the median
+point spacing, fitted by penalised least squares (a P-spline):
 
     minimise  sum_i w_i |r(u_i) - p_i|^2 + sum_j lambda_j (third difference of the coefficients)_j^2
 
@@ -16,16 +18,19 @@ by a banded LDL^T factorisation in plain Python floats (numpy has no banded solv
 
 Choosing the smoothing (why not "as smooth as the tolerance allows": that would bend an
 exact export of a figure-eight by the whole tolerance):
-1. the noise is estimated from a light fit (l = 3 knots): sigma = 1.4826 MAD of the lateral
-   residuals, divided by the share of white noise such a fit leaves (`estimate_noise`);
+1. the noise is given (ddrt/path/noise.py: local cubic residuals; a grid plan's staircase,
+   `staircase_noise`: the residuals of a light fit of 3 cells);
 2. per leg, the largest l on a sqrt(2) ladder whose RMS lateral residual stays within
    1.1 sigma (the discrepancy principle: remove the noise, keep the curve; the shape bias
-   that remains is a fraction of the noise);
+   that remains is a fraction of the noise), over the leg's points but those where a pin is
+   meant to pull the curve off them (`EndPin.settle`);
 3. the tolerance is then enforced point by point: wherever a point lies farther than
-   `tolerance` from the curve, the penalty is lowered four-fold around it (and, at the
-   lowest smoothing, the point's weight raised) and the leg is fitted again, until every
-   point is within tolerance. A tolerance no smooth curve can meet (far below the noise)
-   is refused (`ToleranceUnmet`, naming the point).
+   `tolerance` from the curve, the penalty is lowered four-fold around it and the leg is
+   fitted again, until every point is within tolerance; never below the smoothing at which
+   the noise would show in the curvature (noise.chase_floor: the fit would follow the noise;
+   where the noise sets no such floor, an exact export, the point's weight is raised instead).
+   A tolerance no such curve can meet is refused (`ToleranceUnmet`, naming the point and
+   how far the curve passes).
 
 A leg's ends may be pinned (`EndPin`): held at a point (a corner, a cusp) and, given a slope,
 on a tangent there. The interface is one request (`FitRequest`) and one result (`FittedLeg`).
