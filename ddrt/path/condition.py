@@ -533,7 +533,7 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: GeometryOp
     spacing = float(np.median(seg)) if len(seg) else 0.0
     mode, given, cell = classify(p, copt)
     if mode == WAYPOINTS:
-        return _waypoints(p, caps, opt, names, spacing)
+        return _waypoints(p, caps, opt, names, spacing, TOLERANCE_FLOOR_M if given is None else given)
     nz = _noise(p, cell) if noise is None else max(noise, NOISE_FLOOR_M)
     tol = resolve_tolerance(given, nz, len(p))
     forced = _steps_back(p) if mode == GRID else []
@@ -564,9 +564,9 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: GeometryOp
 
 
 def _waypoints(p: np.ndarray, caps: np.ndarray | None, opt: GeometryOptions, names: Sequence[str],
-               spacing: float) -> tuple[Geometry, Conditioning]:
+               spacing: float, tol: float) -> tuple[Geometry, Conditioning]:
     """Straight segments through the points, corners turned in place or blended (geometry.py)."""
-    info = Conditioning(WAYPOINTS, TOLERANCE_FLOOR_M, p, names, spacing_m=spacing)
+    info = Conditioning(WAYPOINTS, tol, p, names, spacing_m=spacing)
     geo = polyline_geometry([(float(a), float(b)) for a, b in p], None if caps is None else caps.tolist(), opt)
     if len(p) > 2:
         d = np.diff(p, axis=0)
