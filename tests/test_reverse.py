@@ -88,15 +88,16 @@ def test_a_path_driven_in_reverse_matches_its_mirror_image_driven_forward(cfg) -
         assert abs(mb[key] - mf[key]) <= max(0.3 * mf[key], 3e-5), (key, mb[key], mf[key])
 
 
-def test_an_unmarked_reversal_names_the_file_and_line(cfg, tmp_path) -> None:
+def test_an_unmarked_reversal_turns_in_place_and_a_marked_one_reverses(cfg, tmp_path) -> None:
+    """One rule (issue 22, item 3): unmarked, an out-and-back recording turns in place at the far
+    end (main refused it); marked with a negative v, the same points reverse at a cusp."""
     rows = ["x,y"] + [f"{0.01 * k:.3f},0" for k in range(0, 51)] + [f"{0.5 - 0.01 * k:.3f},0.001" for k in range(1, 40)]
     f = tmp_path / "out_and_back.csv"
     f.write_text("\n".join(rows) + "\n")
-    with pytest.raises(PathError) as exc:
-        load_path(f, speed_limits(cfg), paths=cfg.paths)
-    text = str(exc.value)
-    assert "out_and_back.csv" in text and "line " in text and "reverse" in text
-    # Marked, the same points load and reverse at the turn.
+    path = load_path(f, speed_limits(cfg), paths=cfg.paths)
+    assert not path.cusps and min(path.v) >= 0.0
+    (corner,) = path.conditioning.corners
+    assert abs(math.degrees(corner.turn)) == pytest.approx(180.0, abs=3.0) and abs(corner.x - 0.5) < 0.01
     marked = ["x,y,v"] + [r + ",0.3" for r in rows[1:52]] + [r + ",-0.3" for r in rows[52:]]
     f.write_text("\n".join(marked) + "\n")
     path = load_path(f, speed_limits(cfg), paths=cfg.paths)
@@ -210,5 +211,5 @@ def test_a_recorded_three_point_turn_meets_at_each_cusp_without_a_shift(cfg) -> 
         i = path.index(c)
         assert abs(math.remainder(a["theta"][i + 1] - a["theta"][i - 1], 2 * math.pi)) < 0.01
         k = int(np.argmin(np.hypot(xy[:, 0] - a["x"][i], xy[:, 1] - a["y"][i])))
-        assert math.hypot(*(xy[k] - (a["x"][i], a["y"][i]))) <= cfg.paths.tolerance_m
-    assert path.deviation_m <= cfg.paths.tolerance_m
+        assert math.hypot(*(xy[k] - (a["x"][i], a["y"][i]))) <= path.conditioning.tolerance_m
+    assert path.deviation_m <= path.conditioning.tolerance_m

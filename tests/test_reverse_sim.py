@@ -252,7 +252,6 @@ def test_random_marked_reverse_manoeuvres_are_driven_end_to_end() -> None:
 
     cfg = _cfg()
     lim = speed_limits(cfg)
-    tol = cfg.paths.tolerance_m
     rng = np.random.default_rng(2024)
     driven = refused = shared = cusps = 0
     worst: list[float] = []  # true RMS from the curve
@@ -270,7 +269,7 @@ def test_random_marked_reverse_manoeuvres_are_driven_end_to_end() -> None:
         cusps += m.cusps
         shared += path.conditioning.extra["cusps_shared"]
         a = path.arrays()
-        assert path.deviation_m <= tol, (trial, path.deviation_m)
+        assert path.deviation_m <= path.conditioning.tolerance_m, (trial, path.deviation_m)
         assert not np.any(a["seg_pivot"]), trial  # the curve turns nowhere in place
         r = run_sim(cfg, path, seed=trial, keep_rows=True)
         met = r.metrics

@@ -467,7 +467,9 @@ class PathsConfig:
     pivot_radius_m: float = 0.1  # a path's pivot_radius: overrides it
     corner_pivot_deg: float = 30.0  # likewise corner_pivot_deg:
     blend_max_m: float = 0.15  # likewise blend_max:
-    tolerance_m: float = 0.01  # a polyline's samples: the reference stays this close (a path's tolerance: overrides)
+    # A polyline's samples: the reference stays this close (m), or "auto": set from the points'
+    # noise, never below 10 mm (a path's tolerance: overrides).
+    tolerance_m: float | Literal["auto"] = "auto"
     waypoint_spacing_m: float = 0.25  # a polyline this sparse (median spacing) is waypoints, as given
     max_samples: int = 2_000_000
     max_points: int = 10_000
@@ -486,9 +488,10 @@ class PathsConfig:
         non_negative(where, corner_pivot_deg=self.corner_pivot_deg)
         if self.sample_step_m > 1.0:
             raise ConfigError(f"{where}.sample_step_m: must be <= 1 m, got {self.sample_step_m}")
-        non_negative(where, tolerance_m=self.tolerance_m)
-        if self.tolerance_m > MAX_TOLERANCE_M:
-            raise ConfigError(f"{where}.tolerance_m: must be at most {MAX_TOLERANCE_M:g} m, got {self.tolerance_m}")
+        if self.tolerance_m != "auto":
+            non_negative(where, tolerance_m=self.tolerance_m)
+            if self.tolerance_m > MAX_TOLERANCE_M:
+                raise ConfigError(f"{where}.tolerance_m: must be at most {MAX_TOLERANCE_M:g} m, got {self.tolerance_m}")
         if not MIN_PATH_SIZE_M <= self.waypoint_spacing_m <= self.max_extent_m:
             raise ConfigError(f"{where}.waypoint_spacing_m: must be in [{MIN_PATH_SIZE_M}, max_extent_m], "
                               f"got {self.waypoint_spacing_m}")

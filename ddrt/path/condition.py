@@ -17,9 +17,10 @@ A CSV or `points:` list arrives as a polyline. Three kinds are told apart (`clas
   RMS of v^2 dkappa/ds over it (ddrt/path/turnspeed.py).
 - **samples**: anything denser. The points are samples of a curve with noise (a recording,
   a planner's output, an exported curve). The reference is a smoothing spline through them
-  that stays within `tolerance` (`paths.tolerance_m`, 10 mm) of every point; genuine corners
-  (the direction turns by more than `corner_pivot_deg` within a few tolerances of one point,
-  at two scales) become turns in place between separately fitted legs.
+  that stays within the tolerance of every point; genuine corners (the direction turns by
+  more than `corner_pivot_deg` within a few tolerances of one point, at two scales, and the
+  points round it lie on the two sides: ddrt/path/corners.py) become turns in place between
+  separately fitted legs, each held on its side's line at the corner.
 
 The smoothing spline through each leg, its choice of smoothing and how it keeps every point
 within the tolerance are ddrt/path/smoothing.py's; this module decides what the legs are
@@ -29,10 +30,20 @@ The reported deviation (`Conditioning.deviation_m`) is the largest distance from
 point to the reference (for a grid plan, along the grid's axes: at most half a cell while
 the reference crosses every planned cell).
 
-Reversals: in samples a corner that turns by 150 degrees or more is a cusp (the recording
-drove back the way it came). Unless its points are marked as reached in reverse
-(reversal.py), it is refused naming the line; a turn in place there is a different motion,
-which the file would have to say (split it into two paths there).
+Reversals, one rule for every kind of input: a direction that turns back (by more than
+`corner_pivot_deg`, up to 180 degrees, within a corner's scale) is a corner like any other,
+a turn in place where the file does not mark it, for waypoints, samples and grid plans alike:
+the robot keeps facing the way it travels. To drive back instead (a cusp: stop and reverse),
+the file marks the points reached in reverse with a negative v (reversal.py). A reversal whose
+legs lie apart (a narrow U-turn) turns in place midway between them, or, legs up to three
+tolerances apart, turns a quarter onto the cap across their ends and a quarter off it; a
+wider one is a U-turn, fitted smooth. A fit that still stops and turns back gets a corner there.
+
+Tolerance: `paths.tolerance_m` (or the path's `tolerance:`) is a number or `auto` (the
+default): the tolerance set from the points' estimated noise (ddrt/path/noise.py), never
+below 10 mm, so a noisy recording is smoothed as its noise needs. A number is kept to: where
+the curve cannot stay within it without following the noise, the path is refused with the
+tolerance that would work.
 """
 
 from __future__ import annotations
@@ -43,17 +54,18 @@ from typing import Sequence
 
 import numpy as np
 
-from ddrt.path.geometry import Geometry, GeometryOptions, Piece, pivot_piece, polyline_geometry
+from ddrt.path.corners import CornerPin, corner_scale, find_corners, line_turns, refine_corner
+from ddrt.path.geometry import Geometry, GeometryOptions, Piece, line_piece, pivot_piece, polyline_geometry
+from ddrt.path.noise import TOLERANCE_FLOOR_M, arc_parameter, auto_tolerance, estimate_noise
 from ddrt.path.smoothing import (
-    CurveStops, EndPin, FitError, FitRequest, ToleranceUnmet, chord_length, estimate_noise, fit_leg,
+    CurveStops, EndPin, FitError, FitRequest, FittedLeg, ToleranceUnmet, chord_length, fit_leg, staircase_noise,
 )
 from ddrt.path.turnspeed import turn_caps
 
 __all__ = ["ConditionOptions", "Conditioning", "ConditionError", "classify", "condition_polyline", "knot_spacing",
-           "point_noise"]
+           "point_noise", "run_tolerance"]
 
 WAYPOINTS, SAMPLES, GRID = "waypoints", "samples", "grid"
-REVERSAL_DEG = 150.0  # a corner this sharp in samples is a cusp: the path reverses
 GRID_PIVOT_DEG = 112.5  # in a grid plan, turns sharper than 90 degrees (135, 180) pivot
 GRID_TOLERANCE_CELLS = 0.5  # a grid plan's tolerance, in cells: the robot stays in the planned cells
 NOISE_FLOOR_M = 2e-5  # below this the points are exact (an export): smooth to this level
@@ -65,7 +77,7 @@ class ConditionError(ValueError):
 
 @dataclass(frozen=True, slots=True)
 class ConditionOptions:
-    tolerance: float = 0.01  # m; 0: every point is a waypoint (no conditioning)
+    tolerance: float | None = None  # m; None: auto (from the points' noise); 0: every point is a waypoint
     waypoint_spacing: float = 0.25  # m; median spacing at or above: waypoints
     tolerance_given: bool = False  # the path set its own tolerance (a grid keeps it)
 
@@ -95,6 +107,7 @@ class Conditioning:
     point_sigma: np.ndarray | None = None  # progress of each point's foot on the reference
     spacing_m: float = 0.0  # median distance between consecutive points
     iterations: int = 0  # fits solved in total
+    auto: bool = False  # the tolerance was set from the noise (`auto`)
     extra: dict = field(default_factory=dict)
 
     def summary(self) -> str:
@@ -102,8 +115,9 @@ class Conditioning:
             return f"{len(self.points)} points as waypoints (median spacing {self.spacing_m * 1000:.0f} mm)"
         kind = (f"a grid plan ({self.grid_cell_m * 1000:.0f} mm cells)" if self.mode == GRID
                 else "samples of a curve")
+        how = "auto, from the noise; " if self.auto else ""
         return (f"{len(self.points)} points as {kind}: smoothed within {self.tolerance_m * 1000:.1f} mm "
-                f"(largest deviation {self.deviation_m * 1000:.1f} mm at {self.names[self.worst]}; "
+                f"({how}largest deviation {self.deviation_m * 1000:.1f} mm at {self.names[self.worst]}; "
                 f"noise ~{self.noise_m * 1000:.2f} mm), {len(self.corners)} corner(s) turned in place")
 
 
@@ -149,102 +163,25 @@ def grid_axis(p: np.ndarray) -> float:
     return ang - 0.25 * math.pi if diagonal else ang
 
 
-def classify(p: np.ndarray, copt: ConditionOptions) -> tuple[str, float, float | None]:
-    """(mode, tolerance, grid cell) for the distinct points p (n, 2)."""
-    if len(p) < 4 or copt.tolerance <= 0.0:
+def classify(p: np.ndarray, copt: ConditionOptions) -> tuple[str, float | None, float | None]:
+    """(mode, tolerance, grid cell) for the distinct points p (n, 2). The tolerance is None where
+    it is `auto` and the points are samples (`resolve_tolerance` sets it from their noise)."""
+    if len(p) < 4 or copt.tolerance == 0.0:
         return WAYPOINTS, copt.tolerance, None
     cell = grid_cell(p)
     if cell is not None and cell < copt.waypoint_spacing:
-        tol = copt.tolerance if copt.tolerance_given else max(copt.tolerance, GRID_TOLERANCE_CELLS * cell)
-        return GRID, tol, cell
+        given = copt.tolerance_given and copt.tolerance is not None
+        floor = TOLERANCE_FLOOR_M if copt.tolerance is None else copt.tolerance
+        return GRID, copt.tolerance if given else max(floor, GRID_TOLERANCE_CELLS * cell), cell
     spacing = float(np.median(np.hypot(*np.diff(p, axis=0).T)))
     if spacing >= copt.waypoint_spacing:
         return WAYPOINTS, copt.tolerance, None
     return SAMPLES, copt.tolerance, None
 
 
-# --------------------------------------------------------------------------- corners
-
-
-def _turns(p: np.ndarray, u: np.ndarray, scale: float) -> np.ndarray:
-    """Turn at each point between the chords from u - scale to it and from it to u + scale
-    (NaN where a chord would be shorter than a quarter of the scale: near the ends)."""
-    total = u[-1]
-    ua, ub = np.clip(u - scale, 0.0, total), np.clip(u + scale, 0.0, total)
-    ax, ay = np.interp(ua, u, p[:, 0]), np.interp(ua, u, p[:, 1])
-    bx, by = np.interp(ub, u, p[:, 0]), np.interp(ub, u, p[:, 1])
-    ix, iy = p[:, 0] - ax, p[:, 1] - ay
-    ox, oy = bx - p[:, 0], by - p[:, 1]
-    turn = _wrap(np.arctan2(oy, ox) - np.arctan2(iy, ix))
-    short = (np.hypot(ix, iy) < 0.25 * scale) | (np.hypot(ox, oy) < 0.25 * scale)
-    turn[short] = np.nan
-    return turn
-
-
-def _raw_noise(p: np.ndarray) -> float:
-    """A rough lateral noise level from the points alone (for the corner scale)."""
-    if len(p) < 12:
-        return 0.0
-    a, m, b = p[:-2], p[1:-1], p[2:]
-    c = b - a
-    cl = np.hypot(c[:, 0], c[:, 1])
-    e = (c[:, 0] * (m[:, 1] - a[:, 1]) - c[:, 1] * (m[:, 0] - a[:, 0])) / np.where(cl > 0, cl, 1.0)
-    k = 9
-    if len(e) <= k:
-        return float(1.4826 * np.median(np.abs(e - np.median(e))) / math.sqrt(1.5))
-    win = np.lib.stride_tricks.sliding_window_view(e, k)
-    local = np.median(win, axis=1)
-    r = e[k // 2: k // 2 + len(local)] - local
-    return float(1.4826 * np.median(np.abs(r)) / math.sqrt(1.5))
-
-
-def _find_corners(p: np.ndarray, u: np.ndarray, scale: float, threshold: float) -> list[tuple[int, float]]:
-    """(index, turn) of corners: points where the direction turns by more than `threshold`
-    at both `scale` and half of it (a smooth bend turns half as much at half the scale),
-    one per `scale` of length (the sharpest)."""
-    t1 = _turns(p, u, scale)
-    t2 = _turns(p, u, 0.5 * scale)
-    with np.errstate(invalid="ignore"):
-        score = np.where(np.sign(t1) == np.sign(t2), np.minimum(np.abs(t1), np.abs(t2)), 0.0)
-    score = np.nan_to_num(score, nan=0.0)
-    score[0] = score[-1] = 0.0
-    cand = np.flatnonzero(score > threshold)
-    if len(cand) == 0:
-        return []
-    order = cand[np.argsort(-score[cand], kind="stable")]
-    taken: list[int] = []
-    for i in order.tolist():
-        if all(abs(u[i] - u[k]) >= scale for k in taken):
-            taken.append(i)
-    taken.sort()
-    return [(i, float(t2[i])) for i in taken]
-
-
-def _refine_corner(p: np.ndarray, u: np.ndarray, k: int, scale: float, tol: float) -> np.ndarray:
-    """The corner as the intersection of lines fitted to the points either side (noise on the
-    corner's own point would bend both legs' ends); the point itself if that is off."""
-    def line(sel: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        q = p[sel]
-        if len(q) < 3:
-            return None
-        c = q.mean(axis=0)
-        _, _, vt = np.linalg.svd(q - c, full_matrices=False)
-        return c, vt[0]
-
-    before = line(np.flatnonzero((u >= u[k] - scale) & (u < u[k])))
-    after = line(np.flatnonzero((u > u[k]) & (u <= u[k] + scale)))
-    if before is None or after is None:
-        return p[k].copy()
-    (c1, d1), (c2, d2) = before, after
-    den = d1[0] * d2[1] - d1[1] * d2[0]
-    if abs(den) < math.sin(math.radians(10.0)):
-        return p[k].copy()
-    r = c2 - c1
-    t = (r[0] * d2[1] - r[1] * d2[0]) / den
-    x = c1 + t * d1
-    if not np.all(np.isfinite(x)) or math.hypot(*(x - p[k])) > tol:
-        return p[k].copy()
-    return x
+def resolve_tolerance(tol: float | None, noise: float, n: int) -> float:
+    """A classified tolerance, `auto` (None) set from the noise of n points (noise.auto_tolerance)."""
+    return auto_tolerance(noise, n) if tol is None else tol
 
 
 # --------------------------------------------------------------------------- the whole polyline
@@ -275,7 +212,7 @@ def _loop_wrap(p: np.ndarray, knot: float, scale: float, threshold: float, tol: 
     ext = np.concatenate((pre, p[:k_post + 1]))
     ue = chord_length(ext)
     for sc in (scale, 0.5 * scale):
-        t = _turns(ext, ue, sc)[len(pre)]
+        t = line_turns(ext, ue, sc)[0][len(pre)]
         if not np.isfinite(t) or abs(t) > threshold:
             return None
     return pre, post
@@ -298,23 +235,284 @@ def knot_spacing(spacing: float, tol: float, cell: float | None) -> float:
     return cell if cell is not None else max(spacing, 0.5 * tol, 1e-4)
 
 
-def _noise(p: np.ndarray, knot: float) -> float:
-    """The points' noise (smoothing.estimate_noise); its failure a ConditionError like the rest."""
-    try:
-        return estimate_noise(p, knot)
-    except FitError as exc:
-        raise ConditionError(str(exc)) from None
+def _noise(p: np.ndarray, cell: float | None = None) -> float:
+    """The points' noise (noise.estimate_noise; a grid plan's, its staircase's), at least
+    NOISE_FLOOR_M."""
+    if cell is not None:
+        try:
+            return max(staircase_noise(p, cell), NOISE_FLOOR_M)
+        except FitError as exc:
+            raise ConditionError(str(exc)) from None
+    return max(estimate_noise(p), NOISE_FLOOR_M)
 
 
 def point_noise(pts: np.ndarray, copt: ConditionOptions) -> tuple[str, float]:
     """(mode, estimated lateral noise) of a polyline of distinct points, as condition_polyline
     finds them (for a cusp's estimate from two runs' points, ddrt/path/cusp.py)."""
     p = np.asarray(pts, dtype=float)
+    mode, _, cell = classify(p, copt)
+    return (mode, 0.0) if mode == WAYPOINTS else (mode, _noise(p, cell))
+
+
+def run_tolerance(pts: np.ndarray, copt: ConditionOptions, noise: float | None) -> float:
+    """The tolerance condition_polyline would hold these points to (`auto` from `noise`, else
+    from their own estimate); the floor for waypoints, which no fit holds to anything."""
+    p = np.asarray(pts, dtype=float)
     mode, tol, cell = classify(p, copt)
     if mode == WAYPOINTS:
-        return mode, 0.0
-    spacing = float(np.median(np.hypot(*np.diff(p, axis=0).T)))
-    return mode, max(_noise(p, knot_spacing(spacing, tol, cell)), NOISE_FLOOR_M)
+        return TOLERANCE_FLOOR_M if not tol else tol
+    return resolve_tolerance(tol, _noise(p, cell) if noise is None else max(noise, NOISE_FLOOR_M), len(p))
+
+
+@dataclass
+class _Plan:
+    """What the legs are fitted to: the points, their noise and tolerance, and the corners."""
+
+    p: np.ndarray
+    mode: str
+    tol: float
+    noise: float
+    knot: float
+    scale: float
+    corners: list[tuple[int, float]]
+    pins: list[tuple[EndPin | None, EndPin | None]]  # each leg's start and end
+    wrap: tuple[np.ndarray, np.ndarray] | None
+    axis: float | None
+    opt: GeometryOptions
+
+
+def _leg_pins(ends: tuple[EndPin | None, EndPin | None], corners: list[CornerPin],
+              tangents: bool) -> list[tuple[EndPin | None, EndPin | None]]:
+    """Each leg's start and end pins: the polyline's own ends, else a corner's point, with the
+    side lines' directions as the legs' tangents there where the corner gives them (a reversal
+    or a narrow U-turn, corners.py) and `tangents` (samples; a grid plan's corner keeps its point
+    only)."""
+    starts: list[EndPin | None] = [ends[0]]
+    stops: list[EndPin | None] = []
+    for c in corners:
+        held = tangents and c.into is not None and c.out is not None
+        stops.append(EndPin(c.point, c.into if held else None, c.settle))
+        starts.append(EndPin(c.point if c.cap is None or not held else c.cap, c.out if held else None, c.settle))
+    stops.append(ends[1])
+    return list(zip(starts, stops))
+
+
+def _plan(p: np.ndarray, mode: str, tol: float, cell: float | None, noise: float, opt: GeometryOptions,
+          ends: tuple[EndPin | None, EndPin | None], forced: Sequence[int] = ()) -> _Plan:
+    """Where the corners are (along the distance the points stand for, corners.py; `forced`:
+    points where a fit stopped and turned back, corners whatever their sides say), each leg's
+    ends, and whether the polyline closes on itself."""
+    u = chord_length(p) if mode == GRID else arc_parameter(p, noise)
+    spacing = float(np.median(np.diff(u)))
+    knot = knot_spacing(spacing, tol, cell)
+    scale = corner_scale(tol, noise, spacing)
+    threshold = math.radians(opt.corner_pivot_deg)
+    if mode == GRID:
+        threshold = max(threshold, math.radians(GRID_PIVOT_DEG))
+    corners = find_corners(p, u, scale, threshold, noise)
+    # Within a corner scale of an end pinned with a shared tangent the points were found smooth
+    # by the cusp's own fit (ddrt/path/cusp.py): a turn found there is the end's short chord on noise.
+    held0 = ends[0] is not None and ends[0].slope is not None
+    held1 = ends[1] is not None and ends[1].slope is not None
+    corners = [(k, t) for k, t in corners if not (held0 and u[k] < scale) and not (held1 and u[-1] - u[k] < scale)]
+    corners = sorted(corners + [(k, math.pi) for k in forced if all(k != c for c, _ in corners)])
+    mids = [0.5 * (u[a] + u[b]) for (a, _), (b, _) in zip(corners[:-1], corners[1:])]
+    bounds = list(zip([-math.inf, *mids], [*mids, math.inf]))
+    refined = [((k, t), refine_corner(p, u, k, scale, tol, bounds[i])) for i, (k, t) in enumerate(corners)]
+    # A forced corner (the fit turned back there) stays at its point whatever its sides say.
+    refined = [((k, t), (k, CornerPin(p[k].copy()))) if pin is None and k in forced else ((at, t), (at, pin))
+               for (k, t), (at, pin) in refined]
+    kept = [((at, t), pin) for (_, t), (at, pin) in refined if pin is not None and 0 < at < len(p) - 1]
+    kept = [c for i, c in enumerate(kept) if i == 0 or c[0][0] > kept[i - 1][0][0]]  # in order, no two at one point
+    corners = [c for c, _ in kept]
+    found = [pin for _, pin in kept]
+    pinned = ends[0] is not None or ends[1] is not None
+    wrap = _loop_wrap(p, knot, scale, threshold, tol, spacing) if not corners and not pinned else None
+    pins = _leg_pins(ends, found, mode == SAMPLES)
+    return _Plan(p, mode, tol, noise, knot, scale, corners, pins, wrap, grid_axis(p) if mode == GRID else None, opt)
+
+
+class _LegStops(Exception):
+    """A leg's fit stops and turns back at point `index` (of the whole polyline)."""
+
+    def __init__(self, index: int) -> None:
+        super().__init__(index)
+        self.index = index
+
+
+class _LegUnmet(Exception):
+    """A leg's ToleranceUnmet, with the leg's first point (its index counts from there)."""
+
+    def __init__(self, cause: ToleranceUnmet, first: int) -> None:
+        super().__init__(str(cause))
+        self.cause, self.first = cause, first
+
+
+def _fit(plan: _Plan, j: int, a: int, b: int, where: str, names: Sequence[str]) -> FittedLeg:
+    """Leg j (points a..b) of the plan, its ends held on the corners' side lines if it can be (else
+    at the corners' points only); its failures as ConditionErrors naming the point."""
+    start, end = plan.pins[j]
+    loose = (_point_only(start, j > 0), _point_only(end, j < len(plan.pins) - 1))
+    tries = [(start, end)] + ([loose] if loose[0] is not start or loose[1] is not end else [])
+    for n, (s0, s1) in enumerate(tries):
+        try:
+            return fit_leg(FitRequest(plan.p[a:b + 1], plan.tol, plan.noise, plan.knot, plan.opt, s0, s1,
+                                      plan.wrap, plan.axis))
+        except CurveStops as exc:
+            first = len(plan.wrap[0]) if plan.wrap is not None else 0
+            raise _LegStops(a + min(max(int(exc.index) - first, 0), b - a)) from None
+        except ToleranceUnmet as exc:
+            if n == len(tries) - 1:
+                raise _LegUnmet(exc, a) from None
+        except FitError as exc:
+            raise ConditionError(f"{where}: {names[a]}: the points from here cannot be smoothed: {exc}") from None
+    raise AssertionError("unreachable")
+
+
+def _point_only(pin: EndPin | None, at_corner: bool) -> EndPin | None:
+    """A corner's pin without its tangent (the polyline's own ends are kept as given)."""
+    return EndPin(pin.point, None, pin.settle) if at_corner and pin is not None and pin.slope is not None else pin
+
+
+def _assemble(plan: _Plan, caps: np.ndarray | None, info: Conditioning, where: str,
+              names: Sequence[str]) -> Geometry:
+    """Fit each leg and join them with a turn in place at each corner (any angle up to 180
+    degrees: an unmarked reversal is a corner too); fills `info` with the points' progress,
+    deviations and the corners kept."""
+    p, opt = plan.p, plan.opt
+    cuts = [0] + [k for k, _ in plan.corners] + [len(p) - 1]
+    pieces: list[Piece] = []
+    sig_pts = np.zeros(len(p))
+    devs = np.zeros(len(p))
+    cap_s: list[float] = []
+    cap_v: list[float] = []
+    sigma = 0.0
+    heading: float | None = None
+    kept: list[Corner] = []
+    ells: list[float] = []
+    for j in range(len(cuts) - 1):
+        a, b = cuts[j], cuts[j + 1]
+        leg = _fit(plan, j, a, b, where, names)
+        info.iterations += leg.fits
+        if leg.smoothing_m is not None:
+            ells.append(leg.smoothing_m)
+        theta0 = leg.theta0
+        if heading is not None:
+            x1, x2 = _corner_ends(plan, j)
+            joint, theta0, turns = _joint(x1, x2, heading, leg.theta0, opt)
+            for turn, x, y in turns:
+                kept.append(Corner(a, turn, x, y))
+            for pc in joint:
+                if caps is not None:
+                    cap_s.append(sigma)
+                    cap_v.append(float(caps[a]))
+                pieces.append(pc)
+                sigma += pc.length
+        for pc in leg.pieces:  # keep theta continuous across legs
+            shift = theta0 - leg.theta0
+            if shift:
+                pc.theta = pc.theta + shift
+            pieces.append(pc)
+        heading = theta0 + (leg.theta1 - leg.theta0)
+        sl = slice(a, b + 1)
+        sig_pts[sl] = sigma + leg.sigma
+        devs[sl] = np.maximum(devs[sl], leg.dev)
+        for k, (x1, x2) in ((a, _corner_ends(plan, j)), (b, _corner_ends(plan, j + 1))):
+            if x1 is not None and x2 is not None:  # a corner's own point against the corner
+                devs[k] = max(devs[k], _segment_distance(p[k], x1, x2))
+        if caps is not None:
+            cap_s.extend((sigma + leg.sigma).tolist())
+            cap_v.extend(caps[sl].tolist())
+        sigma += sum(pc.length for pc in leg.pieces)
+    geo = Geometry(pieces)
+    if caps is not None:
+        geo.cap_sigma = np.maximum.accumulate(np.asarray(cap_s))
+        geo.cap_value = np.asarray(cap_v)
+    info.deviation_m = float(devs.max())
+    info.worst = int(np.argmax(devs))
+    info.corners = tuple(kept)
+    info.smoothing_m = tuple(ells)
+    info.point_sigma = sig_pts
+    return geo
+
+
+def _corner_ends(plan: _Plan, j: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Where leg j - 1 ends and leg j starts (one point, or a reversal's cap across its legs);
+    None for the polyline's own ends (and for pins the fit was given from outside)."""
+    if j == 0 or j == len(plan.pins):
+        return None, None
+    end, start = plan.pins[j - 1][1], plan.pins[j][0]
+    return (None if end is None else end.point), (None if start is None else start.point)
+
+
+def _segment_distance(q: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> float:
+    d = x2 - x1
+    n2 = float(d @ d)
+    t = min(max(float((q - x1) @ d) / n2, 0.0), 1.0) if n2 > 0.0 else 0.0
+    return float(math.hypot(*(q - x1 - t * d)))
+
+
+def _joint(x1: np.ndarray | None, x2: np.ndarray | None, heading: float, theta0: float,
+           opt: GeometryOptions) -> tuple[list[Piece], float, list[tuple[float, float, float]]]:
+    """The pieces from one leg's end (at x1, facing `heading`) to the next leg's start (at x2,
+    facing theta0): a turn in place, or, where a reversal's legs lie farther apart than that
+    can bridge (a cap, corners.py), a turn onto the cap, the cap, and a turn onto the leg. Also
+    the next leg's heading kept continuous, and each turn (rad, x, y)."""
+    assert x1 is not None and x2 is not None
+    pieces: list[Piece] = []
+    turns: list[tuple[float, float, float]] = []
+    gap = x2 - x1
+    length = float(math.hypot(*gap))
+    if length > 1e-9:
+        across = heading + float(_wrap(np.array(math.atan2(gap[1], gap[0]) - heading)))
+        pieces, heading, turns = _pivot(x1, heading, across, opt)
+        pieces.append(line_piece(float(x1[0]), float(x1[1]), heading, length, opt.step))
+    final = heading + float(_wrap(np.array(theta0 - heading)))
+    more, final, more_turns = _pivot(x2, heading, final, opt)
+    return pieces + more, final, turns + more_turns
+
+
+def _pivot(x: np.ndarray, heading: float, to: float,
+           opt: GeometryOptions) -> tuple[list[Piece], float, list[tuple[float, float, float]]]:
+    """A turn in place at x from `heading` to `to` (nothing for a turn below 1e-9 rad)."""
+    turn = to - heading
+    if abs(turn) <= 1e-9:
+        return [], heading, []
+    return ([pivot_piece(float(x[0]), float(x[1]), heading, turn, opt.pivot_radius, opt.step)], to,
+            [(turn, float(x[0]), float(x[1]))])
+
+
+def _needed(deviation: float) -> float:
+    """A tolerance that holds a deviation, rounded up to half a millimetre."""
+    return math.ceil(1.05 * deviation / 5e-4) * 5e-4
+
+
+def _unmet(exc: ToleranceUnmet, plan: _Plan, a: int, where: str, names: Sequence[str]) -> ConditionError:
+    """A number the points cannot be held to without following their noise, and what would do."""
+    k = a + min(max(exc.index - (len(plan.wrap[0]) if plan.wrap is not None else 0), 0), len(names) - 1 - a)
+    return ConditionError(
+        f"{where}: {names[k]}: the reference cannot stay within {plan.tol:g} m of the point "
+        f"({exc.x:.6g}, {exc.y:.6g}) without following the points' noise (~{plan.noise * 1000:.3g} mm): "
+        f"the closest smooth curve passes {exc.deviation * 1000:.3g} mm away; a tolerance of "
+        f"{_needed(exc.deviation):g} m would work (raise paths.tolerance_m or the path's tolerance:, "
+        "or set it to auto)")
+
+
+AUTO_RETRIES = 3  # `auto` widens itself this many times where a point is still out (an outlier)
+MAX_REPLANS = 8  # fits of the whole polyline: widened tolerances and reversals found by the fit
+
+
+def _turns_back(where: str, name: str) -> ConditionError:
+    return ConditionError(f"{where}: {name}: the points turn back on themselves here and no turn in place "
+                          "fits them: mark the points reached in reverse (a negative v) or split the path here")
+
+
+def _steps_back(p: np.ndarray) -> list[int]:
+    """Points of a grid plan where it steps back the way it came (turned in place)."""
+    d = np.diff(p, axis=0)
+    seg = np.hypot(d[:, 0], d[:, 1])
+    back = np.einsum("ij,ij->i", d[1:], d[:-1]) < -0.999 * seg[1:] * seg[:-1]
+    return (np.flatnonzero(back) + 1).tolist()
 
 
 def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: GeometryOptions, copt: ConditionOptions,
@@ -333,126 +531,48 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: GeometryOp
     p = np.asarray(pts, dtype=float)
     seg = np.hypot(*np.diff(p, axis=0).T)
     spacing = float(np.median(seg)) if len(seg) else 0.0
-    mode, tol, cell = classify(p, copt)
-    info = Conditioning(mode, tol, p, names, grid_cell_m=cell, spacing_m=spacing)
+    mode, given, cell = classify(p, copt)
     if mode == WAYPOINTS:
-        geo = polyline_geometry([(float(a), float(b)) for a, b in p], None if caps is None else caps.tolist(), opt)
-        if len(p) > 2:
-            d = np.diff(p, axis=0)
-            turn = _wrap(np.diff(np.arctan2(d[:, 1], d[:, 0])))
-            sharp = np.abs(turn) > math.radians(opt.corner_pivot_deg)
-            info.corners = tuple(Corner(int(i) + 1, float(turn[i]), float(p[i + 1, 0]), float(p[i + 1, 1]))
-                                 for i in np.flatnonzero(sharp))
-            info.extra["blends"] = int(np.sum(~sharp & (np.abs(turn) > 1e-9)))
-        return geo, info
-    u = chord_length(p)
-    knot = knot_spacing(spacing, tol, cell)
-    rough = _raw_noise(p)
-    scale = max(5.0 * tol, 20.0 * rough, 3.0 * spacing)
-    threshold = math.radians(opt.corner_pivot_deg)
-    if mode == GRID:
-        threshold = max(threshold, math.radians(GRID_PIVOT_DEG))
-    corners = _find_corners(p, u, scale, threshold)
-    # Within a corner scale of an end pinned with a shared tangent the points were found smooth
-    # by the cusp's own fit (ddrt/path/cusp.py): a turn found there is the end's short chord on noise.
-    held0 = ends[0] is not None and ends[0].slope is not None
-    held1 = ends[1] is not None and ends[1].slope is not None
-    corners = [(k, t) for k, t in corners if not (held0 and u[k] < scale) and not (held1 and u[-1] - u[k] < scale)]
-    if mode == SAMPLES:
-        for k, turn in corners:
-            if abs(turn) >= math.radians(REVERSAL_DEG):
-                raise ConditionError(
-                    f"{where}: {names[k]}: the path reverses here (it turns {math.degrees(abs(turn)):.0f} degrees "
-                    f"within {scale * 100:.0f} cm): mark the points reached in reverse (a negative v) or split the path here")
-    else:
-        d = np.diff(p, axis=0)
-        back = np.flatnonzero(np.einsum("ij,ij->i", d[1:], d[:-1]) < -0.999 * seg[1:] * seg[:-1])
-        if len(back):
-            k = int(back[0]) + 1
-            raise ConditionError(f"{where}: {names[k]}: the plan steps back the way it came (a reversal): "
-                                 "mark the points reached in reverse (a negative v) or split the path here")
-    noise = max(_noise(p, knot) if noise is None else noise, NOISE_FLOOR_M)
-    axis = grid_axis(p) if mode == GRID else None
-    info.noise_m = noise
-    pinned = ends[0] is not None or ends[1] is not None
-    wrap = _loop_wrap(p, knot, scale, threshold, tol, spacing) if not corners and not pinned else None
-    info.extra["closed_loop"] = wrap is not None
-    cuts = [0] + [k for k, _ in corners] + [len(p) - 1]
-    # Each leg's ends: the polyline's own (pinned or free), else a corner (the point only).
-    pins: list[EndPin | None] = [ends[0], *(EndPin(_refine_corner(p, u, k, scale, tol)) for k, _ in corners), ends[1]]
-    pieces: list[Piece] = []
-    sig_pts = np.zeros(len(p))
-    devs = np.zeros(len(p))
-    cap_s: list[float] = []
-    cap_v: list[float] = []
-    sigma = 0.0
-    heading: float | None = None
-    kept: list[Corner] = []
-    ells: list[float] = []
-    for j in range(len(cuts) - 1):
-        a, b = cuts[j], cuts[j + 1]
+        return _waypoints(p, caps, opt, names, spacing, TOLERANCE_FLOOR_M if given is None else given)
+    nz = _noise(p, cell) if noise is None else max(noise, NOISE_FLOOR_M)
+    tol = resolve_tolerance(given, nz, len(p))
+    forced = _steps_back(p) if mode == GRID else []
+    widened = 0
+    for _ in range(MAX_REPLANS):
+        info = Conditioning(mode, tol, p, names, noise_m=nz, grid_cell_m=cell, spacing_m=spacing,
+                            auto=given is None and mode == SAMPLES)
+        plan = _plan(p, mode, tol, cell, nz, opt, ends, forced)
+        info.extra["closed_loop"] = plan.wrap is not None
         try:
-            leg = fit_leg(FitRequest(p[a:b + 1], tol, noise, knot, opt, pins[j], pins[j + 1], wrap, axis))
-        except CurveStops as exc:
-            k = a + exc.index
-            raise ConditionError(f"{where}: {names[k]}: the points turn back on themselves here (the smoothed "
-                                 "curve stops and reverses): mark the points reached in reverse (a negative v) "
-                                 "or split the path here") from None
-        except ToleranceUnmet as exc:
-            raise ConditionError(
-                f"{where}: {names[a + exc.index]}: the reference cannot stay within {tol:g} m of the point "
-                f"({exc.x:.6g}, {exc.y:.6g}): the closest smooth curve passes {exc.deviation * 1000:.3g} mm away "
-                "(the points are noisier than the tolerance); raise paths.tolerance_m or the path's tolerance:"
-            ) from None
-        except FitError as exc:
-            raise ConditionError(f"{where}: {names[a]}: the points from here cannot be smoothed: {exc}") from None
-        info.iterations += leg.fits
-        if leg.smoothing_m is not None:
-            ells.append(leg.smoothing_m)
-        if heading is not None:
-            turn = float(_wrap(np.array(leg.theta0 - heading)))
-            if abs(turn) >= math.radians(REVERSAL_DEG) and mode == SAMPLES:
-                raise ConditionError(
-                    f"{where}: {names[a]}: the path reverses here (it turns {math.degrees(abs(turn)):.0f} degrees): "
-                    "mark the points reached in reverse (a negative v) or split the path here")
-            if abs(turn) > 1e-9:
-                corner = pins[j]
-                assert corner is not None
-                c = corner.point
-                pieces.append(pivot_piece(float(c[0]), float(c[1]), heading, turn, opt.pivot_radius, opt.step))
-                kept.append(Corner(a, turn, float(c[0]), float(c[1])))
-                if caps is not None:
-                    cap_s.append(sigma)
-                    cap_v.append(float(caps[a]))
-                sigma += pieces[-1].length
-        theta0 = leg.theta0 if heading is None else heading + float(_wrap(np.array(leg.theta0 - heading)))
-        for pc in leg.pieces:  # keep theta continuous across legs
-            shift = theta0 - leg.theta0
-            if shift:
-                pc.theta = pc.theta + shift
-            pieces.append(pc)
-        heading = theta0 + (leg.theta1 - leg.theta0)
-        sl = slice(a, b + 1)
-        sig_pts[sl] = sigma + leg.sigma
-        devs[sl] = np.maximum(devs[sl], leg.dev)
-        for k, pin in ((a, pins[j]), (b, pins[j + 1])):  # a corner's own point against the corner
-            if pin is not None:
-                devs[k] = max(devs[k], float(math.hypot(*(p[k] - pin.point))))
-        if caps is not None:
-            cap_s.extend((sigma + leg.sigma).tolist())
-            cap_v.extend(caps[sl].tolist())
-        sigma += sum(pc.length for pc in leg.pieces)
-    geo = Geometry(pieces)
-    if caps is not None:
-        cs = np.maximum.accumulate(np.asarray(cap_s))
-        geo.cap_sigma = cs
-        geo.cap_value = np.asarray(cap_v)
+            geo = _assemble(plan, caps, info, where, names)
+            break
+        except _LegStops as exc:
+            if exc.index in forced or exc.index in (0, len(p) - 1):
+                raise _turns_back(where, names[exc.index]) from None
+            forced.append(exc.index)  # an unmarked reversal the corners missed: turned in place
+        except _LegUnmet as exc:
+            if given is not None or widened == AUTO_RETRIES:
+                raise _unmet(exc.cause, plan, exc.first, where, names) from None
+            tol = _needed(exc.cause.deviation)
+            widened += 1
+    else:
+        raise _turns_back(where, names[forced[-1]])
     if mode == GRID:
         _cap_turns(geo, info)
-    info.deviation_m = float(devs.max())
-    info.worst = int(np.argmax(devs))
-    info.corners = tuple(kept)
-    info.smoothing_m = tuple(ells)
-    info.point_sigma = sig_pts
-    info.extra["corner_scale_m"] = scale
+    info.extra["corner_scale_m"] = plan.scale
+    return geo, info
+
+
+def _waypoints(p: np.ndarray, caps: np.ndarray | None, opt: GeometryOptions, names: Sequence[str],
+               spacing: float, tol: float) -> tuple[Geometry, Conditioning]:
+    """Straight segments through the points, corners turned in place or blended (geometry.py)."""
+    info = Conditioning(WAYPOINTS, tol, p, names, spacing_m=spacing)
+    geo = polyline_geometry([(float(a), float(b)) for a, b in p], None if caps is None else caps.tolist(), opt)
+    if len(p) > 2:
+        d = np.diff(p, axis=0)
+        turn = _wrap(np.diff(np.arctan2(d[:, 1], d[:, 0])))
+        sharp = np.abs(turn) > math.radians(opt.corner_pivot_deg)
+        info.corners = tuple(Corner(int(i) + 1, float(turn[i]), float(p[i + 1, 0]), float(p[i + 1, 1]))
+                             for i in np.flatnonzero(sharp))
+        info.extra["blends"] = int(np.sum(~sharp & (np.abs(turn) > 1e-9)))
     return geo, info

@@ -17,7 +17,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ddrt.core.wrap import wrap_angle
-from ddrt.path.condition import WAYPOINTS, ConditionOptions, Conditioning, classify, point_noise
+from ddrt.path.condition import WAYPOINTS, ConditionOptions, Conditioning, point_noise, run_tolerance
 from ddrt.path.cusp import (
     CUSP_BLEND_MAX_RAD, SharedCusp, bend_end, bend_start, blend_length, blend_offset, estimate_cusp,
 )
@@ -138,10 +138,10 @@ def _shared_cusps(pts: list[Point], runs: list[Run],
     run has enough points for one), and each run's tolerance."""
     xys = [np.array([(p[0], p[1]) for p in pts[a:b + 1]], dtype=float) for a, b, _ in runs]
     found = [point_noise(xy, copt) if len(xy) >= 4 else (WAYPOINTS, 0.0) for xy in xys]
-    tols = [classify(xy, copt)[1] for xy in xys]
     pool = [(len(xy), nz) for xy, (mode, nz) in zip(xys, found)
             if mode != WAYPOINTS and len(xy) >= NOISE_POOL_MIN_POINTS]
     noise = (math.sqrt(sum(n * nz * nz for n, nz in pool) / sum(n for n, _ in pool))) if pool else None
+    tols = [run_tolerance(xy, copt, noise) for xy in xys]
     out: list[SharedCusp | None] = []
     for r in range(len(runs) - 1):
         (ma, na), (mb, nb) = found[r], found[r + 1]
@@ -179,7 +179,9 @@ def _joined_conditioning(pts: list[Point], names: list[str],
     corners = tuple(replace(k, index=k.index + a) for a, c in conds for k in c.corners)
     xy = np.array([(p[0], p[1]) for p in pts], dtype=float)
     seg = np.hypot(*np.diff(xy, axis=0).T)
-    out = Conditioning(first.mode, first.tolerance_m, xy, names, deviation_m=worst.deviation_m,
+    # Each run's tolerance (`auto` sets one per run, from the pooled noise and its points).
+    tol = max((c.tolerance_m for _, c in conds if c.mode != WAYPOINTS), default=first.tolerance_m)
+    out = Conditioning(first.mode, tol, xy, names, deviation_m=worst.deviation_m, auto=first.auto,
                        worst=worst_a + worst.worst, noise_m=max(c.noise_m for _, c in conds),
                        grid_cell_m=first.grid_cell_m, smoothing_m=tuple(e for _, c in conds for e in c.smoothing_m),
                        corners=corners, spacing_m=float(np.median(seg)) if len(seg) else 0.0,

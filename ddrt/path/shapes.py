@@ -281,8 +281,8 @@ class SCurveSpec(PathCommon):
             0.0, length, opt.step)])
 
 
-def _check_tolerance(where: str, tolerance: float | None) -> None:
-    if tolerance is not None:
+def _check_tolerance(where: str, tolerance: float | str | None) -> None:
+    if tolerance is not None and tolerance != "auto":
         non_negative(where, tolerance=tolerance)
         if tolerance > MAX_TOLERANCE_M:
             raise ConfigError(f"{where + '.' if where else ''}tolerance: must be at most {MAX_TOLERANCE_M:g} m, "
@@ -292,7 +292,7 @@ def _check_tolerance(where: str, tolerance: float | None) -> None:
 @dataclass(frozen=True, kw_only=True)
 class PointsSpec(PathCommon):
     points: tuple[tuple[float, ...], ...]  # [x, y] or [x, y, v] (v: speed cap, m/s)
-    tolerance: float | None = None  # m; default paths.tolerance_m (0: every point is a waypoint)
+    tolerance: float | Literal["auto"] | None = None  # m or auto; default paths.tolerance_m (0: waypoints)
 
     SIZE_KEY: ClassVar[str] = "points"
 
@@ -310,7 +310,7 @@ class PointsSpec(PathCommon):
 @dataclass(frozen=True, kw_only=True)
 class FileSpec(PathCommon):
     file: str  # a .csv of waypoints, relative to the spec's folder
-    tolerance: float | None = None  # m; default paths.tolerance_m (0: every point is a waypoint)
+    tolerance: float | Literal["auto"] | None = None  # m or auto; default paths.tolerance_m (0: waypoints)
 
     SIZE_KEY: ClassVar[str] = "file"
 

@@ -1,8 +1,10 @@
 """The smoothing spline through one leg of samples: a P-spline that stays within a tolerance
 of every point (ddrt/path/condition.py decides what a leg is: the points between two corners).
 
-Each leg is a uniform cubic B-spline in the input's chord length u (knots at the median point
-spacing), fitted by penalised least squares (a P-spline):
+Each leg is a uniform cubic B-spline in the distance u the points stand for along the curve
+(their chord length, averaged over a few noise sigmas where the noise is larger than a share
+of the spacing: ddrt/path/noise.py; a grid plan's plain chord length), knots at the median
+point spacing, fitted by penalised least squares (a P-spline):
 
     minimise  sum_i w_i |r(u_i) - p_i|^2 + sum_j lambda_j (third difference of the coefficients)_j^2
 
@@ -16,16 +18,19 @@ by a banded LDL^T factorisation in plain Python floats (numpy has no banded solv
 
 Choosing the smoothing (why not "as smooth as the tolerance allows": that would bend an
 exact export of a figure-eight by the whole tolerance):
-1. the noise is estimated from a light fit (l = 3 knots): sigma = 1.4826 MAD of the lateral
-   residuals, divided by the share of white noise such a fit leaves (`estimate_noise`);
+1. the noise is given (ddrt/path/noise.py: local cubic residuals; a grid plan's staircase,
+   `staircase_noise`: the residuals of a light fit of 3 cells);
 2. per leg, the largest l on a sqrt(2) ladder whose RMS lateral residual stays within
    1.1 sigma (the discrepancy principle: remove the noise, keep the curve; the shape bias
-   that remains is a fraction of the noise);
+   that remains is a fraction of the noise), over the leg's points but those where a pin is
+   meant to pull the curve off them (`EndPin.settle`);
 3. the tolerance is then enforced point by point: wherever a point lies farther than
-   `tolerance` from the curve, the penalty is lowered four-fold around it (and, at the
-   lowest smoothing, the point's weight raised) and the leg is fitted again, until every
-   point is within tolerance. A tolerance no smooth curve can meet (far below the noise)
-   is refused (`ToleranceUnmet`, naming the point).
+   `tolerance` from the curve, the penalty is lowered four-fold around it and the leg is
+   fitted again, until every point is within tolerance; never below the smoothing at which
+   the noise would show in the curvature (noise.chase_floor: the fit would follow the noise;
+   where the noise sets no such floor, an exact export, the point's weight is raised instead).
+   A tolerance no such curve can meet is refused (`ToleranceUnmet`, naming the point and
+   how far the curve passes).
 
 A leg's ends may be pinned (`EndPin`): held at a point (a corner, a cusp) and, given a slope,
 on a tangent there. The interface is one request (`FitRequest`) and one result (`FittedLeg`).
@@ -40,14 +45,16 @@ from typing import Callable
 import numpy as np
 
 from ddrt.path.geometry import GeometryOptions, Piece, line_piece, polyline_geometry
+from ddrt.path.noise import arc_parameter, chase_floor
 
 __all__ = ["CurveStops", "EndPin", "FitError", "FitRequest", "FittedLeg", "ToleranceUnmet", "chord_length",
-           "estimate_noise", "fit_leg"]
+           "fit_leg", "staircase_noise"]
 
 DISCREPANCY = 1.1  # RMS lateral residual allowed, in estimated noise sigmas
 MAX_SMOOTHING_M = 4.0  # longest smoothing length tried
 MAX_SMOOTHING_KNOTS = 40.0  # and at most this many knots (beyond, the normal equations lose precision)
 _FIX_WEIGHT = 1e6  # weight (relative to the largest) of a leg end fixed at a corner
+CUSP_SWING = 0.25 * math.pi  # rad: a heading turning this much within an eighth of a knot stops and reverses
 SEARCH_POINTS = 4000  # a longer leg chooses its smoothing on windows of this many points
 
 
@@ -78,10 +85,14 @@ class EndPin:
     """A fitted polyline's start or end held at `point`, with dr/du = `slope` there (u the
     points' chord length: |slope| is the pace of the points' progress per chord, about 1);
     `slope` None: the point only, the tangent free (a corner; or a cusp's sample, where no
-    tangent is shared: the run then meets the other at one point, ddrt/path/reversal.py)."""
+    tangent is shared: the run then meets the other at one point, ddrt/path/reversal.py).
+    `settle`: the length (of chord) near the pin over which the curve is meant to leave the
+    points (a reversal's corner midway between its legs): left out of the smoothing's choice,
+    which is about the noise."""
 
     point: np.ndarray
     slope: np.ndarray | None = None
+    settle: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -298,14 +309,6 @@ def _project(sp: _Spline, p: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.
     return sign * dist, uu
 
 
-def _residual_share(ell_over_knot: float) -> float:
-    """RMS share of white noise a Whittaker smoother of this length leaves in the residuals."""
-    w = np.linspace(0.0, math.pi, 2001)[1:]
-    g = ell_over_knot ** 6 * (2.0 * np.sin(0.5 * w)) ** 6
-    return float(np.sqrt(np.mean((g / (1.0 + g)) ** 2)))
-
-
-
 def chord_length(p: np.ndarray) -> np.ndarray:
     """The chord length u at each point: the spline's parameter."""
     return np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T))))
@@ -352,6 +355,11 @@ def _sample_piece(sp: _Spline, step: float, start: np.ndarray | None, end: np.nd
     speed = np.hypot(dx, dy)
     if not np.all(speed > 1e-6 * float(np.max(speed))):
         raise CurveStops(float(uf[int(np.argmin(speed))]))
+    # A heading that swings by more than CUSP_SWING within an eighth of a knot is a cusp the
+    # speed test missed (the curve nearly stops and turns back).
+    swing = np.abs(np.arctan2(dx[:-1] * dy[1:] - dy[:-1] * dx[1:], dx[:-1] * dx[1:] + dy[:-1] * dy[1:]))
+    if swing.size and float(swing.max()) > CUSP_SWING:
+        raise CurveStops(float(uf[int(np.argmax(swing))]))
     sf = np.concatenate(([0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(uf))))
     total = float(sf[-1])
     n = max(2, int(math.ceil(total / step - 1e-9)))
@@ -377,10 +385,10 @@ def _sample_piece(sp: _Spline, step: float, start: np.ndarray | None, end: np.nd
 def _choose_smoothing(q: np.ndarray, u: np.ndarray, w: np.ndarray, fixed: np.ndarray, knot: float,
                       noise: float, slopes: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
                       ) -> tuple[float, int]:
-    """The largest smoothing length on a sqrt(2) ladder whose RMS lateral residual is within
-    DISCREPANCY noise sigmas (bisection); a long leg takes the smallest over three windows
-    (the choice is about the noise, which a window shows as well as the whole). `slopes`:
-    the leg's held end tangents (a leg short enough to be chosen whole)."""
+    """The largest smoothing length on a sqrt(2) ladder whose RMS lateral residual (over the
+    points not `fixed`) is within DISCREPANCY noise sigmas (bisection); a long leg takes the
+    smallest over three windows (the choice is about the noise, which a window shows as well
+    as the whole). `slopes`: the leg's held end tangents (a leg short enough to be chosen whole)."""
     n = len(q)
     if n > SEARCH_POINTS:
         starts = np.linspace(0, n - SEARCH_POINTS, 3).astype(int).tolist()
@@ -432,6 +440,16 @@ def _cell_distance(sp: _Spline, q: np.ndarray, uf: np.ndarray, axis: float) -> n
     return np.maximum(np.abs(c * ex + s * ey), np.abs(c * ey - s * ex))
 
 
+def _settling(req: FitRequest, u: np.ndarray) -> np.ndarray:
+    """Points within a pin's `settle` of its end, where the curve is meant to leave them."""
+    out = np.zeros(len(u), dtype=bool)
+    if req.start is not None and req.start.settle > 0.0:
+        out |= u - u[0] < req.start.settle
+    if req.end is not None and req.end.settle > 0.0:
+        out |= u[-1] - u < req.end.settle
+    return out
+
+
 def fit_leg(req: FitRequest) -> FittedLeg:
     """One leg between corners (or the path's ends): the smoothing spline of the module doc.
 
@@ -462,24 +480,26 @@ def fit_leg(req: FitRequest) -> FittedLeg:
     if wrap is not None:
         core = slice(len(wrap[0]), len(wrap[0]) + len(q))
         q = np.concatenate((wrap[0], q, wrap[1]))
-    u = chord_length(q)
+    u = chord_length(q) if cell_axis is not None else arc_parameter(q, req.noise)
     h = np.diff(u)
     w = 0.5 * (np.concatenate((h, [0.0])) + np.concatenate(([0.0], h)))
     fixed = np.zeros(len(q), dtype=bool)  # not checked against the tolerance
-    if fix0 is not None:
-        fixed[0] = True
-    if fix1 is not None:
-        fixed[-1] = True
+    fixed[core.start] = fix0 is not None
+    fixed[core.stop - 1] = fix1 is not None
     w[fixed] = _FIX_WEIGHT * float(w.max())
     fixed[:core.start] = True
     fixed[core.stop:] = True
     held = (req.start.slope if req.start is not None and wrap is None else None,
             req.end.slope if req.end is not None and wrap is None else None)
+    choice = fixed | _settling(req, u)
+    ell, fits = _choose_smoothing(q, u, w, choice if not choice.all() else fixed, knot, req.noise, held)
     fit = _LegFit(q, u, w, knot, held)
     nrow = fit.nc - 3
     kn = fit.spline.knot
-    ell_min = 0.5 * kn
-    ell, fits = _choose_smoothing(q, u, w, fixed, knot, req.noise, held)
+    # The tolerance may lower the smoothing round a point that is out, but not so far that the
+    # curve follows the noise (noise.chase_floor; a grid plan's staircase is not noise).
+    floor = 0.0 if cell_axis is not None else chase_floor(req.noise, float(u[-1]) / max(len(u) - 1, 1))
+    ell_min = max(0.5 * kn, min(floor, ell))
     lam = np.full(nrow, fit.lam(ell))
     lam_min = fit.lam(ell_min)
     reach = int(math.ceil(ell / kn)) + 3
@@ -497,8 +517,9 @@ def fit_leg(req: FitRequest) -> FittedLeg:
         np.add.at(rows, np.clip(jb + reach + 1, 0, nrow), -1.0)
         near = np.cumsum(rows)[:nrow] > 0
         if np.all(lam[near] <= lam_min * (1.0 + 1e-9)):
-            # Smoothing as low as it goes: let the points that are still out pull harder.
-            if np.all(fit.w[bad] >= 256.0 * w[bad]):
+            # Smoothing as low as it goes: where the noise does not set that floor, let the
+            # points that are still out pull harder.
+            if ell_min > 0.5 * kn * (1.0 + 1e-9) or np.all(fit.w[bad] >= 256.0 * w[bad]):
                 break
             fit.set_weights(np.where(bad, fit.w * 4.0, fit.w))
         else:
@@ -515,12 +536,21 @@ def fit_leg(req: FitRequest) -> FittedLeg:
     return FittedLeg([piece], float(piece.theta[0]), float(piece.theta[-1]), sig, dev[core], ell, fits)
 
 
-def estimate_noise(p: np.ndarray, knot: float) -> float:
-    """Lateral noise of the points (1 sigma): residuals of a light fit, scaled by the share it
-    leaves (on three windows of a long polyline); 0 for too few points. Raises FitError."""
+def _residual_share(ell_over_knot: float) -> float:
+    """RMS share of white noise a Whittaker smoother of this length leaves in the residuals."""
+    w = np.linspace(0.0, math.pi, 2001)[1:]
+    g = ell_over_knot ** 6 * (2.0 * np.sin(0.5 * w)) ** 6
+    return float(np.sqrt(np.mean((g / (1.0 + g)) ** 2)))
+
+
+def staircase_noise(p: np.ndarray, knot: float) -> float:
+    """A grid plan's zig-zag about the curve it stands for, as a noise level (1 sigma): the
+    residuals of a light fit (3 cells), scaled by the share of white noise it leaves (on three
+    windows of a long plan); 0 for too few points. The smoothing removes that much. (Recordings
+    have ddrt/path/noise.py: a staircase is not white noise, and its steps are the cells.)"""
     if len(p) > SEARCH_POINTS:
         starts = np.linspace(0, len(p) - SEARCH_POINTS, 3).astype(int).tolist()
-        return float(np.median([estimate_noise(p[a:a + SEARCH_POINTS], knot) for a in starts]))
+        return float(np.median([staircase_noise(p[a:a + SEARCH_POINTS], knot) for a in starts]))
     u = chord_length(p)
     if len(p) < 8 or u[-1] < 6.0 * knot:
         return 0.0
@@ -530,4 +560,3 @@ def estimate_noise(p: np.ndarray, knot: float) -> float:
     sp = fit.solve(np.full(fit.nc - 3, fit.lam(3.0 * fit.spline.knot)))
     d, _ = _project(sp, p, u)
     return float(1.4826 * np.median(np.abs(d)) / _residual_share(3.0))
-

@@ -149,13 +149,14 @@ def read_points_csv(filename: str,
     return rows, len(header) == 3, lines
 
 
-def _condition_options(paths: PathsConfig, tolerance: float | None) -> ConditionOptions:
-    return ConditionOptions(paths.tolerance_m if tolerance is None else tolerance, paths.waypoint_spacing_m,
-                            tolerance is not None)
+def _condition_options(paths: PathsConfig, tolerance: float | str | None) -> ConditionOptions:
+    """The config's tolerance, the path's own first; `auto` as None (set from the noise)."""
+    tol = paths.tolerance_m if tolerance is None else tolerance
+    return ConditionOptions(None if tol == "auto" else float(tol), paths.waypoint_spacing_m, tolerance is not None)
 
 
 def _waypoint_geometry(rows: list[tuple[float, float, float]], has_v: bool, where: str, opt: GeometryOptions,
-                       paths: PathsConfig, names: list[str], tolerance: float | None = None,
+                       paths: PathsConfig, names: list[str], tolerance: float | str | None = None,
                        budget_where: str | None = None,
                        tries: Sequence[tuple[EndPin | None, EndPin | None]] = (),
                        noise: float | None = None) -> tuple[Geometry, Conditioning]:
