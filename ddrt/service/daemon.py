@@ -48,7 +48,7 @@ from ddrt.service.pathworker import PathWorker
 from ddrt.service.reloading import Reloader
 from ddrt.service.sdnotify import Notifier
 from ddrt.service.status import daemon_status, not_run_report, stats_report, status_line, write_stats
-from ddrt.service.telemetry import RotatingCsvWriter, TelemetryLogger, TelemetryRing
+from ddrt.service.telemetry import TelemetryLogger, TelemetryRing, open_csv_telemetry
 from ddrt.service.timing import RateScheduler, TimingStats
 from hal.base import HalError
 from hal.registry import open_hal
@@ -124,20 +124,6 @@ class Daemon:
         # every read, so the loop is scheduled (and its lateness measured) on the real
         # monotonic clock; hardware times its devices on that clock.
         self.hal = open_hal(cfg, start=start, paced=True, clock=self.clock)
-
-    def _open_telemetry(self) -> None:
-        d = self.cfg.daemon
-        directory = os.environ.get("LOGS_DIRECTORY") or d.telemetry_dir
-        if d.telemetry_format == "mcap":
-            return  # the Foxglove publisher writes the MCAP files (_open_viz)
-        try:
-            FsPath(directory).mkdir(parents=True, exist_ok=True)
-            writer = RotatingCsvWriter(directory, "telemetry", COLUMNS, d.telemetry_max_bytes, d.telemetry_max_files)
-        except OSError as exc:
-            log.warning("telemetry disabled: cannot write to %s: %s", directory, exc)
-            return
-        self.ring = TelemetryRing(COLUMNS, capacity=4096)
-        self.telemetry = TelemetryLogger(self.ring, writer)
 
     def _open_viz(self) -> bool:
         """Foxglove server and MCAP files (ddrt/viz/service.py); False if they cannot start."""
@@ -285,7 +271,7 @@ class Daemon:
         cfg = self.cfg
         self.loop = loop = ControlLoop(cfg, self.hal)
         self.audit.last = loop.state
-        self._open_telemetry()
+        self.ring, self.telemetry = open_csv_telemetry(self.cfg.daemon, COLUMNS)
         if not self._open_viz():
             return 1
         d = cfg.daemon

@@ -17,9 +17,13 @@ import os
 import sys
 import threading
 from array import array
-from typing import Iterable, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Iterable, Sequence
 
 from ddrt.runtime.rotation import FileRotation, positive_int
+
+if TYPE_CHECKING:
+    from ddrt.config.sections import DaemonConfig
 
 log = logging.getLogger(__name__)
 
@@ -276,3 +280,21 @@ def configure_logging(level: int | str = "INFO", sd_prefix: bool | None = None) 
     root.addHandler(handler)
     root.setLevel(level)
     return handler
+
+
+def open_csv_telemetry(d: "DaemonConfig", columns: Sequence[str]) -> tuple[TelemetryRing | None, TelemetryLogger | None]:
+    """The daemon's CSV telemetry (ring and writer thread), or (None, None) when the format is
+    MCAP only (the Foxglove publisher writes those) or the directory cannot be written: the
+    robot runs on without telemetry, and the log says why. $LOGS_DIRECTORY (systemd's
+    LogsDirectory=) wins over daemon.telemetry_dir."""
+    directory = os.environ.get("LOGS_DIRECTORY") or d.telemetry_dir
+    if d.telemetry_format == "mcap":
+        return None, None
+    try:
+        Path(directory).mkdir(parents=True, exist_ok=True)
+        writer = RotatingCsvWriter(directory, "telemetry", columns, d.telemetry_max_bytes, d.telemetry_max_files)
+    except OSError as exc:
+        log.warning("telemetry disabled: cannot write to %s: %s", directory, exc)
+        return None, None
+    ring = TelemetryRing(columns, capacity=4096)
+    return ring, TelemetryLogger(ring, writer)
