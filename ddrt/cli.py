@@ -95,8 +95,10 @@ def _cmd_sim(args: argparse.Namespace) -> int:
         raise ValueError(f"{args.config}: hal.backend: real with hal.imu.bus: {cfg.hal.imu.bus} drives the "
                          "robot itself; `ddrt sim` needs hal.backend: sim (or hal.imu.bus: sim, the emulated devices)")
     path = resolve_path(cfg, args.path)
-    for note in path.warnings:
-        print(f"ddrt: warning: {note}", file=sys.stderr)
+    for note in path.notes:
+        print(f"ddrt: {note}", file=sys.stderr)
+    for warning in path.warnings:
+        print(f"ddrt: warning: {warning}", file=sys.stderr)
     # The rows go to telemetry.csv as the run makes them (the figures read them back from it).
     result = run_sim(cfg, path, duration=args.duration, seed=args.seed, start=args.start,
                      progress=None if args.quiet else stderr_progress,

@@ -243,8 +243,7 @@ def report_text(r: PathReport, max_stretches: int = 24) -> str:
     for st in shown:
         lines.append(f"  {st.start_m:8.3f} - {st.end_m:8.3f}  {st.label}")
     for w in r.warnings:
-        if not w.endswith(r.summary):  # the conditioning's own note is the "read as" line
-            lines.append(f"note          {w}")
+        lines.append(f"warning       {w}")
     return "\n".join(lines)
 
 

@@ -117,6 +117,8 @@ class Path:
         self.start_pose: tuple[float, float, float] = tuple(float(v) for v in start_pose)  # type: ignore[assignment]
         # What the loader changed on the way, for the user (e.g. a path limit clamped to the config's).
         self.warnings: list[str] = []
+        # What the loader did that is no cause for concern (how a polyline's points were read).
+        self.notes: list[str] = []
         # How a polyline's points were read (ddrt.path.condition.Conditioning); None for shapes.
         self.conditioning: Any = None
 
@@ -195,6 +197,7 @@ class Path:
         new._profile(self._np["v_cap"], keep=(first, self._np["u"]))
         new.duration = new.t[-1]
         new.warnings = list(self.warnings)
+        new.notes = list(self.notes)
         return new
 
     def moved(self, pose: tuple[float, float, float]) -> "Path":
@@ -217,6 +220,7 @@ class Path:
         new.tx, new.ty = np.cos(theta).tolist(), np.sin(theta).tolist()
         new.start_pose = (x1, y1, th0 + dth)
         new.warnings = list(self.warnings)
+        new.notes = list(self.notes)
         return new
 
     def envelope_excess(self, envelope: "Envelope", first: int = 0) -> float:

@@ -354,9 +354,9 @@ def _finish(geo: Geometry, lim: SpeedLimits, v_cap: float, opt: GeometryOptions,
     if not path.duration <= paths.max_duration_s:
         raise PathError(f"{where}: the path takes {path.duration:.3g} s at its limits, longer than "
                         f"paths.max_duration_s = {paths.max_duration_s:g} s (a speed or acceleration too low?)")
-    if cond is not None and cond.mode != WAYPOINTS:
-        notes.append(f"{where}: {cond.summary()}")
     path.warnings = [*lim.notes, *notes]
+    if cond is not None and cond.mode != WAYPOINTS:
+        path.notes = [f"{where}: {cond.summary()}"]
     path.conditioning = cond
     return path
 

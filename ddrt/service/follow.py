@@ -171,8 +171,10 @@ def switch(d: Daemon, p: PendingFollow, build: Build) -> dict[str, Any]:
     del old
     if d.viz is not None:
         d.viz.path_started(path)
-    for note in path.warnings:
-        log.warning("follow: %s", note)
+    for note in path.notes:
+        log.info("follow: %s", note)
+    for warning in path.warnings:
+        log.warning("follow: %s", warning)
     log.info("following %s: %.2f m, %.1f s (prepared in %.2f s)", p.what, path.length, path.duration,
              build.elapsed_s)
     reply: dict[str, Any] = {
@@ -180,6 +182,8 @@ def switch(d: Daemon, p: PendingFollow, build: Build) -> dict[str, Any]:
     }
     if path.warnings:
         reply["warnings"] = list(path.warnings)
+    if path.notes:
+        reply["notes"] = list(path.notes)
     return reply
 
 
