@@ -16,6 +16,7 @@ from ddrt.config.sections import (
     PursuitConfig, SensorsConfig, SimConfig,
 )
 from ddrt.config.yamlio import read_yaml, shorten
+from ddrt.params.estimate import estimate_from_mapping
 from ddrt.params.robot import RobotParams
 from ddrt.params.motor import MotorParams
 
@@ -68,6 +69,32 @@ def _read_yaml(path: FsPath, chain: tuple[str, ...] = ()) -> dict[str, Any]:
     return dict(data)
 
 
+def _explicit(section: Any, where: str) -> Any:
+    """robot: or plant: with its `estimate:` (if any) replaced by the parameters derived from it."""
+    if not isinstance(section, Mapping) or "estimate" not in section:
+        return section
+    both = [key for key in RobotParams.names() if key in section]
+    if both:
+        raise ConfigError(f"{where}: give either estimate: or the full parameters, not both "
+                          f"(remove estimate:, or {', '.join(both)})")
+    try:
+        derived = estimate_from_mapping(section["estimate"], f"{where}.estimate").params()
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    out = {k: v for k, v in section.items() if k != "estimate"}
+    out.update({name: getattr(derived, name) for name in RobotParams.names()})
+    return out
+
+
+def _plant_section(robot_section: Any, plant_over: Mapping[str, Any]) -> Any:
+    """plant: over robot:, key by key. A plant estimate: replaces robot:'s parameters (and
+    merges over its estimate:); explicit plant keys override those robot:'s estimate derived."""
+    if "estimate" in plant_over:
+        base = {k: v for k, v in robot_section.items() if k not in RobotParams.names()}
+        return _explicit(_merge(base, plant_over), "plant")
+    return _merge(_explicit(robot_section, "robot"), plant_over)
+
+
 def _params(section: Any, where: str, extras: tuple[str, ...] = ("motor",)) -> tuple[RobotParams, dict[str, Any]]:
     """robot: or plant: as RobotParams (the walker checks every parameter) and its motor mapping."""
     params = build(RobotParams, section, where, ignore=extras)
@@ -101,13 +128,13 @@ def _config_from_mapping(data: Mapping[str, Any], source: str, base_dir: str) ->
     if "robot" not in data:
         raise ConfigError("robot: missing (required): the controller's robot parameters")
     robot_section = data["robot"]
-    robot, robot_motor_map = _params(robot_section, "robot")
+    robot, robot_motor_map = _params(_explicit(robot_section, "robot"), "robot")
     robot_motor = _motor(robot_motor_map, "robot.motor")
 
     plant_over = _section(data, "plant")
     if not isinstance(plant_over, Mapping):
         raise ConfigError("plant: expected a mapping of robot parameters")
-    plant_section = _merge(robot_section, plant_over)
+    plant_section = _plant_section(robot_section, plant_over)
     plant, plant_motor_map = _params(plant_section, "plant", ("motor", "motor_l", "motor_r"))
     # A plant may give one motor for both wheels (motor:) or each its own (motor_l:, motor_r:).
     plant_motor_l = _motor(_merge(plant_motor_map, plant_section.get("motor_l") or {}), "plant.motor_l")
