@@ -78,8 +78,12 @@ class RobotEstimate:
 
 
 def _number(value: Any, key: str, problems: list[str], *, positive: bool = True) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        problems.append(f"{key}: expected a finite number, got {value!r}"[:160])
+    try:
+        ok = not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(float(value))
+    except OverflowError:  # an integer beyond any float
+        ok = False
+    if not ok:
+        problems.append(f"{key}: expected a finite number, got {str(value)[:40]!s}")
         return 1.0
     if positive and value <= 0:
         problems.append(f"{key}: must be > 0, got {value!r}")
