@@ -29,6 +29,7 @@ from ddrt.params.gyro_scale import GYRO_LSB_PER_DPS, gyro_lsb_per_rad_s
 from sim_hal import raw_readings
 
 _DEG_PER_RAD = 180.0 / math.pi
+_TWO_PI = 2.0 * math.pi  # random.TWOPI: the inlined gauss must match random.gauss bit for bit
 _EPS_T = 1e-12  # times closer than this count as equal (float rounding of k * step)
 
 
@@ -130,6 +131,7 @@ class SimRobot:
         self.motor_r = motor_r
         self.cfg = cfg
         self.dynamics = Dynamics.from_params(params)
+        self._consts: tuple | None = None  # _constants(), on first use
         self._h = 1.0 / cfg.step_hz
         self._k = 0  # steps taken; sim time is k * h, so it does not drift
 
@@ -257,41 +259,49 @@ class SimRobot:
 
     # --- the integrator -------------------------------------------------------------------
 
+    def _constants(self) -> tuple:
+        """The integrator's constants, derived once (the parameters are fixed after __init__):
+        deriving them on every `_run` call cost several microseconds a controller tick."""
+        cfg = self.cfg
+        h = self._h
+        dyn = self.dynamics
+        det = dyn.m_k * dyn.I - dyn.mbar * dyn.mbar
+        p = self.params
+        ml, mr = self.motor_l, self.motor_r
+        # Motor at the wheel: tau_em = c*duty - e*w; friction = b*w + tc*tanh(w/ws).
+        return (
+            h, 0.5 * h, h / 6.0,
+            dyn.I / det, -dyn.mbar / det, dyn.m_k / det,  # inverse mass matrix
+            dyn.m_x, p.L, p.R, 1.0 / p.r_L, 1.0 / p.r_R, 1.0 / p.r_3,
+            ml.k_nm_per_a * ml.supply_v / ml.resistance_ohm, ml.k_nm_per_a * ml.k_nm_per_a / ml.resistance_ohm,
+            ml.viscous_nms, ml.coulomb_nm, 1.0 / ml.coulomb_smoothing_rad_s,
+            mr.k_nm_per_a * mr.supply_v / mr.resistance_ohm, mr.k_nm_per_a * mr.k_nm_per_a / mr.resistance_ohm,
+            mr.viscous_nms, mr.coulomb_nm, 1.0 / mr.coulomb_smoothing_rad_s,
+            cfg.slip and cfg.slip_probability > 0.0, cfg.slip_probability, cfg.slip_fraction, cfg.slip_sigma_nm,
+            self._gyro_a, self._gyro_sigma, (1.0 + cfg.gyro_scale_error) * _DEG_PER_RAD, cfg.gyro_bias_dps,
+        )
+
     def _run(self, n_steps: int) -> None:
         """Take `n_steps` RK4 steps. Hot path: locals only, formulas inlined.
 
         The four stages repeat the same few lines on purpose: a derivative function called
         four times per step (with its tuple) costs about a third of the plant's speed, and the
-        closed loop must run hundreds of times faster than real time.
+        closed loop must run hundreds of times faster than real time. For the same reason the
+        constants come from one cached tuple, `c * duty` is formed once per duty change, and
+        `random.gauss` is inlined (the same Box-Muller, draws and pair cache as CPython's,
+        so the noise is the same bit for bit; the cache is written back to the generator).
         """
-        cfg = self.cfg
-        h = self._h
-        h2 = 0.5 * h
-        h6 = h / 6.0
-        dyn = self.dynamics
-        det = dyn.m_k * dyn.I - dyn.mbar * dyn.mbar
-        a11, a12, a22 = dyn.I / det, -dyn.mbar / det, dyn.m_k / det  # inverse mass matrix
-        mx = dyn.m_x
-        p = self.params
-        big_l, big_r = p.L, p.R
-        irl, irr, ir3 = 1.0 / p.r_L, 1.0 / p.r_R, 1.0 / p.r_3
-        ml, mr = self.motor_l, self.motor_r
-        # Motor at the wheel: tau_em = c*duty - e*w; friction = b*w + tc*tanh(w/ws).
-        cl = ml.k_nm_per_a * ml.supply_v / ml.resistance_ohm
-        el = ml.k_nm_per_a * ml.k_nm_per_a / ml.resistance_ohm
-        bl, tcl, iwsl = ml.viscous_nms, ml.coulomb_nm, 1.0 / ml.coulomb_smoothing_rad_s
-        cr = mr.k_nm_per_a * mr.supply_v / mr.resistance_ohm
-        er = mr.k_nm_per_a * mr.k_nm_per_a / mr.resistance_ohm
-        br, tcr, iwsr = mr.viscous_nms, mr.coulomb_nm, 1.0 / mr.coulomb_smoothing_rad_s
-        tanh, sin, cos = math.tanh, math.sin, math.cos
-
-        slip_on = cfg.slip and cfg.slip_probability > 0.0
-        slip_p, slip_frac, slip_sig = cfg.slip_probability, cfg.slip_fraction, cfg.slip_sigma_nm
-        srand, sgauss = self._slip_rng.random, self._slip_rng.gauss
-        ggauss = self._gyro_rng.gauss
-        g_a, g_sig = self._gyro_a, self._gyro_sigma
-        g_scale = (1.0 + cfg.gyro_scale_error) * _DEG_PER_RAD
-        g_bias = cfg.gyro_bias_dps
+        consts = self._consts
+        if consts is None:
+            consts = self._consts = self._constants()
+        (h, h2, h6, a11, a12, a22, mx, big_l, big_r, irl, irr, ir3,
+         cl, el, bl, tcl, iwsl, cr, er, br, tcr, iwsr,
+         slip_on, slip_p, slip_frac, slip_sig, g_a, g_sig, g_scale, g_bias) = consts
+        tanh, sin, cos, log, sqrt = math.tanh, math.sin, math.cos, math.log, math.sqrt
+        two_pi = _TWO_PI
+        slip_rng, gyro_rng = self._slip_rng, self._gyro_rng
+        srand, grand = slip_rng.random, gyro_rng.random
+        s_next, g_next = slip_rng.gauss_next, gyro_rng.gauss_next
         ring_phi3, ring_gyro = self._ring_phi3, self._ring_gyro
         n_ring = len(ring_phi3)
         pending = self._pending
@@ -299,6 +309,7 @@ class SimRobot:
         x, y, th, v, w = self._x, self._y, self._th, self._v, self._w
         phi_l, phi_r, phi_3 = self._phi_l, self._phi_r, self._phi_3
         dl, dr = self._duty_l, self._duty_r
+        cdl, cdr = cl * dl, cr * dr
         w_em, w_fr, w_slip = self._w_em, self._w_fr, self._w_slip
         gf = self._gyro_f
         k = self._k
@@ -308,12 +319,13 @@ class SimRobot:
                 t_now = k * h + _EPS_T
                 while pending and pending[0][0] <= t_now:
                     _, dl, dr = pending.popleft()
+                    cdl, cdr = cl * dl, cr * dr
 
             # Stage 1 (also fixes the slip torque for the whole step).
             wl = (v - big_l * w) * irl
             wr = (v + big_r * w) * irr
-            eml = cl * dl - el * wl
-            emr = cr * dr - er * wr
+            eml = cdl - el * wl
+            emr = cdr - er * wr
             frl = bl * wl + tcl * tanh(wl * iwsl)
             frr = br * wr + tcr * tanh(wr * iwsr)
             tl = eml - frl
@@ -321,11 +333,23 @@ class SimRobot:
             sl = sr = 0.0
             if slip_on:
                 if srand() < slip_p:
-                    sl = sgauss(slip_frac * tl, slip_sig)
+                    z, s_next = s_next, None
+                    if z is None:
+                        x2pi = srand() * two_pi
+                        g2rad = sqrt(-2.0 * log(1.0 - srand()))
+                        z = cos(x2pi) * g2rad
+                        s_next = sin(x2pi) * g2rad
+                    sl = slip_frac * tl + z * slip_sig
                     if srand() < 0.5:
                         sl = -sl
                 if srand() < slip_p:
-                    sr = sgauss(slip_frac * tr, slip_sig)
+                    z, s_next = s_next, None
+                    if z is None:
+                        x2pi = srand() * two_pi
+                        g2rad = sqrt(-2.0 * log(1.0 - srand()))
+                        z = cos(x2pi) * g2rad
+                        s_next = sin(x2pi) * g2rad
+                    sr = slip_frac * tr + z * slip_sig
                     if srand() < 0.5:
                         sr = -sr
                 tl += sl
@@ -345,8 +369,8 @@ class SimRobot:
             th2 = th + h2 * w1
             wl = (v2 - big_l * w2) * irl
             wr = (v2 + big_r * w2) * irr
-            eml = cl * dl - el * wl
-            emr = cr * dr - er * wr
+            eml = cdl - el * wl
+            emr = cdr - er * wr
             frl = bl * wl + tcl * tanh(wl * iwsl)
             frr = br * wr + tcr * tanh(wr * iwsr)
             ul = (eml - frl + sl) * irl
@@ -364,8 +388,8 @@ class SimRobot:
             th3 = th + h2 * w2
             wl = (v3 - big_l * w3) * irl
             wr = (v3 + big_r * w3) * irr
-            eml = cl * dl - el * wl
-            emr = cr * dr - er * wr
+            eml = cdl - el * wl
+            emr = cdr - er * wr
             frl = bl * wl + tcl * tanh(wl * iwsl)
             frr = br * wr + tcr * tanh(wr * iwsr)
             ul = (eml - frl + sl) * irl
@@ -383,8 +407,8 @@ class SimRobot:
             th4 = th + h * w3
             wl = (v4 - big_l * w4) * irl
             wr = (v4 + big_r * w4) * irr
-            eml = cl * dl - el * wl
-            emr = cr * dr - er * wr
+            eml = cdl - el * wl
+            emr = cdr - er * wr
             frl = bl * wl + tcl * tanh(wl * iwsl)
             frr = br * wr + tcr * tanh(wr * iwsr)
             ul = (eml - frl + sl) * irl
@@ -416,7 +440,13 @@ class SimRobot:
             k += 1
 
             # Sensors at the end of the step: the gyro's low-pass runs at the plant rate.
-            gf += g_a * (g_scale * w + g_bias + ggauss(0.0, g_sig) - gf)
+            z, g_next = g_next, None
+            if z is None:
+                x2pi = grand() * two_pi
+                g2rad = sqrt(-2.0 * log(1.0 - grand()))
+                z = cos(x2pi) * g2rad
+                g_next = sin(x2pi) * g2rad
+            gf += g_a * (g_scale * w + g_bias + (0.0 + z * g_sig) - gf)
             i = k % n_ring
             ring_phi3[i] = phi_3
             ring_gyro[i] = gf
@@ -428,3 +458,4 @@ class SimRobot:
         self._w_em, self._w_fr, self._w_slip = w_em, w_fr, w_slip
         self._gyro_f = gf
         self._k = k
+        slip_rng.gauss_next, gyro_rng.gauss_next = s_next, g_next
