@@ -15,6 +15,7 @@ against `Motor.torque` and the motion against an independent derivation of the m
 
 from __future__ import annotations
 
+import ctypes
 import math
 import random
 from collections import deque
@@ -26,7 +27,7 @@ from ddrt.params.robot import RobotParams
 from ddrt.params.motor import MotorParams
 from ddrt.params.gyro_scale import GYRO_LSB_PER_DPS, gyro_lsb_per_rad_s
 
-from sim_hal import raw_readings
+from sim_hal import plant_native, raw_readings
 
 _DEG_PER_RAD = 180.0 / math.pi
 _TWO_PI = 2.0 * math.pi  # random.TWOPI: the inlined gauss must match random.gauss bit for bit
@@ -157,8 +158,13 @@ class SimRobot:
         # Sensor ring at plant-step resolution: the readings of the last `delay + 1` steps.
         self._sensor_delay = max(0, math.ceil(cfg.sensor_latency_s * cfg.step_hz - 1e-9))
         n = self._sensor_delay + 1
-        self._ring_phi3 = [0.0] * n
-        self._ring_gyro = [self._gyro_f] * n
+        self._ring_phi3: Any = [0.0] * n
+        self._ring_gyro: Any = [self._gyro_f] * n
+
+        # The compiled kernel (plant_native.py says why), else None: the Python below.
+        self._kernel = plant_native.kernel()
+        if self._kernel is not None:
+            self._native_setup()
 
     # --- commands and time -------------------------------------------------------------
 
@@ -281,6 +287,49 @@ class SimRobot:
             self._gyro_a, self._gyro_sigma, (1.0 + cfg.gyro_scale_error) * _DEG_PER_RAD, cfg.gyro_bias_dps,
         )
 
+    def _native_setup(self) -> None:
+        """Move the state, constants, generators and sensor rings into the C kernel's buffers;
+        from here on the kernel's buffers hold them (the attributes mirror them after each run)."""
+        c_double = ctypes.c_double
+        self._st = (c_double * plant_native.NSTATE)(
+            self._x, self._y, self._th, self._v, self._w, self._phi_l, self._phi_r, self._phi_3,
+            self._duty_l, self._duty_r, self._w_em, self._w_fr, self._w_slip, self._gyro_f, self._tau_l, self._tau_r)
+        consts = self._constants()
+        self._c = (c_double * (len(consts) + 1))(*(float(c) for c in consts), _TWO_PI)
+        self._rngs = (plant_native.Rng.from_random(self._slip_rng), plant_native.Rng.from_random(self._gyro_rng))
+        n = len(self._ring_phi3)
+        self._ring_phi3 = (c_double * n)(*self._ring_phi3)
+        self._ring_gyro = (c_double * n)(*self._ring_gyro)
+        self._kbuf = ctypes.c_int64(self._k)
+        self._args = tuple(ctypes.addressof(b) for b in (self._kbuf, self._st, self._c, *self._rngs,
+                                                          self._ring_phi3, self._ring_gyro)) + (n,)
+
+    def _run_native(self, n_steps: int) -> None:
+        """`_run` by the C kernel: one call per stretch of steps with the same duties."""
+        fn, st, kbuf, args = self._kernel, self._st, self._kbuf, self._args
+        pending, h = self._pending, self._h
+        k = self._k
+        while n_steps > 0:
+            m = n_steps
+            if pending:
+                t_now = k * h + _EPS_T
+                if pending[0][0] <= t_now:
+                    while pending and pending[0][0] <= t_now:
+                        _, dl, dr = pending.popleft()
+                    st[8], st[9] = dl, dr
+                if pending:  # steps before the next command reaches the motors
+                    t_next, m = pending[0][0], 1
+                    while m < n_steps and (k + m) * h + _EPS_T < t_next:
+                        m += 1
+            kbuf.value = k
+            fn(m, *args)
+            k += m
+            n_steps -= m
+        (self._x, self._y, self._th, self._v, self._w, self._phi_l, self._phi_r, self._phi_3,
+         self._duty_l, self._duty_r, self._w_em, self._w_fr, self._w_slip, self._gyro_f,
+         self._tau_l, self._tau_r) = st
+        self._k = k
+
     def _run(self, n_steps: int) -> None:
         """Take `n_steps` RK4 steps. Hot path: locals only, formulas inlined.
 
@@ -291,6 +340,9 @@ class SimRobot:
         `random.gauss` is inlined (the same Box-Muller, draws and pair cache as CPython's,
         so the noise is the same bit for bit; the cache is written back to the generator).
         """
+        if self._kernel is not None:
+            self._run_native(n_steps)
+            return
         consts = self._consts
         if consts is None:
             consts = self._consts = self._constants()
