@@ -161,7 +161,9 @@ class SimRobot:
         self._ring_phi3: Any = [0.0] * n
         self._ring_gyro: Any = [self._gyro_f] * n
 
-        # The compiled kernel (plant_native.py says why), else None: the Python below.
+        # The compiled kernel (plant_native.py says why), else None: the Python below. With the
+        # kernel, the state lives in its buffer `_st` (the properties read it), else in attributes.
+        self._st: Any = None
         self._kernel = plant_native.kernel()
         if self._kernel is not None:
             self._native_setup()
@@ -184,7 +186,27 @@ class SimRobot:
             raise ValueError(f"duty_l={duty_l!r} is outside [-1, 1] or not finite")
         if not -1.0 <= dr <= 1.0:
             raise ValueError(f"duty_r={duty_r!r} is outside [-1, 1] or not finite")
-        self._pending.append((self.t + self.cfg.command_latency_s, dl, dr))
+        t_apply = self._k * self._h + self.cfg.command_latency_s
+        if self._kernel is None:
+            self._pending.append((t_apply, dl, dr))
+            return
+        # The kernel's queue (see _queue_alloc), inline: this runs every tick.
+        tail, cap = self._q_tail, self._q_cap
+        if tail - self._q[0] >= cap:
+            self._queue_alloc(2 * cap)
+            tail, cap = self._q_tail, self._q_cap
+        h = self._h
+        k = self._k
+        j = k if k > self._q_last else self._q_last
+        while t_apply > j * h + _EPS_T:
+            j += 1
+        self._q_last = j
+        i = tail % cap
+        self._q_step[i] = j
+        duty = self._q_duty
+        duty[2 * i] = dl
+        duty[2 * i + 1] = dr
+        self._q[1] = self._q_tail = tail + 1
 
     def advance_to(self, t: float) -> None:
         """Integrate whole plant steps until the sim time is >= t (within float rounding)."""
@@ -237,30 +259,48 @@ class SimRobot:
     @property
     def pose(self) -> tuple[float, float, float]:
         """(x, y, theta) of A, mid rear axle; theta is continuous (not wrapped)."""
+        st = self._st
+        if st is not None:
+            return st[0], st[1], st[2]
         return self._x, self._y, self._th
 
     @property
     def velocity(self) -> tuple[float, float]:
         """(v, omega): forward speed of A (m/s) and yaw rate (rad/s)."""
+        st = self._st
+        if st is not None:
+            return st[3], st[4]
         return self._v, self._w
 
     @property
     def wheel_angles(self) -> tuple[float, float, float]:
         """(phi_L, phi_R, phi_3) in rad since the start."""
+        st = self._st
+        if st is not None:
+            return st[5], st[6], st[7]
         return self._phi_l, self._phi_r, self._phi_3
 
     @property
     def applied_duty(self) -> tuple[float, float]:
         """The duties the motors see now (commands after their latency)."""
+        st = self._st
+        if st is not None:
+            return st[8], st[9]
         return self._duty_l, self._duty_r
 
     @property
     def wheel_torque(self) -> tuple[float, float]:
         """Net wheel torques (N m, friction and slip included) at the start of the last step."""
+        st = self._st
+        if st is not None:
+            return st[14], st[15]
         return self._tau_l, self._tau_r
 
     @property
     def energy(self) -> EnergyLedger:
+        st = self._st
+        if st is not None:
+            return EnergyLedger(st[10], st[11], st[12])
         return EnergyLedger(self._w_em, self._w_fr, self._w_slip)
 
     # --- the integrator -------------------------------------------------------------------
@@ -289,7 +329,7 @@ class SimRobot:
 
     def _native_setup(self) -> None:
         """Move the state, constants, generators and sensor rings into the C kernel's buffers;
-        from here on the kernel's buffers hold them (the attributes mirror them after each run)."""
+        from here on those buffers hold them (the state attributes are no longer updated)."""
         c_double = ctypes.c_double
         self._st = (c_double * plant_native.NSTATE)(
             self._x, self._y, self._th, self._v, self._w, self._phi_l, self._phi_r, self._phi_3,
@@ -301,34 +341,36 @@ class SimRobot:
         self._ring_phi3 = (c_double * n)(*self._ring_phi3)
         self._ring_gyro = (c_double * n)(*self._ring_gyro)
         self._kbuf = ctypes.c_int64(self._k)
-        self._args = tuple(ctypes.addressof(b) for b in (self._kbuf, self._st, self._c, *self._rngs,
-                                                          self._ring_phi3, self._ring_gyro)) + (n,)
+        self._q_last = 0  # step at which the last queued command applies
+        self._queue_alloc(64)
+
+    def _queue_alloc(self, cap: int) -> None:
+        """(Re)allocate the kernel's command ring with room for `cap`, keeping what is queued."""
+        old = None
+        if hasattr(self, "_q"):
+            head, tail, old_cap = self._q
+            old = [(self._q_step[i % old_cap], self._q_duty[2 * (i % old_cap)], self._q_duty[2 * (i % old_cap) + 1])
+                   for i in range(head, tail)]
+        self._q = (ctypes.c_int64 * 3)(0, 0, cap)
+        self._q_step = (ctypes.c_int64 * cap)()
+        self._q_duty = (ctypes.c_double * (2 * cap))()
+        for i, (j, dl, dr) in enumerate(old or ()):
+            self._q_step[i], self._q_duty[2 * i], self._q_duty[2 * i + 1] = j, dl, dr
+        self._q[1] = self._q_tail = len(old or ())  # tail and capacity mirrored: fewer ctypes reads
+        self._q_cap = cap
+        # command() queues at the first step whose start time k*h is (within _EPS_T) at or
+        # after the command's time, and not before the command ahead of it: the step at which
+        # the Python integrator would pop it from `_pending`.
+        a = ctypes.addressof
+        self._plant = plant_native.Plant(a(self._kbuf), a(self._st), a(self._c), a(self._rngs[0]), a(self._rngs[1]),
+                                         a(self._ring_phi3), a(self._ring_gyro), len(self._ring_phi3),
+                                         a(self._q), a(self._q_step), a(self._q_duty))
+        self._plant_addr = a(self._plant)
 
     def _run_native(self, n_steps: int) -> None:
-        """`_run` by the C kernel: one call per stretch of steps with the same duties."""
-        fn, st, kbuf, args = self._kernel, self._st, self._kbuf, self._args
-        pending, h = self._pending, self._h
-        k = self._k
-        while n_steps > 0:
-            m = n_steps
-            if pending:
-                t_now = k * h + _EPS_T
-                if pending[0][0] <= t_now:
-                    while pending and pending[0][0] <= t_now:
-                        _, dl, dr = pending.popleft()
-                    st[8], st[9] = dl, dr
-                if pending:  # steps before the next command reaches the motors
-                    t_next, m = pending[0][0], 1
-                    while m < n_steps and (k + m) * h + _EPS_T < t_next:
-                        m += 1
-            kbuf.value = k
-            fn(m, *args)
-            k += m
-            n_steps -= m
-        (self._x, self._y, self._th, self._v, self._w, self._phi_l, self._phi_r, self._phi_3,
-         self._duty_l, self._duty_r, self._w_em, self._w_fr, self._w_slip, self._gyro_f,
-         self._tau_l, self._tau_r) = st
-        self._k = k
+        """`_run` by the C kernel, in one call (it applies the queued commands on time)."""
+        self._kernel(n_steps, self._plant_addr)
+        self._k = self._kbuf.value
 
     def _run(self, n_steps: int) -> None:
         """Take `n_steps` RK4 steps. Hot path: locals only, formulas inlined.

@@ -4,7 +4,7 @@
  * fast-math and calling the same libm (tanh, sin, cos, log, sqrt) as CPython's math module,
  * so every result is bit-identical. The noise uses CPython's MT19937 (random.random's
  * 53-bit draw) and random.gauss's Box-Muller with its pair cache, on the generators' state
- * copied from Python. Duty changes are applied by the caller between calls.
+ * copied from Python. Commands reach the motors at the step the caller computed for each.
  */
 #include <math.h>
 #include <stdint.h>
@@ -66,8 +66,27 @@ static double gauss_z(rng_t *r, double two_pi) {
 /* Indices into the state array s[] and the constants c[] (plant.py: _STATE, _constants). */
 enum { X, Y, TH, V, W, PHL, PHR, PH3, DL, DR, WEM, WFR, WSLIP, GF, TL, TR, NSTATE };
 
-void plant_run(int64_t n_steps, int64_t *kp, double *s, const double *c, rng_t *slip, rng_t *gyro,
-               double *ring_phi3, double *ring_gyro, int64_t n_ring) {
+/* What plant_run works on, in one struct so a call passes one pointer (ctypes' cost is per
+ * argument). Commands waiting for their latency are a ring of (step at which the duties reach
+ * the motors, duty_l, duty_r); q = {head, tail, capacity}, entries head..tail-1 (mod capacity). */
+typedef struct {
+    int64_t *kp;
+    double *s;
+    const double *c;
+    rng_t *slip, *gyro;
+    double *ring_phi3, *ring_gyro;
+    int64_t n_ring;
+    int64_t *q;
+    const int64_t *q_step;
+    const double *q_duty;
+} plant_t;
+
+void plant_run(int64_t n_steps, plant_t *p) {
+    int64_t *kp = p->kp, *q = p->q;
+    double *s = p->s, *ring_phi3 = p->ring_phi3, *ring_gyro = p->ring_gyro;
+    const double *c = p->c, *q_duty = p->q_duty;
+    const int64_t *q_step = p->q_step, n_ring = p->n_ring;
+    rng_t *slip = p->slip, *gyro = p->gyro;
     const double h = c[0], h2 = c[1], h6 = c[2], a11 = c[3], a12 = c[4], a22 = c[5], mx = c[6];
     const double big_l = c[7], big_r = c[8], irl = c[9], irr = c[10], ir3 = c[11];
     const double cl = c[12], el = c[13], bl = c[14], tcl = c[15], iwsl = c[16];
@@ -77,11 +96,23 @@ void plant_run(int64_t n_steps, int64_t *kp, double *s, const double *c, rng_t *
     const double g_a = c[26], g_sig = c[27], g_scale = c[28], g_bias = c[29], two_pi = c[30];
     double x = s[X], y = s[Y], th = s[TH], v = s[V], w = s[W];
     double phi_l = s[PHL], phi_r = s[PHR], phi_3 = s[PH3];
-    const double cdl = cl * s[DL], cdr = cr * s[DR];
+    double dl = s[DL], dr = s[DR];
+    double cdl = cl * dl, cdr = cr * dr;
+    int64_t head = q[0];
+    const int64_t tail = q[1], cap = q[2];
     double w_em = s[WEM], w_fr = s[WFR], w_slip = s[WSLIP], gf = s[GF];
     double tl = s[TL], tr = s[TR];
     int64_t k = *kp;
     for (int64_t step = 0; step < n_steps; step++) {
+        if (head < tail && q_step[head % cap] <= k) {
+            while (head < tail && q_step[head % cap] <= k) {
+                dl = q_duty[2 * (head % cap)];
+                dr = q_duty[2 * (head % cap) + 1];
+                head++;
+            }
+            cdl = cl * dl;
+            cdr = cr * dr;
+        }
         double wl = (v - big_l * w) * irl, wr = (v + big_r * w) * irr;
         double eml = cdl - el * wl, emr = cdr - er * wr;
         double frl = bl * wl + tcl * tanh(wl * iwsl), frr = br * wr + tcr * tanh(wr * iwsr);
@@ -159,6 +190,8 @@ void plant_run(int64_t n_steps, int64_t *kp, double *s, const double *c, rng_t *
     }
     s[X] = x; s[Y] = y; s[TH] = th; s[V] = v; s[W] = w;
     s[PHL] = phi_l; s[PHR] = phi_r; s[PH3] = phi_3;
+    s[DL] = dl; s[DR] = dr;
+    q[0] = head;
     s[WEM] = w_em; s[WFR] = w_fr; s[WSLIP] = w_slip; s[GF] = gf; s[TL] = tl; s[TR] = tr;
     *kp = k;
 }

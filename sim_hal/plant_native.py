@@ -46,6 +46,15 @@ class Rng(ctypes.Structure):
         return out
 
 
+class Plant(ctypes.Structure):
+    """plant_kernel.c's plant_t: the addresses of the buffers a SimRobot's kernel works on."""
+
+    _fields_ = [("kp", ctypes.c_void_p), ("s", ctypes.c_void_p), ("c", ctypes.c_void_p),
+                ("slip", ctypes.c_void_p), ("gyro", ctypes.c_void_p), ("ring_phi3", ctypes.c_void_p),
+                ("ring_gyro", ctypes.c_void_p), ("n_ring", ctypes.c_int64), ("q", ctypes.c_void_p),
+                ("q_step", ctypes.c_void_p), ("q_duty", ctypes.c_void_p)]
+
+
 def _cache_dir() -> Path:
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     return Path(base) / "ddrt"
@@ -76,8 +85,7 @@ def _build() -> Path | None:
 
 
 def kernel() -> Callable[..., Any] | None:
-    """plant_run(n, &k, state, consts, slip_rng, gyro_rng, ring_phi3, ring_gyro, n_ring) with
-    pointer arguments as addresses, or None (pure Python then)."""
+    """plant_run(n_steps, address of a Plant), or None (pure Python then)."""
     global _loaded, _tried
     if os.environ.get("DDRT_PLANT", "").lower() == "python":
         return None
@@ -91,6 +99,6 @@ def kernel() -> Callable[..., Any] | None:
                 fn = None
             if fn is not None:
                 fn.restype = None
-                fn.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 7 + [ctypes.c_int64]
+                fn.argtypes = [ctypes.c_int64, ctypes.c_void_p]
                 _loaded = fn
     return _loaded

@@ -455,7 +455,7 @@ def test_ten_seconds_of_plant_run_fast():
 
 def test_compiled_plant_is_bit_identical_to_the_python_integrator(monkeypatch) -> None:
     """The C kernel (sim_hal/plant_native.py) must give the Python integrator's numbers bit for
-    bit: slip and gyro noise on, duty changes landing mid-stretch, uneven advance steps."""
+    bit: slip and gyro noise on, duty changes landing mid-stretch, uneven advance steps, a burst."""
     from sim_hal import plant_native
 
     if plant_native.kernel() is None:
@@ -469,8 +469,9 @@ def test_compiled_plant_is_bit_identical_to_the_python_integrator(monkeypatch) -
         drive = random.Random(3)
         trace = []
         t = 0.0
-        for _ in range(400):
-            sim.command(drive.uniform(-1.0, 1.0), drive.uniform(-1.0, 1.0))
+        for n in range(400):
+            for _ in range(150 if n == 200 else 1):  # a burst: the kernel's command ring grows
+                sim.command(drive.uniform(-1.0, 1.0), drive.uniform(-1.0, 1.0))
             t += drive.choice((0.0007, 0.005, 0.0123))
             sim.advance_to(t)
             trace.append((sim.pose, sim.velocity, sim.wheel_angles, sim.applied_duty, sim.wheel_torque,
