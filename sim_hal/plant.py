@@ -15,6 +15,7 @@ against `Motor.torque` and the motion against an independent derivation of the m
 
 from __future__ import annotations
 
+import ctypes
 import math
 import random
 from collections import deque
@@ -26,9 +27,10 @@ from ddrt.params.robot import RobotParams
 from ddrt.params.motor import MotorParams
 from ddrt.params.gyro_scale import GYRO_LSB_PER_DPS, gyro_lsb_per_rad_s
 
-from sim_hal import raw_readings
+from sim_hal import plant_native, raw_readings
 
 _DEG_PER_RAD = 180.0 / math.pi
+_TWO_PI = 2.0 * math.pi  # random.TWOPI: the inlined gauss must match random.gauss bit for bit
 _EPS_T = 1e-12  # times closer than this count as equal (float rounding of k * step)
 
 
@@ -130,6 +132,7 @@ class SimRobot:
         self.motor_r = motor_r
         self.cfg = cfg
         self.dynamics = Dynamics.from_params(params)
+        self._consts: tuple | None = None  # _constants(), on first use
         self._h = 1.0 / cfg.step_hz
         self._k = 0  # steps taken; sim time is k * h, so it does not drift
 
@@ -155,8 +158,15 @@ class SimRobot:
         # Sensor ring at plant-step resolution: the readings of the last `delay + 1` steps.
         self._sensor_delay = max(0, math.ceil(cfg.sensor_latency_s * cfg.step_hz - 1e-9))
         n = self._sensor_delay + 1
-        self._ring_phi3 = [0.0] * n
-        self._ring_gyro = [self._gyro_f] * n
+        self._ring_phi3: Any = [0.0] * n
+        self._ring_gyro: Any = [self._gyro_f] * n
+
+        # The compiled kernel (plant_native.py says why), else None: the Python below. With the
+        # kernel, the state lives in its buffer `_st` (the properties read it), else in attributes.
+        self._st: Any = None
+        self._kernel = plant_native.kernel()
+        if self._kernel is not None:
+            self._native_setup()
 
     # --- commands and time -------------------------------------------------------------
 
@@ -176,7 +186,27 @@ class SimRobot:
             raise ValueError(f"duty_l={duty_l!r} is outside [-1, 1] or not finite")
         if not -1.0 <= dr <= 1.0:
             raise ValueError(f"duty_r={duty_r!r} is outside [-1, 1] or not finite")
-        self._pending.append((self.t + self.cfg.command_latency_s, dl, dr))
+        t_apply = self._k * self._h + self.cfg.command_latency_s
+        if self._kernel is None:
+            self._pending.append((t_apply, dl, dr))
+            return
+        # The kernel's queue (see _queue_alloc), inline: this runs every tick.
+        tail, cap = self._q_tail, self._q_cap
+        if tail - self._q[0] >= cap:
+            self._queue_alloc(2 * cap)
+            tail, cap = self._q_tail, self._q_cap
+        h = self._h
+        k = self._k
+        j = k if k > self._q_last else self._q_last
+        while t_apply > j * h + _EPS_T:
+            j += 1
+        self._q_last = j
+        i = tail % cap
+        self._q_step[i] = j
+        duty = self._q_duty
+        duty[2 * i] = dl
+        duty[2 * i + 1] = dr
+        self._q[1] = self._q_tail = tail + 1
 
     def advance_to(self, t: float) -> None:
         """Integrate whole plant steps until the sim time is >= t (within float rounding)."""
@@ -229,69 +259,143 @@ class SimRobot:
     @property
     def pose(self) -> tuple[float, float, float]:
         """(x, y, theta) of A, mid rear axle; theta is continuous (not wrapped)."""
+        st = self._st
+        if st is not None:
+            return st[0], st[1], st[2]
         return self._x, self._y, self._th
 
     @property
     def velocity(self) -> tuple[float, float]:
         """(v, omega): forward speed of A (m/s) and yaw rate (rad/s)."""
+        st = self._st
+        if st is not None:
+            return st[3], st[4]
         return self._v, self._w
 
     @property
     def wheel_angles(self) -> tuple[float, float, float]:
         """(phi_L, phi_R, phi_3) in rad since the start."""
+        st = self._st
+        if st is not None:
+            return st[5], st[6], st[7]
         return self._phi_l, self._phi_r, self._phi_3
 
     @property
     def applied_duty(self) -> tuple[float, float]:
         """The duties the motors see now (commands after their latency)."""
+        st = self._st
+        if st is not None:
+            return st[8], st[9]
         return self._duty_l, self._duty_r
 
     @property
     def wheel_torque(self) -> tuple[float, float]:
         """Net wheel torques (N m, friction and slip included) at the start of the last step."""
+        st = self._st
+        if st is not None:
+            return st[14], st[15]
         return self._tau_l, self._tau_r
 
     @property
     def energy(self) -> EnergyLedger:
+        st = self._st
+        if st is not None:
+            return EnergyLedger(st[10], st[11], st[12])
         return EnergyLedger(self._w_em, self._w_fr, self._w_slip)
 
     # --- the integrator -------------------------------------------------------------------
+
+    def _constants(self) -> tuple:
+        """The integrator's constants, derived once (the parameters are fixed after __init__):
+        deriving them on every `_run` call cost several microseconds a controller tick."""
+        cfg = self.cfg
+        h = self._h
+        dyn = self.dynamics
+        det = dyn.m_k * dyn.I - dyn.mbar * dyn.mbar
+        p = self.params
+        ml, mr = self.motor_l, self.motor_r
+        # Motor at the wheel: tau_em = c*duty - e*w; friction = b*w + tc*tanh(w/ws).
+        return (
+            h, 0.5 * h, h / 6.0,
+            dyn.I / det, -dyn.mbar / det, dyn.m_k / det,  # inverse mass matrix
+            dyn.m_x, p.L, p.R, 1.0 / p.r_L, 1.0 / p.r_R, 1.0 / p.r_3,
+            ml.k_nm_per_a * ml.supply_v / ml.resistance_ohm, ml.k_nm_per_a * ml.k_nm_per_a / ml.resistance_ohm,
+            ml.viscous_nms, ml.coulomb_nm, 1.0 / ml.coulomb_smoothing_rad_s,
+            mr.k_nm_per_a * mr.supply_v / mr.resistance_ohm, mr.k_nm_per_a * mr.k_nm_per_a / mr.resistance_ohm,
+            mr.viscous_nms, mr.coulomb_nm, 1.0 / mr.coulomb_smoothing_rad_s,
+            cfg.slip and cfg.slip_probability > 0.0, cfg.slip_probability, cfg.slip_fraction, cfg.slip_sigma_nm,
+            self._gyro_a, self._gyro_sigma, (1.0 + cfg.gyro_scale_error) * _DEG_PER_RAD, cfg.gyro_bias_dps,
+        )
+
+    def _native_setup(self) -> None:
+        """Move the state, constants, generators and sensor rings into the C kernel's buffers;
+        from here on those buffers hold them (the state attributes are no longer updated)."""
+        c_double = ctypes.c_double
+        self._st = (c_double * plant_native.NSTATE)(
+            self._x, self._y, self._th, self._v, self._w, self._phi_l, self._phi_r, self._phi_3,
+            self._duty_l, self._duty_r, self._w_em, self._w_fr, self._w_slip, self._gyro_f, self._tau_l, self._tau_r)
+        consts = self._constants()
+        self._c = (c_double * (len(consts) + 1))(*(float(c) for c in consts), _TWO_PI)
+        self._rngs = (plant_native.Rng.from_random(self._slip_rng), plant_native.Rng.from_random(self._gyro_rng))
+        n = len(self._ring_phi3)
+        self._ring_phi3 = (c_double * n)(*self._ring_phi3)
+        self._ring_gyro = (c_double * n)(*self._ring_gyro)
+        self._kbuf = ctypes.c_int64(self._k)
+        self._q_last = 0  # step at which the last queued command applies
+        self._queue_alloc(64)
+
+    def _queue_alloc(self, cap: int) -> None:
+        """(Re)allocate the kernel's command ring with room for `cap`, keeping what is queued."""
+        old = None
+        if hasattr(self, "_q"):
+            head, tail, old_cap = self._q
+            old = [(self._q_step[i % old_cap], self._q_duty[2 * (i % old_cap)], self._q_duty[2 * (i % old_cap) + 1])
+                   for i in range(head, tail)]
+        self._q = (ctypes.c_int64 * 3)(0, 0, cap)
+        self._q_step = (ctypes.c_int64 * cap)()
+        self._q_duty = (ctypes.c_double * (2 * cap))()
+        for i, (j, dl, dr) in enumerate(old or ()):
+            self._q_step[i], self._q_duty[2 * i], self._q_duty[2 * i + 1] = j, dl, dr
+        self._q[1] = self._q_tail = len(old or ())  # tail and capacity mirrored: fewer ctypes reads
+        self._q_cap = cap
+        # command() queues at the first step whose start time k*h is (within _EPS_T) at or
+        # after the command's time, and not before the command ahead of it: the step at which
+        # the Python integrator would pop it from `_pending`.
+        a = ctypes.addressof
+        self._plant = plant_native.Plant(a(self._kbuf), a(self._st), a(self._c), a(self._rngs[0]), a(self._rngs[1]),
+                                         a(self._ring_phi3), a(self._ring_gyro), len(self._ring_phi3),
+                                         a(self._q), a(self._q_step), a(self._q_duty))
+        self._plant_addr = a(self._plant)
+
+    def _run_native(self, n_steps: int) -> None:
+        """`_run` by the C kernel, in one call (it applies the queued commands on time)."""
+        self._kernel(n_steps, self._plant_addr)
+        self._k = self._kbuf.value
 
     def _run(self, n_steps: int) -> None:
         """Take `n_steps` RK4 steps. Hot path: locals only, formulas inlined.
 
         The four stages repeat the same few lines on purpose: a derivative function called
         four times per step (with its tuple) costs about a third of the plant's speed, and the
-        closed loop must run hundreds of times faster than real time.
+        closed loop must run hundreds of times faster than real time. For the same reason the
+        constants come from one cached tuple, `c * duty` is formed once per duty change, and
+        `random.gauss` is inlined (the same Box-Muller, draws and pair cache as CPython's,
+        so the noise is the same bit for bit; the cache is written back to the generator).
         """
-        cfg = self.cfg
-        h = self._h
-        h2 = 0.5 * h
-        h6 = h / 6.0
-        dyn = self.dynamics
-        det = dyn.m_k * dyn.I - dyn.mbar * dyn.mbar
-        a11, a12, a22 = dyn.I / det, -dyn.mbar / det, dyn.m_k / det  # inverse mass matrix
-        mx = dyn.m_x
-        p = self.params
-        big_l, big_r = p.L, p.R
-        irl, irr, ir3 = 1.0 / p.r_L, 1.0 / p.r_R, 1.0 / p.r_3
-        ml, mr = self.motor_l, self.motor_r
-        # Motor at the wheel: tau_em = c*duty - e*w; friction = b*w + tc*tanh(w/ws).
-        cl = ml.k_nm_per_a * ml.supply_v / ml.resistance_ohm
-        el = ml.k_nm_per_a * ml.k_nm_per_a / ml.resistance_ohm
-        bl, tcl, iwsl = ml.viscous_nms, ml.coulomb_nm, 1.0 / ml.coulomb_smoothing_rad_s
-        cr = mr.k_nm_per_a * mr.supply_v / mr.resistance_ohm
-        er = mr.k_nm_per_a * mr.k_nm_per_a / mr.resistance_ohm
-        br, tcr, iwsr = mr.viscous_nms, mr.coulomb_nm, 1.0 / mr.coulomb_smoothing_rad_s
-        tanh, sin, cos = math.tanh, math.sin, math.cos
-
-        slip_on = cfg.slip and cfg.slip_probability > 0.0
-        slip_p, slip_frac, slip_sig = cfg.slip_probability, cfg.slip_fraction, cfg.slip_sigma_nm
-        srand, sgauss = self._slip_rng.random, self._slip_rng.gauss
-        ggauss = self._gyro_rng.gauss
-        g_a, g_sig = self._gyro_a, self._gyro_sigma
-        g_scale = (1.0 + cfg.gyro_scale_error) * _DEG_PER_RAD
-        g_bias = cfg.gyro_bias_dps
+        if self._kernel is not None:
+            self._run_native(n_steps)
+            return
+        consts = self._consts
+        if consts is None:
+            consts = self._consts = self._constants()
+        (h, h2, h6, a11, a12, a22, mx, big_l, big_r, irl, irr, ir3,
+         cl, el, bl, tcl, iwsl, cr, er, br, tcr, iwsr,
+         slip_on, slip_p, slip_frac, slip_sig, g_a, g_sig, g_scale, g_bias) = consts
+        tanh, sin, cos, log, sqrt = math.tanh, math.sin, math.cos, math.log, math.sqrt
+        two_pi = _TWO_PI
+        slip_rng, gyro_rng = self._slip_rng, self._gyro_rng
+        srand, grand = slip_rng.random, gyro_rng.random
+        s_next, g_next = slip_rng.gauss_next, gyro_rng.gauss_next
         ring_phi3, ring_gyro = self._ring_phi3, self._ring_gyro
         n_ring = len(ring_phi3)
         pending = self._pending
@@ -299,6 +403,7 @@ class SimRobot:
         x, y, th, v, w = self._x, self._y, self._th, self._v, self._w
         phi_l, phi_r, phi_3 = self._phi_l, self._phi_r, self._phi_3
         dl, dr = self._duty_l, self._duty_r
+        cdl, cdr = cl * dl, cr * dr
         w_em, w_fr, w_slip = self._w_em, self._w_fr, self._w_slip
         gf = self._gyro_f
         k = self._k
@@ -308,12 +413,13 @@ class SimRobot:
                 t_now = k * h + _EPS_T
                 while pending and pending[0][0] <= t_now:
                     _, dl, dr = pending.popleft()
+                    cdl, cdr = cl * dl, cr * dr
 
             # Stage 1 (also fixes the slip torque for the whole step).
             wl = (v - big_l * w) * irl
             wr = (v + big_r * w) * irr
-            eml = cl * dl - el * wl
-            emr = cr * dr - er * wr
+            eml = cdl - el * wl
+            emr = cdr - er * wr
             frl = bl * wl + tcl * tanh(wl * iwsl)
             frr = br * wr + tcr * tanh(wr * iwsr)
             tl = eml - frl
@@ -321,11 +427,23 @@ class SimRobot:
             sl = sr = 0.0
             if slip_on:
                 if srand() < slip_p:
-                    sl = sgauss(slip_frac * tl, slip_sig)
+                    z, s_next = s_next, None
+                    if z is None:
+                        x2pi = srand() * two_pi
+                        g2rad = sqrt(-2.0 * log(1.0 - srand()))
+                        z = cos(x2pi) * g2rad
+                        s_next = sin(x2pi) * g2rad
+                    sl = slip_frac * tl + z * slip_sig
                     if srand() < 0.5:
                         sl = -sl
                 if srand() < slip_p:
-                    sr = sgauss(slip_frac * tr, slip_sig)
+                    z, s_next = s_next, None
+                    if z is None:
+                        x2pi = srand() * two_pi
+                        g2rad = sqrt(-2.0 * log(1.0 - srand()))
+                        z = cos(x2pi) * g2rad
+                        s_next = sin(x2pi) * g2rad
+                    sr = slip_frac * tr + z * slip_sig
                     if srand() < 0.5:
                         sr = -sr
                 tl += sl
@@ -345,8 +463,8 @@ class SimRobot:
             th2 = th + h2 * w1
             wl = (v2 - big_l * w2) * irl
             wr = (v2 + big_r * w2) * irr
-            eml = cl * dl - el * wl
-            emr = cr * dr - er * wr
+            eml = cdl - el * wl
+            emr = cdr - er * wr
             frl = bl * wl + tcl * tanh(wl * iwsl)
             frr = br * wr + tcr * tanh(wr * iwsr)
             ul = (eml - frl + sl) * irl
@@ -364,8 +482,8 @@ class SimRobot:
             th3 = th + h2 * w2
             wl = (v3 - big_l * w3) * irl
             wr = (v3 + big_r * w3) * irr
-            eml = cl * dl - el * wl
-            emr = cr * dr - er * wr
+            eml = cdl - el * wl
+            emr = cdr - er * wr
             frl = bl * wl + tcl * tanh(wl * iwsl)
             frr = br * wr + tcr * tanh(wr * iwsr)
             ul = (eml - frl + sl) * irl
@@ -383,8 +501,8 @@ class SimRobot:
             th4 = th + h * w3
             wl = (v4 - big_l * w4) * irl
             wr = (v4 + big_r * w4) * irr
-            eml = cl * dl - el * wl
-            emr = cr * dr - er * wr
+            eml = cdl - el * wl
+            emr = cdr - er * wr
             frl = bl * wl + tcl * tanh(wl * iwsl)
             frr = br * wr + tcr * tanh(wr * iwsr)
             ul = (eml - frl + sl) * irl
@@ -416,7 +534,13 @@ class SimRobot:
             k += 1
 
             # Sensors at the end of the step: the gyro's low-pass runs at the plant rate.
-            gf += g_a * (g_scale * w + g_bias + ggauss(0.0, g_sig) - gf)
+            z, g_next = g_next, None
+            if z is None:
+                x2pi = grand() * two_pi
+                g2rad = sqrt(-2.0 * log(1.0 - grand()))
+                z = cos(x2pi) * g2rad
+                g_next = sin(x2pi) * g2rad
+            gf += g_a * (g_scale * w + g_bias + (0.0 + z * g_sig) - gf)
             i = k % n_ring
             ring_phi3[i] = phi_3
             ring_gyro[i] = gf
@@ -428,3 +552,4 @@ class SimRobot:
         self._w_em, self._w_fr, self._w_slip = w_em, w_fr, w_slip
         self._gyro_f = gf
         self._k = k
+        slip_rng.gauss_next, gyro_rng.gauss_next = s_next, g_next

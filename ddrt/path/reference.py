@@ -17,6 +17,7 @@ meets the profile, which it then follows as before.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 from ddrt.core.types import Setpoint
 from ddrt.path.sampled import Path
@@ -52,6 +53,19 @@ class PathReference:
         self._ramp = False  # restarting from rest after a hold (see resume)
         self._ramp_s = 0.0  # the ramp's schedule: progress and progress rate
         self._ramp_u = 0.0
+        # The last schedule point read (time, path, point): a tick reads at t_sched the point
+        # the tick before read at its t_next, so one PathPoint a tick is reused, not rebuilt.
+        self._memo: tuple[float, Path | None, Any] = (math.nan, None, None)
+
+    def _at_time(self, t: float) -> Any:
+        """self.path.at_time(t), reusing the last answer for the same time on the same path."""
+        memo_t, memo_path, point = self._memo
+        path = self.path
+        if t == memo_t and path is memo_path:
+            return point
+        point = path.at_time(t)
+        self._memo = (t, path, point)
+        return point
 
     def request_stop(self, decel: float) -> None:
         """Come to rest along the path at `decel` m/s^2 from the current schedule speed."""
@@ -128,12 +142,12 @@ class PathReference:
         d_near = path.direction[path.index(near.sigma)]
         self._onto_cusp(near.sigma, d_near)
         t_next = self.t_sched + step
-        sched = path.at_time(t_next)
+        sched = self._at_time(t_next)
         if sched.sigma <= near.sigma + self.max_lead and not self._past_cusp(sched, d_near):
             self.t_sched = t_next
             held = False
         else:
-            sched = path.at_time(self.t_sched)
+            sched = self._at_time(self.t_sched)
             held = True
         sp.x_d, sp.y_d, sp.theta_d = near.x_d, near.y_d, near.theta_d
         sp.path_frame = True
@@ -156,7 +170,7 @@ class PathReference:
         a forward speed in the reverse leg's frame. Within CORNER_TOL_M of the cusp, the
         schedule is taken to it (at rest), as at a turn in place."""
         p = self.path
-        now = p.at_time(self.t_sched)
+        now = self._at_time(self.t_sched)
         if now.pivot or now.sigma >= s_near:
             return
         i = p.index(now.sigma)

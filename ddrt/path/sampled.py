@@ -61,8 +61,7 @@ from __future__ import annotations
 import bisect
 import copy
 import math
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
@@ -76,9 +75,11 @@ if TYPE_CHECKING:
 __all__ = ["PathPoint", "Path", "distances_to_polyline"]
 
 
-@dataclass(frozen=True, slots=True)
-class PathPoint:
-    """The path and its profile at one progress value (see the module docstring for units)."""
+class PathPoint(NamedTuple):
+    """The path and its profile at one progress value (see the module docstring for units).
+
+    A NamedTuple, not a frozen dataclass: the reference builds one every control tick, and a
+    frozen dataclass's __init__ (one object.__setattr__ a field) cost 1.5 us against 0.4."""
 
     sigma: float
     x: float
