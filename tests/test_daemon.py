@@ -1097,14 +1097,36 @@ def test_stats_json_when_the_robot_cannot_be_opened_says_exit_1() -> None:
 
 
 def test_sigterm_during_calibration_exits_0_with_stats() -> None:
-    d = start_daemon(estimator={"calibration_s": 5.0})
+    # A start pose: no start path to wait for, so from the socket on the daemon opens the
+    # robot and calibrates; a calibration far longer than any start-up holds the SIGTERM
+    # inside it however slowly this process gets to send it.
+    d = start_daemon(start=[0.0, 0.0, 0.0], estimator={"calibration_s": 60.0})  # the longest allowed
     try:
         wait_for(lambda: d.check_alive() or os.path.exists(d.socket), START_TIMEOUT_S, "the control socket")
-        time.sleep(0.3)
         d.proc.send_signal(signal.SIGTERM)
-        rc, stats = _exit_and_stats(d, 10.0)
+        rc, stats = _exit_and_stats(d)
         assert rc == 0 and stats["exit_code"] == 0 and stats["error"] is None, d.stderr()
         assert "stopped during start-up calibration" in d.stderr()
+    finally:
+        d.close()
+
+
+def test_sigterm_while_the_start_path_is_built_exits_0_quietly() -> None:
+    """Without a start pose the simulated robot starts where the config's path does, so the
+    daemon waits for the worker to build it before it opens the robot: a SIGTERM then is a
+    requested stop like any other (it used to exit 2, as for a bad path file, with a
+    traceback from the worker's pipe closed under its reader)."""
+    huge = {"shape": "circle", "radius": 300.0, "speed": 0.3}  # seconds of building
+    d = start_daemon(path=huge, paths={"build_timeout_s": 600.0})
+    try:
+        # The socket opens after the build is submitted and before the robot is opened.
+        wait_for(lambda: d.check_alive() or os.path.exists(d.socket), START_TIMEOUT_S, "the control socket")
+        d.proc.send_signal(signal.SIGTERM)
+        rc, stats = _exit_and_stats(d)
+        err = d.stderr()
+        assert rc == 0 and stats["exit_code"] == 0 and stats["error"] is None, err
+        assert "stopped while the start path was being built" in err
+        assert "Traceback" not in err and "ERROR" not in err, err
     finally:
         d.close()
 

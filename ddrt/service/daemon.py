@@ -10,8 +10,8 @@ ready; its socket reply waits for that. Each period: sleep to an absolute deadli
 SIGUSR1 estop, tick, record timing, then (outside the timed part) serve the control socket,
 ping the watchdog, apply a pending reload. Signals only set flags.
 
-Exit codes: 0 after a requested stop (SIGTERM, SIGINT, --duration, also during the start-up
-calibration), 1 after a fault or when the robot cannot be run (another daemon holds the lock,
+Exit codes: 0 after a requested stop (SIGTERM, SIGINT, --duration, also while the start path
+is built or the gyro calibrated), 1 after a fault or when the robot cannot be run (another daemon holds the lock,
 the socket or a device cannot be opened, calibration failed: systemd restarts the service),
 2 for a bad config or path file at start-up. `--stats-json` is written on every one of these
 paths, after the exit code is known, and carries it.
@@ -280,6 +280,9 @@ class Daemon:
                 return 1
         try:
             self._open_hal()
+        except _Interrupted:
+            log.info("stopped while the start path was being built")
+            return 0
         except (ConfigError, PathError):
             raise
         except (HalError, OSError, ValueError) as exc:
@@ -722,7 +725,7 @@ class Daemon:
             raise PathError(f"{self.cfg.source}: path: not being built")
         while not build.done:
             if self.stop_requested:
-                raise PathError("stopped while the start path was being built")
+                raise _Interrupted()
             time.sleep(0.01)
         if build.error:
             raise PathError(build.error)

@@ -379,8 +379,12 @@ class PathWorker:
             return
         self._closed = True
         self._queue.put(None)
+        # Only signal the workers here: their pipes are the helper thread's, which may be
+        # reading one right now (closed under it, the read fails with EBADF, or reads whatever
+        # file is opened next under that number). It sees the worker gone, or `_closed` within
+        # POLL_S, and closes them on its way out.
         for proc in (self._active, self._standby):
-            _kill(proc)
+            _signal_kill(proc)
         self._thread.join(timeout)
 
     # ----- helper thread ------------------------------------------------------------------
@@ -517,6 +521,8 @@ class _Reader:
         while True:
             if self.build.cancelled:
                 raise _Stop("cancelled")
+            if self.owner._closed:
+                raise _Stop("the daemon is stopping")
             left = self.deadline - time.monotonic()
             if left <= 0.0:
                 if self.timeout_s is None:
@@ -534,7 +540,7 @@ class _Reader:
             self._wait()
             k = os.readv(self.fd, [mv[got:got + CHUNK_BYTES]])
             if k == 0:
-                raise _Stop(self.owner._died(self.proc))
+                raise _Stop("the daemon is stopping" if self.owner._closed else self.owner._died(self.proc))
             got += k
 
     def read_bytes(self, n: int) -> bytes:
@@ -583,6 +589,15 @@ def _free(obj: Any) -> None:
                 time.sleep(PAUSE_S)
         del value
         time.sleep(PAUSE_S)
+
+
+def _signal_kill(proc: subprocess.Popen[bytes] | None) -> None:
+    """SIGKILL a worker that still runs; its pipes stay open for the thread that reads them."""
+    if proc is not None and proc.poll() is None:
+        try:
+            proc.kill()
+        except OSError:
+            pass
 
 
 def _kill(proc: subprocess.Popen[bytes] | None) -> None:
