@@ -25,26 +25,9 @@ from hypothesis import strategies as st
 from ddrt.runtime import rt
 from ddrt.runtime.clock import ManualClock, MonotonicClock
 from ddrt.service.timing import RateScheduler, TimingStats, percentile
+from cpu_queue import late_beyond_queue, waited_for_cpu_s
 
 SLACK = 0.05  # bound on oversleeping, beyond the time the thread waited for a CPU
-
-
-def _queued_s() -> float:
-    """Seconds this thread has spent runnable but waiting for a CPU (the kernel's run_delay in
-    /proc/thread-self/schedstat): what a loaded machine adds to any wake-up, and not the
-    clock's doing. 0.0 where the kernel does not keep it."""
-    try:
-        with open("/proc/thread-self/schedstat") as fh:
-            return int(fh.read().split()[1]) * 1e-9
-    except (OSError, IndexError, ValueError):
-        return 0.0
-
-
-def _late_beyond_queue(sleep, deadline: float) -> tuple[float, float]:
-    """(the value `sleep(deadline)` returned, how late that was less the run-queue wait meanwhile)."""
-    q0 = _queued_s()
-    woke = sleep(deadline)
-    return woke, woke - deadline - (_queued_s() - q0)
 
 
 # ----- MonotonicClock ----------------------------------------------------------------------
@@ -56,7 +39,7 @@ def test_sleep_until_wakes_at_deadline_never_before(use_libc: bool) -> None:
         assert clock.uses_clock_nanosleep  # Linux with glibc: the absolute sleep is used
     for delay in (0.001, 0.003, 0.0071, 0.02):
         deadline = clock.now() + delay
-        woke, late = _late_beyond_queue(clock.sleep_until, deadline)
+        woke, late = late_beyond_queue(clock.sleep_until, deadline)
         after = time.monotonic()
         assert woke >= deadline, f"woke {deadline - woke:.6f} s early"
         assert late < SLACK
@@ -66,9 +49,9 @@ def test_sleep_until_wakes_at_deadline_never_before(use_libc: bool) -> None:
 def test_sleep_until_past_deadline_returns_at_once() -> None:
     clock = MonotonicClock()
     t0 = time.monotonic()
-    q0 = _queued_s()
+    q0 = waited_for_cpu_s()
     woke = clock.sleep_until(t0 - 1.0)
-    assert t0 <= woke < t0 + 0.005 + (_queued_s() - q0)
+    assert t0 <= woke < t0 + 0.005 + (waited_for_cpu_s() - q0)
 
 
 def test_sleep_until_rejects_nan() -> None:
@@ -392,7 +375,7 @@ def test_spinning_clock_never_wakes_early_and_rejects_bad_spin():
     late = []
     for _ in range(50):
         deadline = _time.monotonic() + 0.002
-        woke, beyond_queue = _late_beyond_queue(clock.sleep_until, deadline)
+        woke, beyond_queue = late_beyond_queue(clock.sleep_until, deadline)
         assert woke >= deadline
         late.append(beyond_queue)
     late.sort()

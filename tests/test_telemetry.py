@@ -193,7 +193,7 @@ def test_logger_thread_writes_everything_by_close(tmp_path: Path) -> None:
     for i in range(500):
         ring.append((i, i * 0.5, 1.0))
         if i == 250:
-            deadline = time.monotonic() + 2.0  # the thread writes while we keep appending
+            deadline = time.monotonic() + 60.0  # the thread writes while we keep appending
             while writer.rows_written == 0 and time.monotonic() < deadline:
                 time.sleep(0.005)
             assert writer.rows_written > 0
@@ -221,7 +221,9 @@ def test_logger_survives_write_errors(tmp_path: Path, caplog: pytest.LogCaptureF
     with caplog.at_level(logging.WARNING, logger="ddrt.service.telemetry"):
         logger = TelemetryLogger(ring, w, interval_s=0.01)  # type: ignore[arg-type]
         ring.append((1, 2, 3))
-        time.sleep(0.05)
+        deadline = time.monotonic() + 60.0  # two batches: the first row's written (and failed) first
+        while logger.write_errors == 0 and time.monotonic() < deadline:
+            time.sleep(0.005)
         ring.append((4, 5, 6))
         logger.close()
     assert logger.write_errors == 2 and logger.rows_lost_to_errors == 2
