@@ -24,13 +24,27 @@ from typing import Any
 
 import pytest
 
+from cpu_queue import Stopwatch
 from ddrt.service.ctlsocket import request
 from test_daemon import STATE_TIMEOUT_S, DaemonProc, ready_daemon, start_daemon, wait_for
 
 HUGE_CIRCLE = {"shape": "circle", "radius": 300.0, "speed": 0.3, "pose": [0.0, 0.0, 0.0]}  # 942 000 samples
 STALL_BOUND_S = 0.1  # the worst tick while a path is prepared; main stalled 1.2 to 143 s
 MISSED_BOUND = 20  # ticks skipped meanwhile (a 1.2 s stall skips 240)
-ANSWER_BOUND_S = 1.0  # estop / stop / status round trip from a client (10 ms is the target)
+MISSED_FRACTION = 0.05  # and of the slots meanwhile: a loaded host skips the odd one however
+
+
+def missed_bound(before: dict[str, Any], after: dict[str, Any]) -> float:
+    """Missed ticks allowed between two `timing` summaries: the stall the defect made (the
+    build on the loop thread: 240 of some 400 slots) stands out against both a fixed count and
+    the scattered misses a loaded host makes over a build it also slows, which grow with it."""
+    slots = after["count"] + after["missed_ticks"] - before["count"] - before["missed_ticks"]
+    return MISSED_BOUND + MISSED_FRACTION * slots
+
+
+NO_TICKS = {"count": 0, "missed_ticks": 0}
+ANSWER_BOUND_S = 1.0  # estop / stop / status round trip from a client (10 ms is the target),
+# less what this process's and the daemon's threads waited for a CPU meanwhile
 # The huge circle's build time is not what these tests are about: a niced worker on a loaded
 # host may take minutes, so its bound (and the wait for it) is only against a hang.
 HUGE_BUILD_S = 600.0
@@ -79,9 +93,11 @@ class Pending:
 
 
 def timed(d: DaemonProc, cmd: str) -> tuple[float, dict[str, Any]]:
-    t0 = time.monotonic()
-    reply = d.request({"cmd": cmd})
-    return time.monotonic() - t0, reply
+    """The round trip of one command, less what the client's and the daemon's threads waited
+    for a CPU on the way: the daemon's own answer time, whatever else loads the machine."""
+    with Stopwatch("self", d.proc.pid) as watch:
+        reply = d.request({"cmd": cmd})
+    return watch.running_s, reply
 
 
 def wait_preparing(d: DaemonProc) -> dict[str, Any]:
@@ -105,12 +121,13 @@ def test_a_huge_inline_circle_is_built_while_the_loop_ticks_and_status_answers(f
     prepared = reply["prepared"]
     assert prepared["ticks"] > 0.5 * prepared["seconds"] * 200.0  # the loop ticked all along
     assert prepared["late_max_us"] < STALL_BOUND_S * 1e6, prepared
-    assert prepared["missed_ticks"] <= MISSED_BOUND, prepared
+    slots = {"count": prepared["ticks"], "missed_ticks": prepared["missed_ticks"]}
+    assert prepared["missed_ticks"] <= missed_bound(NO_TICKS, slots), prepared
     assert answers and max(answers) < ANSWER_BOUND_S, answers
     after = fd.status()
     assert after["state"] == "following" and after["preparing"] is None
     assert after["progress"]["length_m"] == pytest.approx(reply["length_m"])
-    assert after["timing"]["missed_ticks"] - before["missed_ticks"] <= MISSED_BOUND
+    assert after["timing"]["missed_ticks"] - before["missed_ticks"] <= missed_bound(before, after["timing"])
     # estop answers within a tick while following the huge path, and holds.
     dt, e = timed(fd, "estop")
     assert e == {"ok": True, "state": "estop"} and dt < ANSWER_BOUND_S
@@ -155,7 +172,8 @@ def test_a_fifo_as_the_path_is_refused_quickly_without_blocking(fd: DaemonProc) 
     reply = fd.request({"cmd": "follow", "path": str(fifo)})
     assert reply["ok"] is False and "FIFO" in reply["error"] and str(fifo) in reply["error"], reply
     assert reply["prepared"]["late_max_us"] < STALL_BOUND_S * 1e6, reply["prepared"]
-    assert fd.status()["timing"]["missed_ticks"] - before["missed_ticks"] <= MISSED_BOUND
+    after = fd.status()["timing"]
+    assert after["missed_ticks"] - before["missed_ticks"] <= missed_bound(before, after)
     # The same FIFO named by the file: key of a path YAML file.
     yaml_file = fd.workdir / "via.yaml"
     yaml_file.write_text(f"file: {fifo}\nspeed: 0.2\n")
@@ -180,7 +198,8 @@ def test_a_million_point_csv_is_refused_by_its_size_unread(fd: DaemonProc) -> No
     reply = fd.request({"cmd": "follow", "path": str(big)})
     assert reply["ok"] is False and "paths.max_file_bytes = 2000000" in reply["error"], reply
     assert reply["prepared"]["late_max_us"] < STALL_BOUND_S * 1e6, reply["prepared"]
-    assert fd.status()["timing"]["missed_ticks"] - before["missed_ticks"] <= MISSED_BOUND
+    after = fd.status()["timing"]
+    assert after["missed_ticks"] - before["missed_ticks"] <= missed_bound(before, after)
 
 
 def test_a_ten_thousand_point_csv_is_built_off_the_loop(fd: DaemonProc) -> None:
@@ -226,7 +245,7 @@ def test_follow_at_start_on_a_huge_path_ticks_while_it_is_built() -> None:
         s = wait_for(lambda: (s := d.status())["state"] == "following" and s, HUGE_BUILD_S + 60.0,
                      "following the start path")
         assert s["progress"]["length_m"] > 1800.0
-        assert s["timing"]["missed_ticks"] <= MISSED_BOUND, s["timing"]
+        assert s["timing"]["missed_ticks"] <= missed_bound(NO_TICKS, s["timing"]), s["timing"]
         dt, e = timed(d, "estop")
         assert e["state"] == "estop" and dt < ANSWER_BOUND_S
     finally:

@@ -209,6 +209,42 @@ def test_the_worker_runs_below_the_loop() -> None:
         w.close()
 
 
+def test_below_a_real_time_loop_the_reader_runs_just_under_it_and_the_workers_do_not() -> None:
+    """With the loop at SCHED_FIFO 10 the helper thread that reads the built paths runs at
+    SCHED_FIFO 1 (a niced reader, preempted by other work holding the GIL, left the loop
+    waiting 40-60 ms), and the worker processes it starts still begin at SCHED_OTHER, niced.
+    In a subprocess, so the test runner never has a real-time thread."""
+    import json
+    import subprocess
+    import sys
+    import textwrap
+
+    code = textwrap.dedent("""
+        import json, os, time
+        from ddrt.service.pathworker import PathWorker
+        w = PathWorker(loop_priority=10)
+        deadline = time.monotonic() + %r
+        while w._standby is None or int(open(f"/proc/{w._standby.pid}/oom_score_adj").read()) != 1000:
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        tid, pid = w._thread.native_id, w._standby.pid
+        print(json.dumps({"reader": [os.sched_getscheduler(tid) & ~os.SCHED_RESET_ON_FORK,
+                                     os.sched_getparam(tid).sched_priority],
+                          "worker": [os.sched_getscheduler(pid), os.getpriority(os.PRIO_PROCESS, pid)],
+                          "fifo": os.SCHED_FIFO, "other": os.SCHED_OTHER}))
+        w.close()
+    """ % WORKER_HANG_S)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT,
+                         timeout=2 * WORKER_HANG_S)
+    assert out.returncode == 0, out.stderr
+    res = json.loads(out.stdout.strip().splitlines()[-1])
+    if "sched_setscheduler(SCHED_FIFO, 1)" in out.stderr:  # not permitted here: normal, niced
+        assert res["reader"] == [res["other"], 0]
+    else:
+        assert res["reader"] == [res["fifo"], 1], out.stderr
+    assert res["worker"][0] == res["other"] and res["worker"][1] >= 10
+
+
 def _equal(a: object, b: object) -> bool:
     """Equality through dataclasses, sequences and mappings, with arrays compared by value."""
     if isinstance(b, np.ndarray):

@@ -151,7 +151,7 @@ class Daemon:
             log.warning("telemetry disabled: cannot write to %s: %s", directory, exc)
             return
         self.ring = TelemetryRing(COLUMNS, capacity=4096)
-        self.telemetry = TelemetryLogger(self.ring, writer)
+        self.telemetry = TelemetryLogger(self.ring, writer, loop_priority=d.rt_priority)
 
     def _open_viz(self) -> bool:
         """Foxglove server and MCAP files (ddrt/viz/service.py); False if they cannot start."""
@@ -260,9 +260,9 @@ class Daemon:
             self._fail(f"cannot take the one-daemon-per-robot lock {lock.path}: {exc.strerror or exc}")
             return 1
         self.lock = lock
-        # The path worker before any thread goes real-time: its helper thread (and the worker
-        # processes it starts) keep the normal policy and every CPU.
-        self.paths = PathWorker()
+        # The path worker before any thread is pinned: its helper thread (below the loop when
+        # that is real-time) and the worker processes it starts (niced) keep every CPU.
+        self.paths = PathWorker(loop_priority=d.rt_priority)
         cfg = self.cfg
         if cfg.path is not None and (self.follow_at_start or cfg.start is None):
             source, kwargs = path_source(cfg)

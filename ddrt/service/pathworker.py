@@ -342,12 +342,16 @@ class _Stop(Exception):
 class PathWorker:
     """The daemon's path builder: `submit` a job, poll its `Build`; `dispose` old paths.
 
-    Create it before the loop goes real-time: its helper thread (and so every worker process
-    it starts) keeps the normal scheduling policy and every CPU.
+    Create it before the loop goes real-time, so its helper thread keeps every CPU. With the
+    loop at SCHED_FIFO `loop_priority`, the helper runs just below it (SCHED_FIFO 1): it takes
+    the GIL for every chunk it reads and every piece it frees, and niced among the machine's
+    other work it was preempted holding it, the loop waiting behind (40-60 ms under CPU hogs).
+    The worker processes it starts begin at SCHED_OTHER, niced (SCHED_RESET_ON_FORK).
     """
 
-    def __init__(self, python: str | None = None) -> None:
+    def __init__(self, python: str | None = None, loop_priority: int = 0) -> None:
         self.python = python or sys.executable
+        self.loop_priority = loop_priority
         self._queue: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._standby: subprocess.Popen[bytes] | None = None
         self._active: subprocess.Popen[bytes] | None = None
@@ -389,12 +393,15 @@ class PathWorker:
 
     # ----- helper thread ------------------------------------------------------------------
     def _run(self) -> None:
-        from ddrt.runtime.rt import demote_current_thread
+        from ddrt.runtime.rt import demote_current_thread, raise_gil_helper
 
         demote_current_thread()
         # Nice is per thread on Linux, and a child starts with its parent thread's: the worker
         # processes are niced from their first instruction (their imports included).
         _renice(threading.get_native_id())
+        why = raise_gil_helper(self.loop_priority, reset_on_fork=True)
+        if why:
+            log.warning("path worker's reader: %s (at normal priority, niced)", why)
         try:
             self._standby = self._spawn()
         except OSError as exc:

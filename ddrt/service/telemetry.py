@@ -166,7 +166,8 @@ class TelemetryLogger:
     `close()` writes whatever is still in the ring, then closes the writer.
     """
 
-    def __init__(self, ring: TelemetryRing, writer: RotatingCsvWriter, interval_s: float = 0.2) -> None:
+    def __init__(self, ring: TelemetryRing, writer: RotatingCsvWriter, interval_s: float = 0.2,
+                 loop_priority: int = 0) -> None:
         if tuple(writer.columns) != ring.columns:
             raise ValueError(f"TelemetryLogger: writer columns {writer.columns} != ring columns {ring.columns}")
         if not (isinstance(interval_s, (int, float)) and 0 < interval_s < 60):
@@ -174,6 +175,7 @@ class TelemetryLogger:
         self.ring = ring
         self.writer = writer
         self.interval_s = float(interval_s)
+        self.loop_priority = loop_priority  # the loop's SCHED_FIFO priority: the writer runs below it
         self.write_errors = 0
         self.rows_lost_to_errors = 0
         self._stop = threading.Event()
@@ -194,9 +196,13 @@ class TelemetryLogger:
                 log.warning("telemetry write failed, dropping rows: %s: %s", type(exc).__name__, exc)
 
     def _run(self) -> None:
-        from ddrt.runtime.rt import demote_current_thread
+        from ddrt.runtime.rt import raise_gil_helper
 
-        demote_current_thread()
+        # Formatting a batch holds the GIL: just below a real-time loop, not among the
+        # machine's other work, which could preempt it holding the GIL (rt.raise_gil_helper).
+        why = raise_gil_helper(self.loop_priority)
+        if why:
+            log.warning("telemetry writer: %s (at normal priority)", why)
         while not self._stop.wait(self.interval_s):
             self._flush_once()
 
