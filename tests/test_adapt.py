@@ -144,10 +144,10 @@ def test_adapted_dynamics_inverse_undoes_forward_with_friction() -> None:
 def test_update_cost_is_small() -> None:
     ad = _adapter()
     n = 4000
-    t0 = time.perf_counter()
+    t0 = time.thread_time()  # the CPU it takes, which a loaded host does not inflate
     for i in range(n):
         ad.update(0.5 + 0.2 * math.sin(i * 0.01), math.sin(i * 0.013), 0.5, 0.4)
-    per_tick = (time.perf_counter() - t0) / n
+    per_tick = (time.thread_time() - t0) / n
     assert ad.updates > n // 2
     assert per_tick < 300e-6  # measured ~25 us; a 200 Hz tick has 5000 us
 

@@ -347,9 +347,14 @@ def test_realhal_nominal(rig) -> None:
     assert hal.info.encoder_counts_per_rev == 8192
     assert hal.info.gyro_lsb_per_rad_s == pytest.approx(131.0 * 180 / 3.141592653589793)
     samples = ticks(hal, 10)
-    # a starved emulator thread (loaded machine) shows as a hold, never as anything else
+    # A starved emulator thread (loaded machine) shows as a hold; a starved reader as what a
+    # UART does when nobody reads it: the bytes the full pty refused are lost (the emulator
+    # counts them), which the bridge names as lost or broken frames. Nothing else, ever.
+    allowed = {"", "encoder_hold"}
+    if link.tx_dropped:
+        allowed |= {"lost_packets", "bad_frame", "crc_error"}
     assert sum(s.fresh for s in samples) >= 7
-    assert all(s.faults in ("", "encoder_hold") for s in samples)
+    assert all(set(s.faults.split(",")) <= allowed for s in samples), ([s.faults for s in samples], link.tx_dropped)
     assert samples[-1].gyro_z_raw == round(0.25 * 180 / 3.141592653589793 * 131)
     assert samples[-1].encoder_count > samples[0].encoder_count
     assert all(b.t > a.t for a, b in zip(samples, samples[1:]))

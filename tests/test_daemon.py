@@ -31,13 +31,15 @@ import pytest
 
 from ddrt.service.ctlclient import connect
 from ddrt.loop import LoopState
-from tests.support.daemon import (CALIBRATION_S, PATHS, RATE_HZ, START_TIMEOUT_S, DaemonProc, ctl, raw_exchange,
-                                  read_reply, start_daemon, wait_for, write_config)
+from tests.support.cpu_queue import Stopwatch
+from tests.support.daemon import (CALIBRATION_S, PATHS, RATE_HZ, REPLY_TIMEOUT_S, START_TIMEOUT_S, STATE_TIMEOUT_S,
+                                  DaemonProc, ctl, raw_exchange, read_reply, start_daemon, wait_for, write_config)
 from tests.support.repo import REPO
 
 NOOP_RELOADS = 10  # enough reloads that at least one shows the cost of parsing in the loop
 
 FOLLOWING = LoopState.FOLLOWING
+HOLDING = LoopState.HOLDING
 FAULT = LoopState.FAULT
 STOPPED = LoopState.STOPPED
 
@@ -106,7 +108,8 @@ def recording() -> Iterator[Recording]:
         t_hup = time.monotonic()
         d.proc.send_signal(signal.SIGHUP)
         gains_after_hup = wait_for(
-            lambda: (g := d.request({"cmd": "gains"}))["inner"]["kp"] == 60.0 and g, 3.0, "kp 60 after SIGHUP")
+            lambda: (g := d.request({"cmd": "gains"}))["inner"]["kp"] == 60.0 and g, REPLY_TIMEOUT_S,
+            "kp 60 after SIGHUP")
         t_hup_applied = time.monotonic()
         status_after_hup = d.status()
         windows.append((before, status_after_hup["timing"]["count"]))
@@ -262,9 +265,11 @@ def test_restart_only_key_is_reported_not_applied(recording: Recording) -> None:
     assert rec.status_after_restart["reloads"] == {"applied": 1, "unchanged": 1, "rejected": 1}
     assert rec.stats["rate_hz"] == RATE_HZ
     assert "controller.rate_hz changed but need a restart" in rec.stderr
-    # Still 200 ticks a second after the reload, not 100.
-    ticks = rec.status_final["timing"]["count"] - rec.status_after_restart["timing"]["count"]
-    assert ticks > 0.8 * RATE_HZ * (0.2 * NOOP_RELOADS + 1.0), ticks  # the sleeps in between
+    # Still 200 slots a second after the reload, not 100: over the sleeps in between (at least
+    # that long), the slots the scheduler served or skipped (a loaded host skips some).
+    a, b = rec.status_after_restart["timing"], rec.status_final["timing"]
+    slots = b["count"] + b["missed_ticks"] - a["count"] - a["missed_ticks"]
+    assert slots > 0.95 * RATE_HZ * (0.2 * NOOP_RELOADS + 1.0), slots
     assert all(r["ok"] is True for r in rec.noop_replies)
 
 
@@ -286,21 +291,32 @@ def _reload_rows(rec: Recording, before: int = 3, after: int = 8) -> set[int]:
     return out
 
 
-def _steady_steps(rec: Recording) -> list[float]:
-    """Duty steps while following on time, away from reloads and from the first second."""
-    rows = rec.rows
-    near_reload = _reload_rows(rec)
+def _after_late(rows: list[dict[str, float]]) -> set[int]:
+    """Rows a late tick may have disturbed: the late one and the 8 after it (a tick that comes
+    late sees a larger error and corrects it in a larger step, whatever made it late)."""
     p = _period()
     late = [i for i in range(1, len(rows)) if abs(rows[i]["t"] - rows[i - 1]["t"] - p) > 0.5 * p]
-    after_late = {j for i in late for j in range(i, i + 8)}
-    out = []
-    for i in range(int(RATE_HZ) + 1, len(rows)):
-        if i in near_reload or i - 1 in near_reload or i in after_late:
-            continue
-        a, b = rows[i - 1], rows[i]
-        if a["state"] == b["state"] == FOLLOWING:
-            out.append(max(abs(b["duty_l"] - a["duty_l"]), abs(b["duty_r"] - a["duty_r"])))
-    return out
+    return {j for i in late for j in range(i, i + 8)}
+
+
+def _steady(rec: Recording) -> list[int]:
+    """Rows i whose step from row i-1 is steady following: away from reloads and the first second."""
+    rows = rec.rows
+    near_reload = _reload_rows(rec)
+    return [i for i in range(int(RATE_HZ) + 1, len(rows))
+            if i not in near_reload and i - 1 not in near_reload
+            and rows[i - 1]["state"] == rows[i]["state"] == FOLLOWING]
+
+
+def _step(rows: list[dict[str, float]], i: int) -> float:
+    a, b = rows[i - 1], rows[i]
+    return max(abs(b["duty_l"] - a["duty_l"]), abs(b["duty_r"] - a["duty_r"]))
+
+
+def _steady_steps(rec: Recording) -> list[float]:
+    """Duty steps while following on time, away from reloads and from the first second."""
+    after_late = _after_late(rec.rows)
+    return [_step(rec.rows, i) for i in _steady(rec) if i not in after_late]
 
 
 @pytest.mark.slow
@@ -310,26 +326,33 @@ def test_reload_windows_are_in_the_telemetry(recording: Recording) -> None:
     assert len(rec.reload_windows) == 3 + NOOP_RELOADS
     for lo, hi in rec.reload_windows:
         assert 0 < lo < hi < len(rows)
-        assert all(r["state"] == FOLLOWING for r in rows[lo - 3:hi + 8])
+        # Following throughout (a loaded host may stall the loop into a hold, which resumes).
+        assert all(r["state"] in (FOLLOWING, HOLDING) for r in rows[lo - 3:hi + 8])
+        assert any(r["state"] == FOLLOWING for r in rows[lo - 3:hi + 8])
     assert len(_steady_steps(rec)) > 150  # enough on-time ticks to compare with
 
 
-# Not strict: whether a reload makes a tick late depends on the machine's speed and load
-# (here about 4 runs in 5 show it); strict would turn the lucky runs red.
 @pytest.mark.slow
 def test_reload_does_not_step_the_motor_command(recording: Recording) -> None:
-    """Around every reload: the loop does not stall (a generous bound: this machine is shared)
-    and no tick-to-tick duty change is larger than the largest in steady following (or 0.05)."""
+    """Around every reload: the loop does not stall (4 periods, or the longest gap the host
+    made anyway in steady following) and no on-time tick-to-tick duty change is larger than
+    the largest in steady following (or 0.05). Ticks a late one disturbed are left out on
+    both sides: whether a tick comes late depends on the machine's load, not on the gains."""
     rec = recording
     rows = rec.rows
     p = _period()
     step_steady = max(_steady_steps(rec))
+    gap_steady = max(rows[i]["t"] - rows[i - 1]["t"] for i in _steady(rec))
+    after_late = _after_late(rows)
+    checked = 0
     for lo, hi in rec.reload_windows:
-        seg = rows[max(lo - 3, 0):hi + 8]
-        gap = max(b["t"] - a["t"] for a, b in zip(seg, seg[1:]))
-        assert gap < 4.0 * p, ("stalled", lo, hi, gap)
-        step = max_step(seg)
-        assert step <= max(step_steady, 0.05), ("duty step", lo, hi, step, step_steady)
+        window = range(max(lo - 2, 1), min(hi + 8, len(rows)))
+        gap = max(rows[i]["t"] - rows[i - 1]["t"] for i in window)
+        assert gap < max(4.0 * p, gap_steady + 1e-9), ("stalled", lo, hi, gap, gap_steady)
+        steps = [_step(rows, i) for i in window if i not in after_late]
+        checked += len(steps)
+        assert max(steps, default=0.0) <= max(step_steady, 0.05), ("duty step", lo, hi, steps, step_steady)
+    assert checked > 0  # some on-time ticks around the reloads were compared
 
 
 @pytest.mark.slow
@@ -351,10 +374,13 @@ def test_sigterm_telemetry_is_complete(recording: Recording) -> None:
     assert rec.rows[-1]["state"] == STOPPED and rec.rows[-1]["duty_l"] == rec.rows[-1]["duty_r"] == 0.0
     ts = [r["t"] for r in rec.rows[:-1]]
     # Sample times never go back (a tick right after a late one may repeat the plant's
-    # 1 ms-quantised time), and the rows span the run at 200 Hz.
+    # 1 ms-quantised time), and the rows span the run at 200 Hz: one row a slot, but for the
+    # slots the scheduler skipped (give or take the first and last ticks' lateness).
     assert all(b >= a for a, b in zip(ts, ts[1:]))
     span = ts[-1] - ts[0]
-    assert span == pytest.approx((len(ts) - 1) / RATE_HZ, rel=0.05)
+    slots = len(ts) - 1 + rec.stats["missed"]
+    late_s = rec.stats["lateness_us"]["max"] * 1e-6
+    assert span == pytest.approx(slots / RATE_HZ, abs=late_s + 0.002), (span, slots, late_s)
 
 
 @pytest.mark.slow
@@ -415,7 +441,7 @@ def test_follow_path_file_then_stop_goes_stopping_then_stopped(daemon: DaemonPro
     def moving() -> dict[str, Any] | None:
         s = daemon.status()
         return s if s["progress"]["sigma_m"] > 0.05 else None
-    s = wait_for(moving, 5.0, "progress along the circle")
+    s = wait_for(moving, STATE_TIMEOUT_S, "progress along the circle")
     assert s["state"] == "following"
     assert s["progress"]["length_m"] == pytest.approx(reply["length_m"])
     assert 0.0 < s["progress"]["fraction"] < 1.0
@@ -423,7 +449,7 @@ def test_follow_path_file_then_stop_goes_stopping_then_stopped(daemon: DaemonPro
 
     stop = daemon.request({"cmd": "stop"})
     assert stop == {"ok": True, "state": "stopping"}
-    stopped = wait_for(lambda: (s := daemon.status())["state"] == "stopped" and s, 6.0, "state stopped")
+    stopped = wait_for(lambda: (s := daemon.status())["state"] == "stopped" and s, STATE_TIMEOUT_S, "state stopped")
     assert stopped["duty"] == {"l": 0.0, "r": 0.0}
     assert abs(stopped["speeds"]["v"]) < 0.01
 
@@ -433,7 +459,7 @@ def test_follow_inline_points(daemon: DaemonProc) -> None:
     reply = daemon.request({"cmd": "follow", "points": pts, "speed": 0.2, "pose": [0.0, 0.0, 0.0]})
     assert reply["ok"] is True and reply["state"] == "following"
     assert reply["length_m"] == pytest.approx(0.8, abs=1e-6)
-    s = wait_for(lambda: (s := daemon.status())["progress"]["sigma_m"] > 0.02 and s, 5.0, "progress")
+    s = wait_for(lambda: (s := daemon.status())["progress"]["sigma_m"] > 0.02 and s, STATE_TIMEOUT_S, "progress")
     assert s["progress"]["length_m"] == pytest.approx(0.8, abs=1e-6)
     assert s["pose"]["x"] > 0.0 and abs(s["pose"]["y"]) < 0.05  # along the line from the given pose
 
@@ -448,7 +474,7 @@ def test_follow_far_from_the_robot_is_refused(daemon: DaemonProc) -> None:
 def test_estop_latches_until_reset(daemon: DaemonProc) -> None:
     reply = daemon.request({"cmd": "follow", "path": str(PATHS / "circle_1m.yaml")})
     assert reply["ok"] is True
-    wait_for(lambda: daemon.status()["duty"] != {"l": 0.0, "r": 0.0}, 3.0, "motors driven")
+    wait_for(lambda: daemon.status()["duty"] != {"l": 0.0, "r": 0.0}, STATE_TIMEOUT_S, "motors driven")
     assert daemon.request({"cmd": "estop"}) == {"ok": True, "state": "estop"}
     s = daemon.status()
     assert s["state"] == "estop" and "estop" in s["fault"]
@@ -513,7 +539,7 @@ def test_garbage_gets_errors_and_the_loop_keeps_ticking(daemon: DaemonProc) -> N
 
     # After an oversized line the same connection still serves the next request.
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
-        s.settimeout(3.0)
+        s.settimeout(REPLY_TIMEOUT_S)
         s.connect(daemon.socket)
         s.sendall(b"y" * (100 * 1024) + b"\n")
         assert "too large" in read_reply(s)["error"]
@@ -597,7 +623,10 @@ def test_stale_sensors_zero_the_motors_and_exit_1() -> None:
         # sim time starts at 0 when the robot is opened; the freeze begins at freeze_s.
         first_stale = next(r for r in rows if r["fresh"] == 0.0)
         assert first_stale["t"] >= freeze_s - 0.01
-        assert all(r["state"] == FOLLOWING for r in rows if r["t"] < freeze_s - 0.01)
+        # Following until the freeze; a loaded host may stall the loop into a hold, resumed.
+        before = [r["state"] for r in rows if r["t"] < freeze_s - 0.01]
+        assert before and all(state in (FOLLOWING, HOLDING) for state in before)
+        assert HOLDING not in before or stats["recovery"]["stalls"] >= 1, stats["recovery"]
         last = rows[-1]
         assert last["state"] == FAULT
         assert last["duty_l"] == 0.0 and last["duty_r"] == 0.0
@@ -701,9 +730,9 @@ def strict_json(data: bytes) -> Any:
 def test_sigusr1_is_an_estop_latched_until_reset(daemon: DaemonProc) -> None:
     reply = daemon.request({"cmd": "follow", "path": str(PATHS / "circle_1m.yaml")})
     assert reply["ok"] is True
-    wait_for(lambda: daemon.status()["duty"] != {"l": 0.0, "r": 0.0}, 3.0, "motors driven")
+    wait_for(lambda: daemon.status()["duty"] != {"l": 0.0, "r": 0.0}, STATE_TIMEOUT_S, "motors driven")
     daemon.proc.send_signal(signal.SIGUSR1)
-    s = wait_for(lambda: (s := daemon.status())["state"] == "estop" and s, 2.0, "estop after SIGUSR1")
+    s = wait_for(lambda: (s := daemon.status())["state"] == "estop" and s, STATE_TIMEOUT_S, "estop after SIGUSR1")
     assert "SIGUSR1" in s["fault"] and s["duty"] == {"l": 0.0, "r": 0.0}
     assert daemon.proc.poll() is None  # a signal, not a kill
     refused = daemon.request({"cmd": "follow", "path": str(PATHS / "circle_1m.yaml")})
@@ -715,13 +744,13 @@ def test_sigusr1_is_an_estop_latched_until_reset(daemon: DaemonProc) -> None:
 def test_follow_while_stopping_says_to_wait_not_to_send_stop(daemon: DaemonProc) -> None:
     path = str(PATHS / "circle_1m.yaml")
     assert daemon.request({"cmd": "follow", "path": path})["ok"] is True
-    wait_for(lambda: daemon.status()["progress"]["sigma_m"] > 0.05, 5.0, "progress along the circle")
+    wait_for(lambda: daemon.status()["progress"]["sigma_m"] > 0.05, STATE_TIMEOUT_S, "progress along the circle")
     assert daemon.request({"cmd": "stop"}) == {"ok": True, "state": "stopping"}
     again = daemon.request({"cmd": "follow", "path": path})
     assert again["ok"] is False
     assert "send stop first" not in again["error"]  # it was stopping already: wrong advice
     assert "still stopping" in again["error"] and "'stopped'" in again["error"]
-    wait_for(lambda: daemon.status()["state"] == "stopped", 6.0, "state stopped")
+    wait_for(lambda: daemon.status()["state"] == "stopped", STATE_TIMEOUT_S, "state stopped")
     after = daemon.request({"cmd": "follow", "path": path})
     assert after["ok"] is True, after  # what the message said to do works
     assert daemon.request({"cmd": "estop"})["state"] == "estop"
@@ -734,7 +763,7 @@ def test_follow_while_stopping_says_to_wait_not_to_send_stop(daemon: DaemonProc)
 ])
 def test_replies_are_strict_json_and_refuse_nan(daemon: DaemonProc, line: bytes, needle: str) -> None:
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
-        s.settimeout(3.0)
+        s.settimeout(REPLY_TIMEOUT_S)
         s.connect(daemon.socket)
         s.sendall(line)
         buf = b""
@@ -751,7 +780,8 @@ def test_estop_reaches_the_daemon_through_100_dribbling_connections(daemon: Daem
     held = []
     try:
         for _ in range(100):
-            s = connect(daemon.socket, 5.0)  # a full listen backlog is EAGAIN at once: retried, bounded
+            s = connect(daemon.socket, REPLY_TIMEOUT_S)  # a full listen backlog is EAGAIN at once: retried, bounded
+            s.settimeout(5.0)
             s.setblocking(False)
             held.append(s)
         for _ in range(3):  # blank lines: no command, so no claim on a place
@@ -761,11 +791,11 @@ def test_estop_reaches_the_daemon_through_100_dribbling_connections(daemon: Daem
                 except OSError:
                     pass
             time.sleep(0.05)
-        t0 = time.monotonic()
-        reply = daemon.request({"cmd": "estop"}, timeout=5.0)
-        elapsed = time.monotonic() - t0
+        # Less what this process's and the daemon's threads waited for a CPU meanwhile.
+        with Stopwatch("self", daemon.proc.pid) as watch:
+            reply = daemon.request({"cmd": "estop"})
         assert reply == {"ok": True, "state": "estop"}
-        assert elapsed < 1.0, f"estop took {elapsed:.3f} s"
+        assert watch.running_s < 1.0, f"estop took {watch.running_s:.3f} s ({watch.wall:.3f} s)"
         counters = daemon.status()["control_socket"]
         assert counters["clients"] <= 33 and counters["evicted"] >= 100 - 32
     finally:
@@ -869,14 +899,36 @@ def test_stats_json_when_the_robot_cannot_be_opened_says_exit_1() -> None:
 
 
 def test_sigterm_during_calibration_exits_0_with_stats() -> None:
-    d = start_daemon(estimator={"calibration_s": 5.0})
+    # A start pose: no start path to wait for, so from the socket on the daemon opens the
+    # robot and calibrates; a calibration far longer than any start-up holds the SIGTERM
+    # inside it however slowly this process gets to send it.
+    d = start_daemon(start=[0.0, 0.0, 0.0], estimator={"calibration_s": 60.0})  # the longest allowed
     try:
         wait_for(lambda: d.check_alive() or os.path.exists(d.socket), START_TIMEOUT_S, "the control socket")
-        time.sleep(0.3)
         d.proc.send_signal(signal.SIGTERM)
-        rc, stats = _exit_and_stats(d, 10.0)
+        rc, stats = _exit_and_stats(d)
         assert rc == 0 and stats["exit_code"] == 0 and stats["error"] is None, d.stderr()
         assert "stopped during start-up calibration" in d.stderr()
+    finally:
+        d.close()
+
+
+def test_sigterm_while_the_start_path_is_built_exits_0_quietly() -> None:
+    """Without a start pose the simulated robot starts where the config's path does, so the
+    daemon waits for the worker to build it before it opens the robot: a SIGTERM then is a
+    requested stop like any other (it used to exit 2, as for a bad path file, with a
+    traceback from the worker's pipe closed under its reader)."""
+    huge = {"shape": "circle", "radius": 300.0, "speed": 0.3}  # seconds of building
+    d = start_daemon(path=huge, paths={"build_timeout_s": 600.0})
+    try:
+        # The socket opens after the build is submitted and before the robot is opened.
+        wait_for(lambda: d.check_alive() or os.path.exists(d.socket), START_TIMEOUT_S, "the control socket")
+        d.proc.send_signal(signal.SIGTERM)
+        rc, stats = _exit_and_stats(d)
+        err = d.stderr()
+        assert rc == 0 and stats["exit_code"] == 0 and stats["error"] is None, err
+        assert "stopped while the start path was being built" in err
+        assert "Traceback" not in err and "ERROR" not in err, err
     finally:
         d.close()
 

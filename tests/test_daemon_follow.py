@@ -9,7 +9,9 @@ estop got no answer for 5 s meanwhile, and a FIFO given as the path blocked the 
 open() until someone wrote to it.
 
 One daemon (the real `ddrt run` process on the simulated robot, SCHED_FIFO where permitted)
-serves every test here; bounds are generous, the targets are in bench/follow_load.py.
+serves every test here. What the loop does meanwhile is measured in its own ticks (late,
+missed); waits on the niced worker are capped only against a hang (a loaded host slows the
+build, not the loop); the targets are in bench/follow_load.py.
 """
 
 from __future__ import annotations
@@ -22,13 +24,32 @@ from typing import Any
 import pytest
 
 from ddrt.service.ctlclient import request
-from tests.support.daemon import DaemonProc, start_daemon, wait_for
+from tests.support.cpu_queue import Stopwatch
+from tests.support.daemon import STATE_TIMEOUT_S, DaemonProc, start_daemon, wait_for
 
 HUGE_CIRCLE = {"shape": "circle", "radius": 300.0, "speed": 0.3, "pose": [0.0, 0.0, 0.0]}  # 942 000 samples
 STALL_BOUND_S = 0.1  # the worst tick while a path is prepared; main stalled 1.2 to 143 s
 MISSED_BOUND = 20  # ticks skipped meanwhile (a 1.2 s stall skips 240)
-ANSWER_BOUND_S = 1.0  # estop / stop / status round trip from a client (10 ms is the target)
-DAEMON_SECTIONS = {"paths": {"max_file_bytes": 2_000_000}}  # module_daemon's config
+MISSED_FRACTION = 0.05  # and of the slots meanwhile: a loaded host skips the odd one however
+
+
+def missed_bound(before: dict[str, Any], after: dict[str, Any]) -> float:
+    """Missed ticks allowed between two `timing` summaries: the stall the defect made (the
+    build on the loop thread: 240 of some 400 slots) stands out against both a fixed count and
+    the scattered misses a loaded host makes over a build it also slows, which grow with it."""
+    slots = after["count"] + after["missed_ticks"] - before["count"] - before["missed_ticks"]
+    return MISSED_BOUND + MISSED_FRACTION * slots
+
+
+NO_TICKS = {"count": 0, "missed_ticks": 0}
+ANSWER_BOUND_S = 1.0  # estop / stop / status round trip from a client (10 ms is the target),
+# less what this process's and the daemon's threads waited for a CPU meanwhile
+# The huge circle's build time is not what these tests are about: a niced worker on a loaded
+# host may take minutes, so its bound (and the wait for it) is only against a hang.
+HUGE_BUILD_S = 600.0
+
+
+DAEMON_SECTIONS = {"paths": {"max_file_bytes": 2_000_000, "build_timeout_s": HUGE_BUILD_S}}  # module_daemon's
 
 
 @pytest.fixture()
@@ -43,7 +64,7 @@ def fd(module_daemon: DaemonProc) -> DaemonProc:
 class Pending:
     """A follow request sent from a thread: its deferred reply arrives when the path is ready."""
 
-    def __init__(self, d: DaemonProc, payload: dict[str, Any], timeout: float = 90.0) -> None:
+    def __init__(self, d: DaemonProc, payload: dict[str, Any], timeout: float = HUGE_BUILD_S + 60.0) -> None:
         self.reply: dict[str, Any] | None = None
         self.error: BaseException | None = None
         self.t0 = time.monotonic()
@@ -59,7 +80,7 @@ class Pending:
         self.thread = threading.Thread(target=run, daemon=True)
         self.thread.start()
 
-    def wait(self, timeout: float = 90.0) -> dict[str, Any]:
+    def wait(self, timeout: float = HUGE_BUILD_S + 60.0) -> dict[str, Any]:
         self.thread.join(timeout)
         assert not self.thread.is_alive(), "no reply to follow"
         assert self.error is None, self.error
@@ -68,13 +89,15 @@ class Pending:
 
 
 def timed(d: DaemonProc, cmd: str) -> tuple[float, dict[str, Any]]:
-    t0 = time.monotonic()
-    reply = d.request({"cmd": cmd})
-    return time.monotonic() - t0, reply
+    """The round trip of one command, less what the client's and the daemon's threads waited
+    for a CPU on the way: the daemon's own answer time, whatever else loads the machine."""
+    with Stopwatch("self", d.proc.pid) as watch:
+        reply = d.request({"cmd": cmd})
+    return watch.running_s, reply
 
 
 def wait_preparing(d: DaemonProc) -> dict[str, Any]:
-    return wait_for(lambda: d.status()["preparing"], 10.0, "the follow to be preparing")
+    return wait_for(lambda: d.status()["preparing"], STATE_TIMEOUT_S, "the follow to be preparing")
 
 
 def test_a_huge_inline_circle_is_built_while_the_loop_ticks_and_status_answers(fd: DaemonProc) -> None:
@@ -83,7 +106,7 @@ def test_a_huge_inline_circle_is_built_while_the_loop_ticks_and_status_answers(f
     prep = wait_preparing(fd)
     assert prep["source"] == "shape circle" and prep["elapsed_s"] >= 0.0
     answers = []
-    while pending.t_reply is None and time.monotonic() - pending.t0 < 60.0:
+    while pending.t_reply is None and time.monotonic() - pending.t0 < HUGE_BUILD_S:
         dt, reply = timed(fd, "status")
         answers.append(dt)
         assert reply["ok"] is True
@@ -94,12 +117,13 @@ def test_a_huge_inline_circle_is_built_while_the_loop_ticks_and_status_answers(f
     prepared = reply["prepared"]
     assert prepared["ticks"] > 0.5 * prepared["seconds"] * 200.0  # the loop ticked all along
     assert prepared["late_max_us"] < STALL_BOUND_S * 1e6, prepared
-    assert prepared["missed_ticks"] <= MISSED_BOUND, prepared
+    slots = {"count": prepared["ticks"], "missed_ticks": prepared["missed_ticks"]}
+    assert prepared["missed_ticks"] <= missed_bound(NO_TICKS, slots), prepared
     assert answers and max(answers) < ANSWER_BOUND_S, answers
     after = fd.status()
     assert after["state"] == "following" and after["preparing"] is None
     assert after["progress"]["length_m"] == pytest.approx(reply["length_m"])
-    assert after["timing"]["missed_ticks"] - before["missed_ticks"] <= MISSED_BOUND
+    assert after["timing"]["missed_ticks"] - before["missed_ticks"] <= missed_bound(before, after["timing"])
     # estop answers within a tick while following the huge path, and holds.
     dt, e = timed(fd, "estop")
     assert e == {"ok": True, "state": "estop"} and dt < ANSWER_BOUND_S
@@ -112,7 +136,7 @@ def test_estop_while_a_huge_path_is_built_answers_at_once_and_cancels_it(fd: Dae
     dt, reply = timed(fd, "estop")
     assert reply["ok"] is True and reply["state"] == "estop" and dt < ANSWER_BOUND_S, (dt, reply)
     assert reply["cancelled"] == "follow of shape circle"
-    cancelled = pending.wait(10.0)
+    cancelled = pending.wait(STATE_TIMEOUT_S)
     assert cancelled["ok"] is False and "cancelled by estop" in cancelled["error"]
     s = fd.status()
     assert s["state"] == "estop" and s["preparing"] is None and s["duty"] == {"l": 0.0, "r": 0.0}
@@ -129,25 +153,27 @@ def test_stop_cancels_a_follow_being_prepared_and_a_second_follow_is_refused_mea
     dt, stop = timed(fd, "stop")
     assert stop["ok"] is True and stop["state"] == "idle" and stop["cancelled"] == "follow of shape circle"
     assert dt < ANSWER_BOUND_S
-    assert "cancelled by stop" in pending.wait(10.0)["error"]
+    assert "cancelled by stop" in pending.wait(STATE_TIMEOUT_S)["error"]
     # The next follow is served by a fresh worker.
-    again = fd.request({"cmd": "follow", "shape": "circle", "radius": 0.5, "speed": 0.3, "pose": [0, 0, 0]},
-                       timeout=30.0)
+    again = fd.request({"cmd": "follow", "shape": "circle", "radius": 0.5, "speed": 0.3, "pose": [0, 0, 0]})
     assert again["ok"] is True and again["state"] == "following", again
 
 
 def test_a_fifo_as_the_path_is_refused_quickly_without_blocking(fd: DaemonProc) -> None:
     fifo = fd.workdir / "path.csv"
     os.mkfifo(fifo)
-    t0 = time.monotonic()
-    reply = fd.request({"cmd": "follow", "path": str(fifo)}, timeout=30.0)
-    elapsed = time.monotonic() - t0
+    # Refused by its type (a worker blocked in open() would end at paths.build_timeout_s,
+    # with that error), and the loop ticks meanwhile.
+    before = fd.status()["timing"]
+    reply = fd.request({"cmd": "follow", "path": str(fifo)})
     assert reply["ok"] is False and "FIFO" in reply["error"] and str(fifo) in reply["error"], reply
-    assert elapsed < 10.0  # the worker's round trip; it never opens the FIFO for reading
+    assert reply["prepared"]["late_max_us"] < STALL_BOUND_S * 1e6, reply["prepared"]
+    after = fd.status()["timing"]
+    assert after["missed_ticks"] - before["missed_ticks"] <= missed_bound(before, after)
     # The same FIFO named by the file: key of a path YAML file.
     yaml_file = fd.workdir / "via.yaml"
     yaml_file.write_text(f"file: {fifo}\nspeed: 0.2\n")
-    reply = fd.request({"cmd": "follow", "path": str(yaml_file)}, timeout=30.0)
+    reply = fd.request({"cmd": "follow", "path": str(yaml_file)})
     assert reply["ok"] is False and "FIFO" in reply["error"] and "key 'file'" in reply["error"], reply
     assert fd.status()["state"] == "idle"
 
@@ -155,7 +181,7 @@ def test_a_fifo_as_the_path_is_refused_quickly_without_blocking(fd: DaemonProc) 
 @pytest.mark.parametrize("kind", ["directory", "device"])
 def test_a_directory_or_a_device_is_refused(fd: DaemonProc, kind: str) -> None:
     name = str(fd.workdir) if kind == "directory" else "/dev/zero"
-    reply = fd.request({"cmd": "follow", "path": name}, timeout=30.0)
+    reply = fd.request({"cmd": "follow", "path": name})
     assert reply["ok"] is False and f"is a {kind}" in reply["error"], reply
 
 
@@ -165,11 +191,11 @@ def test_a_million_point_csv_is_refused_by_its_size_unread(fd: DaemonProc) -> No
         fh.write("x,y\n")
         fh.writelines(f"{i * 1e-3:.3f},0\n" for i in range(1_000_000))
     before = fd.status()["timing"]
-    t0 = time.monotonic()
-    reply = fd.request({"cmd": "follow", "path": str(big)}, timeout=30.0)
+    reply = fd.request({"cmd": "follow", "path": str(big)})
     assert reply["ok"] is False and "paths.max_file_bytes = 2000000" in reply["error"], reply
-    assert time.monotonic() - t0 < 10.0
-    assert fd.status()["timing"]["missed_ticks"] - before["missed_ticks"] <= MISSED_BOUND
+    assert reply["prepared"]["late_max_us"] < STALL_BOUND_S * 1e6, reply["prepared"]
+    after = fd.status()["timing"]
+    assert after["missed_ticks"] - before["missed_ticks"] <= missed_bound(before, after)
 
 
 def test_a_ten_thousand_point_csv_is_built_off_the_loop(fd: DaemonProc) -> None:
@@ -180,7 +206,7 @@ def test_a_ten_thousand_point_csv_is_built_off_the_loop(fd: DaemonProc) -> None:
         fh.writelines(f"{i * 0.01:.3f},{0.004 * (i % 2):.3f}\n" for i in range(10_000))
     pending = Pending(fd, {"path": str(csv), "pose": [0.0, 0.0, 0.0]})
     answers = []
-    while pending.t_reply is None and time.monotonic() - pending.t0 < 60.0:
+    while pending.t_reply is None and time.monotonic() - pending.t0 < HUGE_BUILD_S:
         answers.append(timed(fd, "status")[0])
         time.sleep(0.05)
     reply = pending.wait()
@@ -193,14 +219,13 @@ def test_a_path_not_ready_within_build_timeout_is_stopped_and_named() -> None:
     d = start_daemon(paths={"build_timeout_s": 0.3})
     try:
         d.wait_ready()
-        t0 = time.monotonic()
-        reply = d.request({"cmd": "follow", **HUGE_CIRCLE}, timeout=30.0)
+        # The circle is valid and takes seconds to build: only the deadline ends it with an
+        # error, and the error names it.
+        reply = d.request({"cmd": "follow", **HUGE_CIRCLE})
         assert reply["ok"] is False and "paths.build_timeout_s = 0.3 s" in reply["error"], reply
-        assert time.monotonic() - t0 < 5.0
         s = d.status()
         assert s["state"] == "idle" and s["preparing"] is None
-        ok = d.request({"cmd": "follow", "shape": "circle", "radius": 0.5, "speed": 0.3, "pose": [0, 0, 0]},
-                       timeout=30.0)
+        ok = d.request({"cmd": "follow", "shape": "circle", "radius": 0.5, "speed": 0.3, "pose": [0, 0, 0]})
         assert ok["ok"] is True, ok
     finally:
         d.close()
@@ -209,12 +234,14 @@ def test_a_path_not_ready_within_build_timeout_is_stopped_and_named() -> None:
 def test_follow_at_start_on_a_huge_path_ticks_while_it_is_built() -> None:
     """--follow with a path that takes seconds to build: the loop starts idle (the socket
     answers, estop works) and switches to the path once it is ready."""
-    d = start_daemon("--follow", path={k: v for k, v in HUGE_CIRCLE.items() if k != "pose"}, start=[0.0, 0.0, 0.0])
+    d = start_daemon("--follow", path={k: v for k, v in HUGE_CIRCLE.items() if k != "pose"}, start=[0.0, 0.0, 0.0],
+                     paths={"build_timeout_s": HUGE_BUILD_S})
     try:
         d.wait_ready()
-        s = wait_for(lambda: (s := d.status())["state"] == "following" and s, 60.0, "following the start path")
+        s = wait_for(lambda: (s := d.status())["state"] == "following" and s, HUGE_BUILD_S + 60.0,
+                     "following the start path")
         assert s["progress"]["length_m"] > 1800.0
-        assert s["timing"]["missed_ticks"] <= MISSED_BOUND, s["timing"]
+        assert s["timing"]["missed_ticks"] <= missed_bound(NO_TICKS, s["timing"]), s["timing"]
         dt, e = timed(d, "estop")
         assert e["state"] == "estop" and dt < ANSWER_BOUND_S
     finally:
@@ -222,12 +249,17 @@ def test_follow_at_start_on_a_huge_path_ticks_while_it_is_built() -> None:
 
 
 def test_a_follow_far_off_the_heading_turns_in_place_first_over_the_socket(fd: DaemonProc) -> None:
-    """The daemon side of tests/test_start.py: status shows the start's phase."""
-    reply = fd.request({"cmd": "follow", "shape": "line", "length": 0.3, "speed": 0.2,
-                        "pose": [0.0, 0.0, 2.356]}, timeout=30.0)  # 135 deg off the line's heading
+    """The daemon side of tests/test_start.py: status shows the start's phase. The turn is
+    slowed to 0.5 rad/s (about 5 s for 135 degrees) so that the status right after the reply
+    finds it turning even when this process is slow to send it; at the default 3 rad/s it is
+    over in 0.8 s."""
+    reply = fd.request({"cmd": "follow", "shape": "line", "length": 0.3, "speed": 0.2, "omega_max": 0.5,
+                        "pose": [0.0, 0.0, 2.356]})  # 135 deg off the line's heading
     assert reply["ok"] is True and reply["state"] == "following", reply
     s = fd.status()
     assert s["progress"]["phase"] == "turn" and s["progress"]["sigma_m"] == 0.0, s["progress"]
-    s = wait_for(lambda: (s := fd.status())["state"] == "stopped" and s, 20.0, "the line's end")
-    assert s["progress"]["phase"] in ("release", "follow") and s["progress"]["fraction"] == pytest.approx(1.0)
-    assert s["fault"] == ""
+    s = wait_for(lambda: (s := fd.status())["state"] == "stopped" and s, STATE_TIMEOUT_S, "the line's end")
+    # At the end of the line, also when a loaded host stalled the loop on the way (a hold,
+    # resumed: it used to end 'stopped' where the stall caught it).
+    assert s["progress"]["phase"] in ("release", "follow") and s["progress"]["fraction"] == pytest.approx(1.0), s
+    assert s["fault"] == "" and s["recovery"]["waits"] == 0 and s["recovery"]["resumes"] == s["recovery"]["holds"]

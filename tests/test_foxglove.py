@@ -234,7 +234,10 @@ def test_sim_mcap_has_one_message_per_tick_and_the_csvs_values(tmp_path: Path) -
 
 # ---------------------------------------------------------------------------- a live daemon
 
-async def _recv_json(ws: Any, op: str, timeout: float = 5.0, pred: Any = None) -> dict[str, Any]:
+WS_WAIT_S = 30.0  # cap on a message the daemon sends at once: only a hang takes longer
+
+
+async def _recv_json(ws: Any, op: str, timeout: float = WS_WAIT_S, pred: Any = None) -> dict[str, Any]:
     """The next text message with this op (binary frames and other ops skipped)."""
     deadline = asyncio.get_running_loop().time() + timeout
     while True:
@@ -286,7 +289,7 @@ def test_a_websocket_client_sees_the_channels_sets_gains_and_cannot_hurt_the_dae
                     {"id": i, "channelId": channels[t]["id"]} for i, t in subs.items()]}))
                 got: dict[str, list[tuple[int, bytes]]] = {t: [] for t in subs.values()}
                 while min(len(got[t]) for t in ("/state", "/tf", "/timing", "/tf_true")) < 20:
-                    msg = await asyncio.wait_for(ws.recv(), 5.0)
+                    msg = await asyncio.wait_for(ws.recv(), WS_WAIT_S)
                     if isinstance(msg, bytes):
                         sub, log_time, payload = _data_frame(msg)
                         got[subs[sub]].append((log_time, payload))
@@ -294,7 +297,9 @@ def test_a_websocket_client_sees_the_channels_sets_gains_and_cannot_hurt_the_dae
 
                 state = json.loads(got["/state"][-1][1])
                 assert state["state_name"] == "following" and math.isfinite(state["x_ref"]) and math.isfinite(state["v_est"])
-                assert abs(_time.time_ns() - got["/state"][-1][0]) < 1e9  # stamped with the tick's (epoch) time
+                # Stamped with the tick's epoch time (not monotonic or sim time, hours or decades
+                # away), however late this client got to read it.
+                assert abs(_time.time_ns() - got["/state"][-1][0]) < 60e9
                 parent, child, x, y, _th = transform_of(got["/tf"][-1][1])
                 assert (parent, child) == ("odom", "base_link") and math.isfinite(x)
                 assert transform_of(got["/tf_true"][-1][1])[1] == "base_link_true"
@@ -309,8 +314,8 @@ def test_a_websocket_client_sees_the_channels_sets_gains_and_cannot_hurt_the_dae
                                           "parameters": [{"name": "controller.inner.kp", "value": 33.0}]}))
                 vals = await _recv_json(ws, "parameterValues", pred=lambda m: m.get("id") == "s1")
                 assert {p["name"]: p["value"] for p in vals["parameters"]}["controller.inner.kp"] == 33.0
-                await asyncio.sleep(0.3)
-                assert d.request({"cmd": "gains"})["inner"]["kp"] == 33.0  # in the running controller
+                wait_for(lambda: d.request({"cmd": "gains"})["inner"]["kp"] == 33.0, WS_WAIT_S,
+                         "kp 33 in the running controller")  # put in force between two ticks
                 # Invalid: refused whole; neither value changes.
                 await ws.send(json.dumps({"op": "setParameters", "id": "s2", "parameters": [
                     {"name": "controller.inner.kp", "value": 50.0}, {"name": "controller.inner.ki", "value": -5.0}]}))
@@ -334,8 +339,8 @@ def test_a_websocket_client_sees_the_channels_sets_gains_and_cannot_hurt_the_dae
                 await ws.send(b"\xff\x00\x01")
                 await ws.send("{not json")
                 await ws.send(b"\x01" + struct.pack("<I", 7) + b'{"linear": {"x": 0.0}, "angular": {"z": 0.0}}')
-                end = asyncio.get_running_loop().time() + 2.0
-                while asyncio.get_running_loop().time() < end:
+                end = asyncio.get_running_loop().time() + WS_WAIT_S
+                while asyncio.get_running_loop().time() < end and not any("teleop: message dropped" in x for x in logs):
                     try:
                         msg = await asyncio.wait_for(ws.recv(), 0.2)
                     except asyncio.TimeoutError:
@@ -354,7 +359,7 @@ def test_a_websocket_client_sees_the_channels_sets_gains_and_cannot_hurt_the_dae
         assert "foxglove teleop: message dropped" in err and "Traceback" not in err
         assert any("teleop: message dropped" in line for line in logs)  # and on /log
         d.proc.send_signal(signal.SIGINT)
-        assert d.proc.wait(timeout=20) == 0
+        assert d.proc.wait(timeout=START_TIMEOUT_S) == 0
         stats = json.loads(d.stats_json.read_text())
         assert stats["reloads"]["applied"] >= 1 and stats["error"] is None
     finally:
@@ -366,11 +371,12 @@ def test_a_websocket_client_sees_the_channels_sets_gains_and_cannot_hurt_the_dae
 def test_foxglove_teleop_drives_the_robot_and_stops_when_it_stops_publishing() -> None:
     """A client-published Twist is the velocity mode (source foxglove) with the same
     daemon.command_timeout_s: publishing at 20 Hz holds the robot at the command, silence
-    brings it to rest within the timeout plus its braking time."""
+    brings it to rest by the timeout. The timeout is 2 s here, not 0.5, so a loaded host
+    that holds this client back between two messages cannot make it look silent."""
     websockets = pytest.importorskip("websockets", reason="websockets is not installed (pip install 'ddrt[test]')")
-    from tests.support.daemon import START_TIMEOUT_S, start_daemon, wait_for
+    from tests.support.daemon import START_TIMEOUT_S, STATE_TIMEOUT_S, start_daemon, wait_for
 
-    d = start_daemon(daemon={"foxglove": {"enabled": True, "port": 0}})
+    d = start_daemon(daemon={"foxglove": {"enabled": True, "port": 0}, "command_timeout_s": 2.0})
     try:
         port = int(wait_for(lambda: (d.check_alive(), re.search(r"serving ws://127\.0\.0\.1:(\d+)", d.stderr()))[1],
                             START_TIMEOUT_S, "the Foxglove server").group(1))
@@ -390,8 +396,8 @@ def test_foxglove_teleop_drives_the_robot_and_stops_when_it_stops_publishing() -
                     await asyncio.sleep(0.05)
                 seen["driving"] = d.status()
                 # Silence: the timeout, then a controlled stop.
-                await asyncio.sleep(0.5 + 0.3 / 1.0 + 1.0)
-                seen["after"] = d.status()
+                seen["after"] = wait_for(lambda: (st := d.status())["state"] == "stopped" and st, STATE_TIMEOUT_S,
+                                         "the robot stopped by the timeout")
 
         asyncio.run(session())
         st = seen["driving"]
@@ -401,6 +407,7 @@ def test_foxglove_teleop_drives_the_robot_and_stops_when_it_stops_publishing() -
         assert drive["setpoint"]["v"] == pytest.approx(0.3, abs=1e-6)
         after = seen["after"]
         assert after["state"] == "stopped" and after["drive"]["timeouts"] == 1, after
+        assert after["drive"]["braking_for"] == "timeout", after["drive"]
         assert "Traceback" not in d.stderr()
     finally:
         d.close()

@@ -4,7 +4,7 @@ its file checks never block, and its bounds (file size, build time) are enforced
 from __future__ import annotations
 
 import dataclasses
-
+import logging
 import os
 import signal
 import threading
@@ -22,11 +22,21 @@ from ddrt.path.reference import PathReference
 from ddrt.path.spec import load_path, speed_limits
 from ddrt.core.types import Setpoint
 from ddrt.service.pathjob import BuildJob, check_path_file
-from ddrt.service.pathworker import PathWorker
+from ddrt.service.pathworker import START_TIMEOUT_S, PathWorker
 from tests.support.repo import REPO, SIM_YAML
 
 CFG = load_config(SIM_YAML)
 LIMITS = speed_limits(CFG)
+# The worker bounds its own start (START_TIMEOUT_S) and every build (paths.build_timeout_s) and
+# says so in the build's error: a wait longer than both is a hang, whatever the machine's load.
+WORKER_HANG_S = START_TIMEOUT_S + CFG.paths.build_timeout_s + 30.0
+
+
+def _wait(cond, what: str) -> None:
+    deadline = time.monotonic() + WORKER_HANG_S
+    while not cond():
+        assert time.monotonic() < deadline, f"no {what} within {WORKER_HANG_S:g} s: the worker hangs"
+        time.sleep(0.005)
 
 
 @pytest.fixture(scope="module")
@@ -36,12 +46,9 @@ def worker():
     w.close()
 
 
-def _build(worker: PathWorker, source, paths=None, timeout: float = 60.0, **kw):
+def _build(worker: PathWorker, source, paths=None, **kw):
     b = worker.submit(BuildJob(source, LIMITS, paths or CFG.paths, **kw))
-    deadline = time.monotonic() + timeout
-    while not b.done:
-        assert time.monotonic() < deadline, "the worker did not finish"
-        time.sleep(0.005)
+    _wait(lambda: b.done, "end of the build")
     return b
 
 
@@ -132,72 +139,111 @@ def test_a_fifo_named_by_a_yaml_files_file_key_is_refused(worker: PathWorker, tm
     os.mkfifo(fifo)
     spec = tmp_path / "via.yaml"
     spec.write_text("file: p.csv\nspeed: 0.2\n")
-    b = _build(worker, str(spec), timeout=10.0)
+    # Refused by its type, never opened: a worker blocked in open() would end at
+    # paths.build_timeout_s with that error instead.
+    b = _build(worker, str(spec))
     assert "key 'file'" in b.error and "is a FIFO" in b.error, b.error
     # And in a mapping (a config's inline path:), resolved against its base_dir.
-    b = _build(worker, {"file": "p.csv", "speed": 0.2}, base_dir=str(tmp_path), where="cfg.yaml: path", timeout=10.0)
+    b = _build(worker, {"file": "p.csv", "speed": 0.2}, base_dir=str(tmp_path), where="cfg.yaml: path")
     assert b.error.startswith("cfg.yaml: path: key 'file'") and "is a FIFO" in b.error, b.error
 
 
 def test_a_build_over_its_time_is_stopped_naming_the_key(worker: PathWorker) -> None:
     paths = replace(CFG.paths, build_timeout_s=0.2)
-    t0 = time.monotonic()
-    b = _build(worker, {"shape": "circle", "radius": 300.0, "speed": 0.3}, paths=paths, timeout=30.0)
+    b = _build(worker, {"shape": "circle", "radius": 300.0, "speed": 0.3}, paths=paths)
+    # The circle is valid: only the deadline can end its build with an error, and it names it.
     assert "not ready within paths.build_timeout_s = 0.2 s" in b.error, b.error
-    assert time.monotonic() - t0 < 10.0
+    assert b.path is None
     # The next job gets a fresh worker.
     assert _build(worker, {"shape": "circle", "radius": 0.5, "speed": 0.3}).error == ""
 
 
 def test_cancel_stops_the_worker_and_the_next_job_runs(worker: PathWorker) -> None:
     b = worker.submit(BuildJob({"shape": "circle", "radius": 300.0, "speed": 0.3}, LIMITS, CFG.paths))
-    deadline = time.monotonic() + 20.0
-    while b.phase != "building":
-        assert time.monotonic() < deadline
-        time.sleep(0.005)
+    _wait(lambda: b.phase == "building", "start of the build")
     worker.cancel(b)
-    while not b.done:
-        assert time.monotonic() < deadline, "a cancelled job did not end"
-        time.sleep(0.005)
+    _wait(lambda: b.done, "end of the cancelled build")
     assert b.error == "cancelled" and b.path is None
     assert _build(worker, {"shape": "circle", "radius": 0.5, "speed": 0.3}).error == ""
 
 
 def test_a_worker_that_dies_is_reported_not_waited_for(worker: PathWorker) -> None:
     b = worker.submit(BuildJob({"shape": "circle", "radius": 300.0, "speed": 0.3}, LIMITS, CFG.paths))
-    deadline = time.monotonic() + 20.0
-    while b.phase != "building" or worker._active is None:
-        assert time.monotonic() < deadline
-        time.sleep(0.005)
+    _wait(lambda: b.phase == "building" and worker._active is not None, "start of the build")
     os.kill(worker._active.pid, signal.SIGKILL)  # what the OOM killer does
-    while not b.done:
-        assert time.monotonic() < deadline
-        time.sleep(0.005)
+    _wait(lambda: b.done, "end of the build")
     assert "killed by SIGKILL" in b.error and "paths.max_samples" in b.error, b.error
     assert _build(worker, {"shape": "circle", "radius": 0.5, "speed": 0.3}).error == ""
+
+
+def test_close_during_a_build_ends_it_quietly(caplog: pytest.LogCaptureFixture) -> None:
+    """The daemon stopping while a path is read: the build ends with why, nothing is logged as
+    a failure (close used to close the worker's pipe under the helper thread's read: EBADF
+    and a traceback, or a read of whatever file took that descriptor next)."""
+    w = PathWorker()
+    try:
+        b = w.submit(BuildJob({"shape": "circle", "radius": 300.0, "speed": 0.3}, LIMITS, CFG.paths))
+        _wait(lambda: b.phase == "building" and w._active is not None, "the build to start")
+    finally:
+        w.close(timeout=WORKER_HANG_S)
+    assert not w._thread.is_alive()
+    assert b.done and b.path is None and b.error == "the daemon is stopping", b.error
+    assert not [r for r in caplog.records if r.levelno >= logging.ERROR], caplog.text
 
 
 def test_the_worker_runs_below_the_loop() -> None:
     """Not real-time, niced, first for the OOM killer: the loop always wins the CPU."""
     w = PathWorker()
     try:
-        deadline = time.monotonic() + 20.0
-        while w._standby is None:
-            assert time.monotonic() < deadline
-            time.sleep(0.01)
+        _wait(lambda: w._standby is not None, "standby worker")
         pid = w._standby.pid
-        while True:  # until the worker has demoted itself (first thing it does)
+
+        def demoted() -> bool:  # the first thing the worker does
             try:
-                if int(FsPath(f"/proc/{pid}/oom_score_adj").read_text()) == 1000:
-                    break
+                return int(FsPath(f"/proc/{pid}/oom_score_adj").read_text()) == 1000
             except OSError:
-                pass
-            assert time.monotonic() < deadline
-            time.sleep(0.01)
+                return False
+        _wait(demoted, "demotion of the worker")
         assert os.sched_getscheduler(pid) == os.SCHED_OTHER
         assert os.getpriority(os.PRIO_PROCESS, pid) >= 10
     finally:
         w.close()
+
+
+def test_below_a_real_time_loop_the_reader_runs_just_under_it_and_the_workers_do_not() -> None:
+    """With the loop at SCHED_FIFO 10 the helper thread that reads the built paths runs at
+    SCHED_FIFO 1 (a niced reader, preempted by other work holding the GIL, left the loop
+    waiting 40-60 ms), and the worker processes it starts still begin at SCHED_OTHER, niced.
+    In a subprocess, so the test runner never has a real-time thread."""
+    import json
+    import subprocess
+    import sys
+    import textwrap
+
+    code = textwrap.dedent("""
+        import json, os, time
+        from ddrt.service.pathworker import PathWorker
+        w = PathWorker(loop_priority=10)
+        deadline = time.monotonic() + %r
+        while w._standby is None or int(open(f"/proc/{w._standby.pid}/oom_score_adj").read()) != 1000:
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        tid, pid = w._thread.native_id, w._standby.pid
+        print(json.dumps({"reader": [os.sched_getscheduler(tid) & ~os.SCHED_RESET_ON_FORK,
+                                     os.sched_getparam(tid).sched_priority],
+                          "worker": [os.sched_getscheduler(pid), os.getpriority(os.PRIO_PROCESS, pid)],
+                          "fifo": os.SCHED_FIFO, "other": os.SCHED_OTHER}))
+        w.close()
+    """ % WORKER_HANG_S)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO,
+                         timeout=2 * WORKER_HANG_S)
+    assert out.returncode == 0, out.stderr
+    res = json.loads(out.stdout.strip().splitlines()[-1])
+    if "sched_setscheduler(SCHED_FIFO, 1)" in out.stderr:  # not permitted here: normal, niced
+        assert res["reader"] == [res["other"], 0]
+    else:
+        assert res["reader"] == [res["fifo"], 1], out.stderr
+    assert res["worker"][0] == res["other"] and res["worker"][1] >= 10
 
 
 def _equal(a: object, b: object) -> bool:

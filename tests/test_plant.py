@@ -444,11 +444,11 @@ def test_friction_switch_zeroes_viscous_and_coulomb():
 def test_ten_seconds_of_plant_run_fast():
     bot = robot(TABLE_5_2)
     rng = random.Random(2)
-    start = time.perf_counter()
+    start = time.thread_time()  # the CPU it takes, which a loaded host does not inflate
     for k in range(1, 101):
         bot.command(rng.uniform(-1, 1), rng.uniform(-1, 1))
         bot.advance_to(k * 0.1)
-    elapsed = time.perf_counter() - start
+    elapsed = time.thread_time() - start
     assert round(bot.t / bot.step_s) == 10000
     assert elapsed < 3.0, elapsed
 

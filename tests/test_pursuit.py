@@ -207,10 +207,10 @@ def test_pursuit_is_fast() -> None:
     path = _load("figure8_fast.yaml")
     poses = [(p.x + 0.003, p.y - 0.002, p.theta) for p in (path.at(path.length * k / 10000) for k in range(10000))]
     pp = PurePursuit(path)
-    t0 = time.perf_counter()
+    t0 = time.thread_time()  # the CPU it takes, which a loaded host does not inflate
     for x, y, th in poses:
         pp.update(x, y, th)
-    elapsed = time.perf_counter() - t0
+    elapsed = time.thread_time() - t0
     assert elapsed < 1.5
     assert pp.sigma == pytest.approx(path.length, abs=0.01)
 

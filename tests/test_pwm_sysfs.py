@@ -31,7 +31,7 @@ class FakeKernel:
         self._thread.start()
 
     def _run(self) -> None:
-        deadline = time.monotonic() + 5.0
+        deadline = time.monotonic() + 120.0  # until closed (bounded should a test forget to)
         while not self._stop.is_set() and time.monotonic() < deadline:
             for export, prefix, files in (
                     (self.chip_dir / "export", "pwm", ("period", "duty_cycle", "enable")),

@@ -51,9 +51,9 @@ def test_each_stage_has_every_member_the_loop_uses(name: str) -> None:
 
 
 @pytest.mark.parametrize("name", sorted(STAGES))
-def test_only_a_paths_own_reference_resumes(name: str) -> None:
+def test_a_paths_reference_and_its_start_resume_the_others_do_not(name: str) -> None:
     ref = _stages()[name]
-    if name in ("path", "time-indexed"):
+    if name in ("path", "time-indexed", "start"):
         assert ref.resumable
         ref.request_stop(1.0)
         assert ref.stopping

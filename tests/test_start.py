@@ -148,3 +148,75 @@ def test_a_stop_during_the_turn_brakes_it_and_ends_there() -> None:
     x, y, _ = hal.robot.pose
     assert math.hypot(x, y) < 0.02 and loop.reference.phase == "turn"  # the path was never started
     hal.close()
+
+
+@pytest.mark.parametrize("start, phase", [
+    ((0.0, 0.0, math.radians(135.0)), "turn"),
+    ((0.0, 0.2, 0.0), "join"),
+    ((0.0, 0.2, 0.0), "release"),
+])
+def test_a_hold_during_the_start_resumes_and_the_path_completes(start, phase) -> None:
+    """A loop stall in any phase of the start is held and, with daemon.on_recover: resume, the
+    path resumes from where the robot stands: a new turn in place from its heading, or the
+    path's own resume within the join or release. (Without `StartReference.resume` every such
+    hold ended 'stopped' part way: a loaded host left the daemon's 135-degree start at 29 %.)"""
+    cfg = _cfg()
+    path = _line(cfg)
+    hal = open_hal(cfg, start=start)
+    loop = ControlLoop(cfg, hal)
+    loop.calibrate(hal.sleep_until, hal.now)
+    loop.follow(path, start)
+    t = hal.now()
+    ref = loop.reference
+    assert isinstance(ref, StartReference)
+    stalled = False
+    for _ in range(4000):
+        if loop.state in ("stopped", "fault"):
+            break
+        if not stalled and ref.phase == phase and loop.state == "following" and loop.ticks > 20:
+            t += 0.159  # the host stalls: no tick; the simulated driver's watchdog stops the motors
+            stalled = True
+        t += loop.period
+        hal.sleep_until(t)
+        loop.tick()
+    assert stalled, f"never in phase {phase}"
+    rec = loop.recovery
+    assert rec.holds == 1 and rec.resumes == 1 and rec.waits == 0, rec
+    assert loop.state == "stopped" and loop.fault == "" and loop.path_completed, (loop.state, loop.fault)
+    assert ref.sigma == pytest.approx(path.length, abs=0.01)
+    hal.close()
+
+
+def test_resume_after_a_waiting_hold_during_the_turn_turns_then_follows() -> None:
+    """daemon.on_recover: wait: the hold ends stopped; `resume` (the socket's) restarts the turn."""
+    cfg = _cfg(daemon={"on_recover": "wait"})
+    path = _line(cfg)
+    start = (0.0, 0.0, math.radians(135.0))
+    hal = open_hal(cfg, start=start)
+    loop = ControlLoop(cfg, hal)
+    loop.calibrate(hal.sleep_until, hal.now)
+    loop.follow(path, start)
+    t = hal.now()
+    for k in range(1, 4000):
+        if k == 40:
+            assert loop.reference.phase == "turn"
+            t += 0.159
+        t += loop.period
+        hal.sleep_until(t)
+        loop.tick()
+        if loop.state == "stopped":
+            break
+    assert loop.state == "stopped" and not loop.path_completed and loop.recovery.waits == 1
+    assert loop.reference.phase == "turn"
+    loop.resume()
+    assert loop.state == "following"
+    for _ in range(4000):
+        t += loop.period
+        hal.sleep_until(t)
+        loop.tick()
+        if loop.state in ("stopped", "fault"):
+            break
+    assert loop.state == "stopped" and loop.path_completed, (loop.state, loop.fault)
+    est = loop.estimator  # (the truth is off by what dead reckoning lost across a stall mid-turn)
+    assert math.hypot(est.x - path.length, est.y) < 0.01
+    hal.close()

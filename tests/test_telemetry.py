@@ -193,7 +193,7 @@ def test_logger_thread_writes_everything_by_close(tmp_path: Path) -> None:
     for i in range(500):
         ring.append((i, i * 0.5, 1.0))
         if i == 250:
-            deadline = time.monotonic() + 2.0  # the thread writes while we keep appending
+            deadline = time.monotonic() + 60.0  # the thread writes while we keep appending
             while writer.rows_written == 0 and time.monotonic() < deadline:
                 time.sleep(0.005)
             assert writer.rows_written > 0
@@ -221,7 +221,9 @@ def test_logger_survives_write_errors(tmp_path: Path, caplog: pytest.LogCaptureF
     with caplog.at_level(logging.WARNING, logger="ddrt.service.telemetry"):
         logger = TelemetryLogger(ring, w, interval_s=0.01)  # type: ignore[arg-type]
         ring.append((1, 2, 3))
-        time.sleep(0.05)
+        deadline = time.monotonic() + 60.0  # two batches: the first row's written (and failed) first
+        while logger.write_errors == 0 and time.monotonic() < deadline:
+            time.sleep(0.005)
         ring.append((4, 5, 6))
         logger.close()
     assert logger.write_errors == 2 and logger.rows_lost_to_errors == 2
@@ -314,3 +316,35 @@ def test_journal_detection(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> N
 def test_formatter_is_usable_alone() -> None:
     rec = logging.LogRecord("ddrt.hal", logging.WARNING, __file__, 1, "retry %d", (2,), None)
     assert JournalFormatter(sd_prefix=True).format(rec) == "<4>ddrt.hal: retry 2"
+
+
+def test_below_a_real_time_loop_the_writer_runs_just_under_it(tmp_path: Path) -> None:
+    """Formatting a batch holds the GIL: with the loop at SCHED_FIFO 10 the writer runs at
+    SCHED_FIFO 1, where the machine's other work cannot preempt it holding the GIL while the
+    loop waits (rt.raise_gil_helper). In a subprocess: the test runner gets no real-time thread."""
+    import json
+    import subprocess
+    import sys
+    import textwrap
+
+    code = textwrap.dedent(f"""
+        import json, os, time
+        from ddrt.service.telemetry import RotatingCsvWriter, TelemetryLogger, TelemetryRing
+        ring = TelemetryRing(("a",), capacity=16)
+        logger = TelemetryLogger(ring, RotatingCsvWriter({str(tmp_path)!r}, "t", ("a",), 1 << 20, 2), loop_priority=10)
+        tid = logger._thread.native_id
+        for _ in range(2000):  # until the thread has set its own policy (its first step)
+            if os.sched_getscheduler(tid) != os.SCHED_OTHER:
+                break
+            time.sleep(0.005)
+        print(json.dumps([os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority, os.SCHED_FIFO]))
+        logger.close()
+    """)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                         cwd=Path(__file__).resolve().parents[1])
+    assert out.returncode == 0, out.stderr
+    policy, priority, fifo = json.loads(out.stdout.strip().splitlines()[-1])
+    if "sched_setscheduler(SCHED_FIFO, 1)" in out.stderr:  # not permitted here
+        assert priority == 0
+    else:
+        assert (policy, priority) == (fifo, 1), out.stderr

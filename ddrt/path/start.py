@@ -30,7 +30,9 @@ faulted 0.3 m away. `StartReference` wraps the path's reference for such a start
    cannot make it surge after it; then the path's reference alone (**follow**).
 
 A stop during the turn brakes the turn at `alpha_max` and ends there (the path is never
-started); during the other phases it is the path's own controlled stop. In time-indexed mode
+started); during the other phases it is the path's own controlled stop. After a hold (a sensor
+gap, a loop stall) `resume` plans a new turn from the robot's heading, or resumes the path's
+schedule from rest within the join or release, as `daemon.on_recover: resume` expects. In time-indexed mode
 (`pursuit.mode: time`, the seed's method) only the turn applies: its schedule runs on the
 clock whatever the robot does, and capping the robot would only let it fall behind.
 """
@@ -108,11 +110,11 @@ class TurnProfile:
 class StartReference:
     """Turn in place (optional), join at bounded speed, then the path's reference as is.
 
-    A ddrt.core.reference.Reference, with the path's too (`path`). Not resumable: a hold
-    during the start ends stopped, and the path is followed again from where the robot stands.
+    A ddrt.core.reference.Reference, with the path's too (`path`). Resumable: after a hold
+    stopped it, the start picks up from rest where the robot stands (`resume`).
     """
 
-    resumable = False
+    resumable = True
 
     def __init__(self, inner: PathReference, pose: tuple[float, float, float], limits: SpeedLimits,
                  period_s: float, *, turn: bool, join: bool, y_cap: float = math.inf) -> None:
@@ -171,7 +173,20 @@ class StartReference:
             self.inner.request_stop(decel)
 
     def resume(self, x: float, y: float, theta: float) -> None:
-        raise ValueError("the start of a path is not resumed: follow the path again")
+        """Restart from rest with the robot at (x, y, theta) after a hold stopped it.
+
+        In the turn: a new turn in place from this pose to the path's start heading (the
+        braked one is over). Later: the path's own resume, in the same phase, so a join or a
+        release keeps its caps."""
+        if self.phase == "turn":
+            self.x0, self.y0, self.th0 = x, y, theta
+            self.angle = start_heading_offset(self.path.at(0.0).theta, theta)
+            self.sign = 1.0 if self.angle >= 0.0 else -1.0
+            self.turn = TurnProfile.plan(abs(self.angle), self.limits.omega_max, self.limits.alpha_max)
+            self.t = 0.0
+            self._brake = None
+        else:
+            self.inner.resume(x, y, theta)
 
     def update(self, x: float, y: float, theta: float, sp: Setpoint, dt: float | None = None) -> None:
         step = self.period if dt is None else dt

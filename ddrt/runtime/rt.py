@@ -131,28 +131,32 @@ def demote_current_thread() -> None:
     thread must start even where sched_* calls are filtered).
     """
     try:
-        if os.sched_getscheduler(0) in (os.SCHED_FIFO, os.SCHED_RR):
+        if os.sched_getscheduler(0) & ~os.SCHED_RESET_ON_FORK in (os.SCHED_FIFO, os.SCHED_RR):
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     except (OSError, AttributeError):
         pass
 
 
-def raise_gil_helper(loop_priority: int) -> str | None:
+def raise_gil_helper(loop_priority: int, reset_on_fork: bool = False) -> str | None:
     """Run the calling helper thread at SCHED_FIFO 1, below a loop at SCHED_FIFO `loop_priority`
     (>= 2); otherwise (loop not real-time) back to SCHED_OTHER. Returns a warning on refusal.
 
     For a helper that takes the GIL in short bursts while the loop sleeps (the Foxglove
-    publisher): at SCHED_OTHER the machine's other processes can preempt it in the middle of
-    a burst, with the GIL held, and the loop thread, woken at its deadline, then waits for the
-    GIL until the helper gets a CPU back (priority inversion; measured: a tick 9 ms late behind
-    a publisher preempted for 12 ms with 0.6 ms of work to do). At SCHED_FIFO 1 only real-time
-    threads preempt it, and the loop's own priority still wins any CPU they share.
+    publisher, the telemetry writer, the path worker's reader): at SCHED_OTHER the machine's
+    other processes can preempt it in the middle of a burst, with the GIL held, and the loop
+    thread, woken at its deadline, then waits for the GIL until the helper gets a CPU back
+    (priority inversion; measured: a tick 9 ms late behind a publisher preempted for 12 ms
+    with 0.6 ms of work to do; a niced helper behind CPU hogs, 40-60 ms). At SCHED_FIFO 1
+    only real-time threads preempt it, and the loop's own priority still wins any CPU they
+    share. `reset_on_fork`: processes the thread starts begin at SCHED_OTHER (keeping its
+    nice value), not real-time.
     """
     if loop_priority < 2:
         demote_current_thread()
         return None
+    policy = os.SCHED_FIFO | (os.SCHED_RESET_ON_FORK if reset_on_fork else 0)
     try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+        os.sched_setscheduler(0, policy, os.sched_param(1))
     except (OSError, AttributeError) as exc:
         demote_current_thread()
         return f"sched_setscheduler(SCHED_FIFO, 1): {_why(exc) if isinstance(exc, OSError) else exc}"

@@ -10,8 +10,8 @@ ready; its socket reply waits for that. Each period: sleep to an absolute deadli
 SIGUSR1 estop, tick, record timing, then (outside the timed part) serve the control socket,
 ping the watchdog, apply a pending reload. Signals only set flags.
 
-Exit codes: 0 after a requested stop (SIGTERM, SIGINT, --duration, also during the start-up
-calibration), 1 after a fault or when the robot cannot be run (another daemon holds the lock,
+Exit codes: 0 after a requested stop (SIGTERM, SIGINT, --duration, also while the start path
+is built or the gyro calibrated), 1 after a fault or when the robot cannot be run (another daemon holds the lock,
 the socket or a device cannot be opened, calibration failed: systemd restarts the service),
 2 for a bad config or path file at start-up. `--stats-json` is written on every one of these
 paths, after the exit code is known, and carries it.
@@ -239,9 +239,9 @@ class Daemon:
             self._fail(f"cannot take the one-daemon-per-robot lock {lock.path}: {exc.strerror or exc}")
             return 1
         self.lock = lock
-        # The path worker before any thread goes real-time: its helper thread (and the worker
-        # processes it starts) keep the normal policy and every CPU.
-        self.paths = PathWorker()
+        # The path worker before any thread is pinned: its helper thread (below the loop when
+        # that is real-time) and the worker processes it starts (niced) keep every CPU.
+        self.paths = PathWorker(loop_priority=d.rt_priority)
         cfg = self.cfg
         if cfg.path is not None and (self.follow_at_start or cfg.start is None):
             source, kwargs = path_source(cfg)
@@ -260,6 +260,9 @@ class Daemon:
                 return 1
         try:
             self._open_hal()
+        except _Interrupted:
+            log.info("stopped while the start path was being built")
+            return 0
         except (ConfigError, PathError):
             raise
         except (HalError, OSError, ValueError) as exc:
@@ -271,7 +274,7 @@ class Daemon:
         cfg = self.cfg
         self.loop = loop = ControlLoop(cfg, self.hal)
         self.audit.last = loop.state
-        self.ring, self.telemetry = open_csv_telemetry(self.cfg.daemon, COLUMNS)
+        self.ring, self.telemetry = open_csv_telemetry(self.cfg.daemon, COLUMNS, loop_priority=self.cfg.daemon.rt_priority)
         if not self._open_viz():
             return 1
         d = cfg.daemon
@@ -434,7 +437,7 @@ class Daemon:
             raise PathError(f"{self.cfg.source}: path: not being built")
         while not build.done:
             if self.stop_requested:
-                raise PathError("stopped while the start path was being built")
+                raise _Interrupted()
             time.sleep(0.01)
         if build.error:
             raise PathError(config_path_error(self.cfg, build.error))

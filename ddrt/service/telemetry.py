@@ -169,7 +169,8 @@ class TelemetryLogger:
     `close()` writes whatever is still in the ring, then closes the writer.
     """
 
-    def __init__(self, ring: TelemetryRing, writer: RotatingCsvWriter, interval_s: float = 0.2) -> None:
+    def __init__(self, ring: TelemetryRing, writer: RotatingCsvWriter, interval_s: float = 0.2,
+                 loop_priority: int = 0) -> None:
         if tuple(writer.columns) != ring.columns:
             raise ValueError(f"TelemetryLogger: writer columns {writer.columns} != ring columns {ring.columns}")
         if not (isinstance(interval_s, (int, float)) and 0 < interval_s < 60):
@@ -177,6 +178,7 @@ class TelemetryLogger:
         self.ring = ring
         self.writer = writer
         self.interval_s = float(interval_s)
+        self.loop_priority = loop_priority  # the loop's SCHED_FIFO priority: the writer runs below it
         self.write_errors = 0
         self.rows_lost_to_errors = 0
         self._stop = threading.Event()
@@ -197,9 +199,13 @@ class TelemetryLogger:
                 log.warning("telemetry write failed, dropping rows: %s: %s", type(exc).__name__, exc)
 
     def _run(self) -> None:
-        from ddrt.runtime.rt import demote_current_thread
+        from ddrt.runtime.rt import raise_gil_helper
 
-        demote_current_thread()
+        # Formatting a batch holds the GIL: just below a real-time loop, not among the
+        # machine's other work, which could preempt it holding the GIL (rt.raise_gil_helper).
+        why = raise_gil_helper(self.loop_priority)
+        if why:
+            log.warning("telemetry writer: %s (at normal priority)", why)
         while not self._stop.wait(self.interval_s):
             self._flush_once()
 
@@ -282,7 +288,8 @@ def configure_logging(level: int | str = "INFO", sd_prefix: bool | None = None) 
     return handler
 
 
-def open_csv_telemetry(d: "DaemonConfig", columns: Sequence[str]) -> tuple[TelemetryRing | None, TelemetryLogger | None]:
+def open_csv_telemetry(d: "DaemonConfig", columns: Sequence[str],
+                       loop_priority: int = 0) -> tuple[TelemetryRing | None, TelemetryLogger | None]:
     """The daemon's CSV telemetry (ring and writer thread), or (None, None) when the format is
     MCAP only (the Foxglove publisher writes those) or the directory cannot be written: the
     robot runs on without telemetry, and the log says why. $LOGS_DIRECTORY (systemd's
@@ -297,4 +304,4 @@ def open_csv_telemetry(d: "DaemonConfig", columns: Sequence[str]) -> tuple[Telem
         log.warning("telemetry disabled: cannot write to %s: %s", directory, exc)
         return None, None
     ring = TelemetryRing(columns, capacity=4096)
-    return ring, TelemetryLogger(ring, writer)
+    return ring, TelemetryLogger(ring, writer, loop_priority=loop_priority)

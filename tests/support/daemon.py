@@ -12,6 +12,7 @@ import json
 import os
 import shutil
 import socket
+import struct
 import subprocess
 import sys
 import tempfile
@@ -25,14 +26,21 @@ from typing import Any
 import pytest
 import yaml
 
+from ddrt.cli import FOLLOW_TIMEOUT_S
 from ddrt.service.ctlclient import ControlClientError, request
+from ddrt.service.pathworker import START_TIMEOUT_S as WORKER_START_TIMEOUT_S
 from ddrt.loop import COLUMNS
 from tests.support.repo import REPO, SIM_YAML
 
 PATHS = REPO / "configs" / "paths"
 CALIBRATION_S = 0.5  # >= 10 ticks at 200 Hz; the default 3 s would make every start slow
 RATE_HZ = 200.0
-START_TIMEOUT_S = 20.0  # a cold interpreter on a loaded 2-core CI box, plus calibration
+# Caps on waits that only a hang exceeds, whatever the load: the daemon bounds its own start
+# (the worker's start and the start path's build, then calibration) and a follow's build
+# (`ddrt ctl follow` waits as long); any other reply comes between two ticks.
+START_TIMEOUT_S = WORKER_START_TIMEOUT_S + 30.0 + 30.0  # paths.build_timeout_s is 30 s by default
+REPLY_TIMEOUT_S = 30.0
+STATE_TIMEOUT_S = 60.0  # for a state the paced robot reaches within seconds of its own time
 
 def wait_for(cond: Callable[[], Any], timeout: float, what: str, interval: float = 0.02) -> Any:
     """Poll `cond` until it returns something truthy; fail naming `what` after `timeout`."""
@@ -69,13 +77,21 @@ def write_config(cfg_path: Path, telemetry_dir: Path, **sections: Any) -> None:
     os.replace(tmp, cfg_path)
 
 
+SO_TIMESTAMPNS = 35  # <asm-generic/socket.h>; the socket module does not name it
+SCM_TIMESTAMPNS = SO_TIMESTAMPNS
+
+
 class NotifyListener:
-    """Stands in for systemd's notification socket; stamps each datagram on arrival."""
+    """Stands in for systemd's notification socket; stamps each datagram with the time the
+    kernel queued it (SO_TIMESTAMPNS, on the monotonic clock), not when this thread got round
+    to reading it: on a loaded host a test process can lose the CPU for longer than the
+    intervals measured here."""
 
     def __init__(self, path: str) -> None:
         self.path = path
         self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         self.sock.bind(path)
+        self.sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
         self.sock.settimeout(0.1)
         self.messages: list[tuple[float, str]] = []  # (time.monotonic(), text)
         self._lock = threading.Lock()
@@ -86,13 +102,18 @@ class NotifyListener:
     def _run(self) -> None:
         while not self._stop.is_set():
             try:
-                data = self.sock.recv(4096)
+                data, ancillary, _flags, _addr = self.sock.recvmsg(4096, socket.CMSG_SPACE(16))
             except TimeoutError:
                 continue
             except OSError:
                 return
+            stamp = time.monotonic()
+            for level, kind, raw in ancillary:
+                if level == socket.SOL_SOCKET and kind == SCM_TIMESTAMPNS and len(raw) == 16:
+                    sec, nsec = struct.unpack("qq", raw)  # CLOCK_REALTIME: moved onto the monotonic clock
+                    stamp -= time.time() - (sec + nsec * 1e-9)
             with self._lock:
-                self.messages.append((time.monotonic(), data.decode()))
+                self.messages.append((stamp, data.decode()))
 
     def snapshot(self) -> list[tuple[float, str]]:
         with self._lock:
@@ -123,7 +144,9 @@ class DaemonProc:
     notify: NotifyListener | None = None
     _closed: bool = field(default=False, repr=False)
 
-    def request(self, payload: dict[str, Any], timeout: float = 3.0) -> dict[str, Any]:
+    def request(self, payload: dict[str, Any], timeout: float | None = None) -> dict[str, Any]:
+        if timeout is None:
+            timeout = FOLLOW_TIMEOUT_S if payload.get("cmd") == "follow" else REPLY_TIMEOUT_S
         try:
             return request(self.socket, payload, timeout=timeout)
         except (ControlClientError, TimeoutError):
@@ -219,10 +242,10 @@ def ready_daemon(*args: str, **sections: Any) -> Iterator[DaemonProc]:
 
 def ctl(sock: str, *args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "ddrt.cli", "ctl", "--socket", sock, *args],
-                          cwd=REPO, capture_output=True, text=True, timeout=20)
+                          cwd=REPO, capture_output=True, text=True, timeout=FOLLOW_TIMEOUT_S + REPLY_TIMEOUT_S)
 
 
-def raw_exchange(sock_path: str, data: bytes, timeout: float = 3.0) -> dict[str, Any]:
+def raw_exchange(sock_path: str, data: bytes, timeout: float = REPLY_TIMEOUT_S) -> dict[str, Any]:
     """Send raw bytes on a fresh connection and return the first reply line as JSON."""
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
         s.settimeout(timeout)
