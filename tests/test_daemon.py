@@ -29,7 +29,9 @@ from typing import Any
 
 import pytest
 
+from ddrt.config.sections import PathsConfig
 from ddrt.service.ctlclient import connect
+from ddrt.service.daemon import request_line_limit
 from ddrt.loop import LoopState
 from tests.support.cpu_queue import Stopwatch
 from tests.support.daemon import (CALIBRATION_S, PATHS, RATE_HZ, REPLY_TIMEOUT_S, START_TIMEOUT_S, STATE_TIMEOUT_S,
@@ -520,6 +522,10 @@ def test_bad_follow_requests_get_errors(daemon: DaemonProc, payload: dict[str, A
     assert daemon.status()["state"] == "idle"
 
 
+# The daemon's line limit leaves room for a path file sent as content (paths.max_file_bytes).
+TOO_LONG_LINE = request_line_limit(PathsConfig().max_file_bytes)
+
+
 def test_garbage_gets_errors_and_the_loop_keeps_ticking(daemon: DaemonProc) -> None:
     before = daemon.status()["timing"]
     junk = random.Random(20240601).randbytes(3000).replace(b"\n", b"\x00")
@@ -529,7 +535,7 @@ def test_garbage_gets_errors_and_the_loop_keeps_ticking(daemon: DaemonProc) -> N
         (b'{"no_cmd": 1}\n', "missing field 'cmd'"),
         (b'{"cmd": 7}\n', "must be a string"),
         (b'{"cmd": "launch", "id": 9}\n', "unknown command 'launch'"),
-        (b"x" * (70 * 1024) + b"\n", "request too large"),
+        (b"x" * (TOO_LONG_LINE + 1) + b"\n", "request too large"),
         (junk + b"\n", "malformed JSON"),
     ]
     for data, needle in cases:
@@ -541,7 +547,7 @@ def test_garbage_gets_errors_and_the_loop_keeps_ticking(daemon: DaemonProc) -> N
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
         s.settimeout(REPLY_TIMEOUT_S)
         s.connect(daemon.socket)
-        s.sendall(b"y" * (100 * 1024) + b"\n")
+        s.sendall(b"y" * (TOO_LONG_LINE + 1) + b"\n")
         assert "too large" in read_reply(s)["error"]
         s.sendall(b'{"cmd": "status", "id": "after"}\n')
         reply = read_reply(s)
