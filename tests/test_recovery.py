@@ -77,6 +77,7 @@ class _FakeLoop:
         self.stall_s = stall_s
         self.duty_l = self.duty_r = 0.0
         self.recovery = RecoveryCounters()
+        self.reference = None  # what the audit log asks for a cause
 
     def tick(self) -> None:
         self.ticks += 1

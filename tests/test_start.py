@@ -171,9 +171,9 @@ def test_a_hold_during_the_start_resumes_and_the_path_completes(start, phase) ->
     assert isinstance(ref, StartReference)
     stalled = False
     for _ in range(4000):
-        if loop.state in ("stopped", "fault"):
+        if loop.state in (LoopState.STOPPED, LoopState.FAULT):
             break
-        if not stalled and ref.phase == phase and loop.state == "following" and loop.ticks > 20:
+        if not stalled and ref.phase == phase and loop.state == LoopState.FOLLOWING and loop.ticks > 20:
             t += 0.159  # the host stalls: no tick; the simulated driver's watchdog stops the motors
             stalled = True
         t += loop.period
@@ -182,7 +182,7 @@ def test_a_hold_during_the_start_resumes_and_the_path_completes(start, phase) ->
     assert stalled, f"never in phase {phase}"
     rec = loop.recovery
     assert rec.holds == 1 and rec.resumes == 1 and rec.waits == 0, rec
-    assert loop.state == "stopped" and loop.fault == "" and loop.path_completed, (loop.state, loop.fault)
+    assert loop.state == LoopState.STOPPED and loop.fault == "" and loop.path_completed, (loop.state, loop.fault)
     assert ref.sigma == pytest.approx(path.length, abs=0.01)
     hal.close()
 
@@ -204,19 +204,19 @@ def test_resume_after_a_waiting_hold_during_the_turn_turns_then_follows() -> Non
         t += loop.period
         hal.sleep_until(t)
         loop.tick()
-        if loop.state == "stopped":
+        if loop.state == LoopState.STOPPED:
             break
-    assert loop.state == "stopped" and not loop.path_completed and loop.recovery.waits == 1
+    assert loop.state == LoopState.STOPPED and not loop.path_completed and loop.recovery.waits == 1
     assert loop.reference.phase == "turn"
     loop.resume()
-    assert loop.state == "following"
+    assert loop.state == LoopState.FOLLOWING
     for _ in range(4000):
         t += loop.period
         hal.sleep_until(t)
         loop.tick()
-        if loop.state in ("stopped", "fault"):
+        if loop.state in (LoopState.STOPPED, LoopState.FAULT):
             break
-    assert loop.state == "stopped" and loop.path_completed, (loop.state, loop.fault)
+    assert loop.state == LoopState.STOPPED and loop.path_completed, (loop.state, loop.fault)
     est = loop.estimator  # (the truth is off by what dead reckoning lost across a stall mid-turn)
     assert math.hypot(est.x - path.length, est.y) < 0.01
     hal.close()

@@ -16,6 +16,8 @@ from ddrt.runtime.clock import MonotonicClock
 from ddrt.service.daemon import Daemon
 from hal.registry import open_hal
 from tests.support.repo import SIM_YAML
+from ddrt.loop import COLUMNS
+from ddrt.service.telemetry import open_csv_telemetry
 
 PATH = {"shape": "circle", "radius": 0.5, "speed": 0.2, "laps": 3}
 
@@ -49,7 +51,7 @@ class Rig:
         d.hal = open_hal(d.cfg, start=(0.0, 0.0, 0.0))
         d.clock = MonotonicClock(spin_s=d.cfg.daemon.spin_us * 1e-6)
         d.loop = ControlLoop(d.cfg, d.hal)
-        d._open_telemetry()
+        d.ring, d.telemetry = open_csv_telemetry(d.cfg.daemon, COLUMNS)
         d.loop.calibrate(d.hal.sleep_until, d.hal.now)
         self.path = load_path(PATH, speed_limits(d.cfg))
         d.loop.follow(self.path)
