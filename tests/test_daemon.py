@@ -33,7 +33,7 @@ from ddrt.config.sections import PathsConfig
 from ddrt.service.ctlclient import connect
 from ddrt.service.daemon import request_line_limit
 from ddrt.loop import LoopState
-from tests.support.cpu_queue import Stopwatch
+from tests.support.cpu_queue import Stopwatch, waited_for_cpu_s
 from tests.support.daemon import (CALIBRATION_S, PATHS, RATE_HZ, REPLY_TIMEOUT_S, START_TIMEOUT_S, STATE_TIMEOUT_S,
                                   DaemonProc, ctl, raw_exchange, read_reply, start_daemon, wait_for, write_config)
 from tests.support.repo import REPO
@@ -78,6 +78,7 @@ class Recording:
     status_final: dict[str, Any]
     t_term: float
     t_exit: float
+    term_queued_s: float  # of t_exit - t_term, the time this thread waited for a CPU
     returncode: int
     messages: list[tuple[float, str]]
     stats: dict[str, Any]
@@ -144,13 +145,15 @@ def recording() -> Iterator[Recording]:
         status_final = d.status()
 
         # 5. SIGTERM while following.
+        queued0 = waited_for_cpu_s()
         t_term = time.monotonic()
         d.proc.send_signal(signal.SIGTERM)
         try:
-            returncode = d.proc.wait(timeout=10)
+            returncode = d.proc.wait(timeout=REPLY_TIMEOUT_S)
         except subprocess.TimeoutExpired:
-            pytest.fail(f"no exit within 10 s of SIGTERM:\n{d.stderr()}")
+            pytest.fail(f"no exit within {REPLY_TIMEOUT_S:g} s of SIGTERM:\n{d.stderr()}")
         t_exit = time.monotonic()
+        term_queued_s = waited_for_cpu_s() - queued0
         time.sleep(0.1)  # the last datagrams are already queued; let the listener take them
         yield Recording(
             t_start=d.t_start, t_ready=t_ready, t_hup=t_hup, t_hup_applied=t_hup_applied,
@@ -158,6 +161,7 @@ def recording() -> Iterator[Recording]:
             bad_reply=bad_reply, status_after_bad=status_after_bad, gains_after_bad=gains_after_bad,
             restart_reply=restart_reply, status_after_restart=status_after_restart,
             noop_replies=noop_replies, status_final=status_final, t_term=t_term, t_exit=t_exit,
+            term_queued_s=term_queued_s,
             returncode=returncode, messages=notify.snapshot(), stats=json.loads(d.stats_json.read_text()),
             rows=d.telemetry(), stderr=d.stderr(), socket_left=os.path.exists(d.socket),
             reload_windows=windows,
@@ -295,10 +299,12 @@ def _reload_rows(rec: Recording, before: int = 3, after: int = 8) -> set[int]:
 
 def _after_late(rows: list[dict[str, float]]) -> set[int]:
     """Rows a late tick may have disturbed: the late one and the 8 after it (a tick that comes
-    late sees a larger error and corrects it in a larger step, whatever made it late)."""
+    late sees a larger error and corrects it in a larger step, whatever made it late), and the
+    second after a hold (the path resumes from rest, as at the start)."""
     p = _period()
     late = [i for i in range(1, len(rows)) if abs(rows[i]["t"] - rows[i - 1]["t"] - p) > 0.5 * p]
-    return {j for i in late for j in range(i, i + 8)}
+    held = [i for i in range(len(rows)) if rows[i]["state"] == HOLDING]
+    return {j for i in late for j in range(i, i + 8)} | {j for i in held for j in range(i, i + int(RATE_HZ))}
 
 
 def _steady(rec: Recording) -> list[int]:
@@ -338,8 +344,10 @@ def test_reload_windows_are_in_the_telemetry(recording: Recording) -> None:
 def test_reload_does_not_step_the_motor_command(recording: Recording) -> None:
     """Around every reload: the loop does not stall (4 periods, or the longest gap the host
     made anyway in steady following) and no on-time tick-to-tick duty change is larger than
-    the largest in steady following (or 0.05). Ticks a late one disturbed are left out on
-    both sides: whether a tick comes late depends on the machine's load, not on the gains."""
+    the largest in steady following (or 0.05), with a quarter for the chance that the larger
+    of two maxima of the same steps falls near the reloads. Ticks a late one or a hold
+    disturbed are left out on both sides: whether a tick comes late depends on the machine's
+    load, not on the gains."""
     rec = recording
     rows = rec.rows
     p = _period()
@@ -353,7 +361,7 @@ def test_reload_does_not_step_the_motor_command(recording: Recording) -> None:
         assert gap < max(4.0 * p, gap_steady + 1e-9), ("stalled", lo, hi, gap, gap_steady)
         steps = [_step(rows, i) for i in window if i not in after_late]
         checked += len(steps)
-        assert max(steps, default=0.0) <= max(step_steady, 0.05), ("duty step", lo, hi, steps, step_steady)
+        assert max(steps, default=0.0) <= max(1.25 * step_steady, 0.05), ("duty step", lo, hi, steps, step_steady)
     assert checked > 0  # some on-time ticks around the reloads were compared
 
 
@@ -361,7 +369,8 @@ def test_reload_does_not_step_the_motor_command(recording: Recording) -> None:
 def test_sigterm_exits_zero_within_one_second(recording: Recording) -> None:
     rec = recording
     assert rec.returncode == 0, rec.stderr
-    assert rec.t_exit - rec.t_term < 1.0, f"exit took {rec.t_exit - rec.t_term:.2f} s"
+    took = rec.t_exit - rec.t_term - rec.term_queued_s  # less this process's own wait for a CPU
+    assert took < 1.0, f"exit took {took:.2f} s ({rec.t_exit - rec.t_term:.2f} s)"
     assert rec.stats["exit_code"] == 0
     assert rec.stats["reloads"] == {"applied": 1, "unchanged": 1 + NOOP_RELOADS, "rejected": 1}
     assert not rec.socket_left  # the control socket file is removed on the way out

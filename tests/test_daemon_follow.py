@@ -25,7 +25,7 @@ import pytest
 
 from ddrt.service.ctlclient import request
 from tests.support.cpu_queue import Stopwatch
-from tests.support.daemon import STATE_TIMEOUT_S, DaemonProc, start_daemon, wait_for
+from tests.support.daemon import STATE_TIMEOUT_S, DaemonProc, start_daemon, wait_for, write_config
 
 HUGE_CIRCLE = {"shape": "circle", "radius": 300.0, "speed": 0.3, "pose": [0.0, 0.0, 0.0]}  # 942 000 samples
 STALL_BOUND_S = 0.1  # the worst tick while a path is prepared; main stalled 1.2 to 143 s
@@ -216,7 +216,8 @@ def test_a_ten_thousand_point_csv_is_built_off_the_loop(fd: DaemonProc) -> None:
 
 
 def test_a_path_not_ready_within_build_timeout_is_stopped_and_named() -> None:
-    d = start_daemon(paths={"build_timeout_s": 0.3})
+    # A start pose: no start path to build (within 0.3 s too, on a loaded host) before it runs.
+    d = start_daemon(start=[0.0, 0.0, 0.0], paths={"build_timeout_s": 0.3})
     try:
         d.wait_ready()
         # The circle is valid and takes seconds to build: only the deadline ends it with an
@@ -225,6 +226,10 @@ def test_a_path_not_ready_within_build_timeout_is_stopped_and_named() -> None:
         assert reply["ok"] is False and "paths.build_timeout_s = 0.3 s" in reply["error"], reply
         s = d.status()
         assert s["state"] == "idle" and s["preparing"] is None
+        # The next follow gets a fresh worker (given the time a loaded host may need: paths:
+        # applies from the next path).
+        write_config(d.config, d.telemetry_dir, start=[0.0, 0.0, 0.0], paths={"build_timeout_s": HUGE_BUILD_S})
+        assert d.request({"cmd": "reload"})["ok"] is True
         ok = d.request({"cmd": "follow", "shape": "circle", "radius": 0.5, "speed": 0.3, "pose": [0, 0, 0]})
         assert ok["ok"] is True, ok
     finally:
