@@ -27,7 +27,8 @@ from typing import Any, Sequence
 from ddrt.config import config_from_mapping
 from ddrt.config.yamlio import read_yaml
 from ddrt.sweep.campaign import Campaign, CampaignError, campaign_from_mapping
-from ddrt.sweep.cases import expand, merge
+from ddrt.config.load import merge_mappings
+from ddrt.sweep.cases import expand
 from ddrt.sweep.driver import run_plan
 from ddrt.sweep.population import SEED, Robot
 from ddrt.sweep.population import population as draw
@@ -53,7 +54,7 @@ def config_of(robot: Robot, path: str, variant: str):
     """The config the campaign gives this robot on `path` with `variant`: its sections, the path
     at its speed, the campaign's overrides and the variant; every other key at its default."""
     data: dict[str, Any] = dict(robot.sections, path=dict(PATHS[path], speed=robot.path_speed))
-    data = merge(merge(data, _SPEC["overrides"]), _SPEC["variants"][variant])
+    data = merge_mappings(merge_mappings(data, _SPEC["overrides"]), _SPEC["variants"][variant])
     return config_from_mapping(data, source=f"population/{robot.name}")
 
 

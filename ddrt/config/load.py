@@ -33,12 +33,13 @@ def _section(data: Mapping[str, Any], key: str) -> Any:
     return {} if value is None else value
 
 
-def _merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
-    """Deep merge: mappings merge key by key, anything else in `over` replaces."""
+def merge_mappings(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
+    """Deep merge: mappings merge key by key, anything else in `over` replaces (`extends:`,
+    `plant:` over `robot:`, and a campaign's cases over their base)."""
     out = copy.deepcopy(dict(base))
     for key, value in over.items():
         if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
-            out[key] = _merge(out[key], value)
+            out[key] = merge_mappings(out[key], value)
         else:
             out[key] = copy.deepcopy(value)
     return out
@@ -65,7 +66,7 @@ def _read_yaml(path: FsPath, chain: tuple[str, ...] = ()) -> dict[str, Any]:
         if not base_path.is_file():
             raise ConfigError(f"{path}: extends: no such file {shorten(parent)} (looked for {base_path})")
         base = _read_yaml(base_path, chain + (str(path),))
-        data = _merge(base, {k: v for k, v in data.items() if k != "extends"})
+        data = merge_mappings(base, {k: v for k, v in data.items() if k != "extends"})
     return dict(data)
 
 
@@ -91,8 +92,8 @@ def _plant_section(robot_section: Any, plant_over: Mapping[str, Any]) -> Any:
     merges over its estimate:); explicit plant keys override those robot:'s estimate derived."""
     if "estimate" in plant_over:
         base = {k: v for k, v in robot_section.items() if k not in RobotParams.names()}
-        return _explicit(_merge(base, plant_over), "plant")
-    return _merge(_explicit(robot_section, "robot"), plant_over)
+        return _explicit(merge_mappings(base, plant_over), "plant")
+    return merge_mappings(_explicit(robot_section, "robot"), plant_over)
 
 
 def _params(section: Any, where: str, extras: tuple[str, ...] = ("motor",)) -> tuple[RobotParams, dict[str, Any]]:
@@ -137,8 +138,8 @@ def _config_from_mapping(data: Mapping[str, Any], source: str, base_dir: str) ->
     plant_section = _plant_section(robot_section, plant_over)
     plant, plant_motor_map = _params(plant_section, "plant", ("motor", "motor_l", "motor_r"))
     # A plant may give one motor for both wheels (motor:) or each its own (motor_l:, motor_r:).
-    plant_motor_l = _motor(_merge(plant_motor_map, plant_section.get("motor_l") or {}), "plant.motor_l")
-    plant_motor_r = _motor(_merge(plant_motor_map, plant_section.get("motor_r") or {}), "plant.motor_r")
+    plant_motor_l = _motor(merge_mappings(plant_motor_map, plant_section.get("motor_l") or {}), "plant.motor_l")
+    plant_motor_r = _motor(merge_mappings(plant_motor_map, plant_section.get("motor_r") or {}), "plant.motor_r")
 
     start = data.get("start")
     if start is not None:
@@ -190,10 +191,10 @@ def load_config(path: str | FsPath, overrides: Mapping[str, Any] | None = None) 
     except ConfigError as exc:
         raise ConfigError(str(exc).replace(str(p.resolve()), str(p), 1)) from None
     if overrides:
-        data = _merge(data, overrides)
+        data = merge_mappings(data, overrides)
     return config_from_mapping(data, source=str(p), base_dir=str(p.resolve().parent))
 
 
 def with_overrides(cfg: Config, overrides: Mapping[str, Any]) -> Config:
     """The same config with some keys replaced (for sweeps and benchmarks)."""
-    return config_from_mapping(_merge(cfg.raw, overrides), source=cfg.source, base_dir=cfg.base_dir)
+    return config_from_mapping(merge_mappings(cfg.raw, overrides), source=cfg.source, base_dir=cfg.base_dir)

@@ -24,6 +24,7 @@ from ddrt.path import Path
 from ddrt.path.spec import PathError, resolve_path, speed_limits
 from ddrt.sweep.campaign import Campaign, CampaignError
 from ddrt.sweep.population import Robot, population
+from ddrt.config.load import merge_mappings
 
 
 @dataclass(frozen=True)
@@ -75,17 +76,6 @@ def _digest(value: Any, n: int = 16) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:n]
 
 
-def merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
-    """Deep merge as the config loader does: mappings key by key, anything else replaces."""
-    out = copy.deepcopy(dict(base))
-    for key, value in over.items():
-        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
-            out[key] = merge(out[key], value)
-        else:
-            out[key] = copy.deepcopy(value)
-    return out
-
-
 def nested(key: str, value: Any) -> dict[str, Any]:
     """{"a": {"b": value}} from "a.b"."""
     for part in reversed(key.split(".")):
@@ -112,7 +102,7 @@ def _apply(data: dict[str, Any], layer: Mapping[str, Any]) -> dict[str, Any]:
     path_over = layer.get("path")
     if isinstance(path_over, Mapping) and "path" in data:
         data = dict(data, path=inline_path(data["path"]))
-    return merge(data, layer)
+    return merge_mappings(data, layer)
 
 
 class _Builder:
@@ -167,7 +157,7 @@ class _Builder:
         if robot is not None:
             data = dict(data, robot=copy.deepcopy(robot.sections["robot"]),
                         plant=copy.deepcopy(robot.sections["plant"]))
-            data = merge(data, {"sim": robot.sections["sim"]})
+            data = merge_mappings(data, {"sim": robot.sections["sim"]})
         if path is not None:
             data = dict(data, path=copy.deepcopy(path))
         population = self.camp.population
