@@ -9,7 +9,7 @@ from __future__ import annotations
 import errno
 import time
 from pathlib import Path
-from typing import Iterator
+from typing import Any, Iterator
 
 import pytest
 
@@ -584,6 +584,19 @@ def test_from_config_refuses_a_config_without_the_real_devices() -> None:
         RealHal.from_config(sim_cfg, FakeClock())
 
 
+def first_read(hal: RealHal, cap_s: float = 30.0) -> Any:
+    """The first Sample once the emulated MCU's first STATE is in (its thread may not have run
+    yet on a loaded host); the cap is only against a hang."""
+    deadline = time.monotonic() + cap_s
+    while True:
+        try:
+            return hal.read()
+        except HalTimeoutError as exc:
+            if "no STATE received yet" not in str(exc) or time.monotonic() > deadline:
+                raise
+            time.sleep(0.005)
+
+
 def test_from_config_pwm_sysfs_motors(tmp_path: Path) -> None:
     for rel in ("class/pwm/pwmchip0/pwm0", "class/pwm/pwmchip0/pwm1",
                 "class/gpio/gpio5", "class/gpio/gpio6"):
@@ -603,7 +616,7 @@ def test_from_config_pwm_sysfs_motors(tmp_path: Path) -> None:
             assert (pwm0 / "duty_cycle").read_text() == "20000"
             assert (tmp_path / "class/gpio/gpio6/value").read_text() == "0"
             assert mcu.drives_accepted == 0  # the MCU only counts the encoder here
-            assert hal.read().encoder_count == 0
+            assert first_read(hal).encoder_count == 0
         finally:
             hal.close()
         assert (pwm0 / "duty_cycle").read_text() == "0"

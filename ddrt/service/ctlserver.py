@@ -365,10 +365,12 @@ class ControlServer:
             self._maybe_finish(conn)
             return
         buf = conn.buf
+        scan_from = len(buf)  # what was held has no newline: look in the new bytes only
         buf += data
         finished_line = False
         while True:
-            i = buf.find(b"\n")
+            i = buf.find(b"\n", scan_from)
+            scan_from = 0
             if conn.discarding:
                 if i < 0:
                     buf.clear()
