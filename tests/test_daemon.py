@@ -33,7 +33,7 @@ from ddrt.config.sections import PathsConfig
 from ddrt.service.ctlclient import connect
 from ddrt.service.daemon import request_line_limit
 from ddrt.loop import LoopState
-from tests.support.cpu_queue import Stopwatch, waited_for_cpu_s
+from tests.support.cpu_queue import Stopwatch, process_waited_for_cpu_s, waited_for_cpu_s
 from tests.support.daemon import (CALIBRATION_S, PATHS, RATE_HZ, REPLY_TIMEOUT_S, START_TIMEOUT_S, STATE_TIMEOUT_S,
                                   DaemonProc, ctl, raw_exchange, read_reply, start_daemon, wait_for, write_config)
 from tests.support.repo import REPO
@@ -537,6 +537,7 @@ TOO_LONG_LINE = request_line_limit(PathsConfig().max_file_bytes)
 
 def test_garbage_gets_errors_and_the_loop_keeps_ticking(daemon: DaemonProc) -> None:
     before = daemon.status()["timing"]
+    queued0 = process_waited_for_cpu_s(daemon.proc.pid)
     junk = random.Random(20240601).randbytes(3000).replace(b"\n", b"\x00")
     cases = [
         (b"this is not json\n", "malformed JSON"),
@@ -571,8 +572,12 @@ def test_garbage_gets_errors_and_the_loop_keeps_ticking(daemon: DaemonProc) -> N
     after = daemon.status()["timing"]
     ticks = after["count"] - before["count"]
     assert ticks > 0.3 * RATE_HZ * 0.5  # it went on ticking
-    assert after["missed_ticks"] - before["missed_ticks"] <= max(5, ticks // 20), (before, after)
-    assert after["overruns"] - before["overruns"] <= max(5, ticks // 20)
+    # Slots lost while the daemon's threads waited for a CPU (a loaded host) are not the
+    # garbage's doing: a thread preempted with the GIL held holds the loop up as long.
+    starved = int((process_waited_for_cpu_s(daemon.proc.pid) - queued0) * RATE_HZ)
+    bound = max(5, ticks // 20) + starved
+    assert after["missed_ticks"] - before["missed_ticks"] <= bound, (before, after, starved)
+    assert after["overruns"] - before["overruns"] <= bound
 
 
 # ------------------------------------------------------------------ `ddrt ctl` CLI
