@@ -103,8 +103,14 @@ class DaskCluster:
                 raise OSError(f"cannot reach the Dask scheduler at {self.scheduler}: {exc}") from None
         else:
             with _sigint_ignored():
+                # No dashboard, and the scheduler's plain HTTP endpoint on a free loopback port (with
+                # dashboard_address=None alone it still takes :8787, and warns when that is in use).
+                # Workers log CRITICAL only: a heartbeat that meets a scheduler already closing at
+                # Ctrl-C is expected, and a case's own failure comes back as its row's error.
                 self.cluster = LocalCluster(n_workers=self.requested or machine_workers(), threads_per_worker=1,
-                                            processes=True, dashboard_address=None, silence_logs=logging.ERROR)
+                                            processes=True, dashboard_address=None,
+                                            scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"},
+                                            silence_logs=logging.CRITICAL)
             self.client = Client(self.cluster)
         return self
 
