@@ -8,11 +8,12 @@ The same RK4 model as plant.py (docs/model.md), with:
   each armature current, solved in closed form at every RK4 stage; the charge drawn lowers
   the state of charge. The motors see duty x V, so a sagging battery slows the robot.
 - driver deadband: |duty| below `deadband` applies nothing.
-- gearbox backlash: each motor turns freely across `backlash_deg` of play (its own inertia,
-  its torque and its friction; the wheel gets no torque from it meanwhile) until it meets
-  the other flank, where the impact is inelastic. Engaged, it drives the wheel as before and
-  leaves the flank when its torque turns away from it. The wheel's inertia in the model
-  stays the configured one (the motor's is taken to be part of it when engaged).
+- gearbox backlash: each motor turns freely across `backlash_deg` of play (its own inertia
+  under its electromagnetic torque; the wheel gets no torque from it meanwhile) until it
+  meets the other flank, where the impact is inelastic. Engaged, it drives the wheel as
+  before and leaves the flank when its torque turns away from it. The friction stays with
+  the wheel (gearbox and bearings), so a free wheel still feels it; the wheel's inertia in
+  the model stays the configured one (the motor's is taken to be part of it when engaged).
 - floor patches scale the motors' friction while A is inside one; payloads change the
   platform's mass, centre and inertia at their time.
 - gyro: zero-rate bias with die warm-up and drift, scale error, noise, the DLPF, and (with
@@ -182,12 +183,16 @@ class RealisticPlant:
         v = num / den
         return v, v
 
-    def _motor(self, i: int, duty: float, volts: float, wm: float, fs: float) -> tuple[float, float, float]:
-        """(armature current, electromagnetic torque, friction torque) of motor i at speed wm."""
+    def _motor(self, i: int, duty: float, volts: float, wm: float) -> tuple[float, float]:
+        """(armature current, electromagnetic torque) of motor i turning at wm (at the wheel)."""
         m = self.motors[i]
         cur = (duty * volts - m.k_nm_per_a * wm) / m.resistance_ohm
-        fr = fs * (m.viscous_nms * wm + m.coulomb_nm * math.tanh(wm / m.coulomb_smoothing_rad_s))
-        return cur, m.k_nm_per_a * cur, fr
+        return cur, m.k_nm_per_a * cur
+
+    def _friction(self, i: int, ww: float, fs: float) -> float:
+        """Viscous and Coulomb friction at wheel i turning at ww, scaled by the floor's `fs`."""
+        m = self.motors[i]
+        return fs * (m.viscous_nms * ww + m.coulomb_nm * math.tanh(ww / m.coulomb_smoothing_rad_s))
 
     def _stage(self, v: float, w: float, d: tuple[float, float], fs: float, slip: tuple[float, float]) -> tuple:
         """Derivatives and powers at one RK4 stage: (dv, dw, p_em, p_fr, p_src, p_int, p_arm, p_free, I)."""
@@ -198,15 +203,16 @@ class RealisticPlant:
         tau = [0.0, 0.0]
         p_em = p_fr = p_arm = p_free = ib = 0.0
         for i in (0, 1):
-            cur, em, fr = self._motor(i, d[i], volts[i], wm[i], fs)
+            cur, em = self._motor(i, d[i], volts[i], wm[i])
+            fr = self._friction(i, ww[i], fs)
             p_arm += self.motors[i].resistance_ohm * cur * cur
             ib += d[i] * cur
+            p_fr += fr * ww[i]
             if self.side[i]:
                 tau[i] = em - fr + slip[i]
                 p_em += em * ww[i]
-                p_fr += fr * ww[i]
             else:
-                tau[i] = slip[i]
+                tau[i] = slip[i] - fr
                 p_free += em * wm[i]
         ul, ur = tau[0] / p.r_L, tau[1] / p.r_R
         fv = ul + ur + self.mx * w * w
@@ -216,7 +222,7 @@ class RealisticPlant:
         return (self.a11 * fv + self.a12 * fw, self.a12 * fv + self.a22 * fw, p_em, p_fr,
                 e * ib, ri * ib * ib, p_arm, p_free, ib, tau)
 
-    def _engage(self, d: tuple[float, float], fs: float) -> None:
+    def _engage(self, d: tuple[float, float]) -> None:
         """At the start of a step: does each motor press on a flank, or turn free in the play?"""
         if self.half_play == 0.0:
             return
@@ -227,14 +233,14 @@ class RealisticPlant:
         for i in (0, 1):
             side = self.side[i]
             if side:
-                _, em, fr = self._motor(i, d[i], volts[i], ww[i], fs)
-                if side * (em - fr) <= 0.0:
+                em = self._motor(i, d[i], volts[i], ww[i])[1]
+                if side * em <= 0.0:
                     self.side[i] = 0  # the torque turns away from the flank: free in the play
                     self.gap_rate[i] = 0.0
 
-    def _free_motors(self, d: tuple[float, float], fs: float, ww_new: tuple[float, float]) -> None:
-        """Advance the motors turning in the play by one step (semi-implicit Euler, Coulomb as
-        stick-slip: the tanh's slope is far too stiff for an explicit step on the motor's inertia)."""
+    def _free_motors(self, d: tuple[float, float], ww_new: tuple[float, float]) -> None:
+        """Advance the motors turning in the play by one step (semi-implicit Euler; the back-EMF's
+        damping, k^2 / (R J), is well inside the step's stability)."""
         if self.half_play == 0.0:
             return
         h, jm = self.h, self.j_motor
@@ -248,16 +254,7 @@ class RealisticPlant:
                 continue
             m = self.motors[i]
             cur = (d[i] * volts[i] - m.k_nm_per_a * wm[i]) / m.resistance_ohm
-            drive = m.k_nm_per_a * cur - fs * m.viscous_nms * wm[i]
-            coul = fs * m.coulomb_nm
-            if wm[i] != 0.0:
-                new = wm[i] + h * (drive - math.copysign(coul, wm[i])) / jm
-                if new * wm[i] < 0.0 and abs(drive) <= coul:
-                    new = 0.0  # friction stops it; it does not reverse it
-            elif abs(drive) > coul:
-                new = h * (drive - math.copysign(coul, drive)) / jm
-            else:
-                new = 0.0
+            new = wm[i] + h * m.k_nm_per_a * cur / jm
             self.gap_rate[i] = new - ww_new[i]
             self.gap[i] += h * self.gap_rate[i]
             if abs(self.gap[i]) >= self.half_play:
@@ -296,7 +293,7 @@ class RealisticPlant:
             db = self.deadband
             d = tuple(0.0 if abs(x) < db else x for x in (rb._duty_l, rb._duty_r))
             fs = self._floor_scale(rb._x, rb._y)
-            self._engage(d, fs)
+            self._engage(d)
             v, w, th = rb._v, rb._w, rb._th
 
             s1 = self._stage(v, w, d, fs, (0.0, 0.0))
@@ -322,7 +319,7 @@ class RealisticPlant:
             rb._th = th + dth
             v_new, w_new = v + rk(0), w + rk(1)
             p = self.params
-            self._free_motors(d, fs, ((v_new - p.L * w_new) / p.r_L, (v_new + p.R * w_new) / p.r_R))
+            self._free_motors(d, ((v_new - p.L * w_new) / p.r_L, (v_new + p.R * w_new) / p.r_R))
             rb._v, rb._w = v_new, w_new
             dphi_l, dphi_r = (ds - p.L * dth) / p.r_L, (ds + p.R * dth) / p.r_R
             dphi_3 = ds / p.r_3
@@ -359,5 +356,5 @@ class RealisticPlant:
                        for i, ww in enumerate(((v_new - p.L * w_new) / p.r_L, (v_new + p.R * w_new) / p.r_R)))
             volts = self._volts(d, wm)
             self.terminal_v = volts[0]
-            self.current_a = sum(d[i] * self._motor(i, d[i], volts[i], wm[i], fs)[0] for i in (0, 1))
+            self.current_a = sum(d[i] * self._motor(i, d[i], volts[i], wm[i])[0] for i in (0, 1))
         rb._gyro_f = self.gf
