@@ -241,26 +241,30 @@ def test_mpu_register_holds_between_refreshes_at_its_sample_rate() -> None:
 
 
 def test_plant_gyro_register_is_0_to_one_period_old_and_differs_per_tick() -> None:
-    """Rotating at a known, steadily rising rate: the held rate lags by the register's age."""
-    sim = bot(realism=Realism(gyro_odr_hz=200.0, gyro_clock_ppm=20000.0), gyro_bias_dps=0.0,
-              sensor_latency_s=0.0, **QUIET)
-    lsb = sim.gyro_lsb_per_rad_s
-    sim.command(-0.6, 0.6)
-    ages = []
-    for k in range(1, 200):
-        sim.advance_to(k * 0.005 + 0.0021)
-        if sim.t < 0.3:
-            continue
-        # The filtered rate history: find the plant time whose true (lagged) rate the register shows.
-        ages.append(sim.read_gyro_raw() / lsb)
-    held = ages
-    assert len(set(held)) < len(held)  # some ticks read a register not yet refreshed...
+    """At rest with a bias ramping at a known rate, a reading's value says how old it is:
+    age = t - (reading - bias0) / ramp. Held at 200 Hz on a clock 2 % fast, read at 200 Hz
+    ticks: the DLPF's lag plus 0 to one sample period, a different age from tick to tick;
+    read at the tick (no hold), the DLPF's lag alone."""
+    ramp = 100.0  # deg/s per s: an LSB (1/131 deg/s) is 76 us of age
     period = 1.0 / (200.0 * 1.02)
-    refreshes = sim._real
-    assert refreshes.odr_period == pytest.approx(period)
-    # ...and the age at each read differs per tick: (t - latch) over the ticks covers [0, period).
-    lat = [(k * 0.005 + 0.0021) % period for k in range(60, 200)]
-    assert min(lat) < 0.2 * period and max(lat) > 0.8 * period
+    spans = {}
+    for odr in (0.0, 200.0):
+        sim = bot(realism=Realism(gyro_drift_dps_per_s=ramp, gyro_odr_hz=odr, gyro_clock_ppm=20000.0),
+                  gyro_bias_dps=0.0, sensor_latency_s=0.0, **QUIET)
+        lsb_dps = sim.gyro_lsb_per_rad_s * math.pi / 180.0
+        ages = []
+        for k in range(20, 80):
+            t = k * 0.005 + 0.0021
+            sim.advance_to(t)
+            ages.append(sim.t - sim.read_gyro_raw() / lsb_dps / ramp)
+        lag = sim.gyro_delay_s
+        assert min(ages) == pytest.approx(lag, abs=2e-4)
+        spans[odr] = max(ages) - min(ages)
+        if odr:
+            assert sim._real.odr_period == pytest.approx(period)
+            assert max(ages) <= lag + period + 2e-4
+            assert len({round(a, 4) for a in ages}) >= 10  # differs from tick to tick
+    assert spans[0.0] < 2e-4 and spans[200.0] > 0.8 * period
 
 
 def test_gyro_bias_follows_the_die_warm_up() -> None:
