@@ -121,6 +121,7 @@ class ControlLoop:
             t += self.period
             sleep_until(t)
             sample = self.hal.read()
+            self.power.step(self, sample)  # the supply known before the first path; the estop input
             if sample.fresh:  # a value the HAL held through a pause would count twice
                 raw.append(sample.gyro_z_raw)
         bias, std = calibrate_gyro(raw, self.hal.info.gyro_lsb_per_rad_s, est_cfg.gyro_scale,
