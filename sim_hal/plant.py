@@ -194,10 +194,11 @@ class SimRobot:
     @property
     def battery_v(self) -> float:
         """Terminal voltage at the motor driver now (V): the battery's under load when
-        `realism.battery` is set, else the (ideal) supply of the left motor."""
+        `realism.battery` is set, else the motors' supply_v (their mean when per-wheel motors
+        were given two), a source with no internal resistance."""
         if self._real is not None and self._real.battery is not None:
             return self._real.terminal_v
-        return self.motor_l.supply_v
+        return 0.5 * (self.motor_l.supply_v + self.motor_r.supply_v)
 
     @property
     def gyro_die_temp_c(self) -> float:
