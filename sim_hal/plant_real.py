@@ -195,7 +195,10 @@ class RealisticPlant:
         return fs * (m.viscous_nms * ww + m.coulomb_nm * math.tanh(ww / m.coulomb_smoothing_rad_s))
 
     def _stage(self, v: float, w: float, d: tuple[float, float], fs: float, slip: tuple[float, float]) -> tuple:
-        """Derivatives and powers at one RK4 stage: (dv, dw, p_em, p_fr, p_src, p_int, p_arm, p_free, I)."""
+        """One RK4 stage: (dv, dw, then the powers: electromagnetic at engaged wheels, friction,
+        out of the open-circuit source, into the pack's resistance, into the armatures, on free
+        motors; the pack current, the wheel torques). The source's terms mean something only
+        with a battery."""
         p = self.params
         ww = ((v - p.L * w) / p.r_L, (v + p.R * w) / p.r_R)
         wm = tuple(ww[i] + (0.0 if self.side[i] else self.gap_rate[i]) for i in (0, 1))
