@@ -78,7 +78,7 @@ class Node:
         self.name = name
         self.namespace = "/" + namespace.strip("/")
         self.participant = DomainParticipant(domain_id, qos=Qos(Policy.Userdata(b"enclave=/;")))
-        self._topics: dict[str, Topic] = {}
+        self._topics: dict[tuple[str, str], Topic] = {}
         self._readers: list[Any] = []
         self._writers: list[Any] = []
         info_type = msg(DISCOVERY_TYPE)
@@ -87,9 +87,9 @@ class Node:
 
     def _topic(self, name: str, type_name: str) -> Topic:
         full = topic_name(self.namespace, name)
-        topic = self._topics.get(full)
+        topic = self._topics.get((full, type_name))
         if topic is None:
-            topic = self._topics[full] = Topic(self.participant, full, msg(type_name))
+            topic = self._topics[full, type_name] = Topic(self.participant, full, msg(type_name))
         return topic
 
     def writer(self, name: str, type_name: str, profile: QosProfile = DEFAULT) -> DataWriter:
