@@ -1,6 +1,7 @@
 """The ROS 2 bridge cannot cost the loop a tick: a `ddrt run` daemon on the simulated robot
 at 200 Hz with `daemon.ros2.enabled`, one fresh daemon per phase, `--duration` seconds each:
 
+- no bridge: `daemon.ros2.enabled: false`, what the machine alone costs the loop;
 - baseline: the bridge up, no ROS 2 peer;
 - flood: a process publishes geometry_msgs/Twist on /cmd_vel at 10 kHz (cyclonedds, reliable,
   depth 10, as rclpy would), alternating two commands: the velocity mode runs on them;
@@ -33,14 +34,14 @@ import yaml
 
 from bench.common import REPO, child_env, spawn_daemon
 
-PHASES = ("baseline", "flood", "slow subscriber", "stalled, then vanished bridge")
+PHASES = ("no bridge", "baseline", "flood", "slow subscriber", "stalled, then vanished bridge")
 FLOOD_HZ = 10_000.0
 
 
-def write_config(workdir: Path, domain: int) -> Path:
+def write_config(workdir: Path, domain: int, enabled: bool = True) -> Path:
     cfg = {"extends": str(REPO / "configs" / "sim.yaml"),
            "daemon": {"telemetry_dir": str(workdir / "tel"), "rt_priority": 10,
-                      "ros2": {"enabled": True, "domain_id": domain}},
+                      "ros2": {"enabled": enabled, "domain_id": domain}},
            "estimator": {"calibration_s": 0.5},
            "path": str(REPO / "configs" / "paths" / "figure8_slow.yaml")}
     path = workdir / "cfg.yaml"
@@ -115,7 +116,7 @@ def child(role: str, domain: int, seconds: float) -> int:
 def run_phase(phase: str, duration: float, domain: int) -> dict[str, Any]:
     with tempfile.TemporaryDirectory(prefix="ddrt-r2b-", dir="/tmp") as tmp:
         work = Path(tmp)
-        cfg = write_config(work, domain)
+        cfg = write_config(work, domain, enabled=phase != "no bridge")
         stats = work / "stats.json"
         sock = str(work / "ctl.sock")
         args = ["--socket", sock, "--duration", str(duration + 5.0), "--stats-json", str(stats)]
@@ -126,7 +127,7 @@ def run_phase(phase: str, duration: float, domain: int) -> dict[str, Any]:
         peer = None
         extra: dict[str, Any] = {}
         try:
-            bpid = wait_bridge(daemon)
+            bpid = wait_bridge(daemon) if phase != "no bridge" else 0
             if phase == "flood":
                 peer = subprocess.Popen([sys.executable, "-m", "bench.ros2_flood", "--child", "flood",
                                          "--domain", str(domain), "--duration", str(duration)],

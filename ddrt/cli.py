@@ -177,6 +177,19 @@ def _cmd_ros2(args: argparse.Namespace) -> int:
     return run(args)
 
 
+def _cmd_bag(args: argparse.Namespace) -> int:
+    from ddrt.config import load_config
+    from ddrt.config.sections import Ros2Config
+
+    cfg = load_config(args.config).daemon.ros2 if args.config else Ros2Config()
+    try:
+        from ddrt.ros2.bag import export_csv
+    except ImportError as exc:
+        raise ValueError(f"bag export: needs the ros2 extra (pip install 'ddrt[ros2]'): {exc}") from None
+    print(json.dumps(export_csv(args.telemetry, args.out, cfg, args.epoch), indent=2))
+    return 0
+
+
 def _cmd_ctl(args: argparse.Namespace) -> int:
     from ddrt.service.ctlclient import request
 
@@ -444,6 +457,15 @@ def build_parser() -> argparse.ArgumentParser:
     ros2_arguments(r2)
     r2.add_argument("--log-level", default="info", help="debug, info, warning or error")
     r2.set_defaults(func=_cmd_ros2)
+
+    bag = sub.add_parser("bag", help="rosbag2 recordings (pip install 'ddrt[ros2]'; docs/ros2.md)")
+    bag_sub = bag.add_subparsers(dest="bag_command", required=True)
+    b_exp = bag_sub.add_parser("export", help="a telemetry CSV as a rosbag2 (MCAP): /odom, /tf, /diagnostics")
+    b_exp.add_argument("telemetry", help="telemetry.csv of ddrt run or ddrt sim")
+    b_exp.add_argument("out", help="the rosbag2 folder to write (must not exist)")
+    b_exp.add_argument("--config", help="frames, namespace and rates from this config's daemon.ros2")
+    b_exp.add_argument("--epoch", type=float, help="wall time (s since 1970) of t = 0 (default: from the file's time)")
+    b_exp.set_defaults(func=_cmd_bag)
 
     swp = sub.add_parser("sweep", help="a campaign of simulated runs on Dask: a table, a summary, figures "
                                        "(pip install 'ddrt[sweep]')")
