@@ -179,7 +179,7 @@ def _cmd_ros2(args: argparse.Namespace) -> int:
 
 def _cmd_bag(args: argparse.Namespace) -> int:
     from ddrt.config import load_config
-    from ddrt.config.sections import Ros2Config
+    from ddrt.config.ros2 import Ros2Config
 
     cfg = load_config(args.config).daemon.ros2 if args.config else Ros2Config()
     try:

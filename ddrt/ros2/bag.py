@@ -15,7 +15,7 @@ import os
 from pathlib import Path
 from typing import Any, Mapping
 
-from ddrt.config.sections import Ros2Config
+from ddrt.config.ros2 import Ros2Config
 from ddrt.loop.states import state_label
 from ddrt.ros2 import convert
 from ddrt.ros2.interfaces import MESSAGES

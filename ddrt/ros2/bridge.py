@@ -29,7 +29,7 @@ from typing import Any
 
 from cyclonedds.internal import InvalidSample
 
-from ddrt.config.sections import Ros2Config
+from ddrt.config.ros2 import Ros2Config
 from ddrt.loop.states import state_label
 from ddrt.ros2 import convert
 from ddrt.ros2.link import DaemonLink, StateInbox

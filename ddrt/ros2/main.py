@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
     if args.supervised:
         _leave_realtime()  # before the imports: they are the bridge's biggest burst of CPU
     from ddrt.config import ConfigError, load_config
-    from ddrt.config.sections import Ros2Config
+    from ddrt.config.ros2 import Ros2Config
 
     cfg = Ros2Config()
     socket_path = args.socket
