@@ -251,6 +251,12 @@ class SimRobot:
         return (1.0 - a) / a * self._h
 
     @property
+    def battery_v(self) -> float:
+        """Terminal voltage at the motor driver now (V): the motors' supply_v (their mean when
+        per-wheel motors were given two), a source with no internal resistance."""
+        return 0.5 * (self.motor_l.supply_v + self.motor_r.supply_v)
+
+    @property
     def gyro_full_scale_rad_s(self) -> float:
         return raw_readings.INT16_MAX / self.gyro_lsb_per_rad_s
 

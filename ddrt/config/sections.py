@@ -65,6 +65,7 @@ class SimConfig:
     sensors_freeze_after_s: float | None = None  # fault injection: no fresh samples after this
     sensors_freeze_for_s: float | None = None  # ... for this long (None: for good)
     start_delay_s: float = 2.0  # `ddrt sim`: stand still this long after calibration (bias settles)
+    battery_measured: bool = True  # the simulated MCU reports the supply voltage (false: like protocol v1)
 
     def validate(self, where: str) -> None:
         positive(where, step_hz=self.step_hz)
@@ -366,9 +367,11 @@ class LimitsConfig:
     torque_max_nm: float | None = applies(LIVE, None)
     max_path_error_m: float = applies(LIVE, 0.3)  # farther than this from the reference: stop following (fault)
     feedback_headroom: float = 0.25  # fraction of the voltage (and torque) the profile leaves to feedback
+    battery_min_v: float | None = applies(LIVE, None)  # measured supply below this: controlled stop (None: off)
 
     def validate(self, where: str) -> None:
-        caps = {k: getattr(self, k) for k in ("v_max", "accel", "torque_max_nm") if getattr(self, k) is not None}
+        caps = {k: getattr(self, k) for k in ("v_max", "accel", "torque_max_nm", "battery_min_v")
+                if getattr(self, k) is not None}
         positive(where, lateral_accel=self.lateral_accel, omega_max=self.omega_max, alpha_max=self.alpha_max,
                  duty_max=self.duty_max, max_path_error_m=self.max_path_error_m, **caps)
         if self.duty_max > 1.0:
