@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 import os
-from typing import Any, Iterator
+from typing import Iterator
 
 import pytest
 
@@ -23,6 +23,7 @@ pytestmark = pytest.mark.slow
 
 DOMAIN = 100 + os.getpid() % 100  # apart from other runs on this host
 ODOM_HZ = 40.0
+IMU_HZ = 80.0
 TIMEOUT_S = 0.5
 
 
@@ -30,7 +31,8 @@ TIMEOUT_S = 0.5
 def bridged() -> Iterator[DaemonProc]:
     ros2_python()  # skip before starting anything when there is no ROS 2
     with ready_daemon(path=None, daemon={"command_timeout_s": TIMEOUT_S,
-                                         "ros2": {"enabled": True, "domain_id": DOMAIN, "odom_rate_hz": ODOM_HZ}}) as d:
+                                         "ros2": {"enabled": True, "domain_id": DOMAIN, "odom_rate_hz": ODOM_HZ,
+                                                  "imu_rate_hz": IMU_HZ, "diagnostics_rate_hz": 2.0}}) as d:
         wait_for(lambda: "sending the loop's state to @ddrt-ros2" in d.stderr(), 60.0, "the bridge's state stream")
         yield d
 
@@ -62,6 +64,16 @@ def test_odom_arrives_at_the_configured_rate_with_the_robots_pose(bridged: Daemo
         lo, hi = min(before[i], after[i]) - 1e-4, max(before[i], after[i]) + 1e-4
         assert all(lo <= m[key] <= hi for m in odom), (key, lo, hi, [m[key] for m in odom][:5])
     assert all(m["cov_v"] > 0.0 for m in odom)
+    # The gyro at its own rate, with its noise; the measured supply, as status reports it.
+    imu = out["imu"]
+    assert len(imu) >= 10 and {m["frame"] for m in imu} == {"imu_link"}
+    imu_rate = (len(imu) - 1) / (imu[-1]["recv"] - imu[0]["recv"])
+    assert 0.6 * IMU_HZ <= imu_rate <= 1.1 * IMU_HZ, f"{imu_rate:.1f} Hz"
+    assert all(abs(m["wz"]) < 0.05 and m["var"] > 0.0 for m in imu)  # at rest, bias removed
+    supply = bridged.status()["supply"]
+    if supply["measured"]:
+        assert out["battery"] and out["battery"][-1]["present"]
+        assert out["battery"][-1]["v"] == pytest.approx(supply["v_slow"], rel=0.02)
     graph = out["graph"]
     assert "ddrt" in graph["nodes"]
     tf = [e for e in graph["topics"]["/tf"] if e["node"] == "ddrt"]

@@ -4,7 +4,9 @@ itself. In-process, over real Unix datagram sockets, with a stand-in for the loo
 
 from __future__ import annotations
 
+import contextlib
 import socket
+import threading
 import time
 from types import SimpleNamespace
 from typing import Iterator
@@ -19,8 +21,9 @@ from tests.support.daemon import wait_for
 def fake_loop() -> SimpleNamespace:
     est = SimpleNamespace(x=1.5, y=-2.0, theta=0.25, speed=SimpleNamespace(v=0.3, p11=1e-4),
                           yaw=SimpleNamespace(w=0.1, p00=2e-4, meas_var=3e-5, b=0.01), rad_s_per_lsb=0.001)
-    sample = SimpleNamespace(t=12.5, gyro_z_raw=150, fresh=True, battery_v=11.7)
-    return SimpleNamespace(estimator=est, sample=sample, state=LoopState.DRIVING)
+    sample = SimpleNamespace(t=12.5, gyro_z_raw=150, fresh=True)
+    power = SimpleNamespace(v_slow=11.7, good=True, hw_estop=False)
+    return SimpleNamespace(estimator=est, sample=sample, state=LoopState.DRIVING, power=power)
 
 
 class Clock:
@@ -39,6 +42,24 @@ def stream() -> Iterator[tuple[st.StateStream, SimpleNamespace, Clock]]:
         yield s, loop, clock
     finally:
         s.close()
+
+
+@contextlib.contextmanager
+def ticking(s: st.StateStream, hz: float = 200.0) -> Iterator[None]:
+    """A stand-in for the loop thread: `put` at `hz` meanwhile."""
+    stop = threading.Event()
+
+    def run() -> None:
+        while not stop.wait(1.0 / hz):
+            s.put(time.monotonic())
+
+    t = threading.Thread(target=run, daemon=True)
+    t.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        t.join()
 
 
 def reader(name: str) -> socket.socket:
@@ -61,11 +82,24 @@ def test_a_subscriber_gets_the_loops_state_at_its_rate(stream) -> None:
         assert values["seq"] == 1.0 and values["mono"] == 42.0 and values["t"] == 12.5
         assert (values["x"], values["y"], values["theta"], values["v"], values["omega"]) == (1.5, -2.0, 0.25, 0.3, 0.1)
         assert values["gyro"] == pytest.approx(0.15) and values["state"] == float(LoopState.DRIVING)
-        t0, n0 = time.monotonic(), 0
-        while time.monotonic() - t0 < 1.0:
-            r.recv(4096)
-            n0 += 1
+        assert values["battery_v"] == 11.7 and values["hw_estop"] == 0.0
+        with ticking(s):
+            t0, n0 = time.monotonic(), 0
+            while time.monotonic() - t0 < 1.0:
+                r.recv(4096)
+                n0 += 1
         assert 50 <= n0 <= 110, n0  # 100 Hz, give or take a loaded host
+        # A loop that stalls sends nothing more: a state goes out once.
+        time.sleep(0.1)
+        r.setblocking(False)
+        while True:
+            try:
+                r.recv(4096)
+            except BlockingIOError:
+                break
+        time.sleep(0.2)
+        with pytest.raises(BlockingIOError):
+            r.recv(4096)
 
 
 @pytest.mark.parametrize("req, field", [
@@ -103,15 +137,14 @@ def test_a_slow_reader_is_dropped_for_and_a_vanished_one_removed_while_others_st
         rs.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # fills after a few datagrams
         for name in (slow, fast, gone):
             assert s.subscribe({"cmd": "stream", "to": "@" + name, "rate_hz": 400})["ok"]
-        s.put(1.0)
-        wait_for(lambda: s.counts().get("@" + slow, {}).get("dropped", 0) > 20, 10.0, "drops for the slow reader")
-        assert "@" + gone not in s.counts()  # nobody at that address: removed on the first send
-        got = 0
-        t0 = time.monotonic()
-        while time.monotonic() - t0 < 0.5:
-            s.put(2.0)
-            rf.recv(4096)
-            got += 1
+        with ticking(s, 1000.0):
+            wait_for(lambda: s.counts().get("@" + slow, {}).get("dropped", 0) > 20, 10.0, "drops for the slow reader")
+            assert "@" + gone not in s.counts()  # nobody at that address: removed on the first send
+            got = 0
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < 0.5:
+                rf.recv(4096)
+                got += 1
         assert got > 50  # the fast reader was not held up by the slow one
         counts = s.counts()
         assert counts["@" + slow]["sent"] < counts["@" + fast]["sent"]
@@ -123,7 +156,7 @@ def test_a_subscriber_that_stops_renewing_expires(stream) -> None:
     with reader(name) as r:
         assert s.subscribe({"cmd": "stream", "to": "@" + name, "rate_hz": 50})["ok"]
         s.put(1.0)
-        r.recv(4096)
+        r.recv(4096)  # sent once: the lease, not the loop, decides from here
         clock.offset = st.LEASE_S + 0.1
         wait_for(lambda: s.counts() == {}, 5.0, "the lease to run out")
         assert not s.active

@@ -81,7 +81,7 @@ class BagWriter:
 def _state(row: Mapping[str, float]) -> dict[str, float]:
     nan = math.nan
     s = {k: nan for k in ("var_x", "var_y", "cov_xy", "var_theta", "var_v", "var_omega", "var_gyro", "gyro",
-                          "battery_v", "map_x", "map_y", "map_theta")}
+                          "battery_v", "hw_estop", "map_x", "map_y", "map_theta")}
     s.update({ours: row[col] for col, ours in FROM_CSV.items()})
     return s
 

@@ -132,7 +132,8 @@ class Bridge:
         timing = st.get("timing") if isinstance(st.get("timing"), dict) else {}
         values = {k: timing[k] for k in sorted(timing) if not isinstance(timing[k], (dict, list))}
         if s is not None:
-            values.update({"gyro_bias_rad_s": f"{s['gyro_bias']:.6g}", "battery_v": f"{s['battery_v']:.4g}"})
+            values.update({"gyro_bias_rad_s": f"{s['gyro_bias']:.6g}", "battery_v": f"{s['battery_v']:.4g}",
+                           "hw_estop_open": str(s["hw_estop"] > 0.5)})
         state = state_label(int(s["state"])) if s is not None else "unknown"
         c = self.count
         bridge = {"states_received": self.inbox.received, "cmd_vel_received": c.cmd_vel, "drives_sent": c.drives,

@@ -26,8 +26,6 @@ import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Callable
 
-from ddrt.core.types import Sample
-
 if TYPE_CHECKING:
     from ddrt.loop import ControlLoop
 
@@ -41,10 +39,8 @@ MAX_SUBSCRIBERS = 4
 MAX_RATE_HZ = 500.0
 MAX_ADDRESS = 100
 
-_BATTERY = "sample.battery_v" if "battery_v" in getattr(Sample, "__dataclass_fields__", {}) else "nan"
-
 # The state, declared once: (name, unit, source over `loop`, `est` = loop.estimator, `sample`
-# = loop.sample, `mono` = the tick's monotonic start). "nan" where ddrt does not know the value
+# = loop.sample, `mono` = the tick's monotonic start; the supply from ddrt/loop/power.py). "nan" where ddrt does not know the value
 # yet (the map frame and the pose's covariance come with pose fixes).
 FIELDS: tuple[tuple[str, str, str], ...] = (
     ("seq", "count", "seq"),  # states packed so far: a reader sees whether it is new
@@ -62,7 +58,8 @@ FIELDS: tuple[tuple[str, str, str], ...] = (
     ("gyro_bias", "rad/s", "est.yaw.b"),
     ("state", "code", "float(loop.state)"),
     ("fresh", "0/1", "1.0 if (sample is not None and sample.fresh) else 0.0"),
-    ("battery_v", "V", _BATTERY if _BATTERY == "nan" else f"{_BATTERY} if sample is not None else nan"),
+    ("battery_v", "V", "loop.power.v_slow if loop.power.good else nan"),  # measured, filtered over 1 s
+    ("hw_estop", "0/1", "1.0 if loop.power.hw_estop else 0.0"),
     ("var_x", "m^2", "nan"),
     ("var_y", "m^2", "nan"),
     ("cov_xy", "m^2", "nan"),
@@ -106,6 +103,7 @@ class Subscriber:
     next_send: float = 0.0
     sent: int = 0
     dropped: int = 0  # sends refused because the reader's buffer was full
+    last_seq: int = 0  # the state last sent: a state is sent once (a stalled loop sends nothing)
 
 
 def parse_request(req: dict[str, Any]) -> tuple[str, float]:
@@ -209,7 +207,11 @@ class StateStream:
             time.sleep(max(wait, 0.0005))
 
     def _send(self, sub: Subscriber) -> None:
+        seq = self._seq
+        if seq == sub.last_seq:
+            return
         data = bytes(self._buf)  # one copy, atomic under the GIL: never torn by a put
+        sub.last_seq = seq
         try:
             self._sock.sendto(data, _sockaddr(sub.address))
             sub.sent += 1

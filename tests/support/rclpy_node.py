@@ -2,7 +2,7 @@
 never imported by the suite. Reads one JSON job from argv, prints one JSON result line.
 
 Jobs ("do"):
-- "listen": subscribe to /odom for `seconds`; report the messages' count, their first and
+- "listen": subscribe to /odom, /imu/data_raw and /battery_state for `seconds`; report the messages' count, their first and
   last stamps and values, and what the graph says: node names, and per topic the publishers'
   and subscribers' node names, type names and type hashes.
 - "cmd_vel": publish Twist or TwistStamped (`stamped`) with `v`, `omega` at `rate_hz` for
@@ -20,6 +20,7 @@ import time
 import rclpy
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, Twist, TwistStamped
 from nav_msgs.msg import Odometry, Path
+from sensor_msgs.msg import BatteryState, Imu
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 TOPICS = ("/odom", "/tf", "/tf_static", "/cmd_vel", "/imu/data_raw", "/diagnostics", "/plan", "/initialpose", "/pose")
@@ -58,8 +59,15 @@ def main():
     node = rclpy.create_node("ddrt_test")
     odom = []
     node.create_subscription(Odometry, "/odom", lambda m: odom.append(odom_row(m)), 50)
+    imu, battery = [], []
+    node.create_subscription(Imu, "/imu/data_raw", lambda m: imu.append(
+        {"wz": m.angular_velocity.z, "var": m.angular_velocity_covariance[8], "frame": m.header.frame_id,
+         "recv": time.monotonic()}), 50)
+    node.create_subscription(BatteryState, "/battery_state", lambda m: battery.append(
+        {"v": m.voltage, "present": m.present}), 10)
     spin_for(node, job.get("settle_s", 2.0))  # discovery
     odom.clear()
+    imu.clear()
     do = job["do"]
     if do == "listen":
         spin_for(node, job["seconds"])
@@ -124,7 +132,7 @@ def main():
         m.pose.covariance = cov
         pub.publish(m)
         spin_for(node, job["seconds"])
-    print(json.dumps({"odom": odom, "graph": graph(node)}))
+    print(json.dumps({"odom": odom, "imu": imu, "battery": battery, "graph": graph(node)}))
     rclpy.shutdown()
 
 
