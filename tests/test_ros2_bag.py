@@ -45,7 +45,7 @@ def test_export_writes_odom_tf_and_diagnostics_with_the_rows_values(telemetry: P
     assert report["rows"] == len(rows) == 400
     with AnyReader([bag]) as reader:
         topics = {c.topic: c for c in reader.connections}
-        assert set(topics) == {"/odom", "/tf", "/tf_static", "/imu/data_raw", "/diagnostics"}
+        assert set(topics) == {"/odom", "/tf", "/tf_static", "/imu/data_raw", "/battery_state", "/diagnostics"}
         odom = [(t, reader.deserialize(raw, c.msgtype)) for c, t, raw in reader.messages([topics["/odom"]])]
         tf = [reader.deserialize(raw, c.msgtype) for c, _t, raw in reader.messages([topics["/tf"]])]
     assert len(odom) == 100 and len(tf) == 100  # 2 s at 50 Hz

@@ -90,3 +90,64 @@ def test_a_daemon_streams_its_state_to_whoever_asks_over_its_socket() -> None:
         assert states[-1]["mono"] - states[0]["mono"] == pytest.approx(19 / 50, rel=0.5)
         assert states[-1]["x"] == pytest.approx(pose["x"], abs=1e-4)
         assert states[-1]["theta"] == pytest.approx(pose["theta"], abs=1e-3)
+
+
+def _bridges_of(pid: int) -> list[int]:
+    out = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                stat = (entry / "stat").read_text()
+                cmd = (entry / "cmdline").read_bytes()
+            except OSError:
+                continue
+            if int(stat.rsplit(")", 1)[1].split()[1]) == pid and b"ddrt.ros2" in cmd:
+                out.append(int(entry.name))
+    return out
+
+
+def test_telemetry_format_rosbag2_records_the_topics_and_a_killed_daemon_leaves_no_bridge() -> None:
+    """rosbag2 without ROS 2: the bridge records only (--no-dds); SIGTERM closes the bag
+    readable. A daemon killed outright: its bridge notices and exits."""
+    pytest.importorskip("cyclonedds", reason="the ros2 extra")
+    pytest.importorskip("rosbags", reason="the ros2 extra")
+    import os
+    import signal
+
+    from rosbags.highlevel import AnyReader
+
+    from tests.support.daemon import start_daemon
+
+    d = start_daemon(path=None, daemon={"telemetry_format": "rosbag2", "ros2": {"odom_rate_hz": 20.0}})
+    try:
+        d.wait_ready()
+        bridge = wait_for(lambda: _bridges_of(d.proc.pid), 60.0, "the recording bridge")[0]
+        wait_for(lambda: "sending the loop's state to @ddrt-ros2" in d.stderr(), 60.0, "the bridge's stream")
+        for _ in range(20):  # 2 s at 10 Hz, inside the 0.5 s command timeout
+            assert d.request({"cmd": "drive", "v": 0.1, "omega": 0.0})["ok"]
+            time.sleep(0.1)
+        time.sleep(1.0)
+        d.proc.send_signal(signal.SIGTERM)
+        assert d.proc.wait(60) == 0
+        wait_for(lambda: not Path(f"/proc/{bridge}").exists(), 30.0, "the bridge's exit")
+        bags = sorted(d.telemetry_dir.glob("rosbag2-*"))
+        assert len(bags) == 1 and (bags[0] / "metadata.yaml").exists(), list(d.telemetry_dir.iterdir())
+        assert (d.telemetry_dir / "telemetry.csv").exists()  # the CSV as well
+        with AnyReader([bags[0]]) as reader:
+            topics = {c.topic: c for c in reader.connections}
+            odom = [reader.deserialize(raw, c.msgtype) for c, _t, raw in reader.messages([topics["/odom"]])]
+            static = list(reader.messages([topics["/tf_static"]]))
+        assert len(odom) >= 20 and len(static) == 1
+        assert max(m.twist.twist.linear.x for m in odom) == pytest.approx(0.1, rel=0.2)
+    finally:
+        d.close()
+    # Killed outright (SIGKILL): the bridge it started goes too.
+    d = start_daemon(path=None, daemon={"telemetry_format": "rosbag2"})
+    try:
+        d.wait_ready()
+        bridge = wait_for(lambda: _bridges_of(d.proc.pid), 60.0, "the recording bridge")[0]
+        os.kill(d.proc.pid, signal.SIGKILL)
+        wait_for(lambda: not Path(f"/proc/{bridge}").exists() or b"Z" in Path(f"/proc/{bridge}/stat").read_bytes()
+                 .rsplit(b")", 1)[1][:3], 30.0, "the orphaned bridge's exit")
+    finally:
+        d.close()

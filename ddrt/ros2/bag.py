@@ -12,6 +12,8 @@ from __future__ import annotations
 import csv
 import math
 import os
+import shutil
+import time
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -27,6 +29,7 @@ TOPICS: dict[str, tuple[str, QosProfile | None]] = {
     "/tf": ("tf2_msgs/msg/TFMessage", TF),
     "/tf_static": ("tf2_msgs/msg/TFMessage", TF_STATIC),
     "imu/data_raw": ("sensor_msgs/msg/Imu", None),
+    "battery_state": ("sensor_msgs/msg/BatteryState", None),
     "/diagnostics": ("diagnostic_msgs/msg/DiagnosticArray", None),
 }
 # The telemetry CSV's columns (ddrt/loop/record.py) -> the state's names (ddrt/service/stream.py).
@@ -64,10 +67,13 @@ class BagWriter:
             self._conns[name] = self._writer.add_connection(_topic(cfg, name), type_name, typestore=store,
                                                             rihs01=type_hash(type_name))
         self.count = 0
+        self.bytes = 0
 
     def write(self, name: str, message: Any, stamp_s: float) -> None:
-        self._writer.write(self._conns[name], int(round(stamp_s * 1e9)), message.serialize())
+        data = message.serialize()
+        self._writer.write(self._conns[name], int(round(stamp_s * 1e9)), data)
         self.count += 1
+        self.bytes += len(data)
 
     def write_state(self, s: Mapping[str, float], stamp_s: float) -> None:
         c = self.cfg
@@ -76,6 +82,45 @@ class BagWriter:
 
     def close(self) -> None:
         self._writer.close()
+
+
+class RotatingBag:
+    """`daemon.telemetry_format: rosbag2`: bags `rosbag2-<UTC time>` in `directory`, a new one
+    once the current one holds `max_bytes` of messages, at most `max_files` kept (the oldest
+    removed), as the CSV and MCAP files rotate (daemon.telemetry_max_bytes, _max_files)."""
+
+    PREFIX = "rosbag2-"
+
+    def __init__(self, directory: str | os.PathLike[str], cfg: Ros2Config, max_bytes: int, max_files: int) -> None:
+        self.directory = Path(directory)
+        self.cfg = cfg
+        self.max_bytes = max_bytes
+        self.max_files = max_files
+        self.directory.mkdir(parents=True, exist_ok=True)
+        self.current: BagWriter | None = None
+        self._open()
+
+    def _open(self) -> None:
+        name = self.PREFIX + time.strftime("%Y%m%d-%H%M%S", time.gmtime())
+        n = 0
+        while (self.directory / (name + (f"-{n}" if n else ""))).exists():
+            n += 1
+        self.current = BagWriter(self.directory / (name + (f"-{n}" if n else "")), self.cfg)
+        bags = sorted(p for p in self.directory.iterdir() if p.is_dir() and p.name.startswith(self.PREFIX))
+        for old in bags[: max(0, len(bags) - self.max_files)]:
+            shutil.rmtree(old, ignore_errors=True)
+
+    def write(self, name: str, message: Any, stamp_s: float) -> None:
+        assert self.current is not None
+        self.current.write(name, message, stamp_s)
+        if self.current.bytes >= self.max_bytes:
+            self.current.close()
+            self._open()
+
+    def close(self) -> None:
+        if self.current is not None:
+            self.current.close()
+            self.current = None
 
 
 def _state(row: Mapping[str, float]) -> dict[str, float]:

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import select
 import time
 from dataclasses import dataclass, field
@@ -59,26 +60,35 @@ def _samples(reader: Any, n: int) -> list[Any]:
     return [m for m in reader.take(N=n) if not isinstance(m, InvalidSample)]
 
 
+# (name, type, QoS) of every topic the bridge publishes; the recording has the same.
+PUBLISHED = (("odom", "nav_msgs/msg/Odometry", DEFAULT), ("/tf", "tf2_msgs/msg/TFMessage", TF),
+             ("/tf_static", "tf2_msgs/msg/TFMessage", TF_STATIC), ("imu/data_raw", "sensor_msgs/msg/Imu", DEFAULT),
+             ("battery_state", "sensor_msgs/msg/BatteryState", DEFAULT),
+             ("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", DEFAULT))
+
+
 class Bridge:
     """The node, its topics, the link; `run` until `stop` is set."""
 
-    def __init__(self, socket_path: str, cfg: Ros2Config) -> None:
+    def __init__(self, socket_path: str, cfg: Ros2Config, dds: bool = True, record: Any = None) -> None:
+        """`dds`: on ROS 2 (daemon.ros2.enabled); `record`: a RotatingBag the same messages go
+        to as well (daemon.telemetry_format: rosbag2), or None."""
         self.cfg = cfg
         self.link = DaemonLink(socket_path)
         self.inbox = StateInbox(self.link, max(cfg.odom_rate_hz, cfg.imu_rate_hz))
-        self.node = node = Node(cfg.node_name, cfg.namespace or "/", cfg.domain_id)
-        self.pub_odom = node.writer("odom", "nav_msgs/msg/Odometry")
-        self.pub_tf = node.writer("/tf", "tf2_msgs/msg/TFMessage", TF)
-        self.pub_tf_static = node.writer("/tf_static", "tf2_msgs/msg/TFMessage", TF_STATIC)
-        self.pub_imu = node.writer("imu/data_raw", "sensor_msgs/msg/Imu")
-        self.pub_battery = node.writer("battery_state", "sensor_msgs/msg/BatteryState")
-        self.pub_diag = node.writer("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray")
-        self.sub_twist = node.reader("cmd_vel", "geometry_msgs/msg/Twist", DEFAULT)
-        self.sub_twist_stamped = node.reader("cmd_vel", "geometry_msgs/msg/TwistStamped", DEFAULT)
-        self.sub_path = node.reader(cfg.path_topic, "nav_msgs/msg/Path", DEFAULT)
-        self.sub_initial = node.reader("initialpose", "geometry_msgs/msg/PoseWithCovarianceStamped", DEFAULT)
-        self.sub_pose = node.reader(cfg.pose_topic, "geometry_msgs/msg/PoseWithCovarianceStamped", DEFAULT)
-        node.announce()
+        self.record = record
+        self.writers: dict[str, Any] = {}
+        self.node = None
+        if dds:
+            self.node = node = Node(cfg.node_name, cfg.namespace or "/", cfg.domain_id)
+            for name, type_name, profile in PUBLISHED:
+                self.writers[name] = node.writer(name, type_name, profile)
+            self.sub_twist = node.reader("cmd_vel", "geometry_msgs/msg/Twist", DEFAULT)
+            self.sub_twist_stamped = node.reader("cmd_vel", "geometry_msgs/msg/TwistStamped", DEFAULT)
+            self.sub_path = node.reader(cfg.path_topic, "nav_msgs/msg/Path", DEFAULT)
+            self.sub_initial = node.reader("initialpose", "geometry_msgs/msg/PoseWithCovarianceStamped", DEFAULT)
+            self.sub_pose = node.reader(cfg.pose_topic, "geometry_msgs/msg/PoseWithCovarianceStamped", DEFAULT)
+            node.announce()
         self.count = Counters()
         self.stop = False
         self.state: dict[str, float] | None = None
@@ -103,7 +113,7 @@ class Bridge:
         c = self.cfg
         x, y, z = c.imu_xyz
         tf = convert.transform(time.time(), c.base_frame, c.imu_frame, x, y, 0.0, z)
-        self.pub_tf_static.write(convert.msg("tf2_msgs/msg/TFMessage")(transforms=[tf]))
+        self._out("/tf_static", convert.msg("tf2_msgs/msg/TFMessage")(transforms=[tf]), time.time())
 
     def _stamp(self, s: dict[str, float]) -> float:
         return s["mono"] + self._epoch
@@ -115,12 +125,12 @@ class Bridge:
             if now >= self._next["odom"] and s["seq"] != self._seq_odom:
                 self._seq_odom = s["seq"]
                 stamp = self._stamp(s)
-                self.pub_odom.write(convert.odometry(s, stamp, c.odom_frame, c.base_frame))
-                self.pub_tf.write(convert.tf_message(s, stamp, c))
+                self._out("odom", convert.odometry(s, stamp, c.odom_frame, c.base_frame), stamp)
+                self._out("/tf", convert.tf_message(s, stamp, c), stamp)
                 self._next["odom"] = max(self._next["odom"] + 1.0 / c.odom_rate_hz, now)
             if now >= self._next["imu"] and s["seq"] != self._seq_imu:
                 self._seq_imu = s["seq"]
-                self.pub_imu.write(convert.imu(s, self._stamp(s), c.imu_frame))
+                self._out("imu/data_raw", convert.imu(s, self._stamp(s), c.imu_frame), self._stamp(s))
                 self._next["imu"] = max(self._next["imu"] + 1.0 / c.imu_rate_hz, now)
         if now >= self._next["diag"]:
             self._next["diag"] = max(self._next["diag"] + 1.0 / c.diagnostics_rate_hz, now)
@@ -140,15 +150,25 @@ class Bridge:
                   "drives_refused": c.refused, "paths_sent": c.paths, "pose_fixes_sent": c.fixes,
                   "errors": sum(c.errors.values())}
         now = time.time()
-        self.pub_diag.write(convert.diagnostics(now, state, str(st.get("fault") or ""), values, bridge, s is None))
+        self._out("/diagnostics", convert.diagnostics(now, state, str(st.get("fault") or ""), values, bridge,
+                                                      s is None), now)
         if s is not None:
             b = convert.battery(s, self._stamp(s), self.cfg.base_frame)
             if b is not None:
-                self.pub_battery.write(b)
+                self._out("battery_state", b, self._stamp(s))
+
+    def _out(self, name: str, message: Any, stamp_s: float) -> None:
+        writer = self.writers.get(name)
+        if writer is not None:
+            writer.write(message)
+        if self.record is not None:
+            self.record.write(name, message, stamp_s)
 
     # ------------------------------------------------------------------ subscriptions
 
     def _take_ros(self) -> None:
+        if self.node is None:
+            return
         newest = None
         for m in _samples(self.sub_twist, 1000):
             newest = (m.linear.x, m.angular.z)
@@ -268,11 +288,18 @@ class Bridge:
         self._send_due(now)
         self._publish_due(now)
 
-    def run(self) -> None:
+    def run(self, parent: int | None = None) -> None:
+        """Until `stop`; with `parent` (supervised), also once that process is gone: a daemon
+        killed outright leaves no bridge behind."""
         tick = 1.0 / max(self.cfg.odom_rate_hz, self.cfg.imu_rate_hz, 20.0)
         while not self.stop:
             self.step(tick / 2.0)
+            if parent is not None and os.getppid() != parent:
+                log.info("ros2: the daemon is gone; stopping")
+                break
 
     def close(self) -> None:
         self.link.close()
         self.inbox.close()
+        if self.record is not None:
+            self.record.close()

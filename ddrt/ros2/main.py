@@ -26,7 +26,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", help="read daemon.ros2 (domain, namespace, frames, rates, topics) from this config")
     p.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (overrides daemon.ros2.domain_id)")
     p.add_argument("--namespace", help="the node's namespace (overrides daemon.ros2.namespace)")
-    p.add_argument("--supervised", action="store_true", help=argparse.SUPPRESS)
+    p.add_argument("--record", metavar="DIR", help="also record the published topics as rosbag2 (MCAP) in DIR, "
+                                                 "rotated by the config's daemon.telemetry_max_bytes and _max_files")
+    p.add_argument("--no-dds", action="store_true", help="do not join ROS 2 (with --record: record only)")
+    p.add_argument("--supervised", type=int, metavar="PID", help=argparse.SUPPRESS)  # the daemon's pid
 
 
 def _leave_realtime() -> None:
@@ -43,12 +46,13 @@ def _leave_realtime() -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.supervised:
+    if args.supervised is not None:
         _leave_realtime()  # before the imports: they are the bridge's biggest burst of CPU
     from ddrt.config import ConfigError, load_config
     from ddrt.config.ros2 import Ros2Config
 
     cfg = Ros2Config()
+    rotation = (20_000_000, 5)
     socket_path = args.socket
     if args.config:
         try:
@@ -57,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
             log.error("%s", exc)
             return 2
         cfg = full.daemon.ros2
+        rotation = (full.daemon.telemetry_max_bytes, full.daemon.telemetry_max_files)
         socket_path = socket_path or full.daemon.socket or None
     socket_path = socket_path or DEFAULT_SOCKET
     try:
@@ -69,11 +74,22 @@ def run(args: argparse.Namespace) -> int:
     if importlib.util.find_spec("cyclonedds") is None:
         log.error("ddrt ros2: needs the cyclonedds package: pip install 'ddrt[ros2]'")
         return 2
-    if not args.supervised:
+    if args.supervised is None:
         _leave_realtime()
+    if args.no_dds and not args.record:
+        log.error("ddrt ros2: --no-dds without --record has nothing to do")
+        return 2
+    from ddrt.ros2.bag import RotatingBag
     from ddrt.ros2.bridge import Bridge
 
-    bridge = Bridge(socket_path, cfg)
+    record = None
+    if args.record:
+        try:
+            record = RotatingBag(os.path.abspath(args.record), cfg, *rotation)
+        except (OSError, ValueError) as exc:
+            log.error("ddrt ros2: --record %s: %s", args.record, exc)
+            return 2
+    bridge = Bridge(socket_path, cfg, dds=not args.no_dds, record=record)
 
     def on_stop(_signum: int, _frame: object) -> None:
         bridge.stop = True
@@ -83,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
     log.info("ros2: node %s%s on domain %d, daemon at %s", (cfg.namespace.rstrip("/") + "/") if cfg.namespace else "/",
              cfg.node_name, cfg.domain_id, socket_path)
     try:
-        bridge.run()
+        bridge.run(parent=args.supervised)
     finally:
         bridge.close()
     return 0

@@ -10,6 +10,7 @@ stops it with SIGTERM (SIGKILL after STOP_S).
 from __future__ import annotations
 
 import logging
+import os
 import subprocess
 import sys
 import threading
@@ -21,9 +22,10 @@ STOP_S = 3.0
 
 
 class BridgeProcess:
-    def __init__(self, socket_path: str, config_path: str, argv: list[str] | None = None) -> None:
+    def __init__(self, socket_path: str, config_path: str, argv: list[str] | None = None,
+                 extra: tuple[str, ...] = ()) -> None:
         self.argv = argv or [sys.executable, "-m", "ddrt.ros2", "--socket", socket_path, "--config", config_path,
-                             "--supervised"]
+                             "--supervised", str(os.getpid()), *extra]
         self.starts = 0
         self.proc: subprocess.Popen[bytes] | None = None
         self._closed = threading.Event()

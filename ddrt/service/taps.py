@@ -7,6 +7,7 @@ a control socket to subscribe through), with the ROS 2 bridge's process when
 from __future__ import annotations
 
 import logging
+import os
 from typing import TYPE_CHECKING, Any
 
 from ddrt.service.ros2proc import BridgeProcess
@@ -54,14 +55,23 @@ class Taps:
 
 
 def start_taps(d: "Daemon", viz: Any) -> Any:
-    """The daemon's taps: `viz` alone when there is no control socket (nothing can subscribe)."""
+    """The daemon's taps: `viz` alone when there is no control socket (nothing can subscribe).
+    The bridge process when `daemon.ros2.enabled` or `daemon.telemetry_format: rosbag2` (then
+    it records the topics it publishes into the telemetry directory; without ROS 2, only that)."""
+    dc = d.cfg.daemon
+    record = dc.telemetry_format == "rosbag2"
     if not d.socket_path or d.loop is None:
-        if d.cfg.daemon.ros2.enabled:
-            log.error("daemon.ros2.enabled: the bridge talks to the daemon over its control socket, and "
-                      "there is none (daemon.socket is empty): no ROS 2 bridge")
+        if dc.ros2.enabled or record:
+            log.error("daemon.ros2.enabled / telemetry_format: rosbag2: the bridge talks to the daemon over its "
+                      "control socket, and there is none (daemon.socket is empty): no ROS 2 bridge, no rosbag2")
         return viz
-    stream = StateStream(d.loop, loop_priority=d.cfg.daemon.rt_priority)
+    stream = StateStream(d.loop, loop_priority=dc.rt_priority)
     bridge = None
-    if d.cfg.daemon.ros2.enabled:
-        bridge = BridgeProcess(d.socket_path, d.config_path)
+    if dc.ros2.enabled or record:
+        extra: tuple[str, ...] = ()
+        if record:
+            extra = ("--record", os.environ.get("LOGS_DIRECTORY") or dc.telemetry_dir)
+            if not dc.ros2.enabled:
+                extra += ("--no-dds",)
+        bridge = BridgeProcess(d.socket_path, d.config_path, extra=extra)
     return Taps(stream, viz, bridge)
