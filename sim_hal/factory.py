@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from ddrt.config import Config
-from sim_hal.plant import PlantConfig, SimRobot
+from sim_hal.plant import PlantConfig, Realism, SimRobot
 from sim_hal.backend import SimHal
 
 
@@ -26,6 +26,7 @@ def plant_config(cfg: Config, seed: int | None = None) -> PlantConfig:
         gyro_noise_dps_rthz=s.gyro.noise_dps_rthz,
         gyro_scale_error=s.gyro.scale_error,
         gyro_dlpf_hz=s.gyro.dlpf_hz,
+        realism=Realism.from_sim(s, cfg.hal.imu.sample_rate_div),
     )
 
 
