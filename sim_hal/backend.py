@@ -9,7 +9,8 @@ command arrives for `drive_timeout_s` (100 ms, `hal.bridge.drive_timeout_ms`'s d
 zeroes both motors, so a stalled or stopped loop leaves the simulated robot as it would the
 real one. A loop that writes every tick never trips it.
 
-Fault injection: `freeze(at, duration)` makes the sensors repeat their last reading, flagged
+Fault injection: `wiring` (sim_hal/wiring.py, `sim.wiring`) miswires the motors and sensors;
+`freeze(at, duration)` makes the sensors repeat their last reading, flagged
 not fresh, from sim time `at` for `duration` s (None: for good); `sim.sensors_freeze_after_s`
 with `sim.sensors_freeze_for_s` does it from the config.
 """
@@ -23,6 +24,7 @@ from ddrt.params.motor import MotorParams
 from hal.base import Hal, HalInfo, HalIOError, Sample
 from sim_hal.plant import PlantConfig, SimRobot
 from sim_hal.simtime import SimTime
+from sim_hal.wiring import WiringFaults
 
 
 class SimHal(Hal):
@@ -31,7 +33,8 @@ class SimHal(Hal):
     owns_time = True
     robot: SimRobot  # Hal's optional capability: the truth behind the readings
 
-    def __init__(self, robot: SimRobot, paced: bool = False, drive_timeout_s: float | None = 0.1) -> None:
+    def __init__(self, robot: SimRobot, paced: bool = False, drive_timeout_s: float | None = 0.1,
+                 wiring: WiringFaults | None = None) -> None:
         if drive_timeout_s is not None and not (math.isfinite(drive_timeout_s) and drive_timeout_s > 0):
             raise ValueError(f"drive_timeout_s: expected None or a positive number, got {drive_timeout_s!r}")
         self.robot = robot
@@ -49,6 +52,7 @@ class SimHal(Hal):
         self._last_drive_t = robot.t
         self._driving = False  # a nonzero command is in force (the watchdog can trip)
         self.watchdog_trips = 0
+        self.wiring = wiring if wiring is not None and wiring.faulty else None  # None: wired right
 
     @classmethod
     def from_params(cls, params: RobotParams, motor_l: MotorParams | None = None,
@@ -129,11 +133,16 @@ class SimHal(Hal):
             return Sample(t=last.t, encoder_count=last.encoder_count, gyro_z_raw=last.gyro_z_raw,
                           fresh=False, faults="sensors frozen (injected)")
         self._last_sample = Sample(t=t, encoder_count=self.robot.read_encoder(), gyro_z_raw=self.robot.read_gyro_raw())
+        if self.wiring is not None:
+            s = self._last_sample
+            s.encoder_count, s.gyro_z_raw = self.wiring.encoder(s.encoder_count), self.wiring.gyro(s.gyro_z_raw)
         return self._last_sample
 
     def _write(self, duty_l: float, duty_r: float) -> None:
         if self._closed:
             raise HalIOError("SimHal.write: the HAL is closed")
+        if self.wiring is not None:
+            duty_l, duty_r = self.wiring.motors(duty_l, duty_r)
         self.robot.command(duty_l, duty_r)
         self._last_drive_t = self.robot.t
         self._driving = duty_l != 0.0 or duty_r != 0.0

@@ -49,6 +49,18 @@ class GyroTruth:
 
 
 @dataclass(frozen=True)
+class SimWiring:
+    """Fault injection: the simulated robot wired wrongly (what `ddrt commission` finds and
+    fixes in hal.wiring). All false: wired right (today's robot)."""
+
+    left_motor_reversed: bool = False  # the left motor turns backwards for a forward duty
+    right_motor_reversed: bool = False
+    motors_swapped: bool = False  # the left duty drives the right motor and the other way
+    encoder_reversed: bool = False  # the front encoder counts down going forward
+    gyro_upside_down: bool = False  # the gyro's z axis points down: yaw rate reads negated
+
+
+@dataclass(frozen=True)
 class SimConfig:
     """The simulated robot's own settings (the plant's truth beyond its parameters)."""
 
@@ -64,6 +76,7 @@ class SimConfig:
     sensors_freeze_after_s: float | None = None  # fault injection: no fresh samples after this
     sensors_freeze_for_s: float | None = None  # ... for this long (None: for good)
     start_delay_s: float = 2.0  # `ddrt sim`: stand still this long after calibration (bias settles)
+    wiring: SimWiring = field(default_factory=SimWiring)  # fault injection: miswired motors and sensors
 
     def validate(self, where: str) -> None:
         positive(where, step_hz=self.step_hz)
@@ -166,6 +179,25 @@ class PwmSysfsConfig:
 
 
 @dataclass(frozen=True)
+class WiringConfig:
+    """How the robot's motors and sensors are wired, fixed in software (hal/wiring.py applies
+    it to every backend's reads and writes); `ddrt commission` measures it. The defaults are
+    a robot wired as documented (docs/hardware.md)."""
+
+    motor_left_inverted: bool = False  # the left wheel's motor turns backwards for a forward duty
+    motor_right_inverted: bool = False
+    motors_swapped: bool = False  # the left wheel's motor is on the right output
+    encoder_sign: Literal[1, -1] = 1  # -1: the front encoder counts down going forward
+    gyro_sign: Literal[1, -1] = 1  # -1: the gyro is mounted upside down (z axis down)
+
+    @property
+    def identity(self) -> bool:
+        """True when nothing needs fixing (no wrapper is put around the backend)."""
+        return (not self.motor_left_inverted and not self.motor_right_inverted and not self.motors_swapped
+                and self.encoder_sign == 1 and self.gyro_sign == 1)
+
+
+@dataclass(frozen=True)
 class HalConfig:
     """Which backend drives the robot, and the real backend's devices."""
 
@@ -177,6 +209,7 @@ class HalConfig:
     bridge: BridgeConfig = field(default_factory=BridgeConfig)
     pwm_sysfs: PwmSysfsConfig = field(default_factory=PwmSysfsConfig)
     hold_ticks: int | None = None  # None: hold a stale value as long as hal.bridge.state_stale_s allows
+    wiring: WiringConfig = field(default_factory=WiringConfig)  # motor and sensor directions, fixed in software
 
     def validate(self, where: str) -> None:
         if self.hold_ticks is not None:
