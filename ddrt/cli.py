@@ -381,17 +381,11 @@ def _ask(prompt: str, what: str, tries: int = 5) -> float:
 
 def _cmd_commission(args: argparse.Namespace) -> int:
     """`ddrt commission`: the guided steps of ddrt/commission (docs/commissioning.md)."""
-    from ddrt.commission import commission, paths_for
-    from ddrt.commission.answers import Answers, load_answers
-    from ddrt.commission.session import DEFAULT_NOISE, Options, Session
-    from ddrt.commission.state import State
-    from ddrt.config import load_config
-
     from ddrt.calibrate import parse_area
+    from ddrt.commission import commission, session_for
+    from ddrt.commission.answers import load_answers
+    from ddrt.commission.session import DEFAULT_NOISE, Options
 
-    cfg = load_config(args.config)
-    if args.from_sim_truth and cfg.hal.backend != "sim":
-        raise ValueError("--from-sim-truth: only with hal.backend: sim (it reads the simulated robot's true pose)")
     if args.measurement_noise is not None and not args.from_sim_truth:
         raise ValueError("--measurement-noise: only with --from-sim-truth")
     noise = DEFAULT_NOISE
@@ -410,16 +404,12 @@ def _cmd_commission(args: argparse.Namespace) -> int:
     given = load_answers(args.answers) if args.answers else {}
     opts = Options(out=out, area=parse_area(args.area) if args.area else None, from_sim_truth=args.from_sim_truth,
                    noise_mm_deg=noise, turns=args.turns, distance_m=args.distance, check=not args.no_check)
-    state = State(paths_for(out)[0], str(Path(args.config).resolve()))
-    session = Session(cfg, args.config, opts, Answers(given, yes=args.yes), state)
+    session = session_for(args.config, opts, given, yes=args.yes)
     outcome = commission(session, args.step)
-    if outcome.skipped:
-        print(f"resumed: {', '.join(outcome.skipped)} already done ({state.path}); --step NAME re-runs one",
-              file=sys.stderr)
     if outcome.config_file is not None:
         print(f"wrote {outcome.config_file} and {outcome.report}")
     else:
-        print(f"done: {', '.join(outcome.ran)} (stored in {state.path})")
+        print(f"done: {', '.join(outcome.ran)} (stored in {session.state.path})")
     return 0
 
 

@@ -13,11 +13,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from ddrt.commission.session import STEPS, CommissionError, Options, Session, Stopped
 
-__all__ = ["STEPS", "CommissionError", "Options", "Outcome", "Stopped", "commission", "paths_for"]
+__all__ = ["STEPS", "CommissionError", "Options", "Outcome", "Stopped", "commission", "paths_for", "session_for"]
 
 
 @dataclass
@@ -32,6 +32,20 @@ class Outcome:
 def paths_for(out_file: Path) -> tuple[Path, Path]:
     """The state file and the report folder that go with the output config."""
     return out_file.with_name(out_file.stem + ".state.json"), out_file.with_name(out_file.stem + "-report")
+
+
+def session_for(config_path: str | Path, opts: Options, given: dict[str, Any] | None = None, yes: bool = False,
+                ask: Callable[[str], str] | None = None, out: Any = None) -> Session:
+    """A session over the config file, its answers and the state file beside `opts.out`."""
+    from ddrt.commission.answers import Answers
+    from ddrt.commission.state import State
+    from ddrt.config import load_config
+
+    cfg = load_config(config_path)
+    if opts.from_sim_truth and cfg.hal.backend != "sim":
+        raise CommissionError("--from-sim-truth: only with hal.backend: sim (it reads the simulated robot's true pose)")
+    state = State(paths_for(opts.out)[0], str(Path(config_path).resolve()))
+    return Session(cfg, str(config_path), opts, Answers(given, yes=yes, ask=ask, out=out), state)
 
 
 def _step_module(name: str) -> Any:
@@ -49,6 +63,8 @@ def commission(session: Session, step: str | None = None) -> Outcome:
         if step is not None and name != step:
             continue
         if step is None and session.state.done(name):
+            session.say(f"== {name}: done before ({session.state.steps[name]['finished']}), skipped; "
+                        f"--step {name} runs it again")
             skipped.append(name)
             continue
         session.say(f"== {name}")
