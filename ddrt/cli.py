@@ -400,10 +400,13 @@ def _cmd_commission(args: argparse.Namespace) -> int:
         raise ValueError(f"--turns: 1 to 20, got {args.turns}")
     if not 0.2 <= args.distance <= 10.0:
         raise ValueError(f"--distance: 0.2 to 10 m, got {args.distance:g}")
+    if args.umbmark is not None and not 0.3 <= args.umbmark <= 10.0:
+        raise ValueError(f"--umbmark: a square's side of 0.3 to 10 m, got {args.umbmark:g}")
     out = Path(args.out or f"{Path(args.config).stem}.commissioned.yaml")
     given = load_answers(args.answers) if args.answers else {}
     opts = Options(out=out, area=parse_area(args.area) if args.area else None, from_sim_truth=args.from_sim_truth,
-                   noise_mm_deg=noise, turns=args.turns, distance_m=args.distance, check=not args.no_check)
+                   noise_mm_deg=noise, turns=args.turns, distance_m=args.distance, check=not args.no_check,
+                   umbmark_side_m=args.umbmark)
     session = session_for(args.config, opts, given, yes=args.yes)
     outcome = commission(session, args.step)
     if outcome.config_file is not None:
@@ -508,6 +511,8 @@ def build_parser() -> argparse.ArgumentParser:
     com.add_argument("--yes", action="store_true", help="skip confirmations (never measurements), for scripts")
     com.add_argument("--turns", type=int, default=5, help="odometry: full turns in place (default 5)")
     com.add_argument("--distance", type=float, default=1.0, help="odometry: straight distance in m (default 1)")
+    com.add_argument("--umbmark", type=float, metavar="SIDE", help="odometry: also drive a SIDE m square both ways "
+                                                                     "(UMBmark) and measure where each ends")
     com.add_argument("--no-check", action="store_true", help="result: no check path at the end")
     com.set_defaults(func=_cmd_commission)
     return parser

@@ -262,3 +262,53 @@ def test_the_cli_writes_config_and_report(tmp_path: Path, capsys: pytest.Capture
     assert load_config(out).hal.wiring.encoder_sign == 1
     assert main(["commission", str(SIM), "--out", str(out), "--measurement-noise", "1,1"]) == 2
     assert "--measurement-noise: only with --from-sim-truth" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------- UMBmark
+
+
+def test_umbmark_model_closes_and_opens_as_derived() -> None:
+    from ddrt.commission.umbmark import fit_scale, predicted_end
+
+    for d in (-1, 1):
+        assert predicted_end(1.0, 1.01, 2.0, d) == pytest.approx((0.0, 0.0), abs=1e-12)
+        h = 1e-6  # the derivative at k = 1 against the closed form c S (-pi, d pi)
+        (x1, y1), (x0, y0) = predicted_end(1.0 + h, 1.01, 2.0, d), predicted_end(1.0 - h, 1.01, 2.0, d)
+        assert ((x1 - x0) / (2 * h), (y1 - y0) / (2 * h)) == pytest.approx((-math.pi * 2.02, d * math.pi * 2.02),
+                                                                            rel=1e-6)
+    cw, ccw = predicted_end(1.02, 1.0, 1.5, -1), predicted_end(1.02, 1.0, 1.5, 1)
+    k, res = fit_scale(1.5, 1.0, cw, ccw)
+    assert k == pytest.approx(1.02, abs=1e-7) and res < 1e-7
+
+
+def test_umbmark_weighs_in_with_the_turns(tmp_path: Path) -> None:
+    src = _config(tmp_path, sim={"gyro": {"scale_error": -0.025}})
+    session = session_for(src, Options(out=tmp_path / "o.yaml", from_sim_truth=True, figures=False,
+                                       umbmark_side_m=0.8), yes=True, out=io.StringIO())
+    commission(session, step="odometry")
+    o = session.state.get("odometry")
+    u = o["umbmark"]
+    assert u["gyro_scale"] == pytest.approx(0.975, abs=4 * u["k_rel_uncertainty"])
+    lo, hi = sorted((u["gyro_scale"], u["turns_gyro_scale"]))
+    assert lo <= o["gyro_scale"] <= hi and o["gyro_scale_rel_uncertainty"] < u["k_rel_uncertainty"]
+
+
+def test_the_emergency_stop_input_stops_a_pulse(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A sample that says the hardware estop is open (issue 23's Sample.hw_estop) ends the pulse."""
+
+    class Pressed(Sample):
+        hw_estop = True
+
+    reads = [0]
+    real_read = SimHal.read
+
+    def read(self: SimHal) -> Sample:
+        s = real_read(self)
+        reads[0] += 1
+        return Pressed(s.t, s.encoder_count, s.gyro_z_raw) if reads[0] >= 130 else s
+
+    monkeypatch.setattr(SimHal, "read", read)
+    session = _session(_config(tmp_path), tmp_path / "o.yaml")
+    with pytest.raises(Stopped, match="emergency stop is pressed"):
+        commission(session, step="wiring")
+    assert not session.state.done("wiring")

@@ -9,6 +9,9 @@ estimated turn is the gyro's integral / gyro_scale, so the scale goes with estim
 measured turn. A tape read to +-2 mm over 1 m gives r_3 to 0.2 %; a protractor read to
 +-0.5 deg over 5 turns gives the scale to 0.03 %.
 
+`--umbmark SIDE` also drives a square both ways (umbmark.py) and weighs its gyro scale with the
+turns' one.
+
 On the simulator `--from-sim-truth` reads the plant's true pose instead, plus the noise of a
 tape and a protractor (`--measurement-noise MM,DEG`, default 2 mm and 0.5 deg, one sigma).
 """
@@ -96,6 +99,19 @@ def run(session: Session) -> dict[str, Any]:
     tape_m, prot_deg = session.opts.noise_mm_deg[0] * 1e-3, session.opts.noise_mm_deg[1]
     r_3 = cfg.robot.r_3 * d_ratio
     scale = cfg.estimator.gyro_scale * t_ratio
+    scale_rel = math.radians(prot_deg) / turn
+    umb = None
+    if session.opts.umbmark_side_m:
+        from ddrt.commission import umbmark
+
+        umb = umbmark.run(session, cfg, session.opts.umbmark_side_m, d_ratio)
+        # Both estimates of the scale, weighted by what one reading's uncertainty implies.
+        w_turn, w_umb = scale_rel ** -2, umb["k_rel_uncertainty"] ** -2
+        scale_umb = cfg.estimator.gyro_scale * umb["k"]
+        umb["gyro_scale"] = scale_umb
+        umb["turns_gyro_scale"] = scale
+        scale = (w_turn * scale + w_umb * scale_umb) / (w_turn + w_umb)
+        scale_rel = (w_turn + w_umb) ** -0.5
     out = {
         "config": {"robot": {"r_3": float(f"{r_3:.6g}")}, "estimator": {"gyro_scale": float(f"{scale:.6g}")}},
         "source": source, "distance_cmd_m": d, "turns": n,
@@ -105,7 +121,8 @@ def run(session: Session) -> dict[str, Any]:
         "true_turn_deg": None if run_["true_turn_rad"] is None else math.degrees(run_["true_turn_rad"]),
         "r_3_before": cfg.robot.r_3, "r_3": r_3, "gyro_scale_before": cfg.estimator.gyro_scale, "gyro_scale": scale,
         # What one reading's uncertainty implies (one sigma, relative).
-        "r_3_rel_uncertainty": tape_m / dist, "gyro_scale_rel_uncertainty": math.radians(prot_deg) / turn,
+        "r_3_rel_uncertainty": tape_m / dist, "gyro_scale_rel_uncertainty": scale_rel,
+        "umbmark": umb,
     }
     session.say(f"odometry: r_3 {cfg.robot.r_3:.5f} -> {r_3:.5f} m (+-{100 * out['r_3_rel_uncertainty']:.2f}%), "
                 f"gyro_scale {cfg.estimator.gyro_scale:.5f} -> {scale:.5f} "

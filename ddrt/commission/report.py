@@ -39,16 +39,23 @@ def _figures(session: Session, check: dict[str, Any] | None, folder: Path) -> li
         names.append("wiring.png")
     if check and check.get("trace"):
         tr = check["trace"]
-        fig, ax = plt.subplots(figsize=(6, 4), constrained_layout=True)
+        fig, (ax, ax2) = plt.subplots(1, 2, figsize=(10, 3.6), constrained_layout=True)
         ax.plot([r[0] for r in tr], [r[1] for r in tr], "k-", lw=0.8, label="reference")
         ax.plot([r[2] for r in tr], [r[3] for r in tr], "b-", lw=0.8, label="estimate")
+        k = range(len(tr))
+        ax2.plot(k, [1e3 * math.hypot(r[2] - r[0], r[3] - r[1]) for r in tr], "b-", lw=0.8, label="estimate")
         if not math.isnan(tr[0][4]):
             ax.plot([r[4] for r in tr], [r[5] for r in tr], "r--", lw=0.8, label="truth (simulation)")
+            ax2.plot(k, [1e3 * math.hypot(r[4] - r[0], r[5] - r[1]) for r in tr], "r-", lw=0.8, label="truth")
         ax.set_aspect("equal")
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
         ax.set_title("check path with the commissioned config")
         ax.legend(fontsize=7)
+        ax2.set_xlabel("sample (every 10th tick)")
+        ax2.set_ylabel("distance to the reference point (mm)")
+        ax2.set_title("tracking error")
+        ax2.legend(fontsize=7)
         fig.savefig(folder / "check.png", dpi=90)
         plt.close(fig)
         names.append("check.png")
@@ -111,6 +118,14 @@ def write_report(session: Session, folder: Path, config_file: Path, check: dict[
                   f"| robot.r_3 (m) | {o['r_3_before']:.5f} | {o['r_3']:.5f} | {100 * o['r_3_rel_uncertainty']:.2f} % |",
                   f"| estimator.gyro_scale | {o['gyro_scale_before']:.5f} | {o['gyro_scale']:.5f} | "
                   f"{100 * o['gyro_scale_rel_uncertainty']:.3f} % |"]
+        u = o.get("umbmark")
+        if u:
+            lines += ["", f"UMBmark, a {u['side_m']:g} m square both ways: ends at ({1e3 * u['cw_end_m'][0]:+.1f}, "
+                      f"{1e3 * u['cw_end_m'][1]:+.1f}) mm clockwise and ({1e3 * u['ccw_end_m'][0]:+.1f}, "
+                      f"{1e3 * u['ccw_end_m'][1]:+.1f}) mm counter-clockwise (ahead, left); gyro scale "
+                      f"{u['gyro_scale']:.5f} +- {100 * u['k_rel_uncertainty']:.3f} % from it, {u['turns_gyro_scale']:.5f} "
+                      f"from the turns, weighted together as above; {1e3 * u['residual_m']:.1f} mm rms the scale "
+                      "does not explain."]
     if check:
         lines += ["", "## Check", "",
                   f"A {check['path_m']:.1f} m, {check['path_s']:.0f} s figure-eight with the commissioned config: "
