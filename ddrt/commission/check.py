@@ -29,7 +29,7 @@ def run(session: Session, cfg: Config) -> dict[str, Any]:
     trace: list[tuple[float, float, float, float, float, float]] = []
     start = path.start_pose  # a simulated robot starts there too, so truth and estimate share a frame
     with session.robot(cfg, start=start) as hal:
-        loop, clock = cal._start(cfg, hal)
+        loop, clock = cal.start_loop(cfg, hal)
         truth = hal.robot
         p0 = truth.pose if truth is not None else None
 
@@ -49,10 +49,10 @@ def run(session: Session, cfg: Config) -> dict[str, Any]:
         loop.on_tick = record
         loop.follow(path, start)
         try:
-            cal._drive(loop, clock, path.duration + 15.0)
+            cal.run_until_stopped(loop, clock, path.duration + 15.0)
         except cal.CalibrationRunError as exc:
             raise CommissionError(f"check: {exc}") from None
-        cal._settle(loop, clock)
+        cal.settle(loop, clock)
         p1 = truth.pose if truth is not None else None
     out: dict[str, Any] = {"path_s": path.duration, "path_m": path.length,
                            "est_rms_mm": 1e3 * math.sqrt(est_sq / max(n, 1)),

@@ -45,7 +45,7 @@ def next_step(message: str) -> str:
 def run(session: Session) -> dict[str, Any]:
     cfg = session.config("link")
     session.say("link: opening the robot's devices (the microcontroller's HELLO, the gyro's WHO_AM_I)")
-    from ddrt.calibrate import _clock
+    from ddrt.calibrate import clock_for
 
     period = 1.0 / cfg.controller.rate_hz
     n = int(round(1.0 / period))
@@ -55,7 +55,7 @@ def run(session: Session) -> dict[str, Any]:
     try:
         with session.robot(cfg) as hal:
             info = hal.info
-            clock = _clock(hal)
+            clock = clock_for(hal)
             t0 = clock.now()
             for i in range(n):
                 clock.sleep_until(t0 + (i + 1) * period)

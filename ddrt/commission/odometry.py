@@ -34,20 +34,20 @@ def drive(cfg: Config, hal: Hal, distance: float, turns: int) -> dict[str, float
     from ddrt.path import load_path
     from ddrt.path.spec import speed_limits
 
-    loop, clock = cal._start(cfg, hal)
+    loop, clock = cal.start_loop(cfg, hal)
     truth = hal.robot
     true0 = truth.pose if truth is not None else None
     limits = speed_limits(cfg)
     line = load_path({"shape": "line", "length": distance, "speed": min(0.3, limits.v_max)}, limits, paths=cfg.paths)
     loop.follow(line, (0.0, 0.0, 0.0))
-    cal._drive(loop, clock, line.duration + 15.0)
-    cal._settle(loop, clock)
+    cal.run_until_stopped(loop, clock, line.duration + 15.0)
+    cal.settle(loop, clock)
     x1, y1, th1 = loop.estimator_pose()
     spin = cal.SpinReference((x1, y1, th1), 2.0 * math.pi * turns, min(1.5, cfg.limits.omega_max),
                              min(3.0, cfg.limits.alpha_max), loop.period)
     loop.follow_reference(spin)
-    cal._drive(loop, clock, spin.turn.t_end + 15.0)
-    cal._settle(loop, clock)
+    cal.run_until_stopped(loop, clock, spin.turn.t_end + 15.0)
+    cal.settle(loop, clock)
     x2, y2, th2 = loop.estimator_pose()
     out: dict[str, float | None] = {"est_distance_m": math.hypot(x2, y2), "est_turn_rad": th2,
                                     "true_distance_m": None, "true_turn_rad": None}

@@ -65,15 +65,15 @@ def _square(session: Session, cfg: Any, side: float, direction: int) -> tuple[fl
     path = load_path({"shape": "rectangle", "width": side, "height": side, "direction": "ccw" if direction > 0 else "cw",
                       "speed": min(0.3, limits.v_max)}, limits, paths=cfg.paths)
     with session.robot(cfg) as hal:
-        loop, clock = cal._start(cfg, hal)
+        loop, clock = cal.start_loop(cfg, hal)
         truth = hal.robot
         p0 = truth.pose if truth is not None else None
         loop.follow(path, (0.0, 0.0, 0.0))
         try:
-            cal._drive(loop, clock, path.duration + 15.0)
+            cal.run_until_stopped(loop, clock, path.duration + 15.0)
         except cal.CalibrationRunError as exc:
             raise CommissionError(f"odometry (UMBmark): {exc}") from None
-        cal._settle(loop, clock)
+        cal.settle(loop, clock)
         p1 = truth.pose if truth is not None else None
     if session.opts.from_sim_truth and p0 is not None and p1 is not None:
         dx, dy = p1[0] - p0[0], p1[1] - p0[1]
@@ -82,8 +82,8 @@ def _square(session: Session, cfg: Any, side: float, direction: int) -> tuple[fl
         ey, _ = session.truth_noise()
         return c0 * dx + s0 * dy + ex, -s0 * dx + c0 * dy + ey
     key = "odometry.umbmark_ccw_mm" if direction > 0 else "odometry.umbmark_cw_mm"
-    x, y = session.answers.value(key, f"  Where is the middle of the rear axle now, from the mark: how far ahead "
-                                      f"along the heading line and how far to its left (mm, e.g. 12,-30)? ")
+    x, y = session.answers.value(key, "  Where is the middle of the rear axle now, from the mark: how far ahead "
+                                      "along the heading line and how far to its left (mm, e.g. 12,-30)? ")
     return 1e-3 * x, 1e-3 * y
 
 

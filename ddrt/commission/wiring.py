@@ -168,10 +168,10 @@ def run(session: Session) -> dict[str, Any]:
         "wiring: each motor output is pulsed alone at low duty, ramped up until the robot moves 1-2 cm or 5 degrees.\n"
         "  Put the robot on the floor with 30 cm free around it, wheels touching the ground, motor power ON.\n"
         "  Watch the wheels: you will be asked which one turned and which way. Ctrl-C stops the motors at once.")
-    from ddrt.calibrate import _clock
+    from ddrt.calibrate import clock_for
 
     with session.robot(raw_cfg) as hal:
-        clock = _clock(hal)
+        clock = clock_for(hal)
         a = pulse(hal, clock, raw_cfg, "left", duty_max)
         if not a.moved:
             raise CommissionError(
@@ -193,7 +193,7 @@ def run(session: Session) -> dict[str, Any]:
     fix = derive(a, b, seen)
     fixed_cfg = session.config("wiring", extra={"hal": {"wiring": fix}})
     with session.robot(fixed_cfg) as hal:  # the check: through the fix, each wheel as documented
-        clock = _clock(hal)
+        clock = clock_for(hal)
         ca = pulse(hal, clock, fixed_cfg, "left", duty_max)
         cb = pulse(hal, clock, fixed_cfg, "right", duty_max)
     ok = (ca.moved and cb.moved and ca.distance_m > 0 and ca.angle_rad < 0 and cb.distance_m > 0
