@@ -312,3 +312,50 @@ def test_the_emergency_stop_input_stops_a_pulse(tmp_path: Path, monkeypatch: pyt
     with pytest.raises(Stopped, match="emergency stop is pressed"):
         commission(session, step="wiring")
     assert not session.state.done("wiring")
+
+
+# --------------------------------------------------------------------------- link
+
+
+@pytest.mark.parametrize("message, hint", [
+    ("/dev/ttyACM0: cannot open serial port: [Errno 13] could not open port /dev/ttyACM0: [Errno 13] Permission "
+     "denied: '/dev/ttyACM0'", "dialout group"),
+    ("/dev/ttyACM3: cannot open serial port: [Errno 2] could not open port /dev/ttyACM3: [Errno 2] No such file or "
+     "directory", "ls /dev/ttyACM*"),
+    ("/dev/i2c-7: cannot open I2C bus: [Errno 2] No such file or directory: '/dev/i2c-7'", "hal.imu.bus"),
+    ("i2c-1@0x68: WHO_AM_I (0x75) read 0x70, expected 0x68 (wrong part or address?)", "hal.imu.address"),
+    ("/dev/ttyUSB0: no HELLO_REPLY within 2 s (is the microcontroller powered and running protocol v1 firmware?)",
+     "flashed with the ddrt bridge firmware"),
+    ("something else entirely", "docs/hardware.md"),
+])
+def test_a_link_failure_says_what_to_do_next(message: str, hint: str) -> None:
+    from ddrt.commission.link import next_step
+
+    assert hint in next_step(message)
+
+
+def test_the_link_step_on_the_emulated_devices(tmp_path: Path) -> None:
+    src = _config(tmp_path, hal={"backend": "real", "imu": {"bus": "sim"}, "bridge": {"url": "ddrtsim://commission"}})
+    session = _session(src, tmp_path / "o.yaml")
+    commission(session, step="link")
+    link = session.state.get("link")
+    assert link["backend"] == "emulated" and link["protocol_version"] == 1
+    assert link["fresh_fraction"] > 0.5 and link["gyro_raw_span"] > 0
+
+
+def test_a_changed_config_is_said_and_a_foreign_state_refused(tmp_path: Path) -> None:
+    src = _config(tmp_path)
+    out = tmp_path / "o.yaml"
+    commission(_session(src, out), step="link")
+    src.write_text(src.read_text() + "sim: {seed: 7}\n")
+    said = io.StringIO()
+    s = session_for(src, Options(out=out, from_sim_truth=True), yes=True, out=said)
+    commission(s, step="link")
+    assert "changed since the stored steps ran" in said.getvalue()
+    other = tmp_path / "other.yaml"
+    other.write_text(src.read_text())
+    with pytest.raises(ValueError, match="belongs to the commissioning of"):
+        session_for(other, Options(out=out), yes=True)
+    paths_for(out)[0].write_text("{not json")
+    with pytest.raises(ValueError, match="not a commissioning state"):
+        session_for(src, Options(out=out), yes=True)

@@ -41,10 +41,17 @@ def session_for(config_path: str | Path, opts: Options, given: dict[str, Any] | 
     from ddrt.commission.state import State
     from ddrt.config import load_config
 
+    from hal.registry import backend_name
+
     cfg = load_config(config_path)
-    if opts.from_sim_truth and cfg.hal.backend != "sim":
-        raise CommissionError("--from-sim-truth: only with hal.backend: sim (it reads the simulated robot's true pose)")
-    state = State(paths_for(opts.out)[0], str(Path(config_path).resolve()))
+    if opts.from_sim_truth and backend_name(cfg) == "real":
+        raise CommissionError("--from-sim-truth: only on a simulated robot (hal.backend: sim, or the emulated devices "
+                              "hal.imu.bus: sim): it reads the plant's true pose")
+    import hashlib
+    import json
+
+    digest = hashlib.sha256(json.dumps(cfg.raw, sort_keys=True, default=str).encode()).hexdigest()[:16]
+    state = State(paths_for(opts.out)[0], str(Path(config_path).resolve()), digest)
     return Session(cfg, str(config_path), opts, Answers(given, yes=yes, ask=ask, out=out), state)
 
 
@@ -59,6 +66,9 @@ def commission(session: Session, step: str | None = None) -> Outcome:
     if step is not None and step not in STEPS:
         raise CommissionError(f"--step: unknown step {step!r} (steps: {', '.join(STEPS)})")
     ran, skipped = [], []
+    if session.state.stale:
+        session.say(f"note: {session.config_path} changed since the stored steps ran ({session.state.path}); they are "
+                    "kept: run a step again with --step NAME, or remove that file to start over")
     for name in STEPS[:-1]:
         if step is not None and name != step:
             continue

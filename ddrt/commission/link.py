@@ -15,7 +15,13 @@ from typing import Any
 from ddrt.commission.session import CommissionError, Session
 from hal.base import HalError
 
-HINTS = (  # (text in the error, what to do next)
+HINTS = (  # (text in the error, what to do next): the gyro's first (a missing I2C bus is "no such file" too)
+    ("who_am_i", "the gyro answers with the wrong identity: check hal.imu.address (0x68, or 0x69 with AD0 high) and "
+                 "the wiring SDA, SCL, VCC, GND (docs/hardware.md)"),
+    ("no answer during set-up", "the gyro does not answer: check its wiring SDA, SCL, VCC, GND and hal.imu.address "
+                                "(`i2cdetect -y 1` should show 0x68)"),
+    ("i2c bus", "the gyro's I2C bus cannot be used: check hal.imu.bus (1 is /dev/i2c-1), that I2C is enabled "
+            "(raspi-config), and permissions on /dev/i2c-* (the i2c group)"),
     ("permission denied", "the port is not yours: add yourself to the dialout group (sudo usermod -aG dialout "
                           "$USER, then log in again) or install the udev rule of docs/deploy.md"),
     ("no such file", "no such port: plug the microcontroller in, look at `ls /dev/ttyACM* /dev/ttyUSB*` and set "
@@ -25,12 +31,6 @@ HINTS = (  # (text in the error, what to do next)
                     "(firmware/, docs/hardware.md), and is hal.bridge.url its port (not another USB serial device)?"),
     ("protocol version", "the firmware speaks another protocol version: flash firmware/ from this ddrt (docs/hardware.md)"),
     ("streams state", "the firmware streams STATE too slowly: flash firmware/ from this ddrt"),
-    ("i2c", "the gyro's I2C bus cannot be used: check hal.imu.bus (1 is /dev/i2c-1), that I2C is enabled "
-            "(raspi-config), and permissions on /dev/i2c-* (the i2c group)"),
-    ("who_am_i", "the gyro answers with the wrong identity: check hal.imu.address (0x68, or 0x69 with AD0 high) and "
-                 "the wiring SDA, SCL, VCC, GND (docs/hardware.md)"),
-    ("no answer during set-up", "the gyro does not answer: check its wiring SDA, SCL, VCC, GND and hal.imu.address "
-                                "(`i2cdetect -y 1` should show 0x68)"),
 )
 
 
@@ -68,11 +68,15 @@ def run(session: Session) -> dict[str, Any]:
                     volts.append(v)
     except (HalError, OSError) as exc:
         raise CommissionError(f"link: {' '.join(str(exc).split())}. Next: {next_step(str(exc))}") from None
-    bridge = getattr(hal, "encoder", None)  # RealHal's bridge, when the encoder comes from one
+    from hal.registry import backend_name
+    from hal.wire import PROTOCOL_VERSION
+
+    name = backend_name(cfg)
     result: dict[str, Any] = {
-        "backend": cfg.hal.backend,
-        "protocol_version": getattr(bridge, "protocol_version", None),
-        "state_rate_hz": getattr(bridge, "state_rate_hz", None),
+        "backend": name,
+        # The bridge refuses any other version at HELLO, so an open bridge speaks this one.
+        "protocol_version": PROTOCOL_VERSION if name != "sim" else None,
+        "fresh_rate_hz": fresh,
         "fresh_fraction": fresh / n,
         "gyro_raw_span": max(raws) - min(raws),
         "encoder_counts_per_rev": info.encoder_counts_per_rev,
@@ -86,7 +90,7 @@ def run(session: Session) -> dict[str, Any]:
         session.notes.append("link: the gyro's reading did not change at all in one second (a real gyro is never "
                              "that quiet): check that it is configured (hal.imu)")
     session.say(f"link: ok ({fresh}/{n} fresh readings in 1 s"
-                + (f", protocol v{result['protocol_version']}, STATE at {result['state_rate_hz']} Hz"
+                + (f", protocol v{result['protocol_version']} checked at HELLO"
                    if result["protocol_version"] is not None else "")
                 + (f", supply {result['battery_v']:.2f} V" if result["battery_v"] is not None else
                    ", supply not measured") + ")")

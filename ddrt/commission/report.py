@@ -75,7 +75,7 @@ def write_report(session: Session, folder: Path, config_file: Path, check: dict[
     if link:
         lines += ["", "## Link", "",
                   f"Backend `{link['backend']}`; {link['fresh_fraction']:.0%} of readings fresh at the loop's rate; "
-                  + (f"protocol v{link['protocol_version']}, STATE at {link['state_rate_hz']} Hz; "
+                  + (f"protocol v{link['protocol_version']} (checked at HELLO); "
                      if link.get("protocol_version") is not None else "")
                   + (f"supply {link['battery_v']:.2f} V." if link.get("battery_v") is not None
                      else "supply voltage not measured by this driver.")]

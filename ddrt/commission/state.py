@@ -30,9 +30,11 @@ def _finite(value: Any) -> Any:
 class State:
     """Step name -> its result (a JSON mapping with the time it finished)."""
 
-    def __init__(self, path: Path, config: str) -> None:
+    def __init__(self, path: Path, config: str, digest: str = "") -> None:
         self.path = path
         self.config = config
+        self.digest = digest  # of the input config's content: a stored step of another content is stale
+        self.stored_digest = digest
         self.steps: dict[str, dict[str, Any]] = {}
         if path.exists():
             try:
@@ -45,6 +47,7 @@ class State:
                 raise StateError(f"{path}: belongs to the commissioning of {data.get('config')!r}, not {config!r}; "
                                  "give another --out or remove it")
             self.steps = data["steps"]
+            self.stored_digest = str(data.get("digest", ""))
 
     def done(self, step: str) -> bool:
         return step in self.steps
@@ -57,9 +60,11 @@ class State:
         self.steps[step] = dict(_finite(result), finished=time.strftime("%Y-%m-%d %H:%M:%S %Z"))
         self.path.parent.mkdir(parents=True, exist_ok=True)
         tmp = self.path.with_suffix(".tmp")
-        tmp.write_text(json.dumps({"config": self.config, "steps": self.steps}, indent=2, sort_keys=True) + "\n",
+        tmp.write_text(json.dumps({"config": self.config, "digest": self.digest, "steps": self.steps}, indent=2, sort_keys=True) + "\n",
                        encoding="utf-8")
         os.replace(tmp, self.path)
 
-    def forget(self, step: str) -> None:
-        self.steps.pop(step, None)
+    @property
+    def stale(self) -> bool:
+        """The input config changed since the stored steps ran."""
+        return bool(self.steps) and self.stored_digest != self.digest

@@ -74,10 +74,10 @@ def pulse(hal: Hal, clock: Any, cfg: Config, output: str, duty_max: float) -> Pu
             hal.stop()
             raise Stopped("wiring: the robot's emergency stop is pressed: the motors are off; release it and "
                           "run the command again")
-        if duty == 0.0:
-            hal.write(0.0, 0.0)
+        if output == "left":
+            hal.write(duty, 0.0)
         else:
-            hal.write(duty, 0.0) if output == "left" else hal.write(0.0, duty)
+            hal.write(0.0, duty)
         return s
 
     # The gyro's bias first, standing still.
