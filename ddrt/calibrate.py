@@ -58,10 +58,9 @@ def run_until_stopped(loop: ControlLoop, clock: Any, limit_s: float) -> None:
             cause = loop.recovery.last_cause
             loop.estop("calibration run interrupted")
             raise CalibrationRunError(f"the calibration run was interrupted ({cause}): run it again")
-        if getattr(loop.sample, "hw_estop", False):  # issue 23's Sample.hw_estop; absent before it
-            loop.estop("emergency stop pressed")
-            raise CalibrationRunError("the robot's emergency stop is pressed: the motors are off; release it and "
-                                      "run again")
+        if loop.state == LoopState.ESTOP:  # the robot's emergency-stop input (ddrt/loop/power.py)
+            raise CalibrationRunError(f"the robot was stopped ({loop.fault}): the motors are off; release the "
+                                      "emergency stop and run again")
         if loop.state == LoopState.STOPPED:
             return
         if loop.state == LoopState.FAULT:

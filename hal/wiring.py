@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from ddrt.config.sections import WiringConfig
+from ddrt.config.wiring import WiringConfig
 from hal.base import Hal, Sample
 
 _INT16_MIN, _INT16_MAX = -32768, 32767

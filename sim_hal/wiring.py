@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ddrt.config.sections import SimWiring
+from ddrt.config.wiring import SimWiring
 
 
 def _neg32(count: int) -> int:

@@ -213,13 +213,32 @@ def test_a_measurement_more_than_20_percent_off_is_refused(tmp_path: Path) -> No
     assert o["gyro_scale"] == pytest.approx(o["est_turn_deg"] / (1800.3))
 
 
+def test_the_supply_reading_is_held_against_a_multimeter(tmp_path: Path) -> None:
+    src = _config(tmp_path)
+    out = tmp_path / "o.yaml"
+    commission(_session(src, out, truth=False), step="link")  # the simulated driver reads 12.00 V
+    with pytest.raises(ValueError, match="more than 20% apart"):
+        commission(_session(src, out, {"battery.multimeter_v": 15.5}, truth=False), step="rest")
+    s = _session(src, out, {"battery.multimeter_v": 12.5}, truth=False)
+    commission(s, step="rest")
+    r = s.state.get("rest")
+    assert r["battery_v"] == pytest.approx(12.0) and r["battery_ratio"] == pytest.approx(12.0 / 12.5)
+    assert any("divider" in n for n in s.notes)
+    no_battery = _config(tmp_path, sim={"battery_measured": False})
+    s = _session(no_battery, tmp_path / "n.yaml", truth=False)
+    commission(s, step="link")
+    commission(s, step="rest")
+    assert "skipped" in s.state.get("rest")["battery"]
+
+
 # --------------------------------------------------------------------------- resume, --step, result
 
 
 def test_resume_skips_finished_steps_and_step_reruns_one(tmp_path: Path) -> None:
     src = _config(tmp_path)
     out = tmp_path / "out" / "robot.yaml"
-    given = {"wiring.left_output_pulse": "left forward", "odometry.distance_m": 1.5, "odometry.turn_offset_deg": 0.0}
+    given = {"wiring.left_output_pulse": "left forward", "battery.multimeter_v": 12.02, "odometry.distance_m": 1.5,
+             "odometry.turn_offset_deg": 0.0}
     first = _session(src, out, given, truth=False)
     with pytest.raises(ValueError, match="refused"):
         commission(first)
@@ -293,25 +312,48 @@ def test_umbmark_weighs_in_with_the_turns(tmp_path: Path) -> None:
     assert lo <= o["gyro_scale"] <= hi and o["gyro_scale_rel_uncertainty"] < u["k_rel_uncertainty"]
 
 
+# --------------------------------------------------------------------------- emergency stop
+
+
 def test_the_emergency_stop_input_stops_a_pulse(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """A sample that says the hardware estop is open (issue 23's Sample.hw_estop) ends the pulse."""
-
-    class Pressed(Sample):
-        hw_estop = True
-
+    """The robot's emergency-stop input opening mid-pulse (Sample.hw_estop) ends the step, motors off."""
     reads = [0]
     real_read = SimHal.read
+    opened: list[SimHal] = []
 
     def read(self: SimHal) -> Sample:
-        s = real_read(self)
         reads[0] += 1
-        return Pressed(s.t, s.encoder_count, s.gyro_z_raw) if reads[0] >= 130 else s
+        if reads[0] == 130:
+            opened.append(self)
+            assert self.robot.applied_duty[0] > 0.0  # the left motor is driven
+            self.estop_input_open = True
+        return real_read(self)
 
     monkeypatch.setattr(SimHal, "read", read)
     session = _session(_config(tmp_path), tmp_path / "o.yaml")
     with pytest.raises(Stopped, match="emergency stop is pressed"):
         commission(session, step="wiring")
     assert not session.state.done("wiring")
+    robot = opened[0].robot
+    robot.advance_to(robot.t + 0.05)
+    assert robot.applied_duty == (0.0, 0.0)
+
+
+def test_the_emergency_stop_input_stops_a_driven_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Through the loop (ddrt/loop/power.py latches estop): the odometry run ends with a clear error."""
+    reads = [0]
+    real_read = SimHal.read
+
+    def read(self: SimHal) -> Sample:
+        reads[0] += 1
+        if reads[0] == 600:  # after the calibration at rest, on the straight
+            self.estop_input_open = True
+        return real_read(self)
+
+    monkeypatch.setattr(SimHal, "read", read)
+    session = _session(_config(tmp_path), tmp_path / "o.yaml")
+    with pytest.raises(ValueError, match="emergency stop"):
+        commission(session, step="odometry")
 
 
 # --------------------------------------------------------------------------- link

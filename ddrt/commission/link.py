@@ -63,9 +63,8 @@ def run(session: Session) -> dict[str, Any]:
                 hal.write(0.0, 0.0)
                 fresh += bool(s.fresh)
                 raws.append(s.gyro_z_raw)
-                v = getattr(s, "battery_v", math.nan)  # issue 23's Sample.battery_v; NaN: not measured
-                if isinstance(v, float) and math.isfinite(v):
-                    volts.append(v)
+                if info.battery_measured and math.isfinite(s.battery_v):
+                    volts.append(s.battery_v)
     except (HalError, OSError) as exc:
         raise CommissionError(f"link: {' '.join(str(exc).split())}. Next: {next_step(str(exc))}") from None
     from hal.registry import backend_name

@@ -66,8 +66,13 @@ def run(session: Session) -> dict[str, Any]:
         "  1. mark the floor under the middle of the rear axle (halfway between the drive wheels' contact points),\n"
         "  2. draw a straight line on the tape along the robot's side, showing where it faces.\n"
         f"  The robot drives {d:g} m straight ahead, stops, then turns {n} full turns counter-clockwise in place.")
+    from ddrt import calibrate as cal
+
     with session.robot(cfg) as hal:
-        run_ = drive(cfg, hal, d, n)
+        try:
+            run_ = drive(cfg, hal, d, n)
+        except cal.CalibrationRunError as exc:
+            raise CommissionError(f"odometry: {exc}") from None
     whole = 2.0 * math.pi * n
     if session.opts.from_sim_truth:
         if run_["true_distance_m"] is None:

@@ -40,6 +40,10 @@ def run(session: Session) -> dict[str, Any]:
     if robot_v is None:
         out["battery"] = "not measured by this driver (HalInfo.battery_measured false): skipped"
         return out
+    if session.opts.from_sim_truth:
+        out.update(battery_v=robot_v, battery="simulation: the driver's reading is the plant's supply, no multimeter "
+                                             "to hold against it: skipped")
+        return out
     meter = session.answers.value(
         "battery.multimeter_v",
         f"  The driver reads the supply as {robot_v:.2f} V. Hold a multimeter's probes on the motor driver's supply "

@@ -119,9 +119,3 @@ def explicit_robot(cfg: Config) -> dict[str, Any]:
         plant["motor_r"] = asdict(cfg.plant_motor_r)
         data["plant"] = plant
     return data
-
-
-def hw_estop(sample: Any) -> bool:
-    """The robot's hardware emergency-stop input is open (Sample.hw_estop, issue 23's field;
-    False on a sample from before it)."""
-    return bool(getattr(sample, "hw_estop", False))

@@ -22,7 +22,7 @@ import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from ddrt.commission.session import CommissionError, Session, Stopped, hw_estop
+from ddrt.commission.session import CommissionError, Session, Stopped
 from ddrt.config import Config
 from hal.base import Hal
 
@@ -70,7 +70,7 @@ def pulse(hal: Hal, clock: Any, cfg: Config, output: str, duty_max: float) -> Pu
         t += period
         clock.sleep_until(t)
         s = hal.read()
-        if hw_estop(s):
+        if s.hw_estop:
             hal.stop()
             raise Stopped("wiring: the robot's emergency stop is pressed: the motors are off; release it and "
                           "run the command again")
