@@ -10,8 +10,9 @@ path) driven with the uncommissioned config, then `ddrt commission --from-sim-tr
 with the commissioned config.
 
 Population: the first `--robots` robots of ddrt/sweep/population.py (bench section 10's), made
-harsh: the truth's gyro reads U(-3, +3) % off, its encoder wheel's radius is U(-2, +2) % off
-the nominal one, and its gyro bias is U(-5, +5) deg/s. Each robot's config holds its `robot:`
+harsh: section 10's `--harsh` cheap parts on the realistic plant (gyro scale 2-3 % off either
+way, bias up to 5 deg/s, a 400-1024 count front encoder, 2-5 % deadband, 0.5-2 degrees of
+backlash) and the encoder wheel's radius U(-2, +2) % off the nominal one. Each robot's config holds its `robot:`
 belief as the generator gives it (nominal wheel radii and track, masses and inertias a few
 percent off, the motor's datasheet values) and nothing calibrated (gyro_scale 1). Each is
 driven on section 10's two paths at its speed, uncommissioned; then commissioned with
@@ -93,15 +94,20 @@ def wiring_case(fault: str) -> tuple[Any, ...]:
     return (fault, found == dict(IDENTITY, **FAULTS[fault]), found, before, after, wall)
 
 
+def _short(fault: Any) -> str:
+    """A fault's first clause (the path-error stop's message goes on to name the limit)."""
+    return str(fault).split(", ")[0]
+
+
 def render_wiring(rows: list[tuple[Any, ...]]) -> list[str]:
     lines = ["| fault (`sim.wiring`) | before: figure-eight | fix written (`hal.wiring`) | right fix | "
              "after: figure-eight | est / true RMS after (mm) | commission wall (s) |",
              "|---|---|---|---|---|---|---|"]
     for fault, ok, found, before, after, wall in rows:
         changed = ", ".join(f"{k}: {v}" for k, v in found.items() if IDENTITY[k] != v) or "none"
-        b = "completed" if before["completed"] else f"failed ({before.get('fault') or before.get('state')})"
-        a = "completed" if after["completed"] else f"failed ({after.get('fault') or after.get('state')})"
-        lines.append(f"| {fault} | {b[:70]} | {changed} | {'yes' if ok else 'NO'} | {a} | "
+        b = "completed" if before["completed"] else f"failed ({_short(before.get('fault') or before.get('state'))})"
+        a = "completed" if after["completed"] else f"failed ({_short(after.get('fault') or after.get('state'))})"
+        lines.append(f"| {fault} | {b} | {changed} | {'yes' if ok else 'NO'} | {a} | "
                      f"{after['rms_tracking_m'] * 1e3:.3f} / {after['rms_cross_track_m'] * 1e3:.3f} | {wall:.1f} |")
     return lines
 
@@ -110,18 +116,21 @@ def render_wiring(rows: list[tuple[Any, ...]]) -> list[str]:
 
 
 def harsh_robots(n: int) -> list[tuple[str, dict[str, Any], float]]:
-    """(name, config mapping without a path, path speed) of the first `n` harsh robots."""
+    """(name, config mapping without a path, path speed) of the first `n` harsh robots: section
+    10's `--harsh` cheap parts (bench/population.py's harsh_sections) and an encoder wheel whose
+    radius is U(-2, +2) % off the nominal one the config believes."""
+    from bench.population import harsh_sections
     from ddrt.sweep.population import population
 
     rng = random.Random(HARSH_SEED)
     out = []
     for robot in population(n):
         sec = robot.sections
+        cheap = harsh_sections(robot.name)
         plant = dict(sec["plant"])
         plant["r_3"] = sec["robot"]["r_3"] * (1.0 + rng.uniform(-0.02, 0.02))
-        sim = merge_mappings(sec["sim"], {"gyro": {"scale_error": rng.uniform(-0.03, 0.03),
-                                                   "bias_dps": rng.uniform(-5.0, 5.0)}})
-        data = {"name": f"harsh {robot.name}", "robot": sec["robot"], "plant": plant, "sim": sim,
+        data = {"name": f"harsh {robot.name}", "robot": sec["robot"], "plant": plant,
+                "sim": merge_mappings(sec["sim"], cheap["sim"]), "sensors": cheap["sensors"],
                 "daemon": {"socket": None}}
         out.append((robot.name, data, robot.path_speed))
     return out
@@ -239,8 +248,10 @@ def render(res: CommissioningResult) -> list[str]:
         out += render_wiring(res.wiring) + ["", f"({res.wiring_wall_s:.0f} s wall.)", ""]
     if res.population is not None:
         out += ["### Harsh population, commissioned", "",
-                f"The first robots of section 10's generator, made harsh (truth: gyro scale U(-3, +3) %, encoder "
-                f"wheel radius U(-2, +2) % off nominal, gyro bias U(-5, +5) deg/s; seed {HARSH_SEED}); each config "
+                "The first robots of section 10's generator, made harsh: section 10's `--harsh` cheap parts on the "
+                "realistic plant (gyro scale 2-3 % off either way, bias up to 5 deg/s, a 400-1024 count front "
+                "encoder, 2-5 % deadband, 0.5-2 degrees of backlash) and the encoder wheel's radius U(-2, +2) % off "
+                f"nominal (seed {HARSH_SEED}). Each config "
                 "is the generator's `robot:` belief (nominal radii and track, masses and inertias a few percent "
                 "off, the motor's datasheet values) with nothing calibrated. Section 10's two paths at each robot's "
                 "speed.", ""]
