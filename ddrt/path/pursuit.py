@@ -34,7 +34,7 @@ from dataclasses import dataclass
 from ddrt.core.wrap import wrap_angle
 from ddrt.path.sampled import Path
 
-__all__ = ["Reference", "PurePursuit"]
+__all__ = ["Projection", "Reference", "PurePursuit"]
 
 TWO_PI = 2.0 * math.pi
 
@@ -60,6 +60,25 @@ class Reference:
     done: bool
 
 
+@dataclass(slots=True)
+class Projection:
+    """The robot projected on the path: `Reference` without the profile's speeds, which a
+    PathReference takes from its schedule instead (`PurePursuit.project`, every tick)."""
+
+    sigma: float  # progress of the nearest point
+    index: int  # the interval that holds it (Path.index(sigma))
+    x_d: float
+    y_d: float
+    theta_d: float
+    kappa: float
+    cross_track: float
+    lookahead_x: float
+    lookahead_y: float
+    pp_curvature: float
+    pivot: bool
+    done: bool
+
+
 def _foot(g0: float, g1: float) -> float:
     """Fraction of an interval where the robot's foot point lies, in [0, 1].
 
@@ -74,10 +93,18 @@ def _foot(g0: float, g1: float) -> float:
     return g0 / (g0 - g1)
 
 
-def _goal(path: Path, s: float, x: float, y: float, theta: float) -> tuple[float, float, float]:
-    """Look-ahead point at progress s and the pure pursuit curvature towards it."""
-    i = path.index(s)
-    gx, gy, _, _ = path.geometry(i, min(s, path.length))
+def _goal(path: Path, s: float, x: float, y: float, theta: float, near: int = -1) -> tuple[float, float, float]:
+    """Look-ahead point at progress s and the pure pursuit curvature towards it (`near`: an
+    interval at or before s's, to find it from)."""
+    i = path.index(s, near)
+    if s > path.length:
+        s = path.length
+    # path.geometry(i, s)'s x and y, written out: this runs every control tick.
+    sig, xs, ys = path.sigma, path.x, path.y
+    s0 = sig[i]
+    f = (s - s0) / (sig[i + 1] - s0)
+    gx = xs[i] + f * (xs[i + 1] - xs[i])
+    gy = ys[i] + f * (ys[i + 1] - ys[i])
     dx, dy = gx - x, gy - y
     d2 = dx * dx + dy * dy
     if d2 < 1e-12:
@@ -172,29 +199,38 @@ class PurePursuit:
 
     def _index_at(self, s: float) -> int:
         """Sample index of the piece end at progress s (the sample where the piece ends)."""
-        return self.path.index(s) + (1 if s >= self.path.sigma[-1] else 0)
+        return self.path.index(s, self._i) + (1 if s >= self.path.sigma[-1] else 0)
 
     def update(self, x: float, y: float, theta: float) -> Reference:
         """Advance progress from the robot pose and return the reference there."""
+        pr = self.project(x, y, theta)
+        p = self.path
+        i, s = pr.index, pr.sigma
+        dyn = p.dynamics(i, s)
+        if p.acc_u[i] > 0.0 and self.start_kick_m > 0.0:
+            sk = s + min(self.start_kick_m, 0.5 * (p.piece_end[i] - s))
+            ik = p.index(sk, i)
+            alt = p.dynamics(ik, sk)
+            if abs(alt[0]) + abs(alt[1]) * p.pivot_radius > abs(dyn[0]) + abs(dyn[1]) * p.pivot_radius:
+                dyn = alt
+        v, w, a, al, _ = dyn
+        return Reference(s, pr.x_d, pr.y_d, pr.theta_d, v, w, a, al, pr.kappa, pr.cross_track, pr.lookahead_x,
+                         pr.lookahead_y, pr.pp_curvature, pr.pivot, pr.done)
+
+    def project(self, x: float, y: float, theta: float) -> Projection:
+        """Advance progress from the robot pose and return the nearest point (`update` without
+        the profile's speeds there)."""
         self._advance(x, y, theta)
         p = self.path
         i, s = self._i, self._s
         xd, yd, thd, k = p.geometry(i, s)
         pivot = p.seg_pivot[i]
-        dyn = p.dynamics(i, s)
-        if p.acc_u[i] > 0.0 and self.start_kick_m > 0.0:
-            sk = s + min(self.start_kick_m, 0.5 * (p.piece_end[i] - s))
-            ik = p.index(sk)
-            alt = p.dynamics(ik, sk)
-            if abs(alt[0]) + abs(alt[1]) * p.pivot_radius > abs(dyn[0]) + abs(dyn[1]) * p.pivot_radius:
-                dyn = alt
-        v, w, a, al, _ = dyn
         c, sn = math.cos(thd), math.sin(thd)
         ct = -sn * (x - xd) + c * (y - yd)
         ahead = s + self.lookahead_m
         end = p.piece_end[i]
-        if ahead > end and end < p.length and p.direction[p.index(end)] != p.direction[i]:
+        if ahead > end and end < p.length and p.direction[p.index(end, i)] != p.direction[i]:
             ahead = end  # not past a cusp: beyond it the path comes back
-        gx, gy, ppk = _goal(p, ahead, x, y, theta)
+        gx, gy, ppk = _goal(p, ahead, x, y, theta, i)
         done = p.length - s <= self.arrive_tol_m
-        return Reference(s, xd, yd, thd, v, w, a, al, 0.0 if pivot else k, ct, gx, gy, ppk, pivot, done)
+        return Projection(s, i, xd, yd, thd, 0.0 if pivot else k, ct, gx, gy, ppk, pivot, done)

@@ -21,7 +21,7 @@ from typing import Any
 
 from ddrt.core.types import Setpoint
 from ddrt.path.sampled import Path
-from ddrt.path.pursuit import PurePursuit
+from ddrt.path.pursuit import Projection, PurePursuit
 
 
 # A robot this close to a turn in place when the schedule has begun the turn counts as arrived
@@ -53,19 +53,25 @@ class PathReference:
         self._ramp = False  # restarting from rest after a hold (see resume)
         self._ramp_s = 0.0  # the ramp's schedule: progress and progress rate
         self._ramp_u = 0.0
-        # The last schedule point read (time, path, point): a tick reads at t_sched the point
-        # the tick before read at its t_next, so one PathPoint a tick is reused, not rebuilt.
-        self._memo: tuple[float, Path | None, Any] = (math.nan, None, None)
+        # The last schedule point read (time, path, point, the interval of its progress, that
+        # of its time): a tick reads at t_sched the point the tick before read at its t_next,
+        # so one PathPoint a tick is reused, not rebuilt, and the next is searched from there.
+        self._memo: tuple[float, Path | None, Any, int, int] = (math.nan, None, None, -1, -1)
 
     def _at_time(self, t: float) -> Any:
         """self.path.at_time(t), reusing the last answer for the same time on the same path."""
-        memo_t, memo_path, point = self._memo
+        return self._at_time_index(t)[0]
+
+    def _at_time_index(self, t: float) -> tuple[Any, int]:
+        """(self._at_time(t), path.index of its progress)."""
+        memo = self._memo
         path = self.path
-        if t == memo_t and path is memo_path:
-            return point
-        point = path.at_time(t)
-        self._memo = (t, path, point)
-        return point
+        if t == memo[0] and path is memo[1]:
+            return memo[2], memo[3]
+        point, it = path.at_time_near(t, memo[4])
+        i = path.index(point.sigma, it)
+        self._memo = (t, path, point, i, it)
+        return point, i
 
     def request_stop(self, decel: float) -> None:
         """Come to rest along the path at `decel` m/s^2 from the current schedule speed."""
@@ -89,7 +95,7 @@ class PathReference:
         there at speed zero and accelerates at the profile's limits until it meets the
         profile. A pending stop is cancelled.
         """
-        near = self.pursuit.update(x, y, theta)
+        near = self.pursuit.project(x, y, theta)
         self.sigma = near.sigma
         self.cross_track = near.cross_track
         self._stop_decel = None
@@ -113,7 +119,7 @@ class PathReference:
 
         The schedule advances by the time that really passed (a late or skipped tick moves
         it further), not by a nominal period."""
-        near = self.pursuit.update(x, y, theta)
+        near = self.pursuit.project(x, y, theta)
         self.sigma = near.sigma
         self.cross_track = near.cross_track
         path = self.path
@@ -130,7 +136,7 @@ class PathReference:
             near = self._onto_pivot(x, y, theta, near, t_next)
         if self.time_indexed:
             self.t_sched = t_next
-            sched = path.at_time(t_next)
+            sched = self._at_time(t_next)
             sp.x_d, sp.y_d, sp.theta_d = sched.x, sched.y, sched.theta
             sp.v_d, sp.omega_d, sp.a_d, sp.alpha_d = sched.v, sched.omega, sched.a, sched.alpha
             sp.along_err = 0.0
@@ -139,11 +145,11 @@ class PathReference:
             sp.pivot = sched.pivot
             self.done = t_next >= path.duration and near.done
             return
-        d_near = path.direction[path.index(near.sigma)]
+        d_near = path.direction[near.index]
         self._onto_cusp(near.sigma, d_near)
         t_next = self.t_sched + step
-        sched = self._at_time(t_next)
-        if sched.sigma <= near.sigma + self.max_lead and not self._past_cusp(sched, d_near):
+        sched, i_sched = self._at_time_index(t_next)
+        if sched.sigma <= near.sigma + self.max_lead and not self._past_cusp(sched, i_sched, near.index, d_near):
             self.t_sched = t_next
             held = False
         else:
@@ -170,20 +176,18 @@ class PathReference:
         a forward speed in the reverse leg's frame. Within CORNER_TOL_M of the cusp, the
         schedule is taken to it (at rest), as at a turn in place."""
         p = self.path
-        now = self._at_time(self.t_sched)
+        now, i = self._at_time_index(self.t_sched)
         if now.pivot or now.sigma >= s_near:
             return
-        i = p.index(now.sigma)
         end = p.piece_end[i]
         if p.direction[i] != d_near and end <= s_near and end - now.sigma <= CORNER_TOL_M:
             self.t_sched = max(self.t_sched, self._time_at(end))
 
-    def _past_cusp(self, sched, d_near: float) -> bool:
-        """Would the schedule be driving the other way than the robot's piece (it has passed a
-        cusp the robot has not reached)? It waits at the cusp until the robot arrives."""
+    def _past_cusp(self, sched, i: int, j: int, d_near: float) -> bool:
+        """Would the schedule (at `sched`, in interval i; the robot in interval j) be driving
+        the other way than the robot's piece (it has passed a cusp the robot has not
+        reached)? It waits at the cusp until the robot arrives."""
         p = self.path
-        i = p.index(sched.sigma)
-        j = p.index(self.sigma)
         return (sched.sigma > self.sigma and not p.seg_pivot[i] and not p.seg_pivot[j]
                 and p.direction[i] != d_near)
 
@@ -260,18 +264,18 @@ class PathReference:
         self.done = False
         return True
 
-    def _onto_pivot(self, x: float, y: float, theta: float, near, t_next: float):
+    def _onto_pivot(self, x: float, y: float, theta: float, near: Projection, t_next: float) -> Projection:
         """A robot that stopped just short of a turn in place (it braked harder than it could
         follow) while the schedule has begun the turn: take it as arrived at the corner."""
         path = self.path
-        end = path.piece_end[path.index(near.sigma)]
+        end = path.piece_end[near.index]
         if not 0.0 < end - near.sigma <= CORNER_TOL_M:
             return near
-        j = path.index(end)
+        j = path.index(end, near.index)
         if not path.seg_pivot[j] or path.sigma[j] != end or t_next <= path.t[j]:
             return near
         self.pursuit.reset(end)
-        near = self.pursuit.update(x, y, theta)
+        near = self.pursuit.project(x, y, theta)
         self.sigma = near.sigma
         self.cross_track = near.cross_track
         return near

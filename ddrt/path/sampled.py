@@ -232,10 +232,17 @@ class Path:
                                self.pivot_radius, envelope, first, direction=a["direction"])
 
     # -- lookups ------------------------------------------------------------------------------
-    def index(self, sigma: float) -> int:
-        """Interval i with sigma[i] <= sigma < sigma[i + 1] (clamped to the valid range)."""
-        i = bisect.bisect_right(self.sigma, sigma) - 1
-        last = len(self.sigma) - 2
+    def index(self, sigma: float, near: int = -1) -> int:
+        """Interval i with sigma[i] <= sigma < sigma[i + 1] (clamped to the valid range).
+
+        `near` (optional) is an interval the answer is likely at or just after (the last
+        one a caller found): the same answer, found in a few comparisons instead of a
+        search of the whole path."""
+        sig = self.sigma
+        last = len(sig) - 2
+        if 0 <= near <= last and sig[near] <= sigma < sig[near + 1]:
+            return near  # still in the same interval
+        i = _search(sig, sigma, near) - 1
         return 0 if i < 0 else (last if i > last else i)
 
     def geometry(self, i: int, s: float) -> tuple[float, float, float, float]:
@@ -264,9 +271,14 @@ class Path:
         return self.direction[i] * u, self.omega[i] + self.alpha[i] * tau, self.a[i], self.alpha[i], self.t[i] + tau
 
     def _point(self, i: int, s: float, dyn: tuple[float, float, float, float, float]) -> PathPoint:
-        x, y, th, k = self.geometry(i, s)
+        # geometry(i, s), written out: this runs every control tick.
+        s0 = self.sigma[i]
+        f = (s - s0) / (self.sigma[i + 1] - s0)
+        x, y, th, k = self.x, self.y, self.theta, self.kappa
         v, w, a, al, t = dyn
-        return PathPoint(s, x, y, th, 0.0 if self.seg_pivot[i] else k, v, w, a, al, t, self.seg_pivot[i])
+        pivot = self.seg_pivot[i]
+        return PathPoint(s, x[i] + f * (x[i + 1] - x[i]), y[i] + f * (y[i + 1] - y[i]), th[i] + f * (th[i + 1] - th[i]),
+                         0.0 if pivot else k[i] + f * (k[i + 1] - k[i]), v, w, a, al, t, pivot)
 
     def at(self, sigma: float) -> PathPoint:
         """The path at progress sigma (clamped to [0, length])."""
@@ -276,15 +288,20 @@ class Path:
 
     def at_time(self, t: float) -> PathPoint:
         """The path where the profile is at time t (clamped to [0, duration])."""
+        return self.at_time_near(t)[0]
+
+    def at_time_near(self, t: float, near: int = -1) -> tuple[PathPoint, int]:
+        """(at_time(t), the interval its time lies in); `near` as in `index`: a schedule
+        read every tick finds its interval from the last one in a few comparisons."""
         tc = 0.0 if t <= 0.0 else (self.duration if t >= self.duration else float(t))
-        i = bisect.bisect_right(self.t, tc) - 1
+        i = _search(self.t, tc, near) - 1
         i = min(max(i, 0), len(self.t) - 2)
         tau = tc - self.t[i]
         u0, acc = self.u[i], self.acc_u[i]
         s = self.sigma[i] + u0 * tau + 0.5 * acc * tau * tau
         s = min(max(s, self.sigma[i]), self.sigma[i + 1])
         u = max(u0 + acc * tau, 0.0)
-        return self._point(i, s, self._dyn(i, u, tau))
+        return self._point(i, s, self._dyn(i, u, tau)), i
 
     # -- offline helpers ----------------------------------------------------------------------
     def arrays(self) -> dict[str, np.ndarray]:
@@ -295,6 +312,22 @@ class Path:
         """Geometric distance from (x, y) to the path's polyline (vectorised; not for the hot path)."""
         arr = self.arrays()
         return float(distances_to_polyline(np.c_[arr["x"], arr["y"]], np.array([[x, y]], dtype=float))[0])
+
+
+# How far past `near` _search first looks (a tick moves a few samples; a look-ahead some tens).
+_NEAR_SPAN = 64
+
+
+def _search(a: list[float], x: float, near: int) -> int:
+    """bisect.bisect_right(a, x) (a sorted), looked for first in a[near:near + _NEAR_SPAN] when
+    a[near] <= x: the answer is then past `near`, and if x < a[near + _NEAR_SPAN] it is inside
+    that span, since a is sorted. Any other `near` (-1: none) searches all of a."""
+    if 0 <= near < len(a) and a[near] <= x:
+        hi = near + _NEAR_SPAN
+        if hi < len(a) and x < a[hi]:
+            return bisect.bisect_right(a, x, near, hi)
+        return bisect.bisect_right(a, x, near)
+    return bisect.bisect_right(a, x)
 
 
 def _cusps(sigma: list[float], seg_pivot: list[bool], direction: list[float]) -> list[float]:
