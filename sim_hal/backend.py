@@ -26,7 +26,7 @@ import math
 
 from ddrt.params.robot import RobotParams
 from ddrt.params.motor import MotorParams
-from hal.base import Hal, HalInfo, HalIOError, Sample
+from hal.base import Hal, HalInfo, HalIOError, HalValueError, Sample
 from sim_hal.plant import PlantConfig, SimRobot
 from sim_hal.simtime import SimTime
 from sim_hal.wiring import WiringFaults
@@ -128,35 +128,53 @@ class SimHal(Hal):
 
     def sleep_until(self, deadline: float) -> float:
         """Advance the plant to `deadline` (and, paced, wait for the wall clock); return now."""
-        return self.time.sleep_until(deadline)
+        if self.time.paced:
+            return self.time.sleep_until(deadline)
+        # Unpaced (`ddrt sim`, every tick): SimTime.sleep_until's own steps, two calls fewer.
+        if not math.isfinite(deadline):
+            raise HalValueError(f"deadline={deadline!r} is not finite")
+        self._advance(deadline)
+        return self.robot.t
 
     # --- Hal ------------------------------------------------------------------------------
 
     def read(self) -> Sample:
         if self._closed:
             raise HalIOError("SimHal.read: the HAL is closed")
-        t = self.time.now()
+        robot = self.robot
+        t = self.time.now() if self.time.paced else robot.t
         last = self._last_sample
         if self._freezes and last is not None and self._frozen(t):
             return Sample(t=last.t, encoder_count=last.encoder_count, gyro_z_raw=last.gyro_z_raw,
                           fresh=False, faults="sensors frozen (injected)", battery_v=last.battery_v,
                           hw_estop=self.estop_input_open)
-        robot = self.robot
-        self._last_sample = Sample(t=t, encoder_count=robot.read_encoder(), gyro_z_raw=robot.read_gyro_raw(),
-                                   battery_v=robot.battery_v if self.info.battery_measured else math.nan,
-                                   hw_estop=self.estop_input_open)
+        count, gyro = robot.read_sensors()
+        # Positional (t, encoder_count, gyro_z_raw, fresh, faults, battery_v, hw_estop): every tick.
+        s = self._last_sample = Sample(t, count, gyro, True, "",
+                                       robot.battery_v if self.info.battery_measured else math.nan,
+                                       self.estop_input_open)
         if self.wiring is not None:
-            s = self._last_sample
             s.encoder_count, s.gyro_z_raw = self.wiring.encoder(s.encoder_count), self.wiring.gyro(s.gyro_z_raw)
-        return self._last_sample
+        return s
+
+    def write(self, duty_l: float, duty_r: float) -> None:
+        """Hal.write, its checks first on the common path: both duties in range go straight to
+        the motors; anything else is Hal.write's (the HalValueError naming the duty)."""
+        dl = float(duty_l)
+        dr = float(duty_r)
+        if -1.0 <= dl <= 1.0 and -1.0 <= dr <= 1.0:
+            self._write(dl, dr)
+        else:
+            super().write(duty_l, duty_r)
 
     def _write(self, duty_l: float, duty_r: float) -> None:
         if self._closed:
             raise HalIOError("SimHal.write: the HAL is closed")
         if self.wiring is not None:
             duty_l, duty_r = self.wiring.motors(duty_l, duty_r)
-        self.robot.command(duty_l, duty_r)
-        self._last_drive_t = self.robot.t
+        robot = self.robot
+        robot.command(duty_l, duty_r)
+        self._last_drive_t = robot.t
         self._driving = duty_l != 0.0 or duty_r != 0.0
 
     def stop(self) -> None:

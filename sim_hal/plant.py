@@ -154,8 +154,14 @@ class SimRobot:
             target += 1
         while target > 0 and (target - 1) / fs >= t - _EPS_T:
             target -= 1
-        if target > self._k:
-            self._run(target - self._k)
+        n = target - self._k
+        if n > 0:
+            kernel = self._kernel
+            if kernel is not None:  # _run_native, inline: this runs every controller tick
+                kernel(n, self._plant_addr)
+                self._k = self._kbuf.value
+            else:
+                self._run(n)
 
     # --- sensors, delayed by the sensor latency ------------------------------------------
 
@@ -169,6 +175,16 @@ class SimRobot:
             return self._real.read_encoder()
         phi3 = self._ring_phi3[self._ring_index()]
         return raw_readings.encoder_count(phi3, self.cfg.encoder_counts_per_rev, self.cfg.encoder_offset_counts)
+
+    def read_sensors(self) -> tuple[int, int]:
+        """(read_encoder(), read_gyro_raw()) from one look-up of the sensor ring (SimHal.read's,
+        every controller tick)."""
+        if self._real is not None:
+            return self.read_encoder(), self.read_gyro_raw()
+        i = max(self._k - self._sensor_delay, 0) % len(self._ring_phi3)
+        cfg = self.cfg
+        return (raw_readings.encoder_count(self._ring_phi3[i], cfg.encoder_counts_per_rev, cfg.encoder_offset_counts),
+                raw_readings.gyro_raw(self._ring_gyro[i], self._gyro_lsb_per_dps))
 
     def read_gyro_raw(self) -> int:
         """Gyro z as the int16 the MPU-6050 reports at its configured range (bias included)."""
@@ -234,6 +250,13 @@ class SimRobot:
         if st is not None:
             return st[0], st[1], st[2]
         return self._x, self._y, self._th
+
+    def truth(self) -> list[float]:
+        """[x, y, theta, v, omega]: `pose` and `velocity` in one list (`ddrt sim`'s telemetry row)."""
+        st = self._st
+        if st is not None:
+            return st[0:5]  # one ctypes read of the kernel's state buffer
+        return [self._x, self._y, self._th, self._v, self._w]
 
     @property
     def velocity(self) -> tuple[float, float]:

@@ -30,7 +30,7 @@ from ddrt.config import ControllerConfig, LimitsConfig, OuterGains, PidGains
 from ddrt.core.model import Dynamics
 from ddrt.core.motor import Motor
 from ddrt.core.types import Setpoint
-from ddrt.core.wrap import wrap_angle
+from ddrt.core.wrap import TWO_PI, wrap_angle
 
 SEED_INNER = PidGains(kp=1.732, ki=0.5, kd=0.5, integrator_limit=100.0)
 SEED_OUTER = OuterGains(k_x=10.0, k_y=64.0, k_theta=16.0)
@@ -98,7 +98,10 @@ class _Pid:
 
 def _scale_to_limit(a: float, b: float, limit: float) -> tuple[float, float, bool]:
     """Scale (a, b) together so neither exceeds `limit` in magnitude; report if it had to."""
-    m = max(abs(a), abs(b))
+    m = abs(a)
+    mb = abs(b)
+    if mb > m:  # max(|a|, |b|) without the builtin's call
+        m = mb
     if m > limit:
         s = limit / m
         return a * s, b * s, True
@@ -194,10 +197,15 @@ class DynamicController(_Controller):
             y_e = sp.y_cap
         elif y_e < -sp.y_cap:
             y_e = -sp.y_cap
-        th_e = wrap_angle(sp.theta_d - theta)
+        # wrap_angle(sp.theta_d - theta), written out (the same operations): this runs every tick.
+        th_e = math.fmod(sp.theta_d - theta + math.pi, TWO_PI)
+        if th_e <= 0.0:
+            th_e += TWO_PI
+        th_e -= math.pi
         o = self.outer
         v_d = sp.v_d
-        v_c = v_d * math.cos(th_e) + o.k_x * x_e
+        cos_e = math.cos(th_e)
+        v_c = v_d * cos_e + o.k_x * x_e
         # Kanayama's heading feedback vanishes with v_d; below HOLD_SPEED a heading-hold term
         # fades in so the robot keeps its heading while turning in place or at rest. Above
         # it the law is Kanayama's alone, whose convergence is fixed in distance, not time.
@@ -210,12 +218,15 @@ class DynamicController(_Controller):
         w_c = sp.omega_d + v_d * o.k_y * y_e + k_th * math.sin(th_e)
         if sp.pivot and not self.seed_method:
             w_c += o.k_x * sp.along_err / sp.pivot_radius * (1.0 if sp.omega_d >= 0.0 else -1.0)
-            v_c = v_d * math.cos(th_e) + o.k_x * (c * dx + s * dy)
+            v_c = v_d * cos_e + o.k_x * (c * dx + s * dy)
         lim = self.limits
         vm = lim.v_max if lim.v_max < sp.v_cap else sp.v_cap
         wm = lim.omega_max if lim.omega_max < sp.omega_cap else sp.omega_cap
-        v_c = max(-vm, min(vm, v_c))
-        w_c = max(-wm, min(wm, w_c))
+        # max(-vm, min(vm, v_c)) and the same for w_c, without the builtins' calls.
+        v_c = v_c if v_c < vm else vm
+        v_c = v_c if v_c > -vm else -vm
+        w_c = w_c if w_c < wm else wm
+        w_c = w_c if w_c > -wm else -wm
 
         # 2. Inner PID on eta_c - eta with acceleration feed-forward.
         e_v = v_c - v
@@ -225,8 +236,11 @@ class DynamicController(_Controller):
         hold = cmd.saturated
         nu_v = sp.a_d + self.pid_v.output(e_v, v, dt, hold)
         nu_w = sp.alpha_d + self.pid_w.output(e_w, w, dt, hold)
-        nu_v = max(-self._nu_max, min(self._nu_max, nu_v))
-        nu_w = max(-self._alpha_max, min(self._alpha_max, nu_w))
+        lim_v, lim_w = self._nu_max, self._alpha_max
+        nu_v = nu_v if nu_v < lim_v else lim_v
+        nu_v = nu_v if nu_v > -lim_v else -lim_v
+        nu_w = nu_w if nu_w < lim_w else lim_w
+        nu_w = nu_w if nu_w > -lim_w else -lim_w
 
         # 3. Computed torque with the model, then the inverse motor model.
         tau_l, tau_r = self.dyn.inverse(v, w, nu_v, nu_w)
@@ -241,8 +255,9 @@ class DynamicController(_Controller):
         else:
             wl_c = (v_c - dyn.L * w_c) / dyn.r_L
             wr_c = (v_c + dyn.R * w_c) / dyn.r_R
-            duty_l, _ = motor.duty_for_torque(tau_l, wl, emf_speed=wl_c, friction_speed=wl_c)
-            duty_r, _ = motor.duty_for_torque(tau_r, wr, emf_speed=wr_c, friction_speed=wr_c)
+            # Positional: emf_speed and friction_speed both the commanded wheel speed.
+            duty_l, _ = motor.duty_for_torque(tau_l, wl, wl_c, wl_c)
+            duty_r, _ = motor.duty_for_torque(tau_r, wr, wr_c, wr_c)
         duty_l, duty_r, sat_d = _scale_to_limit(duty_l, duty_r, lim.duty_max)
 
         cmd.duty_l = duty_l

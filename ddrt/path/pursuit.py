@@ -93,9 +93,10 @@ def _foot(g0: float, g1: float) -> float:
     return g0 / (g0 - g1)
 
 
-def _goal(path: Path, s: float, x: float, y: float, theta: float, near: int = -1) -> tuple[float, float, float]:
-    """Look-ahead point at progress s and the pure pursuit curvature towards it (`near`: an
-    interval at or before s's, to find it from)."""
+def _goal(path: Path, s: float, x: float, y: float, theta: float,
+          near: int = -1) -> tuple[float, float, float, int]:
+    """Look-ahead point at progress s, the pure pursuit curvature towards it, and the interval
+    of s (`near`: an interval at or a few before it, to find it from: Path.index)."""
     i = path.index(s, near)
     if s > path.length:
         s = path.length
@@ -108,9 +109,9 @@ def _goal(path: Path, s: float, x: float, y: float, theta: float, near: int = -1
     dx, dy = gx - x, gy - y
     d2 = dx * dx + dy * dy
     if d2 < 1e-12:
-        return gx, gy, 0.0
+        return gx, gy, 0.0, i
     yb = -math.sin(theta) * dx + math.cos(theta) * dy
-    return gx, gy, 2.0 * yb / d2
+    return gx, gy, 2.0 * yb / d2, i
 
 
 class PurePursuit:
@@ -134,6 +135,7 @@ class PurePursuit:
         self._last = len(path.sigma) - 2  # index of the last interval
         self._i = 0
         self._s = 0.0
+        self._goal_i = -1  # the look-ahead's last interval (a hint for the next: Path.index)
         self.reset()
 
     @property
@@ -231,6 +233,6 @@ class PurePursuit:
         end = p.piece_end[i]
         if ahead > end and end < p.length and p.direction[p.index(end, i)] != p.direction[i]:
             ahead = end  # not past a cusp: beyond it the path comes back
-        gx, gy, ppk = _goal(p, ahead, x, y, theta, i)
+        gx, gy, ppk, self._goal_i = _goal(p, ahead, x, y, theta, self._goal_i)
         done = p.length - s <= self.arrive_tol_m
         return Projection(s, i, xd, yd, thd, 0.0 if pivot else k, ct, gx, gy, ppk, pivot, done)

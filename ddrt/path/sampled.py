@@ -235,15 +235,9 @@ class Path:
     def index(self, sigma: float, near: int = -1) -> int:
         """Interval i with sigma[i] <= sigma < sigma[i + 1] (clamped to the valid range).
 
-        `near` (optional) is an interval the answer is likely at or just after (the last
-        one a caller found): the same answer, found in a few comparisons instead of a
-        search of the whole path."""
-        sig = self.sigma
-        last = len(sig) - 2
-        if 0 <= near <= last and sig[near] <= sigma < sig[near + 1]:
-            return near  # still in the same interval
-        i = _search(sig, sigma, near) - 1
-        return 0 if i < 0 else (last if i > last else i)
+        `near` (optional) is an interval the answer is likely at or a few after (the last one
+        a caller found): the same answer, found in a few comparisons (see _interval)."""
+        return _interval(self.sigma, sigma, near)
 
     def geometry(self, i: int, s: float) -> tuple[float, float, float, float]:
         """(x, y, theta, kappa) at progress s inside interval i, linearly interpolated."""
@@ -271,14 +265,9 @@ class Path:
         return self.direction[i] * u, self.omega[i] + self.alpha[i] * tau, self.a[i], self.alpha[i], self.t[i] + tau
 
     def _point(self, i: int, s: float, dyn: tuple[float, float, float, float, float]) -> PathPoint:
-        # geometry(i, s), written out: this runs every control tick.
-        s0 = self.sigma[i]
-        f = (s - s0) / (self.sigma[i + 1] - s0)
-        x, y, th, k = self.x, self.y, self.theta, self.kappa
+        x, y, th, k = self.geometry(i, s)
         v, w, a, al, t = dyn
-        pivot = self.seg_pivot[i]
-        return PathPoint(s, x[i] + f * (x[i + 1] - x[i]), y[i] + f * (y[i + 1] - y[i]), th[i] + f * (th[i + 1] - th[i]),
-                         0.0 if pivot else k[i] + f * (k[i + 1] - k[i]), v, w, a, al, t, pivot)
+        return PathPoint(s, x, y, th, 0.0 if self.seg_pivot[i] else k, v, w, a, al, t, self.seg_pivot[i])
 
     def at(self, sigma: float) -> PathPoint:
         """The path at progress sigma (clamped to [0, length])."""
@@ -291,17 +280,33 @@ class Path:
         return self.at_time_near(t)[0]
 
     def at_time_near(self, t: float, near: int = -1) -> tuple[PathPoint, int]:
-        """(at_time(t), the interval its time lies in); `near` as in `index`: a schedule
-        read every tick finds its interval from the last one in a few comparisons."""
+        """(at_time(t), the interval its time lies in). `near` as in `index`: the schedule,
+        read every control tick, finds its interval from the last one's. Written out (the
+        interval's dynamics and geometry, the clamps), as this runs every tick; the same
+        arithmetic as `_dyn` and `geometry`."""
+        ts = self.t
         tc = 0.0 if t <= 0.0 else (self.duration if t >= self.duration else float(t))
-        i = _search(self.t, tc, near) - 1
-        i = min(max(i, 0), len(self.t) - 2)
-        tau = tc - self.t[i]
+        i = _interval(ts, tc, near)
+        tau = tc - ts[i]
         u0, acc = self.u[i], self.acc_u[i]
-        s = self.sigma[i] + u0 * tau + 0.5 * acc * tau * tau
-        s = min(max(s, self.sigma[i]), self.sigma[i + 1])
-        u = max(u0 + acc * tau, 0.0)
-        return self._point(i, s, self._dyn(i, u, tau)), i
+        sig = self.sigma
+        s0, s1 = sig[i], sig[i + 1]
+        s = s0 + u0 * tau + 0.5 * acc * tau * tau
+        s = s0 if s0 > s else s  # min(max(s, s0), s1), without the builtins' calls
+        s = s1 if s1 < s else s
+        u = u0 + acc * tau
+        u = 0.0 if 0.0 > u else u  # max(u, 0.0)
+        al = self.alpha[i]
+        pivot = self.seg_pivot[i]
+        if pivot:
+            v, w, a = 0.0, self.turn[i] * u / self.pivot_radius, 0.0
+        else:
+            v, w, a = self.direction[i] * u, self.omega[i] + al * tau, self.a[i]
+        f = (s - s0) / (s1 - s0)
+        x, y, th = self.x, self.y, self.theta
+        k = 0.0 if pivot else self.kappa[i] + f * (self.kappa[i + 1] - self.kappa[i])
+        return PathPoint(s, x[i] + f * (x[i + 1] - x[i]), y[i] + f * (y[i + 1] - y[i]), th[i] + f * (th[i + 1] - th[i]),
+                         k, v, w, a, al, ts[i] + tau, pivot), i
 
     # -- offline helpers ----------------------------------------------------------------------
     def arrays(self) -> dict[str, np.ndarray]:
@@ -314,20 +319,24 @@ class Path:
         return float(distances_to_polyline(np.c_[arr["x"], arr["y"]], np.array([[x, y]], dtype=float))[0])
 
 
-# How far past `near` _search first looks (a tick moves a few samples; a look-ahead some tens).
-_NEAR_SPAN = 64
+_WALK = 8  # intervals _interval walks on from its hint before it searches instead
 
 
-def _search(a: list[float], x: float, near: int) -> int:
-    """bisect.bisect_right(a, x) (a sorted), looked for first in a[near:near + _NEAR_SPAN] when
-    a[near] <= x: the answer is then past `near`, and if x < a[near + _NEAR_SPAN] it is inside
-    that span, since a is sorted. Any other `near` (-1: none) searches all of a."""
-    if 0 <= near < len(a) and a[near] <= x:
-        hi = near + _NEAR_SPAN
-        if hi < len(a) and x < a[hi]:
-            return bisect.bisect_right(a, x, near, hi)
-        return bisect.bisect_right(a, x, near)
-    return bisect.bisect_right(a, x)
+def _interval(a: list[float], x: float, near: int = -1) -> int:
+    """bisect.bisect_right(a, x) - 1 clamped to [0, len(a) - 2]: the interval of sorted
+    samples `a` that holds x. From an interval `near` at or before the answer (a[near] <= x)
+    it walks on at most _WALK intervals (a control tick moves a few); otherwise, or when
+    the walk ends short of x, it searches all of a."""
+    last = len(a) - 2
+    if 0 <= near <= last and a[near] <= x:
+        i = near
+        stop = near + _WALK if near + _WALK < last else last
+        while i < stop and a[i + 1] <= x:
+            i += 1
+        if i < stop or i == last or x < a[i + 1]:
+            return i
+    i = bisect.bisect_right(a, x) - 1
+    return 0 if i < 0 else (last if i > last else i)
 
 
 def _cusps(sigma: list[float], seg_pivot: list[bool], direction: list[float]) -> list[float]:

@@ -209,6 +209,10 @@ def run_sim(cfg: Config, path: Path, *, duration: float | None = None, seed: int
             buf = stream.buf
             size = len(buf)
             sleep_until, tick, r = hal.sleep_until, loop.tick, loop.row
+            truth = getattr(robot, "truth", None)  # SimRobot's [x, y, theta, v, omega] in one call
+            if truth is None:
+                def truth() -> list[float]:
+                    return [*robot.pose, *robot.velocity]
             ended = (LoopState.STOPPED, LoopState.FAULT)
             # Rows are gathered as lists and copied into the buffer a chunk at a time: one
             # numpy assignment per chunk instead of four slice assignments per row.
@@ -218,7 +222,8 @@ def run_sim(cfg: Config, path: Path, *, duration: float | None = None, seed: int
             for i in range(n_ticks):
                 sleep_until(t0 + (i + 1) * period)
                 tick()
-                row = [r[0] - t0, *robot.pose, *robot.velocity]
+                row = [r[0] - t0]
+                row += truth()
                 row += r[1:]
                 append(row)
                 n += 1
