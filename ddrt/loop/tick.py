@@ -329,10 +329,13 @@ class ControlLoop:
         """read -> estimate -> reference -> control -> write -> record.
 
         `stamp` (benchmarks only; a no-op by default) is called at the start and after each
-        stage that ran, so the cost of each stage can be measured on the real tick.
+        stage that ran, so the cost of each stage can be measured on the real tick. Not
+        timed, it is not called at all (seven calls a tick saved).
         """
         self.ticks += 1
-        stamp()
+        timed = stamp is not _no_stamp
+        if timed:
+            stamp()
         holds = self.holds
         try:
             sample = self.hal.read()
@@ -352,7 +355,8 @@ class ControlLoop:
             self.enter_fault(f"sensor read failed: {exc}")
             fill_row(self.row, self, self.sample.t + self.period if self.sample else 0.0)
             return
-        stamp()
+        if timed:
+            stamp()
         self.sample = sample
         if sample.faults:
             self.hal_fault_ticks += 1
@@ -383,9 +387,11 @@ class ControlLoop:
             # Standing still is a command too: one write per tick keeps a serial bridge's
             # watchdog fed and re-asserts zero if anything else touched the motors.
             self.write_zero()
-        stamp()
+        if timed:
+            stamp()
         fill_row(self.row, self, sample.t)
-        stamp()
+        if timed:
+            stamp()
         if self.on_tick is not None:
             self.on_tick(self)
 
@@ -393,14 +399,18 @@ class ControlLoop:
         """Reference -> control -> checks -> write, for a robot that moves along its reference."""
         est = self.estimator
         sp = self.setpoint
-        stamp()
+        timed = stamp is not _no_stamp
+        if timed:
+            stamp()
         ref.update(est.x, est.y, est.theta, sp, est.dt)
         if (after := self.limits_after_braking) is not None and not (
                 isinstance(ref, DriveReference) and ref.over(after.v_max, after.omega_max)):
             self._take_deferred_limits()  # braked down to a reload's lower top speeds
-        stamp()
+        if timed:
+            stamp()
         cmd = self.controller.update(est.x, est.y, est.theta, est.v, est.omega, sp)
-        stamp()
+        if timed:
+            stamp()
         if ref.done and self.at_rest:
             if self.state == HOLDING:
                 self.zero_motors()  # at rest at the end of the stop: the hold decides what next

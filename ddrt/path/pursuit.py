@@ -32,7 +32,7 @@ import math
 from dataclasses import dataclass
 
 from ddrt.core.wrap import wrap_angle
-from ddrt.path.sampled import Path
+from ddrt.path.sampled import Path, interval_index
 
 __all__ = ["Projection", "Reference", "PurePursuit"]
 
@@ -91,27 +91,6 @@ def _foot(g0: float, g1: float) -> float:
     if g1 >= 0.0:
         return 1.0
     return g0 / (g0 - g1)
-
-
-def _goal(path: Path, s: float, x: float, y: float, theta: float,
-          near: int = -1) -> tuple[float, float, float, int]:
-    """Look-ahead point at progress s, the pure pursuit curvature towards it, and the interval
-    of s (`near`: an interval at or a few before it, to find it from: Path.index)."""
-    i = path.index(s, near)
-    if s > path.length:
-        s = path.length
-    # path.geometry(i, s)'s x and y, written out: this runs every control tick.
-    sig, xs, ys = path.sigma, path.x, path.y
-    s0 = sig[i]
-    f = (s - s0) / (sig[i + 1] - s0)
-    gx = xs[i] + f * (xs[i + 1] - xs[i])
-    gy = ys[i] + f * (ys[i + 1] - ys[i])
-    dx, dy = gx - x, gy - y
-    d2 = dx * dx + dy * dy
-    if d2 < 1e-12:
-        return gx, gy, 0.0, i
-    yb = -math.sin(theta) * dx + math.cos(theta) * dy
-    return gx, gy, 2.0 * yb / d2, i
 
 
 class PurePursuit:
@@ -187,7 +166,8 @@ class PurePursuit:
                 g0 = g1
                 continue
             break
-        f = _foot(g0, g1)
+        # _foot(g0, g1) and, at the end, _settle(s), written out: this runs every tick.
+        f = 0.0 if g0 <= 0.0 else (1.0 if g1 >= 0.0 else g0 / (g0 - g1))
         cand = sig[i] + f * (sig[i + 1] - sig[i])
         if cand > limit:
             cand = limit
@@ -197,7 +177,9 @@ class PurePursuit:
         end = p.piece_end[i]
         if end - s <= self.arrive_tol_m and (i == last or p.u[self._index_at(end)] == 0.0):
             s = end
-        self._settle(s)
+        while i < last and s >= sig[i + 1]:
+            i += 1
+        self._i, self._s = i, s
 
     def _index_at(self, s: float) -> int:
         """Sample index of the piece end at progress s (the sample where the piece ends)."""
@@ -221,18 +203,37 @@ class PurePursuit:
 
     def project(self, x: float, y: float, theta: float) -> Projection:
         """Advance progress from the robot pose and return the nearest point (`update` without
-        the profile's speeds there)."""
+        the profile's speeds there). Path.geometry and Path.index are written out below
+        (the same arithmetic): this runs every control tick."""
         self._advance(x, y, theta)
         p = self.path
         i, s = self._i, self._s
-        xd, yd, thd, k = p.geometry(i, s)
+        sig, xs, ys = p.sigma, p.x, p.y
+        # The nearest point: geometry(i, s).
+        s0 = sig[i]
+        f = (s - s0) / (sig[i + 1] - s0)
+        xd = xs[i] + f * (xs[i + 1] - xs[i])
+        yd = ys[i] + f * (ys[i + 1] - ys[i])
+        th = p.theta
+        thd = th[i] + f * (th[i + 1] - th[i])
         pivot = p.seg_pivot[i]
-        c, sn = math.cos(thd), math.sin(thd)
-        ct = -sn * (x - xd) + c * (y - yd)
+        ks = p.kappa
+        k = 0.0 if pivot else ks[i] + f * (ks[i + 1] - ks[i])
+        ct = -math.sin(thd) * (x - xd) + math.cos(thd) * (y - yd)
+        # The look-ahead point, found from the last one's interval, and pure pursuit's
+        # curvature towards it.
         ahead = s + self.lookahead_m
         end = p.piece_end[i]
-        if ahead > end and end < p.length and p.direction[p.index(end, i)] != p.direction[i]:
+        if ahead > end and end < p.length and p.direction[interval_index(sig, end, i)] != p.direction[i]:
             ahead = end  # not past a cusp: beyond it the path comes back
-        gx, gy, ppk, self._goal_i = _goal(p, ahead, x, y, theta, self._goal_i)
-        done = p.length - s <= self.arrive_tol_m
-        return Projection(s, i, xd, yd, thd, 0.0 if pivot else k, ct, gx, gy, ppk, pivot, done)
+        g = self._goal_i = interval_index(sig, ahead, self._goal_i)
+        if ahead > p.length:
+            ahead = p.length
+        s0 = sig[g]
+        f = (ahead - s0) / (sig[g + 1] - s0)
+        gx = xs[g] + f * (xs[g + 1] - xs[g])
+        gy = ys[g] + f * (ys[g + 1] - ys[g])
+        dx, dy = gx - x, gy - y
+        d2 = dx * dx + dy * dy
+        ppk = 0.0 if d2 < 1e-12 else 2.0 * (-math.sin(theta) * dx + math.cos(theta) * dy) / d2
+        return Projection(s, i, xd, yd, thd, k, ct, gx, gy, ppk, pivot, p.length - s <= self.arrive_tol_m)

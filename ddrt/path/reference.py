@@ -53,10 +53,10 @@ class PathReference:
         self._ramp = False  # restarting from rest after a hold (see resume)
         self._ramp_s = 0.0  # the ramp's schedule: progress and progress rate
         self._ramp_u = 0.0
-        # The last schedule point read (time, path, point, the interval of its progress, that
-        # of its time): a tick reads at t_sched the point the tick before read at its t_next,
-        # so one PathPoint a tick is reused, not rebuilt, and the next is searched from there.
-        self._memo: tuple[float, Path | None, Any, int, int] = (math.nan, None, None, -1, -1)
+        # The last schedule point read (time, path, point, the interval of its progress): a
+        # tick reads at t_sched the point the tick before read at its t_next, so one PathPoint
+        # a tick is reused, not rebuilt, and the next is searched from there.
+        self._memo: tuple[float, Path | None, Any, int] = (math.nan, None, None, -1)
 
     def _at_time(self, t: float) -> Any:
         """self.path.at_time(t), reusing the last answer for the same time on the same path."""
@@ -68,9 +68,8 @@ class PathReference:
         path = self.path
         if t == memo[0] and path is memo[1]:
             return memo[2], memo[3]
-        point, it = path.at_time_near(t, memo[4])
-        i = path.index(point.sigma, it)
-        self._memo = (t, path, point, i, it)
+        point, i = path.at_time_near(t, memo[3])
+        self._memo = (t, path, point, i)
         return point, i
 
     def request_stop(self, decel: float) -> None:

@@ -72,7 +72,7 @@ from ddrt.path.profile import SpeedLimits, envelope_excess, speed_profile
 if TYPE_CHECKING:
     from ddrt.core.envelope import Envelope
 
-__all__ = ["PathPoint", "Path", "distances_to_polyline"]
+__all__ = ["PathPoint", "Path", "distances_to_polyline", "interval_index"]
 
 
 class PathPoint(NamedTuple):
@@ -236,8 +236,8 @@ class Path:
         """Interval i with sigma[i] <= sigma < sigma[i + 1] (clamped to the valid range).
 
         `near` (optional) is an interval the answer is likely at or a few after (the last one
-        a caller found): the same answer, found in a few comparisons (see _interval)."""
-        return _interval(self.sigma, sigma, near)
+        a caller found): the same answer, found in a few comparisons (see interval_index)."""
+        return interval_index(self.sigma, sigma, near)
 
     def geometry(self, i: int, s: float) -> tuple[float, float, float, float]:
         """(x, y, theta, kappa) at progress s inside interval i, linearly interpolated."""
@@ -280,13 +280,13 @@ class Path:
         return self.at_time_near(t)[0]
 
     def at_time_near(self, t: float, near: int = -1) -> tuple[PathPoint, int]:
-        """(at_time(t), the interval its time lies in). `near` as in `index`: the schedule,
-        read every control tick, finds its interval from the last one's. Written out (the
-        interval's dynamics and geometry, the clamps), as this runs every tick; the same
-        arithmetic as `_dyn` and `geometry`."""
+        """(at_time(t), index(its sigma)). `near` as in `index`: the schedule, read every
+        control tick, finds its interval from the last one's. Written out (the interval's
+        dynamics and geometry, the clamps), as this runs every tick; the same arithmetic as
+        `_dyn` and `geometry`."""
         ts = self.t
         tc = 0.0 if t <= 0.0 else (self.duration if t >= self.duration else float(t))
-        i = _interval(ts, tc, near)
+        i = interval_index(ts, tc, near)
         tau = tc - ts[i]
         u0, acc = self.u[i], self.acc_u[i]
         sig = self.sigma
@@ -305,8 +305,10 @@ class Path:
         f = (s - s0) / (s1 - s0)
         x, y, th = self.x, self.y, self.theta
         k = 0.0 if pivot else self.kappa[i] + f * (self.kappa[i + 1] - self.kappa[i])
-        return PathPoint(s, x[i] + f * (x[i + 1] - x[i]), y[i] + f * (y[i + 1] - y[i]), th[i] + f * (th[i + 1] - th[i]),
-                         k, v, w, a, al, ts[i] + tau, pivot), i
+        point = PathPoint(s, x[i] + f * (x[i + 1] - x[i]), y[i] + f * (y[i + 1] - y[i]),
+                          th[i] + f * (th[i + 1] - th[i]), k, v, w, a, al, ts[i] + tau, pivot)
+        # s lies in [s0, s1]: interval i holds it unless it is s1 (then index() says which).
+        return point, (i if s < s1 else interval_index(sig, s, i))
 
     # -- offline helpers ----------------------------------------------------------------------
     def arrays(self) -> dict[str, np.ndarray]:
@@ -319,10 +321,10 @@ class Path:
         return float(distances_to_polyline(np.c_[arr["x"], arr["y"]], np.array([[x, y]], dtype=float))[0])
 
 
-_WALK = 8  # intervals _interval walks on from its hint before it searches instead
+_WALK = 8  # intervals interval_index walks on from its hint before it searches instead
 
 
-def _interval(a: list[float], x: float, near: int = -1) -> int:
+def interval_index(a: list[float], x: float, near: int = -1) -> int:
     """bisect.bisect_right(a, x) - 1 clamped to [0, len(a) - 2]: the interval of sorted
     samples `a` that holds x. From an interval `near` at or before the answer (a[near] <= x)
     it walks on at most _WALK intervals (a control tick moves a few); otherwise, or when
