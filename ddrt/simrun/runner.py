@@ -18,6 +18,7 @@ import os
 import shutil
 import sys
 import time
+from array import array
 from dataclasses import dataclass, field
 from pathlib import Path as FsPath
 from typing import Any, Callable
@@ -164,6 +165,19 @@ class SimResult:
         return self.rows_array()[:, self.columns.index(name)].copy()
 
 
+def _gathered_into(gathered: array, buf: np.ndarray, n: int, t0: float) -> None:
+    """Move the n rows `gathered` as (truth: TRUTH_COLUMNS, then the loop's row: COLUMNS) into
+    buf[:n] in SIM_COLUMNS' order, t counted from t0; empty `gathered`."""
+    width = len(TRUTH_COLUMNS) + len(COLUMNS)
+    a = np.frombuffer(gathered, dtype=np.float64, count=n * width).reshape(n, width)
+    k = len(TRUTH_COLUMNS)
+    buf[:n, 0] = a[:, k] - t0
+    buf[:n, 1:k + 1] = a[:, :k]
+    buf[:n, k + 1:] = a[:, k + 1:]
+    del a  # release the array's buffer before it is emptied
+    del gathered[:]
+
+
 def run_sim(cfg: Config, path: Path, *, duration: float | None = None, seed: int | None = None,
             start: tuple[float, float, float] | None = None,
             progress: Callable[[float, float], None] | None = None,
@@ -214,22 +228,20 @@ def run_sim(cfg: Config, path: Path, *, duration: float | None = None, seed: int
                 def truth() -> list[float]:
                     return [*robot.pose, *robot.velocity]
             ended = (LoopState.STOPPED, LoopState.FAULT)
-            # Rows are gathered as lists and copied into the buffer a chunk at a time: one
-            # numpy assignment per chunk instead of four slice assignments per row.
-            rows: list[list[float]] = []
-            append = rows.append
+            # Each tick appends the truth and the loop's row to one flat array of doubles (two
+            # calls, no list a row); a full chunk goes into the buffer in SIM_COLUMNS' order
+            # with a few numpy assignments (_gathered_into).
+            gathered = array("d")
+            extend = gathered.extend
             wall_loop0 = time.perf_counter()
             for i in range(n_ticks):
                 sleep_until(t0 + (i + 1) * period)
                 tick()
-                row = [r[0] - t0]
-                row += truth()
-                row += r[1:]
-                append(row)
+                extend(truth())
+                extend(r)
                 n += 1
                 if n == size:
-                    buf[:n] = rows
-                    rows.clear()
+                    _gathered_into(gathered, buf, n, t0)
                     stream.n, n = n, 0
                     stream.flush()
                 if loop.state in ended:
@@ -237,14 +249,13 @@ def run_sim(cfg: Config, path: Path, *, duration: float | None = None, seed: int
                 if progress is not None and i % report_every == 0:
                     progress(hal.now() - t0, limit)
             if n:
-                buf[:n] = rows
-                rows.clear()
+                _gathered_into(gathered, buf, n, t0)
             stream.n, n = n, 0
             stream.close()
             wall_loop = time.perf_counter() - wall_loop0
         finally:
             if n:  # an exception: the rows gathered so far still reach the file
-                buf[:n] = rows
+                _gathered_into(gathered, buf, n, t0)
                 stream.n, n = n, 0
             stream.close()
     finally:
