@@ -84,7 +84,7 @@ class SimRobot:
 
         # Sensor ring at plant-step resolution: the readings of the last `delay + 1` steps.
         self._sensor_delay = max(0, math.ceil(cfg.sensor_latency_s * cfg.step_hz - 1e-9))
-        n = self._sensor_delay + 1
+        n = self._n_ring = self._sensor_delay + 1
         self._ring_phi3: Any = [0.0] * n
         self._ring_gyro: Any = [self._gyro_f] * n
         self._ring_phl: Any = [0.0] * n  # the drive wheels' angles, for their encoders
@@ -181,7 +181,8 @@ class SimRobot:
         every controller tick)."""
         if self._real is not None:
             return self.read_encoder(), self.read_gyro_raw()
-        i = max(self._k - self._sensor_delay, 0) % len(self._ring_phi3)
+        k = self._k - self._sensor_delay
+        i = (k if k > 0 else 0) % self._n_ring  # _ring_index()
         cfg = self.cfg
         return (raw_readings.encoder_count(self._ring_phi3[i], cfg.encoder_counts_per_rev, cfg.encoder_offset_counts),
                 raw_readings.gyro_raw(self._ring_gyro[i], self._gyro_lsb_per_dps))

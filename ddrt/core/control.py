@@ -243,9 +243,17 @@ class DynamicController(_Controller):
         nu_w = nu_w if nu_w > -lim_w else -lim_w
 
         # 3. Computed torque with the model, then the inverse motor model.
-        tau_l, tau_r = self.dyn.inverse(v, w, nu_v, nu_w)
-        tau_l, tau_r, sat_t = _scale_to_limit(tau_l, tau_r, lim.torque_max_nm)
         dyn = self.dyn
+        tau_l, tau_r = dyn.inverse(v, w, nu_v, nu_w)
+        # _scale_to_limit(tau_l, tau_r, torque_max_nm), written out (no call, no tuple): every tick.
+        m = abs(tau_l)
+        mb = abs(tau_r)
+        if mb > m:
+            m = mb
+        sat_t = m > lim.torque_max_nm
+        if sat_t:
+            k = lim.torque_max_nm / m
+            tau_l, tau_r = tau_l * k, tau_r * k
         wl = (v - dyn.L * w) / dyn.r_L
         wr = (v + dyn.R * w) / dyn.r_R
         motor = self.motor
@@ -258,7 +266,14 @@ class DynamicController(_Controller):
             # Positional: emf_speed and friction_speed both the commanded wheel speed.
             duty_l, _ = motor.duty_for_torque(tau_l, wl, wl_c, wl_c)
             duty_r, _ = motor.duty_for_torque(tau_r, wr, wr_c, wr_c)
-        duty_l, duty_r, sat_d = _scale_to_limit(duty_l, duty_r, lim.duty_max)
+        m = abs(duty_l)  # _scale_to_limit(duty_l, duty_r, duty_max), written out
+        mb = abs(duty_r)
+        if mb > m:
+            m = mb
+        sat_d = m > lim.duty_max
+        if sat_d:
+            k = lim.duty_max / m
+            duty_l, duty_r = duty_l * k, duty_r * k
 
         cmd.duty_l = duty_l
         cmd.duty_r = duty_r

@@ -329,13 +329,10 @@ class ControlLoop:
         """read -> estimate -> reference -> control -> write -> record.
 
         `stamp` (benchmarks only; a no-op by default) is called at the start and after each
-        stage that ran, so the cost of each stage can be measured on the real tick. Not
-        timed, it is not called at all (seven calls a tick saved).
+        stage that ran, so the cost of each stage can be measured on the real tick.
         """
         self.ticks += 1
-        timed = stamp is not _no_stamp
-        if timed:
-            stamp()
+        stamp()
         holds = self.holds
         try:
             sample = self.hal.read()
@@ -355,8 +352,7 @@ class ControlLoop:
             self.enter_fault(f"sensor read failed: {exc}")
             fill_row(self.row, self, self.sample.t + self.period if self.sample else 0.0)
             return
-        if timed:
-            stamp()
+        stamp()
         self.sample = sample
         if sample.faults:
             self.hal_fault_ticks += 1
@@ -387,11 +383,9 @@ class ControlLoop:
             # Standing still is a command too: one write per tick keeps a serial bridge's
             # watchdog fed and re-asserts zero if anything else touched the motors.
             self.write_zero()
-        if timed:
-            stamp()
+        stamp()
         fill_row(self.row, self, sample.t)
-        if timed:
-            stamp()
+        stamp()
         if self.on_tick is not None:
             self.on_tick(self)
 
@@ -399,18 +393,14 @@ class ControlLoop:
         """Reference -> control -> checks -> write, for a robot that moves along its reference."""
         est = self.estimator
         sp = self.setpoint
-        timed = stamp is not _no_stamp
-        if timed:
-            stamp()
+        stamp()
         ref.update(est.x, est.y, est.theta, sp, est.dt)
         if (after := self.limits_after_braking) is not None and not (
                 isinstance(ref, DriveReference) and ref.over(after.v_max, after.omega_max)):
             self._take_deferred_limits()  # braked down to a reload's lower top speeds
-        if timed:
-            stamp()
+        stamp()
         cmd = self.controller.update(est.x, est.y, est.theta, est.v, est.omega, sp)
-        if timed:
-            stamp()
+        stamp()
         if ref.done and self.at_rest:
             if self.state == HOLDING:
                 self.zero_motors()  # at rest at the end of the stop: the hold decides what next
