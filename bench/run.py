@@ -4,7 +4,7 @@ One command measures everything and writes the Markdown; nobody edits BENCHMARKS
 so every number in it can be traced to a run on the machine it names. The timing sections run
 one after another on an otherwise idle process; only the accuracy grid uses a process pool.
 
-`--only N` measures section N alone (those in ONLY: 1, 9, 10, 11, 12, 13) and splices it into the --out file:
+`--only N` measures section N alone (those in ONLY: 1, 4, 9, 10, 11, 12, 13) and splices it into the --out file:
 the section's text from its `## N.` heading to the next `## ` heading is replaced (or, when
 the file has no such section, inserted after the last section that precedes it in SECTIONS);
 every other line of the file stays as it was. The spliced section says that it was measured
@@ -19,7 +19,6 @@ import datetime
 import os
 import platform
 import shlex
-import statistics
 import sys
 import time
 from dataclasses import dataclass, field
@@ -30,11 +29,9 @@ import numpy as np
 
 from bench import commissioning
 from bench import (accuracy, adaptation, battery, ctl_flood, foxglove_load, io_bound, loop_timing, paths_as_given,
-                   population, startup, tick_cost, velocity_mode)
+                   population, sim_scaling, startup, tick_cost, velocity_mode)
 from bench.common import REPO, SIM_CONFIG
 from ddrt.config import load_config
-from ddrt.path.spec import resolve_path
-from ddrt.simrun.runner import run_sim
 
 SCENARIO_DIR = REPO / "configs" / "scenarios"
 
@@ -67,7 +64,8 @@ class BenchOptions:
     ticks: int = 100_000
     loop_rates: tuple[float, ...] = loop_timing.RATES_HZ
     loop_duration_s: float = 30.0
-    speed_scenarios: tuple[str, ...] = ("figure8_slow", "seed_circle")
+    speed_cases: tuple[tuple[str, str, int | None, float | None], ...] = sim_scaling.CASES  # section 4
+    speed_repeats: int = 3  # runs of each `ddrt sim` case in section 4 (their median)
     import_modules: tuple[str, ...] = startup.MODULES
     import_repeats: int = 3
     sim_rss_duration_s: float | None = None
@@ -82,7 +80,7 @@ class BenchOptions:
 
 
 FULL = BenchOptions()
-QUICK = BenchOptions(seeds=(1,), ticks=20_000, loop_duration_s=5.0, robots=4, foxglove_duration_s=4.0,
+QUICK = BenchOptions(seeds=(1,), speed_repeats=1, ticks=20_000, loop_duration_s=5.0, robots=4, foxglove_duration_s=4.0,
                      mcap_duration_s=3.0, mcap_repeats=1)
 
 
@@ -94,7 +92,7 @@ class Results:
     accuracy: accuracy.AccuracyResult
     ticks: tick_cost.TickCost
     loop: loop_timing.LoopTiming
-    speed: dict[str, list[float]]  # scenario -> realtime factors, one per seed
+    speed: list[sim_scaling.CaseResult]  # `ddrt sim` on one core, per case (bench/sim_scaling.py)
     startup: startup.Startup
     bound: io_bound.IoBound
     adapt: adaptation.AdaptationResult
@@ -227,14 +225,10 @@ def measure_commissioning(opts: BenchOptions) -> object:
     return commissioning.measure(min(opts.robots, commissioning.ROBOTS), opts.workers)
 
 
-def measure_speed(scenarios: Sequence[str], seeds: Sequence[int]) -> dict[str, list[float]]:
-    """Closed-loop real-time factor (start-up excluded) of the dynamic controller, per seed."""
-    out: dict[str, list[float]] = {}
-    for name in scenarios:
-        cfg = load_config(SCENARIO_DIR / f"{name}.yaml", {"controller": {"mode": "dynamic"}})
-        path = resolve_path(cfg)
-        out[name] = [float(run_sim(cfg, path, seed=s).metrics["realtime_factor"]) for s in seeds]
-    return out
+def measure_speed_section(opts: BenchOptions) -> list[sim_scaling.CaseResult]:
+    """`ddrt sim` on the figure-eight at 20 s and 300 s and on seed_square (`speed_cases`), each in
+    a child process (bench/sim_scaling.py), `speed_repeats` times."""
+    return sim_scaling.measure(REPO, opts.speed_repeats, opts.speed_cases)
 
 
 def _say(text: str) -> None:
@@ -259,7 +253,7 @@ def measure_all(opts: BenchOptions, command: str, say: Callable[[str], None] = _
     ticks = timed("tick cost", lambda: tick_cost.measure_tick_cost(load_config(SIM_CONFIG), opts.ticks))
     loop = timed("loop timing", lambda: loop_timing.measure_loop_timing(opts.loop_rates, opts.loop_duration_s))
     ctl = timed("control socket", lambda: ctl_flood.measure_ctl_flood(opts.ctl_counts, opts.ctl_estops))
-    speed = timed("simulation speed", lambda: measure_speed(opts.speed_scenarios, opts.seeds))
+    speed = timed("simulation speed", lambda: measure_speed_section(opts))
     st = timed("start-up", lambda: startup.measure_startup(opts.import_modules, opts.import_repeats,
                                                            opts.sim_rss_duration_s))
     acc = timed("accuracy", lambda: accuracy.measure_accuracy(SCENARIO_DIR, opts.seeds, opts.lookaheads,
@@ -306,13 +300,8 @@ def render_document(r: Results) -> str:
     lines += tick_cost.render(r.ticks)
     lines += ["", _header(3), ""]
     lines += loop_timing.render(r.loop)
-    lines += ["", _header(4), "",
-              "Closed loop on the simulated robot as fast as the CPU allows (`run_sim`, dynamic controller, "
-              "1 kHz plant, 200 Hz controller): simulated seconds per wall second, start-up and calibration "
-              "excluded (metrics `realtime_factor`).", "",
-              "| scenario | real-time factor (median) | per seed |", "|---|---|---|"]
-    for name, fs in r.speed.items():
-        lines.append(f"| {name} | {statistics.median(fs):.0f}x | {', '.join(f'{f:.0f}x' for f in fs)} |")
+    lines += ["", _header(4), ""]
+    lines += sim_scaling.render_section(r.speed)
     daemon_rss = None
     for run in r.loop.runs:
         if run.stats and run.rate_hz == 200 and isinstance(run.stats.get("maxrss_kb"), int):
@@ -341,6 +330,7 @@ def render_document(r: Results) -> str:
 # Sections that `--only` can measure alone: number -> (measure, render).
 ONLY: dict[int, tuple[Callable[[BenchOptions], object], Callable[[object], list[str]]]] = {
     1: (measure_accuracy_section, render_accuracy),  # type: ignore[dict-item]
+    4: (measure_speed_section, sim_scaling.render_section),  # type: ignore[dict-item]
     9: (measure_paths, paths_as_given.render),  # type: ignore[dict-item]
     10: (measure_population_section, population.render),  # type: ignore[dict-item]
     11: (measure_live, render_live),  # type: ignore[dict-item]

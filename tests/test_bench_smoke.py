@@ -92,7 +92,8 @@ def test_serial_frames_use_the_protocol_encoder() -> None:
 
 
 TINY = run.BenchOptions(seeds=(1,), lookaheads=(0.03, 0.12), scenarios=("s_curve",), workers=1, ticks=1000,
-                        loop_rates=(), loop_duration_s=1.0, speed_scenarios=("s_curve",),
+                        loop_rates=(), loop_duration_s=1.0,
+                        speed_cases=(("s_curve 3 s", "configs/scenarios/s_curve.yaml", None, 3.0),), speed_repeats=1,
                         import_modules=("yaml",), import_repeats=1, sim_rss_duration_s=1.0,
                         ctl_counts=(32,), ctl_estops=5,
                         paths_cases=("figure_eight_361",), paths_long=(2000,), robots=1,
@@ -159,7 +160,8 @@ def test_document_has_every_section(tiny_results: run.Results, tmp_path) -> None
     assert odo.circle["calibrated"].true < 0.2 * odo.circle["uncalibrated"].true
     assert tiny_results.startup.imports[0].module == "yaml" and tiny_results.startup.imports[0].median_ms > 0
     assert tiny_results.startup.sim.maxrss_kb > 10_000  # a Python with numpy is tens of MiB at least
-    assert all(f > 1.0 for f in tiny_results.speed["s_curve"])  # faster than real time
+    assert [r.name for r in tiny_results.speed] == ["s_curve 3 s"] and "| s_curve 3 s | 3.0 s |" in doc
+    assert all(r.command_cpu_x > 1.0 and r.loop_x > 1.0 for r in tiny_results.speed)  # faster than real time
     assert tiny_results.startup.loop_loads == {"yaml": True}
     assert "| 32 | idle | 5/5 |" in doc and "| 32 | dribbling | 5/5 |" in doc  # every estop answered
     assert "| figure_eight_361 |" in doc and "| 2000 |" in doc  # paths as given
