@@ -16,6 +16,7 @@ Fault reactions (the same for the emulated devices, which is how they are tested
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING, Any, Callable, Mapping, Protocol, Sequence
 
 from ddrt.core.types import Clock
@@ -49,10 +50,16 @@ class Imu(Protocol):
 
 
 class EncoderReader(Protocol):
-    """The encoder side of the Bridge: `state()` returns an object with `count`, `new` and
-    `resets` (hal.bridge.BridgeState) and raises HalTimeoutError when stale."""
+    """The encoder side of the Bridge: `state()` returns an object with `count`, `new`,
+    `resets`, and protocol v2's `battery_mv`, `hw_estop`, `count_left`, `count_right`
+    (hal.bridge.BridgeState), and raises HalTimeoutError when stale. The MCU's facts from its
+    handshake say what those carry: no wheel counts while `wheel_counts_per_rev` is 0, no
+    battery unless `battery_measured`."""
 
     counts_per_rev: int
+    wheel_counts_per_rev: int
+    battery_measured: bool
+    hw_estop_wired: bool
 
     def state(self) -> Any: ...
     def close(self) -> None: ...
@@ -70,7 +77,7 @@ class RealHal(Hal):
 
     def __init__(self, imu: Imu, bridge: EncoderReader, clock: Clock | None = None, *,
                  motors: Motors | None = None, hold_ticks: int | None = None,
-                 closeables: Sequence[Any] = ()) -> None:
+                 closeables: Sequence[Any] = (), battery_scale: float = 1.0) -> None:
         self.imu = imu
         self.encoder = bridge
         self.motors: Motors = motors if motors is not None else bridge  # type: ignore[assignment]
@@ -82,7 +89,16 @@ class RealHal(Hal):
         self.info = HalInfo(encoder_counts_per_rev=int(bridge.counts_per_rev),
                             gyro_lsb_per_rad_s=lsb, gyro_full_scale_rad_s=full,
                             gyro_delay_s=float(imu.gyro_delay_s),
-                            drive_timeout_s=drive_timeout_s(self.motors))
+                            drive_timeout_s=drive_timeout_s(self.motors),
+                            wheel_counts_per_rev=int(bridge.wheel_counts_per_rev),
+                            battery_measured=bool(bridge.battery_measured),
+                            hw_estop_wired=bool(bridge.hw_estop_wired))
+        # V per mV the MCU reports: its divider's calibration against a multimeter
+        # (sensors.battery_scale, docs/hardware.md), 1.0 when the firmware's is right
+        self._v_per_mv = float(battery_scale) / 1000.0 if self.info.battery_measured else math.nan
+        self._battery_v = math.nan
+        self._hw_estop = False
+        self._wheels = (0, 0)
         self._count: int | None = None
         self._read_t = 0.0
         self._gyro: int | None = None
@@ -122,7 +138,8 @@ class RealHal(Hal):
         if not fresh:
             self._counters["stale_reads"] += 1
         return Sample(t=t, encoder_count=count, gyro_z_raw=gyro, fresh=fresh,
-                      faults=",".join(faults))
+                      faults=",".join(faults), battery_v=self._battery_v, hw_estop=self._hw_estop,
+                      count_left=self._wheels[0], count_right=self._wheels[1])
 
     def _write(self, duty_l: float, duty_r: float) -> None:
         try:
@@ -217,6 +234,7 @@ class RealHal(Hal):
             self._hold("encoder", self._enc_missing, self._enc_new_t, self._count is not None, faults)
             if st is not _MISSING:
                 self._count = st.count  # same value; keeps a stitched count consistent
+                self._note_v2(st, None)
             return self._count, False  # type: ignore[return-value]
         self._enc_missing = 0
         self._enc_new_t = self.clock.now()
@@ -225,7 +243,16 @@ class RealHal(Hal):
         count_at = getattr(st, "count_at", None)
         count = count_at(self._read_t) if count_at is not None else st.count
         self._count = count
+        self._note_v2(st, self._read_t)
         return count, True
+
+    def _note_v2(self, st: Any, t: float | None) -> None:
+        """Protocol v2's parts of a STATE: the supply (V; NaN when not measured), the
+        hardware estop input, the drive-wheel counts (at the read time `t` when new)."""
+        self._battery_v = st.battery_mv * self._v_per_mv  # NaN * anything: not measured
+        self._hw_estop = bool(st.hw_estop)
+        if self.info.wheel_counts_per_rev > 0:
+            self._wheels = st.wheel_counts_at(t) if t is not None else (st.count_left, st.count_right)
 
     def _read_gyro(self, faults: list[str]) -> tuple[int, bool]:
         self._last_error = None
@@ -286,7 +313,8 @@ class RealHal(Hal):
                                         direction_gpios=pwm_cfg.direction_gpios, root=pwm_cfg.root)
                 opened.append(motors)
             owned = [bus] if i2c_bus is None else []
-            return cls(imu, bridge, clock, motors=motors, hold_ticks=hal.hold_ticks, closeables=owned)
+            return cls(imu, bridge, clock, motors=motors, hold_ticks=hal.hold_ticks, closeables=owned,
+                       battery_scale=cfg.sensors.battery_scale)
         except BaseException:
             for obj in reversed(opened):
                 try:

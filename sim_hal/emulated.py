@@ -1,4 +1,4 @@
-"""The real drivers on emulated devices: MPU-6050 register file + protocol-v1 MCU, both
+"""The real drivers on emulated devices: MPU-6050 register file + protocol-v2 MCU, both
 backed by the simulated robot (`hal.backend: real`, `hal.imu.bus: sim`,
 `hal.bridge.url: ddrtsim://NAME`).
 
@@ -15,6 +15,7 @@ from typing import Any
 
 from ddrt.config import Config
 from hal.base import Hal, Sample
+from hal.wire import PROTOCOL_V1, PROTOCOL_VERSION
 from hal.real import RealHal
 from sim_hal.serial_urls import protocol_ddrtsim
 from sim_hal.factory import plant_config
@@ -50,14 +51,28 @@ class _PlantGyro:
 
 
 class EmulatedDevices:
-    """The simulated robot, its two emulated devices, and the clock that drives them (`time`)."""
+    """The simulated robot, its two emulated devices, and the clock that drives them (`time`).
+
+    The MCU is the reference firmware's model: protocol v2, measuring the robot's battery,
+    with a hardware estop input (closed until `set_estop(True)`), counting the drive wheels
+    when `sensors.wheel_counts_per_rev` > 0. `protocol_version=1`: an MCU of the old protocol
+    (no battery, no estop input, no wheel counts)."""
 
     def __init__(self, cfg: Config, start: tuple[float, float, float], seed: int | None = None,
-                 paced: bool = False, state_rate_hz: int | None = None) -> None:
+                 paced: bool = False, state_rate_hz: int | None = None,
+                 protocol_version: int = PROTOCOL_VERSION) -> None:
         self.robot = SimRobot(cfg.plant, cfg.plant_motor_l, cfg.plant_motor_r, plant_config(cfg, seed), start=start)
         rate = state_rate_hz or int(round(cfg.controller.rate_hz))
+        robot = self.robot
+        v2: dict[str, Any] = {}
+        if protocol_version != PROTOCOL_V1:
+            v2 = dict(battery_v=lambda: robot.battery_v, estop_wired=True)
+            if cfg.sensors.wheel_counts_per_rev > 0:
+                v2.update(wheel_counts=robot.read_wheel_counts,
+                          wheel_counts_per_rev=cfg.sensors.wheel_counts_per_rev)
         self.mcu = McuEmulator(_PlantMotorsAndEncoder(self.robot), now=self.robot.t,
-                               counts_per_rev=cfg.sensors.encoder_counts_per_rev, state_rate_hz=rate)
+                               counts_per_rev=cfg.sensors.encoder_counts_per_rev, state_rate_hz=rate,
+                               protocol_version=protocol_version, **v2)
         url = cfg.hal.bridge.url or "ddrtsim://robot"
         self.name = f"{url.split('://', 1)[-1].strip('/') or 'robot'}-{next(_names)}"
         self.url = f"ddrtsim://{self.name}"
@@ -66,6 +81,11 @@ class EmulatedDevices:
         robot = self.robot
         self.time = SimTime(lambda: robot.t, self._advance, paced)  # the real drivers' Clock
         self.link.pump(robot.t)
+
+    def set_estop(self, open_: bool) -> None:
+        """Open (True) or close the robot's hardware estop input now (tests, fault drills)."""
+        with self.link.lock:
+            self.mcu.set_estop(open_, self.robot.t)
 
     def _advance(self, t: float) -> None:
         """Integrate in plant steps, letting the MCU run at each, so STATE frames carry the

@@ -26,6 +26,7 @@ def plant_config(cfg: Config, seed: int | None = None) -> PlantConfig:
         gyro_noise_dps_rthz=s.gyro.noise_dps_rthz,
         gyro_scale_error=s.gyro.scale_error,
         gyro_dlpf_hz=s.gyro.dlpf_hz,
+        wheel_counts_per_rev=cfg.sensors.wheel_counts_per_rev,
     )
 
 

@@ -54,6 +54,7 @@ class PlantConfig:
     gyro_bias_dps: float = 1.5
     gyro_noise_dps_rthz: float = 0.005  # white noise density before the low-pass
     gyro_dlpf_hz: float = 98.0  # MPU-6050 digital low-pass (DLPF_CFG=2)
+    wheel_counts_per_rev: int = 0  # drive-wheel encoders (read_wheel_counts); 0: not counted
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -64,7 +65,8 @@ class PlantConfig:
                 continue
             if f.name == "seed" and value is None:
                 continue
-            if f.name in ("seed", "encoder_counts_per_rev", "encoder_offset_counts", "gyro_range_dps"):
+            if f.name in ("seed", "encoder_counts_per_rev", "encoder_offset_counts", "gyro_range_dps",
+                          "wheel_counts_per_rev"):
                 if isinstance(value, bool) or not isinstance(value, int):
                     raise ValueError(f"PlantConfig.{f.name}: expected an integer, got {value!r}")
                 continue
@@ -72,7 +74,7 @@ class PlantConfig:
                 raise ValueError(f"PlantConfig.{f.name}: expected a finite number, got {value!r}")
             object.__setattr__(self, f.name, float(value))
         positive = ("step_hz", "gyro_dlpf_hz", "encoder_counts_per_rev")
-        non_negative = ("slip_fraction", "slip_sigma_nm", "command_latency_s", "sensor_latency_s",
+        non_negative = ("wheel_counts_per_rev", "slip_fraction", "slip_sigma_nm", "command_latency_s", "sensor_latency_s",
                         "gyro_noise_dps_rthz")
         for name in positive:
             if getattr(self, name) <= 0:
@@ -235,6 +237,20 @@ class SimRobot:
     def read_gyro_raw(self) -> int:
         """Gyro z as the int16 the MPU-6050 reports at its configured range (bias included)."""
         return raw_readings.gyro_raw(self._ring_gyro[self._ring_index()], self._gyro_lsb_per_dps)
+
+    def read_wheel_counts(self) -> tuple[int, int]:
+        """The drive wheels' encoder counters (left, right; signed 32-bit, wrapping), ideal
+        from the wheel angles now at `wheel_counts_per_rev`; (0, 0) when not counted."""
+        n = self.cfg.wheel_counts_per_rev
+        if n <= 0:
+            return 0, 0
+        phi_l, phi_r, _ = self.wheel_angles
+        return raw_readings.encoder_count(phi_l, n), raw_readings.encoder_count(phi_r, n)
+
+    @property
+    def battery_v(self) -> float:
+        """Terminal voltage at the driver now (V): the motors' supply (no battery model yet)."""
+        return self.motor_l.supply_v
 
     @property
     def encoder_counts_per_rev(self) -> int:

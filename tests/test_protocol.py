@@ -1,4 +1,4 @@
-"""CRC, COBS, protocol v1 packets and frame decoding (hal/crc.py, cobs.py, wire.py)."""
+"""CRC, COBS, protocol v2 (and v1) packets and frame decoding (hal/crc.py, cobs.py, wire.py)."""
 
 from __future__ import annotations
 
@@ -8,15 +8,17 @@ from hypothesis import given, settings, strategies as st
 from hal import cobs
 from hal.crc import crc16_ccitt_false
 from hal.wire import (
-    MAX_FRAME_LEN, Drive, FrameDecoder, Hello, HelloReply, Packet, ProtocolError, State, Stop,
-    Unknown, decode_packet, encode_frame, encode_packet, seq_gap,
+    MAX_FRAME_LEN, Drive, FrameDecoder, Hello, HelloReply, HelloReplyV1, Packet, ProtocolError,
+    State, StateV1, Stop, Unknown, wire_bytes, decode_packet, encode_frame, encode_packet, seq_gap,
 )
 
 FAST = settings(max_examples=150, derandomize=True, deadline=None)
 
 ALL_MESSAGES = [
     Hello(), Stop(), Drive(10000, -10000, 1), Drive(0, 1, 1000),
-    HelloReply(1, 8192, 200), State(0xFFFFFFFF, -(2**31), 0x07, 255), State(0, 2**31 - 1, 0, 0),
+    HelloReply(2, 8192, 200, 0x07, 2**32 - 1), HelloReply(2, 0, 250),
+    State(0xFFFFFFFF, -(2**31), 0x0F, 255, 65535, 2**31 - 1, -(2**31)), State(0, 2**31 - 1, 0, 0),
+    HelloReplyV1(1, 8192, 200), StateV1(0xFFFFFFFF, -(2**31), 0x07, 255), StateV1(0, 2**31 - 1, 0, 0),
     Unknown(0x40, b"\x00\x01\x02"),
 ]
 

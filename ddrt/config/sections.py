@@ -92,9 +92,15 @@ class SensorsConfig:
 
     encoder_counts_per_rev: int = 8192
     gyro_range_dps: int = 250
+    wheel_counts_per_rev: int = 0  # drive-wheel encoders (protocol v2); 0: not counted
+    battery_scale: float = 1.0  # true / reported supply voltage (divider calibration)
 
     def validate(self, where: str) -> None:
         positive(where, encoder_counts_per_rev=self.encoder_counts_per_rev)
+        non_negative(where, wheel_counts_per_rev=self.wheel_counts_per_rev)
+        if not 0.5 <= self.battery_scale <= 2.0:
+            raise ConfigError(f"{where}.battery_scale: must be in [0.5, 2] (true / reported "
+                              f"voltage), got {self.battery_scale}")
         if self.gyro_range_dps not in GYRO_RANGES_DPS:
             raise ConfigError(f"{where}.gyro_range_dps: must be one of {', '.join(map(str, GYRO_RANGES_DPS))}, "
                               f"got {self.gyro_range_dps}")

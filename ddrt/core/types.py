@@ -35,6 +35,9 @@ class HalInfo:
     # The motor driver's own watchdog: it zeroes the motors when no command arrived for this
     # long (the microcontroller's DRIVE timeout); None when the motors have none (sysfs PWM).
     drive_timeout_s: float | None = None
+    wheel_counts_per_rev: int = 0  # drive-wheel encoders, counts per wheel revolution; 0: not counted
+    battery_measured: bool = False  # Sample.battery_v is a measurement (else NaN)
+    hw_estop_wired: bool = False  # a hardware emergency-stop input is wired (Sample.hw_estop)
 
 
 @dataclass(slots=True)
@@ -54,6 +57,10 @@ class Sample:
     gyro_z_raw: int
     fresh: bool = True
     faults: str = ""
+    battery_v: float = math.nan  # measured supply voltage at the driver (V); NaN: not measured
+    hw_estop: bool = False  # the robot's hardware emergency-stop input is open
+    count_left: int = 0  # raw drive-wheel encoder counters (wrap like signed 32-bit); meaningful
+    count_right: int = 0  # only when HalInfo.wheel_counts_per_rev > 0
 
 
 @dataclass(slots=True)
