@@ -73,7 +73,7 @@ class EmulatedDevices:
         self.mcu = McuEmulator(_PlantMotorsAndEncoder(self.robot), now=self.robot.t,
                                counts_per_rev=cfg.sensors.encoder_counts_per_rev, state_rate_hz=rate,
                                protocol_version=protocol_version, **v2)
-        url = cfg.hal.bridge.url or "ddrtsim://robot"
+        url = (cfg.hal.bridge.url or "ddrtsim://robot").partition("?")[0]
         self.name = f"{url.split('://', 1)[-1].strip('/') or 'robot'}-{next(_names)}"
         self.url = f"ddrtsim://{self.name}"
         self.link = protocol_ddrtsim.register(self.name, self.mcu, self.robot.t)
@@ -156,7 +156,14 @@ def real_hal_on(cfg: Config, devices: Any) -> RealHal:
         raise
 
 
+def mcu_protocol(url: str | None) -> int:
+    """The emulated MCU's protocol version from `hal.bridge.url`: `ddrtsim://NAME?v1` is an
+    MCU of protocol v1 (to try the host's fallback), anything else the reference firmware's."""
+    query = (url or "").partition("?")[2]
+    return PROTOCOL_V1 if "v1" in query.split("&") else PROTOCOL_VERSION
+
+
 def open_emulated_real_hal(cfg: Config, start: tuple[float, float, float] = (0.0, 0.0, 0.0),
                            seed: int | None = None, paced: bool = False, **_: Any) -> EmulatedRealHal:
-    devices = EmulatedDevices(cfg, start, seed, paced)
+    devices = EmulatedDevices(cfg, start, seed, paced, protocol_version=mcu_protocol(cfg.hal.bridge.url))
     return EmulatedRealHal(real_hal_on(cfg, devices), devices)
