@@ -83,9 +83,9 @@ class EmulatedDevices:
         self.link.pump(robot.t)
 
     def set_estop(self, open_: bool) -> None:
-        """Open (True) or close the robot's hardware estop input now (tests, fault drills)."""
-        with self.link.lock:
-            self.mcu.set_estop(open_, self.robot.t)
+        """Open (True) or close the robot's hardware estop input now (tests, fault drills);
+        the in-process link is pumped from the caller's thread, at the plant's steps."""
+        self.mcu.set_estop(open_, self.robot.t)
 
     def _advance(self, t: float) -> None:
         """Integrate in plant steps, letting the MCU run at each, so STATE frames carry the
