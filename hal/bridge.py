@@ -25,7 +25,7 @@ from hal.wire import (
     DELIMITER, DUTY_FULL_SCALE, FEATURE_BATTERY, FEATURE_HW_ESTOP, FEATURE_WHEELS,
     FLAG_BAD_FRAME, FLAG_HW_ESTOP, FLAG_WATCHDOG, PROTOCOL_V1, PROTOCOL_VERSION, TIMEOUT_MS_MAX,
     TIMEOUT_MS_MIN, Drive, FrameDecoder, Hello, HelloReply, HelloReplyV1, Message, Packet,
-    State, StateV1, Stop, encode_frame, seq_gap,
+    State, StateV1, Stop, encode_frame, seq_gap, wire_bytes,
 )
 
 __all__ = ["Bridge", "BridgeState"]
@@ -134,6 +134,10 @@ class Bridge:
         self.hello_resend_s = float(hello_resend_s)
         self.max_wheel_rev_s = float(max_wheel_rev_s)
         self.clock: Clock = clock if clock is not None else MonotonicClock()
+        # One byte's time on the line (8N1: 10 bits): a STATE's snapshot is older than its
+        # arrival by at least its frame's bytes. A link without a line (the in-process
+        # emulated MCU) sets 0; a simulated one its own figure.
+        self.byte_time_s = 10.0 / baudrate
         self.protocol_version: int | None = None
         self.counts_per_rev = 0
         self.state_rate_hz = 0
@@ -237,6 +241,16 @@ class Bridge:
                 f"{self.url}: MCU streams STATE at {self.state_rate_hz} Hz, too slow for "
                 f"state_stale_s={self.state_stale_s:g}")
         self._note_battery()
+        # The link is up when the stream is: wait (within the stale bound) for the first
+        # STATE, so a read right after connecting finds one (a v2 STATE at 250 Hz comes up
+        # to 6.4 ms after the reply); none by then is left for state() to report.
+        deadline = self.clock.now() + self.state_stale_s
+        while self._last is None and self._fatal is None:
+            now = self.clock.now()
+            if now >= deadline:
+                break
+            self.clock.sleep_until(min(now + 0.001, deadline))
+            self._poll(init=True)
 
     @property
     def battery_measured(self) -> bool:
@@ -377,6 +391,7 @@ class Bridge:
         if isinstance(msg, (HelloReply, HelloReplyV1)):
             self._on_hello_reply(pkt.seq, msg)
             return
+        wire_s = wire_bytes(msg.FMT.size) * self.byte_time_s if isinstance(msg, (State, StateV1)) else 0.0
         if isinstance(msg, StateV1):
             msg = msg.as_v2()
         if not isinstance(msg, State):
@@ -410,7 +425,7 @@ class Bridge:
         self._count = wrap_i32(msg.count + self._offset)
         self._wheels = (wrap_i32(msg.count_left + self._wheel_offset[0]),
                         wrap_i32(msg.count_right + self._wheel_offset[1]))
-        self._track_clock(msg.t_us, prev.t_us if prev is not None and not reset else None)
+        self._track_clock(msg.t_us, prev.t_us if prev is not None and not reset else None, wire_s)
         if msg.flags & FLAG_WATCHDOG:
             self._stats["watchdog_trips"] += 1
         if msg.flags & FLAG_BAD_FRAME:
@@ -422,9 +437,10 @@ class Bridge:
         self._new = True
         self._stats["states"] += 1
 
-    def _track_clock(self, t_us: int, prev_t_us: int | None) -> None:
-        """Map the MCU's clock onto the host's (see BridgeState.sampled_at)."""
-        now = self.clock.now()
+    def _track_clock(self, t_us: int, prev_t_us: int | None, wire_s: float) -> None:
+        """Map the MCU's clock onto the host's (see BridgeState.sampled_at); `wire_s` is how
+        long the STATE's frame took on the line after its snapshot."""
+        now = self.clock.now() - wire_s
         if prev_t_us is None:  # the first STATE, or the MCU rebooted: its clock restarted
             self._mcu_s = t_us * 1e-6
             self._clock_offset = None

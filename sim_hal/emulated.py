@@ -166,4 +166,6 @@ def mcu_protocol(url: str | None) -> int:
 def open_emulated_real_hal(cfg: Config, start: tuple[float, float, float] = (0.0, 0.0, 0.0),
                            seed: int | None = None, paced: bool = False, **_: Any) -> EmulatedRealHal:
     devices = EmulatedDevices(cfg, start, seed, paced, protocol_version=mcu_protocol(cfg.hal.bridge.url))
-    return EmulatedRealHal(real_hal_on(cfg, devices), devices)
+    real = real_hal_on(cfg, devices)
+    real.encoder.byte_time_s = 0.0  # the in-process link has no line: bytes arrive as sent
+    return EmulatedRealHal(real, devices)

@@ -530,7 +530,15 @@ def open_firmware_sim_hal(cfg: Config, start: tuple[float, float, float] = (0.0,
     # a burst of asks chases the wall clock instead of catching up with it. It reads the
     # simulated time; RealHal.read (once per tick) and the daemon move it.
     real.encoder.clock = _ReadingClock(devices.time, devices.robot)
+    real.encoder.byte_time_s = harness_byte_time_s(cfg.hal.bridge.baudrate)
     return EmulatedRealHal(real, devices)
+
+
+def harness_byte_time_s(baud: int, f_cpu: int = F_CPU) -> float:
+    """A byte's time on the harness's line: the firmware's UART divider for `baud` (U2X mode,
+    firmware/Makefile's rounding), and simavr's 11 bit times a byte."""
+    ubrr = (f_cpu + 4 * baud) // (8 * baud) - 1
+    return 11 * 8 * (ubrr + 1) / f_cpu
 
 
 class _ReadingClock:

@@ -359,7 +359,6 @@ static void enc_init(enc_ch_t *e, char port, int pin_reg, int a_pin)
     e->b = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(port), a_pin + 1);
     e->pin_reg = pin_reg;
     e->a_pin = a_pin;
-    set_ab(e);
 }
 
 /* ------------------------------------------------------------------ battery, estop */
@@ -897,14 +896,16 @@ int main(int argc, char **argv)
     enc_init(&ch[CH_RIGHT], 'C', R_PINC, WHR_A_PIN);
     adc0 = avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_ADC0);
     estop_irq = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('C'), ESTOP_PIN);
-    apply_battery();
-    apply_estop(avr);
     avr_register_io_write(avr, R_MCUSR, mcusr_write, NULL);
     avr_register_io_write(avr, R_PORTC, port_write, NULL); /* after the ioport's own */
     avr_register_io_write(avr, R_PORTD, port_write, NULL);
     core_reset = avr->reset;
     avr->reset = on_reset;
-    no_level_polling();
+    apply_battery();
+    apply_estop(avr);
+    no_level_polling(); /* before any pin moves: a low INT0/INT1 pin would start the polling */
+    for (int i = 0; i < N_CH; i++)
+        set_ab(&ch[i]);
     arm_timers();
 
     if (!pipe_mode) {
