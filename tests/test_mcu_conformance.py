@@ -668,3 +668,23 @@ def test_wheel_counts_at_the_highest_state_rate_the_docs_claim(firmware_built) -
             assert len(states) == pytest.approx(mcu.now * FAST_STATE_HZ, abs=3)
         finally:
             mcu.close()
+
+
+def test_the_firmware_fits_its_budget(firmware_built) -> None:
+    """Done-when: flash (text + data) at most 28 KiB, static RAM (data + bss) at most 1.5 KiB,
+    measured with avr-size on the default build and on the one with everything (wheels);
+    and `make`'s own size step refuses a build over a budget."""
+    import subprocess
+
+    from sim_hal import firmware_build
+    from sim_hal.firmware_sim import firmware_for
+
+    for elf in (firmware_build.artifact("ddrt_bridge.elf"), firmware_for(8192, WHEEL_CPR)):
+        out = subprocess.run(["avr-size", str(elf)], capture_output=True, text=True, check=True).stdout
+        text, data, bss = (int(v) for v in out.splitlines()[1].split()[:3])
+        assert text + data <= 28 * 1024 and data + bss <= 1536, (elf, text, data, bss)
+        assert text > 2000 and bss > 300  # it measured the firmware, not an empty file
+    with pytest.raises(firmware_build.BuildError, match="flash over budget"):
+        firmware_build.build("all", extra=("BUILD=build/budget", "FLASH_MAX=2000"))
+    with pytest.raises(firmware_build.BuildError, match="RAM over budget"):
+        firmware_build.build("all", extra=("BUILD=build/budget", "RAM_MAX=100"))
