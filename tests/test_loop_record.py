@@ -11,7 +11,7 @@ import pytest
 
 from ddrt.config import load_config
 from ddrt.loop import COLUMNS, ControlLoop, LoopState, state_label
-from ddrt.loop.record import ADAPTER_COLUMNS, TICK_COLUMNS, fill_row_source
+from ddrt.loop.record import ADAPTER_COLUMNS, LATER_COLUMNS, TICK_COLUMNS, fill_row_source
 from ddrt.path.spec import load_path, speed_limits
 from hal.registry import open_hal
 
@@ -26,6 +26,7 @@ HEADER = (
     "tau_l", "tau_r", "duty_l", "duty_r", "sigma", "cross_track_est", "saturated", "state",
     "fresh", "hal_fault_ticks",
     "ad_m_k", "ad_mbar", "ad_I", "ad_m_x", "ad_fric_l", "ad_fric_r", "ad_active",
+    "battery_v", "hw_estop",
 )
 # The state column's codes as they have always been.
 CODES = ("idle", "following", "stopping", "stopped", "estop", "fault", "holding", "driving")
@@ -33,7 +34,7 @@ CODES = ("idle", "following", "stopping", "stopped", "estop", "fault", "holding"
 
 def test_the_header_is_the_declared_columns_in_order_and_unchanged() -> None:
     assert COLUMNS == HEADER
-    assert tuple(c.name for c in TICK_COLUMNS + ADAPTER_COLUMNS) == COLUMNS
+    assert tuple(c.name for c in TICK_COLUMNS + ADAPTER_COLUMNS + LATER_COLUMNS) == COLUMNS
     assert len(set(COLUMNS)) == len(COLUMNS)
 
 
@@ -78,10 +79,11 @@ def test_every_column_holds_its_source(cfg_path: Path) -> None:
         "omega_cmd": cmd.omega_c, "tau_l": cmd.tau_l, "tau_r": cmd.tau_r, "duty_l": loop.duty_l,
         "duty_r": loop.duty_r, "sigma": ref.sigma, "cross_track_est": ref.cross_track,
         "saturated": float(cmd.saturated), "state": 1.0, "fresh": 1.0, "hal_fault_ticks": 0.0,
+        "battery_v": loop.power.v, "hw_estop": 0.0,
     }
     ad = loop.adapter
     if ad is None:
-        expected.update({name: 0.0 for name in HEADER[24:]})  # no adapter: the columns keep their zeros
+        expected.update({name: 0.0 for name in HEADER[24:31]})  # no adapter: the columns keep their zeros
     else:
         expected.update(dict(zip(HEADER[24:30], ad.theta)))
         expected["ad_active"] = float(loop.adapt_active)
@@ -90,3 +92,4 @@ def test_every_column_holds_its_source(cfg_path: Path) -> None:
     for name in COLUMNS:
         assert row[name] == expected[name] and isinstance(row[name], float), name
     assert row["sigma"] > 0.01 and row["v_ref"] > 0.0 and math.isfinite(row["v_cmd"])  # really moving
+    assert row["battery_v"] == 12.0 == loop.motor.supply_v  # the simulated supply, measured

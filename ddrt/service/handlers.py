@@ -119,8 +119,11 @@ def _resume(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
 def _reset(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
     loop = d.loop
     assert loop is not None
+    try:
+        loop.reset()
+    except ValueError as exc:  # the hardware estop input is still open
+        return {"ok": False, "error": f"reset: {exc}"}
     d.audit.note(f"reset {who(d)}")
-    loop.reset()
     # The pose starts again from (0, 0, 0): a path is placed in this frame (or with --here).
     loop.estimator.set_pose((0.0, 0.0, 0.0))
     return {"ok": True, "state": loop.state.label}
@@ -157,6 +160,15 @@ def _pose(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
     return {"ok": True, "state": loop.state.label, "pose": [x, y, theta]}
 
 
+def _stream(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
+    """Send the loop's state to a datagram socket (ddrt/service/stream.py; the ROS 2 bridge)."""
+    from ddrt.service.taps import Taps
+
+    if not isinstance(d.viz, Taps):
+        return {"ok": False, "error": "stream: this daemon has no state stream"}
+    return d.viz.stream.subscribe(req)
+
+
 def _reload(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
     return d.reload()
 
@@ -182,4 +194,5 @@ def _follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
 HANDLERS = command_table({
     "status": _status, "follow": _follow, "drive": _drive, "stop": _stop, "resume": _resume,
     "estop": _estop, "reset": _reset, "gains": _gains, "reload": _reload, "pose": _pose,
+    "stream": _stream,
 }, COMMANDS)
