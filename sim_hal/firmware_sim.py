@@ -24,7 +24,8 @@ wall clock itself (its --paced mode): the firmware's bytes then come as it sends
 from a USB serial adapter, and the plant tells it where the wheel is and how fast it turns;
 but the harness is then a process of its own, which a busy machine can stall: measured with
 a load average of 3 to 5 on two cores, arrival gaps of up to 45 ms (any process there saw
-the same), against the bridge's 50 ms staleness bound.
+the same), against the bridge's 50 ms staleness bound. Free-running, the battery stays at
+its value at start and the estop input cannot be opened (both are lockstep-only commands).
 """
 
 from __future__ import annotations
