@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping, Protocol, Sequence
 from ddrt.core.types import Clock
 from ddrt.runtime.clock import MonotonicClock
 from hal.base import (
-    Hal, HalError, HalInfo, HalIOError, HalTimeoutError, Sample,
+    Hal, HalError, HalInfo, HalInitError, HalIOError, HalTimeoutError, Sample,
 )
 from hal.bridge import Bridge
 from hal.mpu6050 import Mpu6050, gyro_scale, open_i2c_bus
@@ -85,6 +85,10 @@ class RealHal(Hal):
         self.hold_s = hold_bound_s(bridge)
         self.hold_ticks = hold_ticks  # None: hold while the value is within hold_s (derived)
         self._closeables = list(closeables)
+        if int(bridge.counts_per_rev) <= 0:
+            # protocol v2 allows an MCU without a front encoder; the estimator needs one
+            raise HalInitError("the microcontroller reports no front encoder (encoder_counts_per_rev 0 "
+                               "in its HELLO_REPLY); ddrt's estimator needs the front encoder's count")
         lsb, full = gyro_scale(imu.gyro_range_dps)
         self.info = HalInfo(encoder_counts_per_rev=int(bridge.counts_per_rev),
                             gyro_lsb_per_rad_s=lsb, gyro_full_scale_rad_s=full,

@@ -702,3 +702,12 @@ def test_from_config_pwm_sysfs_motors(tmp_path: Path) -> None:
             hal.close()
         assert (pwm0 / "duty_cycle").read_text() == "0"
         assert (pwm0 / "enable").read_text() == "0"
+
+
+def test_realhal_refuses_an_mcu_without_a_front_encoder_clearly() -> None:
+    """Protocol v2 lets an MCU say it has no front encoder; the estimator needs one, so the
+    backend says so at start instead of dividing by zero later."""
+    enc = FakeEncoder()
+    enc.counts_per_rev = 0
+    with pytest.raises(HalInitError, match="no front encoder"):
+        RealHal(FakeImu(), enc, FakeClock())
