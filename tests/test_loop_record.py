@@ -11,7 +11,7 @@ import pytest
 
 from ddrt.config import load_config
 from ddrt.loop import COLUMNS, ControlLoop, LoopState, state_label
-from ddrt.loop.record import ADAPTER_COLUMNS, TICK_COLUMNS, fill_row_source
+from ddrt.loop.record import ADAPTER_COLUMNS, POSE_COLUMNS, TICK_COLUMNS, fill_row_source
 from ddrt.path.spec import load_path, speed_limits
 from hal.registry import open_hal
 
@@ -26,6 +26,7 @@ HEADER = (
     "tau_l", "tau_r", "duty_l", "duty_r", "sigma", "cross_track_est", "saturated", "state",
     "fresh", "hal_fault_ticks",
     "ad_m_k", "ad_mbar", "ad_I", "ad_m_x", "ad_fric_l", "ad_fric_r", "ad_active",
+    "x_map", "y_map", "theta_map", "std_x", "std_y", "std_theta", "cov_xy", "fixes",
 )
 # The state column's codes as they have always been.
 CODES = ("idle", "following", "stopping", "stopped", "estop", "fault", "holding", "driving")
@@ -33,7 +34,7 @@ CODES = ("idle", "following", "stopping", "stopped", "estop", "fault", "holding"
 
 def test_the_header_is_the_declared_columns_in_order_and_unchanged() -> None:
     assert COLUMNS == HEADER
-    assert tuple(c.name for c in TICK_COLUMNS + ADAPTER_COLUMNS) == COLUMNS
+    assert tuple(c.name for c in TICK_COLUMNS + ADAPTER_COLUMNS + POSE_COLUMNS) == COLUMNS
     assert len(set(COLUMNS)) == len(COLUMNS)
 
 
@@ -81,12 +82,20 @@ def test_every_column_holds_its_source(cfg_path: Path) -> None:
     }
     ad = loop.adapter
     if ad is None:
-        expected.update({name: 0.0 for name in HEADER[24:]})  # no adapter: the columns keep their zeros
+        expected.update({name: 0.0 for name in HEADER[24:31]})  # no adapter: the columns keep their zeros
     else:
         expected.update(dict(zip(HEADER[24:30], ad.theta)))
         expected["ad_active"] = float(loop.adapt_active)
         assert any(v != 0.0 for v in ad.theta)
+    xm, ym, thm = est.map_pose()
+    p = est.track.p_map
+    expected.update({"x_map": xm, "y_map": ym, "theta_map": thm, "std_x": math.sqrt(p[0]), "std_y": math.sqrt(p[7]),
+                     "std_theta": math.sqrt(p[14]), "cov_xy": p[1], "fixes": 0.0})
     assert set(expected) == set(COLUMNS)
     for name in COLUMNS:
+        if name in ("x_map", "y_map"):  # the same composition, written out in another order
+            assert row[name] == pytest.approx(expected[name], abs=1e-15) and isinstance(row[name], float), name
+            continue
         assert row[name] == expected[name] and isinstance(row[name], float), name
+    assert row["std_x"] > 0.0 and row["std_theta"] > 0.0  # moving: the uncertainty has grown
     assert row["sigma"] > 0.01 and row["v_ref"] > 0.0 and math.isfinite(row["v_cmd"])  # really moving

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Callable
 if TYPE_CHECKING:
     from ddrt.loop.tick import ControlLoop
 
-__all__ = ["ADAPTER_COLUMNS", "COLUMNS", "Column", "PARTS", "TICK_COLUMNS", "fill_row", "fill_row_source"]
+__all__ = ["ADAPTER_COLUMNS", "COLUMNS", "Column", "PARTS", "POSE_COLUMNS", "TICK_COLUMNS", "fill_row", "fill_row_source"]
 
 
 @dataclass(frozen=True)
@@ -76,16 +76,32 @@ ADAPTER_COLUMNS = (
     Column("ad_active", "1.0 if loop.adapt_active else 0.0"),
 )
 
-COLUMNS = tuple(c.name for c in TICK_COLUMNS + ADAPTER_COLUMNS)
+# Added after the adapter's (a column is only ever added at the end): the pose in `map` (odom
+# with the pose fixes' correction; the same until a fix), its 1-sigma uncertainty
+# (ddrt/core/uncertainty.py, propagated every 20 ms) and the fixes fused so far.
+POSE_COLUMNS = (
+    Column("x_map", "est.frame.cx + est.track.c * est.x - est.track.s * est.y"),
+    Column("y_map", "est.frame.cy + est.track.s * est.x + est.track.c * est.y"),
+    Column("theta_map", "est.theta + est.frame.cth"),
+    Column("std_x", "est.track.std[0]"),
+    Column("std_y", "est.track.std[1]"),
+    Column("std_theta", "est.track.std[2]"),
+    Column("cov_xy", "est.track.cov_xy"),
+    Column("fixes", "float(est.frame.counters.fused)"),
+)
+
+COLUMNS = tuple(c.name for c in TICK_COLUMNS + ADAPTER_COLUMNS + POSE_COLUMNS)
 
 
-def fill_row_source(tick: tuple[Column, ...] = TICK_COLUMNS, adapter: tuple[Column, ...] = ADAPTER_COLUMNS) -> str:
+def fill_row_source(tick: tuple[Column, ...] = TICK_COLUMNS, adapter: tuple[Column, ...] = ADAPTER_COLUMNS,
+                    pose: tuple[Column, ...] = POSE_COLUMNS) -> str:
     """The source of `fill_row(r, loop, t)` for these columns, in this order."""
     lines = ["def fill_row(r, loop, t):"]
     lines += [f"    {name} = {expr}" for name, expr in PARTS]
     lines += [f"    r[{i}] = {c.source}  # {c.name}" for i, c in enumerate(tick)]
     lines += ["    ad = loop.adapter", "    if ad is not None:", "        th = ad.theta"]
     lines += [f"        r[{i}] = {c.source}  # {c.name}" for i, c in enumerate(adapter, len(tick))]
+    lines += [f"    r[{i}] = {c.source}  # {c.name}" for i, c in enumerate(pose, len(tick) + len(adapter))]
     return "\n".join(lines) + "\n"
 
 
