@@ -111,21 +111,19 @@ def propagate(p: list[float], g: tuple[float, ...], c: float, s: float, dt: floa
 
 
 def condition_bias(p: list[float], var: float) -> None:
-    """The bias became known to `var` (rad/s)^2 (the estimator learnt it at rest): a
-    measurement of eb alone that brings P[eb, eb] down to `var`, taking its correlations
-    with it (what it did to the heading stays)."""
+    """The estimator re-learnt the bias at rest, to `var` (rad/s)^2: its new estimate is the
+    old one moved by a gain k towards readings whose noise is independent of everything
+    before, so eb' = (1 - k) eb + k n with (1 - k) = var / P[eb, eb]. Its correlations shrink
+    by that factor; what the old bias error did to the heading and position stays (the
+    estimator corrects the bias, not the pose it already integrated)."""
     pbb = p[35]
-    if var >= pbb or pbb <= 0.0:
+    if not var < pbb:
         return
-    r = var * pbb / (pbb - var) if var > 0.0 else 0.0
-    sden = pbb + r
-    col = [p[i * N + IB] for i in range(N)]
-    for i in range(N):
-        ki = col[i] / sden
-        if ki == 0.0:
-            continue
-        for j in range(N):
-            p[i * N + j] -= ki * col[j]
+    f = max(var, 0.0) / pbb
+    for i in range(N - 1):
+        p[i * N + IB] *= f
+        p[IB * N + i] *= f
+    p[35] = max(var, 0.0)
 
 
 class History:
