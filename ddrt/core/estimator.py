@@ -204,9 +204,8 @@ class Estimator:
         if cfg.fix_history_s != old.fix_history_s:
             p_map, p_odom = list(track.p_map), list(track.p_odom)
             self.track = self._tracker(cfg)
-            self.track.reset(self.t_est, (self.x, self.y, self.theta))
+            self.track.reset(self.t_est, self.map_pose())
             self.track.p_map[:], self.track.p_odom[:] = p_map, p_odom
-            self.track.c, self.track.s = math.cos(self.frame.cth), math.sin(self.frame.cth)
             self.track.saved_p[0][:] = p_map
             self.track._publish()
             self.frame.counters.last_stamp = self.t_est
@@ -236,20 +235,21 @@ class Estimator:
         self.health.stale_ticks = 0
         self.t_est = sample.t
         self.track.reset(sample.t, pose)
-        self.frame.reset()
+        self.frame.reset(pose)
 
     def set_pose(self, pose: tuple[float, float, float], cov: list[float] | None = None) -> None:
         """The robot is at `pose` (in both frames: the map correction is cleared), known to
         `cov` (a 3x3 covariance, 9 floats row by row; None: exactly)."""
         self.x, self.y, self.theta = pose
         self.track.reset(self.t_est, pose, cov)
-        self.frame.reset()
+        self.frame.reset(pose)
 
     # ------------------------------------------------------------------ frames and fixes
 
     def map_pose(self) -> tuple[float, float, float]:
-        """The pose in `map`: the odometry's composed with the fixes' correction."""
-        return self.frame.to_map(self.x, self.y, self.theta)
+        """The pose in `map` (the same as odom's until a fix)."""
+        f = self.frame
+        return f.x, f.y, f.th
 
     def fuse_fix(self, fix: PoseFix) -> dict[str, object]:
         """Gate and fuse a pose fix (ddrt/core/pose_fix.py); FixError (naming the field) for a
@@ -342,7 +342,7 @@ class Estimator:
         t_est = sample.t if fresh else self._last_t + self._ahead_of_anchor
         if t_est > self.t_est:  # the history's times never go back
             self.t_est = t_est
-        self.track.step(self.t_est, self.x, self.y, self.theta, dt, dx, dy, w * dt)
+        self.frame.step(self.track, self.t_est, dt, ds, w * dt, self.x, self.y, self.theta)
         if fresh:
             self._last_fresh_t = sample.t
             if self._blind_ticks:
@@ -383,7 +383,7 @@ class Estimator:
         self.y += dy
         self.theta += turn
         self.t_est = max(self.t_est, sample.t)
-        self.track.step(self.t_est, self.x, self.y, self.theta, gap, dx, dy, turn)
+        self.frame.step(self.track, self.t_est, gap, extra, turn, self.x, self.y, self.theta)
         z = self._travel_counts * self.metres_per_count
         v_new = measured / gap if stalled and gap > 0.0 else self.travel.v
         for f in (self.travel, self.speed):

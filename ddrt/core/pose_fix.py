@@ -2,18 +2,19 @@
 
 Two frames:
 - `odom`: the estimator's dead reckoning, continuous; a fix never moves it.
-- `map`: odom composed with a correction map -> odom (`MapFrame`: a rigid transform), which
-  each accepted fix updates. Before the first fix the two are the same.
+- `map`: a second dead reckoning of the same steps (`MapFrame`), corrected by each accepted
+  fix, which also teaches it the encoder's and the gyro's scale errors and the bias error,
+  so that between fixes it drifts less than odom. Before the first fix the two are the same.
+  The correction map -> odom (a rigid transform) is what takes odom's pose onto map's.
 
 A fix (x, y, theta in `map`, a 3x3 covariance, and the time at which it was true, on the
-loop's clock) is compared with the map pose of its own time: the odometry's history
-(ddrt/core/uncertainty.py) gives the odometry's pose then, the covariance saved nearest
-before it is carried to it, and the transition from then to now carries the correction to
-the present (a delayed-measurement Kalman update). The update is a Schmidt ("consider")
-one: it corrects the pose and the pose's correlations with the scale and bias errors, but
-does not estimate those errors, so the odometry stays what it was. A fix whose Mahalanobis
-distance exceeds the chi-square gate (3 degrees of freedom, estimator.fix_gate_chi2) is an
-outlier: counted, and nothing changes. docs/estimation.md has the equations.
+loop's clock) is compared with the map pose of its own time: the history
+(ddrt/core/uncertainty.py) holds the map pose of every tick, the covariance saved nearest
+before the fix is carried to it, and the transition from then to now carries the correction
+to the present (a delayed-measurement Kalman update of the 6-state error: pose, scales,
+bias). A fix whose Mahalanobis distance exceeds the chi-square gate (3 degrees of freedom,
+estimator.fix_gate_chi2) is an outlier: counted, and nothing changes. docs/estimation.md
+has the equations.
 """
 
 from __future__ import annotations
@@ -148,21 +149,53 @@ class FixCounters:
 
 
 class MapFrame:
-    """The correction map -> odom: map pose = (cx, cy, cth) composed with the odometry's."""
+    """The pose in `map`: its own dead reckoning of the odometry's steps, with the scale and
+    bias errors the fixes have taught it taken out, corrected by each fix.
+
+    Per tick (`step`): th_m += dth (1 + g) + b dt, and the distance ds (1 + s) along the
+    midpoint heading, where (s, g, b) are the learnt corrections of the encoder's scale, the
+    gyro's scale and its bias (zero until a fix). The correction map -> odom (`correction`)
+    is what takes the odometry's pose onto this one: it moves at a fix (a jump, counted by
+    `jumps`) and slowly as the learnt corrections act."""
 
     def __init__(self, gate_chi2: float) -> None:
         self.gate_chi2 = gate_chi2
-        self.cx = self.cy = self.cth = 0.0
+        self.x = self.y = self.th = 0.0  # the map pose now
+        self.xo = self.yo = self.tho = 0.0  # the odometry's pose now
+        self.s = self.g = self.b = 0.0  # learnt corrections: encoder scale, gyro scale, bias (rad/s)
+        self.jumps = 0
         self.counters = FixCounters()
 
-    def reset(self) -> None:
-        """The map and odom frames are the same again (a pose set or a reset)."""
-        self.cx = self.cy = self.cth = 0.0
+    def reset(self, pose: tuple[float, float, float]) -> None:
+        """The map and odom frames are the same again, at `pose` (a pose set or a reset)."""
+        self.x, self.y, self.th = pose
+        self.xo, self.yo, self.tho = pose
+        self.s = self.g = self.b = 0.0
+        self.jumps += 1
         self.counters.last_stamp = -math.inf
 
-    def to_map(self, x: float, y: float, th: float) -> tuple[float, float, float]:
-        c, s = math.cos(self.cth), math.sin(self.cth)
-        return self.cx + c * x - s * y, self.cy + s * x + c * y, th + self.cth
+    def step(self, track: Tracker, t: float, dt: float, ds: float, dth: float,
+             xo: float, yo: float, tho: float) -> None:
+        """One tick of the odometry (distance ds, turn dth over dt, ending at (xo, yo, tho))."""
+        if track.bias_shrink != 1.0:  # the estimator re-learnt the bias at rest
+            self.b *= track.bias_shrink
+            track.bias_shrink = 1.0
+        dthm = dth * (1.0 + self.g) + self.b * dt
+        dsm = ds * (1.0 + self.s)
+        half = self.th + 0.5 * dthm
+        dx = dsm * math.cos(half)
+        dy = dsm * math.sin(half)
+        self.x += dx
+        self.y += dy
+        self.th += dthm
+        self.xo, self.yo, self.tho = xo, yo, tho
+        track.step(t, self.x, self.y, self.th, dt, dx, dy, dthm, tho - self.th)
+
+    def correction(self) -> tuple[float, float, float]:
+        """map -> odom as a transform (x, y, theta): map pose = it composed with odom's."""
+        cth = self.th - self.tho
+        c, s = math.cos(cth), math.sin(cth)
+        return self.x - (c * self.xo - s * self.yo), self.y - (s * self.xo + c * self.yo), cth
 
     def check_stamp(self, track: Tracker, stamp: float) -> None:
         """FixError unless `stamp` lies within the odometry's history and after the last fix."""
@@ -181,76 +214,82 @@ class MapFrame:
                                     "fixes are fused in time order")
 
     def fuse(self, track: Tracker, fix: PoseFix) -> dict[str, Any]:
-        """Gate and fuse `fix` (its stamp checked first); returns what happened, for the reply."""
+        """Gate and fuse `fix` (its stamp checked first); returns what happened, for the reply.
+
+        The Kalman update of the error state at the fix's time (pose, scale and bias errors),
+        carried to every later moment the history holds: the covariances saved since, the
+        map poses recorded since (so a later fix compares with corrected ones), and the
+        present, whose learnt corrections take the scale and bias parts."""
         self.check_stamp(track, fix.stamp)
         h = track.hist
-        model = track.model
         a_f = h.at_time(fix.stamp)
         k_f = h.find(fix.stamp)
         saved = track.saved_before(k_f)
         if saved is None:  # not expected: a save is made at every reset and propagation
             raise FixError("stamp", "no covariance saved that far back: try a newer stamp")
         k_b, p_b = saved
-        # The covariance at the fix's time: the saved one carried to it.
-        p_f = list(p_b)
+        p_f = list(p_b)  # the covariance at the fix's time: the saved one carried to it
         g, dt = phi(h.state(k_b), a_f)
-        propagate(p_f, g, math.cos(self.cth), math.sin(self.cth), dt, model)
+        propagate(p_f, g, 1.0, 0.0, dt, track.model)
         pf = np.array(p_f).reshape(N, N)
-        xm, ym, thm = self.to_map(a_f[1], a_f[2], a_f[3])
-        y = np.array([fix.x - xm, fix.y - ym, wrap_angle(fix.theta - thm)])
-        s_mat = pf[:3, :3] + np.array(fix.cov).reshape(3, 3)
-        s_inv = np.linalg.inv(s_mat)
+        y = np.array([fix.x - a_f[1], fix.y - a_f[2], wrap_angle(fix.theta - a_f[3])])
+        s_inv = np.linalg.inv(pf[:3, :3] + np.array(fix.cov).reshape(3, 3))
         d2 = float(y @ s_inv @ y)
         c = self.counters
         c.last_d2 = d2
         if not d2 <= self.gate_chi2:
             c.outliers += 1
-            return {"fused": False, "outlier": True, "d2": d2, "gate": self.gate_chi2,
-                    "innovation": y.tolist()}
-        # Bring the map covariance to now, then the delayed update of every covariance the
-        # fix's time precedes: the present's and those saved after it.
+            return {"fused": False, "outlier": True, "d2": d2, "gate": self.gate_chi2, "innovation": y.tolist()}
         now_k = h.n - 1
         if track.k_map != now_k:
             track.advance_map(now_k)
-        cs = (math.cos(self.cth), math.sin(self.cth))
-        pf_cols = pf[:, :3]
-        delta = None
+        gain = pf[:, :3] @ s_inv  # K at the fix's time
+        delta_f = gain @ y  # the error state's correction then
+        m_f = gain @ pf[:3, :]  # and what it takes off the covariance: K H P
         for i, ks in enumerate(track.saved_k):
             if ks < 0 or ks < h.oldest or h.t[h.slot(ks)] < fix.stamp:
                 continue
-            cmat = _phi_matrix(phi(a_f, h.state(ks))[0], *cs) @ pf_cols  # cov(error then, innovation)
-            m = cmat @ s_inv @ cmat.T
-            m[3:, 3:] = 0.0  # Schmidt: the scale and bias errors are considered, not estimated
-            p = np.array(track.saved_p[i]).reshape(N, N) - m
+            ph = _phi_matrix(phi(a_f, h.state(ks))[0])
+            p = np.array(track.saved_p[i]).reshape(N, N) - ph @ m_f @ ph.T
             track.saved_p[i][:] = (0.5 * (p + p.T)).ravel().tolist()
             if ks == now_k:
-                delta = cmat[:3] @ s_inv @ y
                 track.p_map[:] = track.saved_p[i]
-        if delta is None:  # not expected: advance_map saved the present
-            raise FixError("stamp", "internal: the present's covariance was not saved")
         track._publish()
-        # The present's map pose moves by delta; the correction is what maps odom onto it.
-        xo, yo, tho = h.x[h.head], h.y[h.head], h.th[h.head]
-        xm, ym, thm = self.to_map(xo, yo, tho)
-        xm += float(delta[0])
-        ym += float(delta[1])
-        thm += float(delta[2])
-        self.cth = thm - tho
-        cc, ss = math.cos(self.cth), math.sin(self.cth)
-        self.cx = xm - (cc * xo - ss * yo)
-        self.cy = ym - (ss * xo + cc * yo)
-        track.c, track.s = cc, ss
+        delta = self._shift_history(h, a_f, k_f, delta_f)
+        self.x, self.y, self.th = h.x[h.head], h.y[h.head], h.th[h.head]
+        self.s += float(delta_f[3])
+        self.g += float(delta_f[4])
+        self.b += float(delta_f[5])
+        self.jumps += 1
         c.fused += 1
         c.last_stamp = fix.stamp
         return {"fused": True, "outlier": False, "d2": d2, "gate": self.gate_chi2, "innovation": y.tolist(),
-                "correction": [float(delta[0]), float(delta[1]), float(delta[2])]}
+                "correction": delta, "learnt": {"encoder_scale": self.s, "gyro_scale": self.g, "gyro_bias": self.b}}
+
+    @staticmethod
+    def _shift_history(h: Any, a_f: tuple[float, ...], k_f: int, delta_f: np.ndarray) -> list[float]:
+        """Every map pose recorded after the fix's time moves by the correction carried to
+        it (Phi from then, applied to delta_f); returns the present's."""
+        dxf, dyf, dthf, dsf, dgf, dbf = (float(v) for v in delta_f)
+        out = [0.0, 0.0, 0.0]
+        first = k_f if h.t[h.slot(k_f)] >= a_f[0] else k_f + 1  # a fix as new as a tick moves that tick
+        for k in range(first, h.n):
+            g02, g03, g04, g05, g12, g13, g14, g15, g24, g25 = phi(a_f, h.state(k))[0]
+            i = h.slot(k)
+            out = [dxf + g02 * dthf + g03 * dsf + g04 * dgf + g05 * dbf,
+                   dyf + g12 * dthf + g13 * dsf + g14 * dgf + g15 * dbf,
+                   dthf + g24 * dgf + g25 * dbf]
+            h.x[i] += out[0]
+            h.y[i] += out[1]
+            h.th[i] += out[2]
+        return out
 
 
-def _phi_matrix(g: tuple[float, ...], c: float, s: float) -> np.ndarray:
-    """Phi = I + G as a 6x6 array (position rows turned into the map frame)."""
+def _phi_matrix(g: tuple[float, ...]) -> np.ndarray:
+    """Phi = I + G as a 6x6 array."""
     a02, a03, a04, a05, a12, a13, a14, a15, g24, g25 = g
     m = np.eye(N)
-    m[0, 2:] = (c * a02 - s * a12, c * a03 - s * a13, c * a04 - s * a14, c * a05 - s * a15)
-    m[1, 2:] = (s * a02 + c * a12, s * a03 + c * a13, s * a04 + c * a14, s * a05 + c * a15)
+    m[0, 2:] = (a02, a03, a04, a05)
+    m[1, 2:] = (a12, a13, a14, a15)
     m[2, 4:] = (g24, g25)
     return m

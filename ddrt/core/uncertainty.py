@@ -110,20 +110,22 @@ def propagate(p: list[float], g: tuple[float, ...], c: float, s: float, dt: floa
         p[35] += qb * dt
 
 
-def condition_bias(p: list[float], var: float) -> None:
+def condition_bias(p: list[float], var: float) -> float:
     """The estimator re-learnt the bias at rest, to `var` (rad/s)^2: its new estimate is the
     old one moved by a gain k towards readings whose noise is independent of everything
     before, so eb' = (1 - k) eb + k n with (1 - k) = var / P[eb, eb]. Its correlations shrink
     by that factor; what the old bias error did to the heading and position stays (the
-    estimator corrects the bias, not the pose it already integrated)."""
+    estimator corrects the bias, not the pose it already integrated). Returns 1 - k: the map's
+    own learnt bias correction shrinks by it too (ddrt/core/pose_fix.py)."""
     pbb = p[35]
     if not var < pbb:
-        return
+        return 1.0
     f = max(var, 0.0) / pbb
     for i in range(N - 1):
         p[i * N + IB] *= f
         p[IB * N + i] *= f
     p[35] = max(var, 0.0)
+    return f
 
 
 class History:
@@ -254,7 +256,6 @@ class Tracker:
         self.p_odom = zero_cov()
         self.k_map = 0  # the history tick each covariance was last propagated to
         self.k_odom = 0
-        self.c, self.s = 1.0, 0.0  # cos, sin of the map -> odom correction's angle
         self.at_rest_var = math.inf  # the bias's variance learnt at rest since the last propagation
         n_saved = self.hist.cap // self.every + 2
         self.saved_k = [-1] * n_saved
@@ -269,31 +270,33 @@ class Tracker:
         self.p_map[:] = initial_cov(self.model, pose_cov)
         self.p_odom[:] = self.p_map
         self.k_map = self.k_odom = 0
-        self.c, self.s = 1.0, 0.0
+        self.bias_shrink = 1.0
         self.at_rest_var = math.inf
         for i in range(len(self.saved_k)):
             self.saved_k[i] = -1
         self._save()
         self._publish()
 
-    def step(self, t: float, x: float, y: float, th: float, dt: float, dx: float, dy: float, dth: float) -> None:
-        """One tick of dead reckoning (per tick: a few sums and stores); the covariances
-        follow on their schedule."""
+    def step(self, t: float, x: float, y: float, th: float, dt: float, dx: float, dy: float, dth: float,
+             odom_angle: float = 0.0) -> None:
+        """One tick of the map's dead reckoning (per tick: a few sums and stores); the
+        covariances follow on their schedule. `odom_angle`: odom's heading minus map's (the
+        odometry's covariance is kept in its own frame)."""
         h = self.hist
         h.record(t, x, y, th, dt, dx, dy, dth)
         k = h.n - 1
         if k - self.k_map >= self.every:
             self.advance_map(k)
         elif k - self.k_odom >= self.odom_every:
-            self._advance(self.p_odom, self.k_odom, k, 1.0, 0.0)
+            self._advance(self.p_odom, self.k_odom, k, math.cos(odom_angle), math.sin(odom_angle))
             self.k_odom = k
 
     def advance_map(self, k: int) -> None:
         """Propagate the map's covariance to history tick k (and keep it for late fixes)."""
-        self._advance(self.p_map, self.k_map, k, self.c, self.s)
+        self._advance(self.p_map, self.k_map, k, 1.0, 0.0)
         self.k_map = k
         if self.at_rest_var < math.inf:
-            condition_bias(self.p_map, self.at_rest_var)
+            self.bias_shrink *= condition_bias(self.p_map, self.at_rest_var)
             condition_bias(self.p_odom, self.at_rest_var)
             self.at_rest_var = math.inf
         self._save()

@@ -80,9 +80,9 @@ ADAPTER_COLUMNS = (
 # with the pose fixes' correction; the same until a fix), its 1-sigma uncertainty
 # (ddrt/core/uncertainty.py, propagated every 20 ms) and the fixes fused so far.
 POSE_COLUMNS = (
-    Column("x_map", "est.frame.cx + est.track.c * est.x - est.track.s * est.y"),
-    Column("y_map", "est.frame.cy + est.track.s * est.x + est.track.c * est.y"),
-    Column("theta_map", "est.theta + est.frame.cth"),
+    Column("x_map", "est.frame.x"),
+    Column("y_map", "est.frame.y"),
+    Column("theta_map", "est.frame.th"),
     Column("std_x", "est.track.std[0]"),
     Column("std_y", "est.track.std[1]"),
     Column("std_theta", "est.track.std[2]"),

@@ -1,20 +1,21 @@
 """A path given in the `map` frame, followed by a loop that steers in `odom`.
 
-The estimator's odometry (`odom`) never jumps; pose fixes move the correction map -> odom
-(ddrt/core/pose_fix.py: map pose = correction composed with the odometry's). The path was
-built in odom as the correction stood when the follow was asked (`built`: the worker moved
-it there, ddrt/service/pathjob.py). As fixes move the correction, the correction this stage
-applies follows it as a first-order lag of time constant `blend_s` (estimator.map_blend_s),
-so the reference the controller sees moves smoothly and the motor command does not step:
-the robot's pose is taken into the path's coordinates through D = built^-1 . applied, the
-inner stage (a PathReference or StartReference) works there, and its setpoint comes back
-through D^-1. Speeds, curvature and progress are the same in every frame.
+The estimator's odometry (`odom`) never jumps; the map pose (ddrt/core/pose_fix.py) does at
+each fix, and the correction map -> odom with it. The path was built in odom as the
+correction stood when the follow was asked (`built`: the worker moved it there,
+ddrt/service/pathjob.py). A fix's jump enters this stage as an offset that decays over
+`blend_s` (estimator.map_blend_s), so the reference the controller sees moves smoothly and
+the motor command does not step; between fixes the correction's slow drift (the learnt scale
+and bias corrections at work) passes straight through. The robot's pose is taken into the
+path's coordinates through D = built^-1 . J . correction, the inner stage (a PathReference
+or StartReference) works there, and its setpoint comes back through D^-1. Speeds, curvature
+and progress are the same in every frame.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Callable
+from typing import Protocol
 
 from ddrt.core.reference import Reference
 from ddrt.core.types import Setpoint
@@ -34,18 +35,26 @@ def inverse(a: Transform) -> Transform:
     return -(c * a[0] + s * a[1]), s * a[0] - c * a[1], -a[2]
 
 
+class _Frame(Protocol):
+    jumps: int
+
+    def correction(self) -> Transform: ...
+
+
 class MapReference:
     """A reference stage in `map` coordinates seen from `odom` (a ddrt.core.reference.Reference)."""
 
-    def __init__(self, inner: Reference, built: Transform, correction: Callable[[], Transform],
-                 blend_s: float, period_s: float) -> None:
+    def __init__(self, inner: Reference, built: Transform, frame: _Frame, blend_s: float, period_s: float) -> None:
         self.inner = inner
         self.built_inv = inverse(built)
-        self.applied = built  # the correction in use, lagging `correction()`
-        self.correction = correction
+        self.frame = frame
         self.blend_s = blend_s
         self.period = period_s
-        self._d: Transform = (0.0, 0.0, 0.0)
+        # The part of the fixes' jumps not yet applied (a map-frame transform that decays to
+        # identity), and the correction as last seen: the correction in use is J . correction.
+        self.jump: Transform = compose(built, inverse(frame.correction()))
+        self._jumps = frame.jumps
+        self._last = frame.correction()
 
     # ------------------------------------------------------------------ the protocol
 
@@ -95,13 +104,26 @@ class MapReference:
         sp.theta_d -= d[2]
 
     def _blend(self, dt: float) -> Transform:
-        """Move the applied correction towards the estimator's; D = built^-1 . applied."""
-        target = self.correction()
-        a = self.applied
-        if target != a:
-            k = 1.0 if self.blend_s <= 0.0 else 1.0 - math.exp(-dt / self.blend_s)
-            a = (a[0] + k * (target[0] - a[0]), a[1] + k * (target[1] - a[1]),
-                 a[2] + k * wrap_angle(target[2] - a[2]))
-            self.applied = a
-            self._d = compose(self.built_inv, a)
-        return self._d
+        """D = built^-1 . J . correction: a fix's jump enters J (so D does not move at it) and
+        J decays to identity over blend_s; the correction's slow drift (the learnt scale and
+        bias corrections acting) passes straight through."""
+        frame = self.frame
+        target = frame.correction()
+        if frame.jumps != self._jumps:
+            self._jumps = frame.jumps
+            self.jump = compose(compose(self.jump, self._last), inverse(target))
+        self._last = target
+        j = self.jump
+        if j != (0.0, 0.0, 0.0):
+            k = 0.0 if self.blend_s <= 0.0 else math.exp(-dt / self.blend_s)
+            j = (k * j[0], k * j[1], k * wrap_angle(j[2])) if k > 1e-9 else (0.0, 0.0, 0.0)
+            if abs(j[0]) + abs(j[1]) + abs(j[2]) < 1e-12:
+                j = (0.0, 0.0, 0.0)
+            self.jump = j
+        return compose(self.built_inv, compose(j, target))
+
+
+def in_map(reference: Reference, frame: _Frame, built: Transform, blend_s: float, period_s: float) -> MapReference:
+    """`reference` (built in odom at the correction `built`) followed in map as `frame` (the
+    estimator's MapFrame) moves: what a follow with frame: map puts in the loop."""
+    return MapReference(reference, built, frame, blend_s, period_s)

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ddrt.path import PathError
-from ddrt.path.frame import MapReference, inverse
+from ddrt.path.frame import in_map, inverse
 from ddrt.path.spec import config_path_error, speed_limits
 from ddrt.service.audit import peer_text
 from ddrt.service.ctlqueue import Deferred
@@ -118,8 +118,7 @@ def start_follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
             return {"ok": False, "error": "follow: pose and frame map: give one (set the pose first with the pose "
                                           "command, then follow in map)"}
         # Built in odom as the fixes' correction stands now (ddrt/path/frame.py follows it from there).
-        f = loop.estimator.frame
-        built = (f.cx, f.cy, f.cth)
+        built = loop.estimator.frame.correction()
     # here: the path is moved (in the worker) so that it starts at the robot's pose and heading
     place_at = (loop.estimator.map_pose() if frame == "map" else loop.estimator_pose()) if here else None
     job = BuildJob(source, speed_limits(d.cfg), d.cfg.paths, where="request", place_at=place_at,
@@ -180,9 +179,8 @@ def switch(d: Daemon, p: PendingFollow, build: Build) -> dict[str, Any]:
         d.audit.note(f"follow of {p.what} {p.who or 'at start-up (--follow)'}", always=False)
         loop.follow(path, p.pose)
         if p.built is not None:  # a path in map, steered in odom (ddrt/path/frame.py)
-            est = loop.estimator
-            loop.reference = MapReference(loop.reference, p.built, lambda: (est.frame.cx, est.frame.cy, est.frame.cth),
-                                          d.cfg.estimator.map_blend_s, loop.period)
+            loop.reference = in_map(loop.reference, loop.estimator.frame, p.built, d.cfg.estimator.map_blend_s,
+                                    loop.period)
     except (ValueError, RuntimeError) as exc:
         if d.paths is not None:
             d.paths.dispose(path)

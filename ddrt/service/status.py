@@ -121,12 +121,14 @@ def estimate_report(est: Any) -> dict[str, Any]:
     """The pose in `map`, the uncertainty of both frames and the pose fixes (docs/estimation.md);
     `clock_s` is the loop's clock now, what a fix's stamp is on."""
     xm, ym, thm = est.map_pose()
+    cx, cy, cth = est.frame.correction()
     track, fc = est.track, est.frame.counters
     p, q = track.p_map, track.p_odom
     return {
         "clock_s": est.t_est,
         "pose_map": {"x": xm, "y": ym, "theta": thm},
-        "map_to_odom": {"x": est.frame.cx, "y": est.frame.cy, "theta": est.frame.cth},
+        "map_to_odom": {"x": cx, "y": cy, "theta": cth},
+        "learnt": {"encoder_scale": est.frame.s, "gyro_scale": est.frame.g, "gyro_bias_rad_s": est.frame.b},
         "uncertainty": {"std_x": track.std[0], "std_y": track.std[1], "std_theta": track.std[2],
                         "std_position": math.sqrt(max(p[0] + p[7], 0.0)),
                         "cov_map": [p[0:3], p[6:9], p[12:15]], "cov_odom": [q[0:3], q[6:9], q[12:15]]},
