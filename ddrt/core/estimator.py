@@ -235,14 +235,17 @@ class Estimator:
         self.health.stale_ticks = 0
         self.t_est = sample.t
         self.track.reset(sample.t, pose)
-        self.frame.reset(pose)
+        self.frame.reset(pose, anchored=False)  # nothing says where map is yet
 
-    def set_pose(self, pose: tuple[float, float, float], cov: list[float] | None = None) -> None:
+    def set_pose(self, pose: tuple[float, float, float], cov: list[float] | None = None,
+                 anchored: bool = True) -> None:
         """The robot is at `pose` (in both frames: the map correction is cleared), known to
-        `cov` (a 3x3 covariance, 9 floats row by row; None: exactly)."""
+        `cov` (a 3x3 covariance, 9 floats row by row; None: exactly). `anchored`: this is
+        where it is in map (a pose set); False for a convention (a reset's origin), which
+        leaves the first fix to say where map is."""
         self.x, self.y, self.theta = pose
         self.track.reset(self.t_est, pose, cov)
-        self.frame.reset(pose)
+        self.frame.reset(pose, anchored)
 
     # ------------------------------------------------------------------ frames and fixes
 

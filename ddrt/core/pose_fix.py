@@ -164,10 +164,14 @@ class MapFrame:
         self.xo = self.yo = self.tho = 0.0  # the odometry's pose now
         self.s = self.g = self.b = 0.0  # learnt corrections: encoder scale, gyro scale, bias (rad/s)
         self.jumps = 0
+        self.anchored = False  # does anything say where map is (a pose set, or a first fix)?
         self.counters = FixCounters()
 
-    def reset(self, pose: tuple[float, float, float]) -> None:
-        """The map and odom frames are the same again, at `pose` (a pose set or a reset)."""
+    def reset(self, pose: tuple[float, float, float], anchored: bool = True) -> None:
+        """The map and odom frames are the same again, at `pose` (a pose set or a reset).
+        `anchored`: the pose is where the robot is in map (a pose set); otherwise (a start
+        or a reset) nothing has said where map is, and the first fix will (`fuse`)."""
+        self.anchored = anchored
         self.x, self.y, self.th = pose
         self.xo, self.yo, self.tho = pose
         self.s = self.g = self.b = 0.0
@@ -206,12 +210,12 @@ class MapFrame:
         oldest = h.t[h.slot(h.oldest)]
         if stamp > now + 1e-9:
             raise FixError("stamp", f"{stamp:.6f} s is in the future: the loop's clock is at {now:.6f} s")
-        if stamp < oldest:
-            raise FixError("stamp", f"{stamp:.6f} s is older than the history, which reaches back to {oldest:.6f} s "
-                                    f"({now - oldest:.2f} s; estimator.fix_history_s)")
         if stamp < self.counters.last_stamp:
             raise FixError("stamp", f"{stamp:.6f} s is before the last fix fused ({self.counters.last_stamp:.6f} s): "
                                     "fixes are fused in time order")
+        if stamp < oldest:
+            raise FixError("stamp", f"{stamp:.6f} s is older than the history, which reaches back to {oldest:.6f} s "
+                                    f"({now - oldest:.2f} s; estimator.fix_history_s)")
 
     def fuse(self, track: Tracker, fix: PoseFix) -> dict[str, Any]:
         """Gate and fuse `fix` (its stamp checked first); returns what happened, for the reply.
@@ -223,6 +227,8 @@ class MapFrame:
         self.check_stamp(track, fix.stamp)
         h = track.hist
         a_f = h.at_time(fix.stamp)
+        if not self.anchored:
+            return self._anchor(track, fix, a_f)
         k_f = h.find(fix.stamp)
         saved = track.saved_before(k_f)
         if saved is None:  # not expected: a save is made at every reset and propagation
@@ -263,8 +269,32 @@ class MapFrame:
         self.jumps += 1
         c.fused += 1
         c.last_stamp = fix.stamp
-        return {"fused": True, "outlier": False, "d2": d2, "gate": self.gate_chi2, "innovation": y.tolist(),
+        return {"fused": True, "outlier": False, "anchored": False, "d2": d2, "gate": self.gate_chi2,
+                "innovation": y.tolist(),
                 "correction": delta, "learnt": {"encoder_scale": self.s, "gyro_scale": self.g, "gyro_bias": self.b}}
+
+    def _anchor(self, track: Tracker, fix: PoseFix, a_f: tuple[float, ...]) -> dict[str, Any]:
+        """The first fix of an unanchored map: it says where map is. The map pose becomes the
+        fix carried to now by the motion since its time, known to the fix's covariance; the
+        history starts again there (a later fix must be newer than this moment)."""
+        h = track.hist
+        now = (h.x[h.head], h.y[h.head], h.th[h.head])
+        c, s = math.cos(a_f[3]), math.sin(a_f[3])
+        ex, ey = now[0] - a_f[1], now[1] - a_f[2]
+        rel = (c * ex + s * ey, -s * ex + c * ey, now[2] - a_f[3])  # the motion since, in the body frame then
+        c, s = math.cos(fix.theta), math.sin(fix.theta)
+        pose = (fix.x + c * rel[0] - s * rel[1], fix.y + s * rel[0] + c * rel[1], fix.theta + rel[2])
+        jump = [pose[0] - now[0], pose[1] - now[1], wrap_angle(pose[2] - now[2])]
+        t_now = h.t[h.head]
+        track.reset(t_now, pose, list(fix.cov))
+        self.x, self.y, self.th = pose
+        self.anchored = True
+        self.jumps += 1
+        self.counters.fused += 1
+        self.counters.last_d2 = math.nan
+        self.counters.last_stamp = t_now
+        return {"fused": True, "outlier": False, "anchored": True, "d2": None, "gate": self.gate_chi2,
+                "correction": jump, "learnt": {"encoder_scale": self.s, "gyro_scale": self.g, "gyro_bias": self.b}}
 
     @staticmethod
     def _shift_history(h: Any, a_f: tuple[float, ...], k_f: int, delta_f: np.ndarray) -> list[float]:

@@ -121,7 +121,7 @@ def _reset(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
     d.audit.note(f"reset {who(d)}")
     loop.reset()
     # The pose starts again from (0, 0, 0): a path is placed in this frame (or with --here).
-    loop.estimator.set_pose((0.0, 0.0, 0.0))
+    loop.estimator.set_pose((0.0, 0.0, 0.0), anchored=False)  # the first fix says where map is
     return {"ok": True, "state": loop.state.label}
 
 
