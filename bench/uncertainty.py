@@ -18,7 +18,6 @@ import argparse
 import math
 import sys
 import time
-from pathlib import Path as FsPath
 from typing import Any
 
 import numpy as np
@@ -156,6 +155,10 @@ def fix_run(spec: dict[str, Any], duration_s: float, fixes: bool, seed: int, sca
             "duty_step_at_fix": max(at) if at else math.nan, "duty_step_steady": float(d[mask].max())}
 
 
+def _num(v: float, fmt: str) -> str:
+    return "-" if math.isnan(v) else format(v, fmt)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="3 scenarios, 6 robots, one seed: a smoke run")
@@ -193,7 +196,7 @@ def main(argv: list[str] | None = None) -> int:
             r = fix_run(spec, 60.0, fixes, seed)
             print(f"| {seed} | {'every 1 s' if fixes else 'none'} | {r['state']} | {r['seconds']:.1f} | {r['max_mm']:.1f} | "
                   f"{r['t_max_s']:.1f} | {r['max_after_6s_mm']:.1f} | {r['rms_mm']:.2f} | {r['fixes']} | {r['outliers']} | "
-                  f"{r['learnt_gyro_scale']:+.4f} | {r['duty_step_at_fix']:.4f} | {r['duty_step_steady']:.4f} |")
+                  f"{_num(r['learnt_gyro_scale'], '+.4f')} | {_num(r['duty_step_at_fix'], '.4f')} | {r['duty_step_steady']:.4f} |")
             sys.stdout.flush()
     print(f"\n({time.time() - t0:.0f} s wall)")
     return 0
