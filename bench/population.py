@@ -12,11 +12,18 @@ Each robot drives the figure-eight (1.2 x 0.6 m) and the rectangle (1.2 x 0.8 m,
 the corners) of configs/paths/ at a speed drawn from 50-90 % of its motors' full-voltage
 no-load speed (a speed the motors reach; the profile keeps within its headroom and says so
 when it clamps). Controllers: dynamic (the default), dynamic with adaptation, kinematic.
+
+`--harsh`: the same robots with cheap parts on the realistic plant (issue 23; drawn per robot
+from its name, so a robot is as harsh in every run): gyro sensitivity off by 2-3 % either
+way, zero-rate bias up to 5 deg/s either way, a coarse front encoder (400, 600 or 1024
+counts a turn), a driver deadband of 2-5 % of duty and 0.5-2 degrees of gearbox backlash.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import random
 import statistics
 import sys
 import time
@@ -28,6 +35,8 @@ from ddrt.config import config_from_mapping
 from ddrt.config.yamlio import read_yaml
 from ddrt.sweep.campaign import Campaign, CampaignError, campaign_from_mapping
 from ddrt.config.load import merge_mappings
+from ddrt.config.sim_truth import ActuatorTruth
+from ddrt.sweep.cases import Plan
 from ddrt.sweep.cases import expand
 from ddrt.sweep.driver import run_plan
 from ddrt.sweep.population import SEED, Robot
@@ -90,6 +99,32 @@ def campaign(n: int = ROBOTS, variants: Sequence[str] = VARIANTS, seed: int = SE
     return campaign_from_mapping(data, source=str(CAMPAIGN), folder=CAMPAIGN.parent)
 
 
+def harsh_sections(name: str) -> dict[str, Any]:
+    """The cheap parts robot `name` gets with --harsh (module doc), as config keys."""
+    rng = random.Random(f"harsh/{name}")
+    return {
+        "sim": {"gyro": {"scale_error": rng.choice((-1, 1)) * rng.uniform(0.02, 0.03),
+                         "bias_dps": rng.uniform(-5.0, 5.0)},
+                "actuators": {"deadband": rng.uniform(0.02, 0.05), "backlash_deg": rng.uniform(0.5, 2.0)}},
+        "sensors": {"encoder_counts_per_rev": rng.choice((400, 600, 1024))},
+    }
+
+
+def harsh_plan(plan: Plan) -> Plan:
+    """`plan` with every robot's cheap parts (harsh_sections) in its config."""
+    cases = []
+    for case in plan.cases:
+        keys = harsh_sections(case.params["robot"])
+        cfg = case.config
+        gyro = dataclasses.replace(cfg.sim.gyro, **keys["sim"]["gyro"])
+        actuators = ActuatorTruth(**keys["sim"]["actuators"])
+        actuators.validate("harsh.sim.actuators")
+        cfg = dataclasses.replace(cfg, sim=dataclasses.replace(cfg.sim, gyro=gyro, actuators=actuators),
+                                  sensors=dataclasses.replace(cfg.sensors, **keys["sensors"]))
+        cases.append(dataclasses.replace(case, config=cfg, case_id=case.case_id + "-harsh"))
+    return dataclasses.replace(plan, cases=tuple(cases), fingerprint=plan.fingerprint + "-harsh")
+
+
 @dataclass
 class PopulationResult:
     robots: list[Robot]
@@ -97,15 +132,17 @@ class PopulationResult:
     variants: tuple[str, ...]
     wall_s: float
     verdict: list[str] = field(default_factory=list)
+    harsh: bool = False
 
 
 def measure_population(n: int = ROBOTS, workers: int = 2, variants: Sequence[str] = VARIANTS,
-                       seed: int = SEED) -> PopulationResult:
+                       seed: int = SEED, harsh: bool = False) -> PopulationResult:
     robots = population(n, seed)
     t0 = time.perf_counter()
-    rows = run_plan(expand(campaign(n, variants, seed)), workers)
+    plan = expand(campaign(n, variants, seed))
+    rows = run_plan(harsh_plan(plan) if harsh else plan, workers)
     runs = {(r["robot"], r["path"], r["variant"]): _record(r) for r in rows}
-    res = PopulationResult(robots, runs, tuple(variants), time.perf_counter() - t0)
+    res = PopulationResult(robots, runs, tuple(variants), time.perf_counter() - t0, harsh=harsh)
     res.verdict = verdicts(res)
     return res
 
@@ -181,7 +218,9 @@ def render(res: PopulationResult) -> list[str]:
         "(`plant:`), 0.5-3 ms latency; each given as its `robot:` section with every other key at default "
         f"(so the speed profile derives its limits from the motors). The figure-eight and the rectangle at 50-90 % "
         f"of each robot's no-load speed; {len(res.runs)} runs on the simulated robot, {res.wall_s:.0f} s wall. "
-        f"pass = completed with est RMS <= {EST_TARGET_M * 1e3:g} mm and true RMS <= {TRUE_TARGET_M * 1e3:g} mm.",
+        f"pass = completed with est RMS <= {EST_TARGET_M * 1e3:g} mm and true RMS <= {TRUE_TARGET_M * 1e3:g} mm."
+        + (" **Harsh**: each robot with cheap parts on the realistic plant (`--harsh`: gyro scale 2-3 % off, "
+           "bias up to 5 deg/s, 400-1024 count encoder, 2-5 % deadband, 0.5-2 degrees backlash)." if res.harsh else ""),
         "",
         "| controller | pass | completed | est RMS median / worst (mm) | true RMS median / worst (mm) | "
         f"saturated median / worst | runs saturated > {SAT_TARGET:.0%} |",
@@ -211,9 +250,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--variants", default=",".join(VARIANTS), help=f"comma-separated, of {', '.join(VARIANTS)}")
     ap.add_argument("--json", help="also write every run's numbers to this file")
+    ap.add_argument("--harsh", action="store_true", help="cheap parts on the realistic plant (module doc)")
     args = ap.parse_args(argv)
     variants = tuple(v for v in args.variants.split(",") if v)
-    res = measure_population(args.robots, args.workers, variants)
+    res = measure_population(args.robots, args.workers, variants, harsh=args.harsh)
     print("\n".join(render(res)))
     if args.json:
         import json

@@ -9,6 +9,11 @@ command arrives for `drive_timeout_s` (100 ms, `hal.bridge.drive_timeout_ms`'s d
 zeroes both motors, so a stalled or stopped loop leaves the simulated robot as it would the
 real one. A loop that writes every tick never trips it.
 
+Like a protocol-v2 microcontroller, it measures the driver's supply (`SimRobot.battery_v`,
+in every sample's `battery_v`; `battery_measured=False`, `sim.battery_measured: false`, is a
+v1 MCU that does not) and has a hardware emergency-stop input, closed unless a test opens it
+(`estop_input_open`).
+
 Fault injection: `freeze(at, duration)` makes the sensors repeat their last reading, flagged
 not fresh, from sim time `at` for `duration` s (None: for good); `sim.sensors_freeze_after_s`
 with `sim.sensors_freeze_for_s` does it from the config.
@@ -31,7 +36,8 @@ class SimHal(Hal):
     owns_time = True
     robot: SimRobot  # Hal's optional capability: the truth behind the readings
 
-    def __init__(self, robot: SimRobot, paced: bool = False, drive_timeout_s: float | None = 0.1) -> None:
+    def __init__(self, robot: SimRobot, paced: bool = False, drive_timeout_s: float | None = 0.1,
+                 battery_measured: bool = True) -> None:
         if drive_timeout_s is not None and not (math.isfinite(drive_timeout_s) and drive_timeout_s > 0):
             raise ValueError(f"drive_timeout_s: expected None or a positive number, got {drive_timeout_s!r}")
         self.robot = robot
@@ -43,7 +49,10 @@ class SimHal(Hal):
             gyro_full_scale_rad_s=robot.gyro_full_scale_rad_s,
             gyro_delay_s=robot.gyro_delay_s,
             drive_timeout_s=drive_timeout_s,
+            battery_measured=battery_measured,
+            hw_estop_wired=True,
         )
+        self.estop_input_open = False  # the robot's emergency-stop button, pressed (tests)
         self._freezes: list[tuple[float, float]] = []  # fault injection: [start, end) in sim time
         self._last_sample: Sample | None = None
         self._last_drive_t = robot.t
@@ -127,8 +136,12 @@ class SimHal(Hal):
         last = self._last_sample
         if self._freezes and last is not None and self._frozen(t):
             return Sample(t=last.t, encoder_count=last.encoder_count, gyro_z_raw=last.gyro_z_raw,
-                          fresh=False, faults="sensors frozen (injected)")
-        self._last_sample = Sample(t=t, encoder_count=self.robot.read_encoder(), gyro_z_raw=self.robot.read_gyro_raw())
+                          fresh=False, faults="sensors frozen (injected)", battery_v=last.battery_v,
+                          hw_estop=self.estop_input_open)
+        robot = self.robot
+        self._last_sample = Sample(t=t, encoder_count=robot.read_encoder(), gyro_z_raw=robot.read_gyro_raw(),
+                                   battery_v=robot.battery_v if self.info.battery_measured else math.nan,
+                                   hw_estop=self.estop_input_open)
         return self._last_sample
 
     def _write(self, duty_l: float, duty_r: float) -> None:

@@ -50,22 +50,34 @@ class _PlantGyro:
 
 
 class EmulatedDevices:
-    """The simulated robot, its two emulated devices, and the clock that drives them (`time`)."""
+    """The simulated robot, its two emulated devices, and the clock that drives them (`time`).
+
+    The MCU runs on its own crystal, `sim.mcu_clock_ppm` off: its time (the t_us it stamps,
+    its STATE period, its DRIVE watchdog) is the plant's scaled by 1 + ppm 1e-6. With
+    `sim.gyro.register_hold`, the emulated MPU-6050 refreshes its registers at its sample rate.
+    """
 
     def __init__(self, cfg: Config, start: tuple[float, float, float], seed: int | None = None,
                  paced: bool = False, state_rate_hz: int | None = None) -> None:
         self.robot = SimRobot(cfg.plant, cfg.plant_motor_l, cfg.plant_motor_r, plant_config(cfg, seed), start=start)
+        self._mcu_scale = 1.0 + cfg.sim.mcu_clock_ppm * 1e-6
         rate = state_rate_hz or int(round(cfg.controller.rate_hz))
-        self.mcu = McuEmulator(_PlantMotorsAndEncoder(self.robot), now=self.robot.t,
+        self.mcu = McuEmulator(_PlantMotorsAndEncoder(self.robot), now=self.mcu_time(self.robot.t),
                                counts_per_rev=cfg.sensors.encoder_counts_per_rev, state_rate_hz=rate)
         url = cfg.hal.bridge.url or "ddrtsim://robot"
         self.name = f"{url.split('://', 1)[-1].strip('/') or 'robot'}-{next(_names)}"
         self.url = f"ddrtsim://{self.name}"
-        self.link = protocol_ddrtsim.register(self.name, self.mcu, self.robot.t)
-        self.i2c = MpuEmulator(_PlantGyro(self.robot))
+        self.link = protocol_ddrtsim.register(self.name, self.mcu, self.mcu_time(self.robot.t))
         robot = self.robot
+        g = cfg.sim.gyro
+        self.i2c = MpuEmulator(_PlantGyro(robot), clock=(lambda: robot.t) if g.register_hold else None,
+                               clock_ppm=g.clock_ppm, temperature_c=lambda: robot.gyro_die_temp_c)
         self.time = SimTime(lambda: robot.t, self._advance, paced)  # the real drivers' Clock
-        self.link.pump(robot.t)
+        self.link.pump(self.mcu_time(robot.t))
+
+    def mcu_time(self, t: float) -> float:
+        """The MCU's own time at plant time `t` (its crystal's error applied)."""
+        return t * self._mcu_scale if self._mcu_scale != 1.0 else t
 
     def _advance(self, t: float) -> None:
         """Integrate in plant steps, letting the MCU run at each, so STATE frames carry the
@@ -74,7 +86,7 @@ class EmulatedDevices:
         step = robot.step_s
         while robot.t < t - 1e-12:
             robot.advance_to(min(t, robot.t + step))
-            self.link.pump(robot.t)
+            self.link.pump(self.mcu_time(robot.t))
 
     def close(self) -> None:
         protocol_ddrtsim.unregister(self.name)

@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from ddrt.config import Config
-from sim_hal.plant import PlantConfig, SimRobot
+from sim_hal.plant import PlantConfig, Realism, SimRobot
 from sim_hal.backend import SimHal
 
 
@@ -26,6 +26,7 @@ def plant_config(cfg: Config, seed: int | None = None) -> PlantConfig:
         gyro_noise_dps_rthz=s.gyro.noise_dps_rthz,
         gyro_scale_error=s.gyro.scale_error,
         gyro_dlpf_hz=s.gyro.dlpf_hz,
+        realism=Realism.from_sim(s, cfg.hal.imu.sample_rate_div),
     )
 
 
@@ -33,7 +34,7 @@ def open_sim_hal(cfg: Config, start: tuple[float, float, float] = (0.0, 0.0, 0.0
                  seed: int | None = None, paced: bool = False, **_: Any) -> SimHal:
     """A SimHal around the plant described by `cfg` (truth: plant:, sim:, sensors:)."""
     robot = SimRobot(cfg.plant, cfg.plant_motor_l, cfg.plant_motor_r, plant_config(cfg, seed), start=start)
-    hal = SimHal(robot, paced=paced)
+    hal = SimHal(robot, paced=paced, battery_measured=cfg.sim.battery_measured)
     if cfg.sim.sensors_freeze_after_s is not None:
         hal.freeze(robot.t + cfg.sim.sensors_freeze_after_s, cfg.sim.sensors_freeze_for_s)
     return hal

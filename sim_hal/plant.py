@@ -11,6 +11,11 @@ Speed matters (a closed-loop CI run must go >= 100x real time), so the inner ste
 float arithmetic on locals: the motor and model formulas are inlined there with their
 constants taken from `Motor`'s parameters and `Dynamics`; tests check the inlined torque
 against `Motor.torque` and the motion against an independent derivation of the model.
+
+A plant with anything but the default `PlantConfig.realism` (a battery, gyro warm-up and
+register timing, encoder slip, deadband, backlash, events: issue 23) integrates in Python,
+in sim_hal/plant_real.py, never in the compiled kernel: the default plant keeps its fast,
+bit-identical path and the realistic one is written once.
 """
 
 from __future__ import annotations
@@ -19,100 +24,22 @@ import ctypes
 import math
 import random
 from collections import deque
-from dataclasses import dataclass, fields, replace
-from typing import Any, Mapping
+from dataclasses import replace
+from typing import Any
 
 from ddrt.core.model import Dynamics
 from ddrt.params.robot import RobotParams
 from ddrt.params.motor import MotorParams
-from ddrt.params.gyro_scale import GYRO_LSB_PER_DPS, gyro_lsb_per_rad_s
+from ddrt.params.gyro_scale import GYRO_LSB_PER_DPS
 
 from sim_hal import plant_native, raw_readings
+from sim_hal.plant_config import EnergyLedger, PlantConfig, Realism
+
+__all__ = ["EnergyLedger", "PlantConfig", "Realism", "SimRobot"]
 
 _DEG_PER_RAD = 180.0 / math.pi
 _TWO_PI = 2.0 * math.pi  # random.TWOPI: the inlined gauss must match random.gauss bit for bit
 _EPS_T = 1e-12  # times closer than this count as equal (float rounding of k * step)
-
-
-@dataclass(frozen=True)
-class PlantConfig:
-    """Everything about the simulated robot that is not its geometry or its motors."""
-
-    step_hz: float = 1000.0  # RK4 rate of the plant, independent of the controller's rate
-    friction: bool = True  # False zeroes the motors' viscous and Coulomb friction
-    slip: bool = True  # the seed's random slip torque
-    slip_probability: float = 0.25  # chance per wheel per step that a slip term is added
-    slip_fraction: float = 0.01  # slip size ~ N(slip_fraction * tau, slip_sigma_nm)
-    slip_sigma_nm: float = 0.01
-    seed: int | None = 0  # None: a different run every time
-    command_latency_s: float = 0.0015  # duty command -> motor voltage
-    sensor_latency_s: float = 0.001  # age of the state a reading reports
-    encoder_counts_per_rev: int = 8192  # front wheel, lines x 4
-    encoder_offset_counts: int = 0  # counter value at start (a counter need not start at 0)
-    gyro_range_dps: int = 250
-    gyro_scale_error: float = 0.0  # relative error of the gyro's sensitivity
-    gyro_bias_dps: float = 1.5
-    gyro_noise_dps_rthz: float = 0.005  # white noise density before the low-pass
-    gyro_dlpf_hz: float = 98.0  # MPU-6050 digital low-pass (DLPF_CFG=2)
-
-    def __post_init__(self) -> None:
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if f.name in ("friction", "slip"):
-                if not isinstance(value, bool):
-                    raise ValueError(f"PlantConfig.{f.name}: expected true/false, got {value!r}")
-                continue
-            if f.name == "seed" and value is None:
-                continue
-            if f.name in ("seed", "encoder_counts_per_rev", "encoder_offset_counts", "gyro_range_dps"):
-                if isinstance(value, bool) or not isinstance(value, int):
-                    raise ValueError(f"PlantConfig.{f.name}: expected an integer, got {value!r}")
-                continue
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise ValueError(f"PlantConfig.{f.name}: expected a finite number, got {value!r}")
-            object.__setattr__(self, f.name, float(value))
-        positive = ("step_hz", "gyro_dlpf_hz", "encoder_counts_per_rev")
-        non_negative = ("slip_fraction", "slip_sigma_nm", "command_latency_s", "sensor_latency_s",
-                        "gyro_noise_dps_rthz")
-        for name in positive:
-            if getattr(self, name) <= 0:
-                raise ValueError(f"PlantConfig.{name}: must be > 0, got {getattr(self, name)!r}")
-        for name in non_negative:
-            if getattr(self, name) < 0:
-                raise ValueError(f"PlantConfig.{name}: must be >= 0, got {getattr(self, name)!r}")
-        if not 0.0 <= self.slip_probability <= 1.0:
-            raise ValueError(
-                f"PlantConfig.slip_probability: must be in [0, 1], got {self.slip_probability!r}"
-            )
-        if self.gyro_scale_error <= -1.0:
-            raise ValueError(f"PlantConfig.gyro_scale_error: must be > -1, got {self.gyro_scale_error!r}")
-        gyro_lsb_per_rad_s(self.gyro_range_dps)  # raises for a range the part lacks
-
-    @classmethod
-    def from_mapping(cls, mapping: Mapping[str, Any]) -> "PlantConfig":
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(mapping) - known)
-        if unknown:
-            raise ValueError(f"PlantConfig: unknown key(s) {', '.join(unknown)}")
-        return cls(**dict(mapping))
-
-
-@dataclass(frozen=True, slots=True)
-class EnergyLedger:
-    """Cumulative work (J) at the wheels since the start, for energy-balance tests.
-
-    `electromagnetic_j` is the motors' armature torque times wheel speed, `friction_loss_j`
-    the work lost to viscous and Coulomb friction, `slip_j` the work of the slip torque.
-    Their balance `net_j` equals the change of the robot's kinetic energy.
-    """
-
-    electromagnetic_j: float
-    friction_loss_j: float
-    slip_j: float
-
-    @property
-    def net_j(self) -> float:
-        return self.electromagnetic_j - self.friction_loss_j + self.slip_j
 
 
 class SimRobot:
@@ -160,11 +87,20 @@ class SimRobot:
         n = self._sensor_delay + 1
         self._ring_phi3: Any = [0.0] * n
         self._ring_gyro: Any = [self._gyro_f] * n
+        self._ring_phl: Any = [0.0] * n  # the drive wheels' angles, for their encoders
+        self._ring_phr: Any = [0.0] * n
+
+        # Issue 23's realism: the Python integrator of plant_real.py (imported only then).
+        self._real: Any = None
+        if cfg.realism.active:
+            from sim_hal.plant_real import RealisticPlant
+
+            self._real = RealisticPlant(self)
 
         # The compiled kernel (plant_native.py says why), else None: the Python below. With the
         # kernel, the state lives in its buffer `_st` (the properties read it), else in attributes.
         self._st: Any = None
-        self._kernel = plant_native.kernel()
+        self._kernel = plant_native.kernel() if self._real is None else None
         if self._kernel is not None:
             self._native_setup()
 
@@ -229,12 +165,47 @@ class SimRobot:
 
     def read_encoder(self) -> int:
         """Front encoder count as the hardware counter holds it (signed 32-bit, wrapping)."""
+        if self._real is not None:
+            return self._real.read_encoder()
         phi3 = self._ring_phi3[self._ring_index()]
         return raw_readings.encoder_count(phi3, self.cfg.encoder_counts_per_rev, self.cfg.encoder_offset_counts)
 
     def read_gyro_raw(self) -> int:
         """Gyro z as the int16 the MPU-6050 reports at its configured range (bias included)."""
+        if self._real is not None:
+            return raw_readings.gyro_raw(self._real.gyro_dps(), self._gyro_lsb_per_dps)
         return raw_readings.gyro_raw(self._ring_gyro[self._ring_index()], self._gyro_lsb_per_dps)
+
+    def read_wheel_counts(self) -> tuple[int, int]:
+        """The drive wheels' encoder counters (left, right; signed 32-bit, wrapping), as old as
+        the front encoder's reading; (0, 0) when `wheel_counts_per_rev` is 0 (not counted)."""
+        cpr = self.cfg.wheel_counts_per_rev
+        if cpr == 0:
+            return 0, 0
+        if self._real is not None:
+            return self._real.read_wheel_counts(cpr)
+        i = self._ring_index()
+        return (raw_readings.encoder_count(self._ring_phl[i], cpr), raw_readings.encoder_count(self._ring_phr[i], cpr))
+
+    @property
+    def wheel_counts_per_rev(self) -> int:
+        return self.cfg.wheel_counts_per_rev
+
+    @property
+    def battery_v(self) -> float:
+        """Terminal voltage at the motor driver now (V): the battery's under load when
+        `realism.battery` is set, else the motors' supply_v (their mean when per-wheel motors
+        were given two), a source with no internal resistance."""
+        if self._real is not None and self._real.battery is not None:
+            return self._real.terminal_v
+        return 0.5 * (self.motor_l.supply_v + self.motor_r.supply_v)
+
+    @property
+    def gyro_die_temp_c(self) -> float:
+        """The gyro's die temperature now (degC): what its TEMP_OUT register reports."""
+        if self._real is not None:
+            return self._real.die_temp_c(self.t)
+        return self.cfg.realism.gyro_temp_start_c
 
     @property
     def encoder_counts_per_rev(self) -> int:
@@ -340,6 +311,8 @@ class SimRobot:
         n = len(self._ring_phi3)
         self._ring_phi3 = (c_double * n)(*self._ring_phi3)
         self._ring_gyro = (c_double * n)(*self._ring_gyro)
+        self._ring_phl = (c_double * n)(*self._ring_phl)
+        self._ring_phr = (c_double * n)(*self._ring_phr)
         self._kbuf = ctypes.c_int64(self._k)
         self._q_last = 0  # step at which the last queued command applies
         self._queue_alloc(64)
@@ -364,7 +337,8 @@ class SimRobot:
         a = ctypes.addressof
         self._plant = plant_native.Plant(a(self._kbuf), a(self._st), a(self._c), a(self._rngs[0]), a(self._rngs[1]),
                                          a(self._ring_phi3), a(self._ring_gyro), len(self._ring_phi3),
-                                         a(self._q), a(self._q_step), a(self._q_duty))
+                                         a(self._q), a(self._q_step), a(self._q_duty),
+                                         a(self._ring_phl), a(self._ring_phr))
         self._plant_addr = a(self._plant)
 
     def _run_native(self, n_steps: int) -> None:
@@ -385,6 +359,9 @@ class SimRobot:
         if self._kernel is not None:
             self._run_native(n_steps)
             return
+        if self._real is not None:
+            self._real.run(n_steps)
+            return
         consts = self._consts
         if consts is None:
             consts = self._consts = self._constants()
@@ -396,7 +373,7 @@ class SimRobot:
         slip_rng, gyro_rng = self._slip_rng, self._gyro_rng
         srand, grand = slip_rng.random, gyro_rng.random
         s_next, g_next = slip_rng.gauss_next, gyro_rng.gauss_next
-        ring_phi3, ring_gyro = self._ring_phi3, self._ring_gyro
+        ring_phi3, ring_gyro, ring_phl, ring_phr = self._ring_phi3, self._ring_gyro, self._ring_phl, self._ring_phr
         n_ring = len(ring_phi3)
         pending = self._pending
 
@@ -544,6 +521,8 @@ class SimRobot:
             i = k % n_ring
             ring_phi3[i] = phi_3
             ring_gyro[i] = gf
+            ring_phl[i] = phi_l
+            ring_phr[i] = phi_r
 
         self._x, self._y, self._th, self._v, self._w = x, y, th, v, w
         self._phi_l, self._phi_r, self._phi_3 = phi_l, phi_r, phi_3

@@ -79,11 +79,13 @@ typedef struct {
     int64_t *q;
     const int64_t *q_step;
     const double *q_duty;
+    double *ring_phl, *ring_phr;  /* the drive wheels' angles, for their encoders */
 } plant_t;
 
 void plant_run(int64_t n_steps, plant_t *p) {
     int64_t *kp = p->kp, *q = p->q;
     double *s = p->s, *ring_phi3 = p->ring_phi3, *ring_gyro = p->ring_gyro;
+    double *ring_phl = p->ring_phl, *ring_phr = p->ring_phr;
     const double *c = p->c, *q_duty = p->q_duty;
     const int64_t *q_step = p->q_step, n_ring = p->n_ring;
     rng_t *slip = p->slip, *gyro = p->gyro;
@@ -187,6 +189,8 @@ void plant_run(int64_t n_steps, plant_t *p) {
         int64_t i = k % n_ring;
         ring_phi3[i] = phi_3;
         ring_gyro[i] = gf;
+        ring_phl[i] = phi_l;
+        ring_phr[i] = phi_r;
     }
     s[X] = x; s[Y] = y; s[TH] = th; s[V] = v; s[W] = w;
     s[PHL] = phi_l; s[PHR] = phi_r; s[PH3] = phi_3;

@@ -52,7 +52,8 @@ class Plant(ctypes.Structure):
     _fields_ = [("kp", ctypes.c_void_p), ("s", ctypes.c_void_p), ("c", ctypes.c_void_p),
                 ("slip", ctypes.c_void_p), ("gyro", ctypes.c_void_p), ("ring_phi3", ctypes.c_void_p),
                 ("ring_gyro", ctypes.c_void_p), ("n_ring", ctypes.c_int64), ("q", ctypes.c_void_p),
-                ("q_step", ctypes.c_void_p), ("q_duty", ctypes.c_void_p)]
+                ("q_step", ctypes.c_void_p), ("q_duty", ctypes.c_void_p), ("ring_phl", ctypes.c_void_p),
+                ("ring_phr", ctypes.c_void_p)]
 
 
 def _cache_dir() -> Path:

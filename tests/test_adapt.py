@@ -246,5 +246,7 @@ def test_slow_seed_circle_is_untouched() -> None:
 
 
 def test_telemetry_columns_appended_at_the_end() -> None:
-    assert COLUMNS[24:31] == ("ad_m_k", "ad_mbar", "ad_I", "ad_m_x", "ad_fric_l", "ad_fric_r", "ad_active")
+    i = COLUMNS.index("ad_m_k")  # after the tick's columns, before any added since (battery_v, ...)
+    assert COLUMNS[i:i + 7] == ("ad_m_k", "ad_mbar", "ad_I", "ad_m_x", "ad_fric_l", "ad_fric_r", "ad_active")
+    assert COLUMNS[i - 1] == "hal_fault_ticks"
     assert COLUMNS[:2] == ("t", "x_est")

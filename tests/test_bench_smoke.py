@@ -168,6 +168,7 @@ def test_document_has_every_section(tiny_results: run.Results, tmp_path) -> None
     assert "| dynamic | " in doc and "| kinematic | " in doc and "bench/population.py" in doc
     assert "### The velocity mode" in doc and "| drive | " in doc
     assert ("| missed ticks (in" in doc) == (tiny_results.live.foxglove is not None)
+    assert "| lane change 5 m, 0.9 m/s | 9.3 V, measured | " in doc  # section 12, the supply voltage
     out = tmp_path / "BENCHMARKS.md"
     out.write_text(doc)
     assert out.read_text().count("\n## ") == len(run.SECTIONS)

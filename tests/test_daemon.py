@@ -427,6 +427,10 @@ def test_status_fields(daemon: DaemonProc) -> None:
         assert isinstance(s["faults"][key], int), key
     # Calibration measured the simulated gyro's 1.5 deg/s bias.
     assert abs(s["gyro_bias_rad_s"] - 1.5 * 3.141592653589793 / 180) < 0.005
+    # The simulated MCU measures its 12 V supply; no minimum is set, the estop input closed.
+    sup = s["supply"]
+    assert sup["measured"] is True and sup["v"] == sup["config_v"] == 12.0 and sup["rejected"] == 0
+    assert sup["min_v"] is None and not sup["low"] and sup["hw_estop_open"] is False
     assert s["config"] == str(daemon.config)
     later = daemon.status()["timing"]["count"]
     assert later > t["count"]  # it ticks

@@ -11,7 +11,7 @@ import pytest
 
 from ddrt.config import load_config
 from ddrt.loop import COLUMNS, ControlLoop, LoopState, state_label
-from ddrt.loop.record import ADAPTER_COLUMNS, POSE_COLUMNS, TICK_COLUMNS, fill_row_source
+from ddrt.loop.record import ADAPTER_COLUMNS, LATER_COLUMNS, TICK_COLUMNS, fill_row_source
 from ddrt.path.spec import load_path, speed_limits
 from hal.registry import open_hal
 
@@ -26,6 +26,7 @@ HEADER = (
     "tau_l", "tau_r", "duty_l", "duty_r", "sigma", "cross_track_est", "saturated", "state",
     "fresh", "hal_fault_ticks",
     "ad_m_k", "ad_mbar", "ad_I", "ad_m_x", "ad_fric_l", "ad_fric_r", "ad_active",
+    "battery_v", "hw_estop",
     "x_map", "y_map", "theta_map", "std_x", "std_y", "std_theta", "cov_xy", "fixes",
 )
 # The state column's codes as they have always been.
@@ -34,7 +35,7 @@ CODES = ("idle", "following", "stopping", "stopped", "estop", "fault", "holding"
 
 def test_the_header_is_the_declared_columns_in_order_and_unchanged() -> None:
     assert COLUMNS == HEADER
-    assert tuple(c.name for c in TICK_COLUMNS + ADAPTER_COLUMNS + POSE_COLUMNS) == COLUMNS
+    assert tuple(c.name for c in TICK_COLUMNS + ADAPTER_COLUMNS + LATER_COLUMNS) == COLUMNS
     assert len(set(COLUMNS)) == len(COLUMNS)
 
 
@@ -79,6 +80,7 @@ def test_every_column_holds_its_source(cfg_path: Path) -> None:
         "omega_cmd": cmd.omega_c, "tau_l": cmd.tau_l, "tau_r": cmd.tau_r, "duty_l": loop.duty_l,
         "duty_r": loop.duty_r, "sigma": ref.sigma, "cross_track_est": ref.cross_track,
         "saturated": float(cmd.saturated), "state": 1.0, "fresh": 1.0, "hal_fault_ticks": 0.0,
+        "battery_v": loop.power.v, "hw_estop": 0.0,
     }
     ad = loop.adapter
     if ad is None:
@@ -96,3 +98,4 @@ def test_every_column_holds_its_source(cfg_path: Path) -> None:
         assert row[name] == expected[name] and isinstance(row[name], float), name
     assert row["std_x"] > 0.0 and row["std_theta"] > 0.0  # moving: the uncertainty has grown
     assert row["sigma"] > 0.01 and row["v_ref"] > 0.0 and math.isfinite(row["v_cmd"])  # really moving
+    assert row["battery_v"] == 12.0 == loop.motor.supply_v  # the simulated supply, measured

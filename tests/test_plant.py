@@ -464,7 +464,7 @@ def test_compiled_plant_is_bit_identical_to_the_python_integrator(monkeypatch) -
     for mode in ("native", "python"):
         if mode == "python":
             monkeypatch.setattr(plant_native, "kernel", lambda: None)
-        sim = robot(TABLE_5_2, seed=7, slip_probability=0.5, start=(0.1, -0.2, 0.3))
+        sim = robot(TABLE_5_2, seed=7, slip_probability=0.5, start=(0.1, -0.2, 0.3), wheel_counts_per_rev=4096)
         assert (sim._kernel is None) == (mode == "python")
         drive = random.Random(3)
         trace = []
@@ -475,6 +475,6 @@ def test_compiled_plant_is_bit_identical_to_the_python_integrator(monkeypatch) -
             t += drive.choice((0.0007, 0.005, 0.0123))
             sim.advance_to(t)
             trace.append((sim.pose, sim.velocity, sim.wheel_angles, sim.applied_duty, sim.wheel_torque,
-                          sim.energy, sim.read_encoder(), sim.read_gyro_raw(), sim.t))
+                          sim.energy, sim.read_encoder(), sim.read_gyro_raw(), sim.read_wheel_counts(), sim.t))
         runs.append(trace)
     assert runs[0] == runs[1]

@@ -15,6 +15,9 @@ from ddrt.params.motor import MotorParams
 from ddrt.config.schema import (
     LIVE, NEXT_PATH, RESTART, ConfigError, applies, non_negative, positive, restart,
 )
+from ddrt.config.sim_truth import (
+    ActuatorTruth, BatteryTruth, EncoderTruth, EventsTruth, WheelsTruth, check_ppm,
+)
 
 # --------------------------------------------------------------------------- sections
 
@@ -40,12 +43,24 @@ class GyroTruth:
     bias_dps: float = 1.5
     scale_error: float = 0.0
     dlpf_hz: float = 98.0
+    # Zero-rate bias = bias_dps + bias_per_c_dps * (T - temp_start_c) + drift_dps_per_s * t, with the
+    # die warming as T = temp_start_c + warmup_rise_c * (1 - exp(-t / warmup_tau_s)) (sim_truth.py).
+    temp_start_c: float = 25.0
+    warmup_rise_c: float = 0.0
+    warmup_tau_s: float = 120.0
+    bias_per_c_dps: float = 0.0
+    drift_dps_per_s: float = 0.0
+    register_hold: bool = False  # the output register refreshes at 1 kHz / (1 + hal.imu.sample_rate_div)
+    clock_ppm: float = 0.0  # the MPU's own oscillator error (sets when it refreshes)
 
     def validate(self, where: str) -> None:
         non_negative(where, noise_dps_rthz=self.noise_dps_rthz)
-        positive(where, dlpf_hz=self.dlpf_hz)
+        positive(where, dlpf_hz=self.dlpf_hz, warmup_tau_s=self.warmup_tau_s)
         if abs(self.scale_error) >= 0.5:
             raise ConfigError(f"{where}.scale_error: must be within +-0.5, got {self.scale_error}")
+        if not -60.0 <= self.temp_start_c <= 100.0 or abs(self.warmup_rise_c) > 80.0:
+            raise ConfigError(f"{where}: temp_start_c in [-60, 100] and warmup_rise_c within +-80 degC")
+        check_ppm(where, "clock_ppm", self.clock_ppm)
 
 
 @dataclass(frozen=True)
@@ -64,9 +79,18 @@ class SimConfig:
     sensors_freeze_after_s: float | None = None  # fault injection: no fresh samples after this
     sensors_freeze_for_s: float | None = None  # ... for this long (None: for good)
     start_delay_s: float = 2.0  # `ddrt sim`: stand still this long after calibration (bias settles)
+    battery_measured: bool = True  # the simulated MCU reports the supply voltage (false: like protocol v1)
+    # Issue 23's realism (ddrt/config/sim_truth.py); every default is the ideal plant of before.
+    battery: BatteryTruth | None = None  # null: an ideal supply at the plant motors' supply_v
+    encoder: EncoderTruth = field(default_factory=EncoderTruth)
+    wheels: WheelsTruth = field(default_factory=WheelsTruth)
+    actuators: ActuatorTruth = field(default_factory=ActuatorTruth)
+    events: EventsTruth = field(default_factory=EventsTruth)
+    mcu_clock_ppm: float = 0.0  # the microcontroller's crystal error, on the t_us it stamps
 
     def validate(self, where: str) -> None:
         positive(where, step_hz=self.step_hz)
+        check_ppm(where, "mcu_clock_ppm", self.mcu_clock_ppm)
         non_negative(where, command_latency_s=self.command_latency_s, sensor_latency_s=self.sensor_latency_s,
                      start_delay_s=self.start_delay_s)
         # Bounds on the work of a run: plant steps per simulated second, seconds of standing still.
@@ -379,9 +403,11 @@ class LimitsConfig:
     torque_max_nm: float | None = applies(LIVE, None)
     max_path_error_m: float = applies(LIVE, 0.3)  # farther than this from the reference: stop following (fault)
     feedback_headroom: float = 0.25  # fraction of the voltage (and torque) the profile leaves to feedback
+    battery_min_v: float | None = applies(LIVE, None)  # measured supply below this: controlled stop (None: off)
 
     def validate(self, where: str) -> None:
-        caps = {k: getattr(self, k) for k in ("v_max", "accel", "torque_max_nm") if getattr(self, k) is not None}
+        caps = {k: getattr(self, k) for k in ("v_max", "accel", "torque_max_nm", "battery_min_v")
+                if getattr(self, k) is not None}
         positive(where, lateral_accel=self.lateral_accel, omega_max=self.omega_max, alpha_max=self.alpha_max,
                  duty_max=self.duty_max, max_path_error_m=self.max_path_error_m, **caps)
         if self.duty_max > 1.0:

@@ -10,6 +10,11 @@ with K = k_t * G = k_e * G (N m/A = V s/rad). The Coulomb term is smoothed over 
 fixed-step integrator does not chatter at rest; w_s is small (0.02 rad/s) against any speed
 the robot drives at.
 The default constants are `MotorParams`'s (ddrt/params/motor.py), with where each comes from.
+
+The supply voltage V starts as `MotorParams.supply_v` (the config's) and follows the measured,
+filtered voltage when the hardware measures it (`set_supply_v`, once a tick from
+ddrt/loop/power.py): one float, so the controller, the estimator and the adapter that share
+this object all see the voltage the driver has now.
 """
 
 from __future__ import annotations
@@ -32,6 +37,15 @@ class Motor:
         self._b = params.viscous_nms
         self._tc = params.coulomb_nm
         self._ws = params.coulomb_smoothing_rad_s
+
+    @property
+    def supply_v(self) -> float:
+        """The supply voltage the model uses now (V)."""
+        return self._v
+
+    def set_supply_v(self, volts: float) -> None:
+        """Use `volts` (finite, > 0) as the driver's supply from now on; the caller filters it."""
+        self._v = volts
 
     def friction(self, wheel_speed: float) -> float:
         """Friction torque (N m) opposing rotation at `wheel_speed` rad/s."""

@@ -35,6 +35,9 @@ class HalInfo:
     # The motor driver's own watchdog: it zeroes the motors when no command arrived for this
     # long (the microcontroller's DRIVE timeout); None when the motors have none (sysfs PWM).
     drive_timeout_s: float | None = None
+    wheel_counts_per_rev: int = 0  # counts per revolution of each drive wheel; 0: not counted
+    battery_measured: bool = False  # Sample.battery_v is the driver's measured supply voltage
+    hw_estop_wired: bool = False  # Sample.hw_estop reports a hardware emergency-stop input
 
 
 @dataclass(slots=True)
@@ -46,7 +49,10 @@ class Sample:
     encoder counter (wraps like a signed 32-bit integer). `gyro_z_raw` is the raw int16 from
     the gyro at its configured range (bias not removed). `fresh` is False when a backend had
     no new data and repeated its last value; `faults` is a short text when the backend saw a
-    fault on this read (retried I/O, lost packets), else "".
+    fault on this read (retried I/O, lost packets), else "". `battery_v` is the supply voltage
+    measured at the motor driver (V; NaN when not measured), `hw_estop` True while the robot's
+    hardware emergency-stop input is open, `count_left`/`count_right` the raw drive-wheel
+    counters (signed 32-bit, wrapping; meaningful only when HalInfo.wheel_counts_per_rev > 0).
     """
 
     t: float
@@ -54,6 +60,10 @@ class Sample:
     gyro_z_raw: int
     fresh: bool = True
     faults: str = ""
+    battery_v: float = math.nan
+    hw_estop: bool = False
+    count_left: int = 0
+    count_right: int = 0
 
 
 @dataclass(slots=True)

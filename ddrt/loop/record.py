@@ -16,7 +16,8 @@ from typing import TYPE_CHECKING, Callable
 if TYPE_CHECKING:
     from ddrt.loop.tick import ControlLoop
 
-__all__ = ["ADAPTER_COLUMNS", "COLUMNS", "Column", "PARTS", "POSE_COLUMNS", "TICK_COLUMNS", "fill_row", "fill_row_source"]
+__all__ = ["ADAPTER_COLUMNS", "COLUMNS", "Column", "LATER_COLUMNS", "PARTS", "TICK_COLUMNS", "fill_row",
+           "fill_row_source"]
 
 
 @dataclass(frozen=True)
@@ -76,10 +77,15 @@ ADAPTER_COLUMNS = (
     Column("ad_active", "1.0 if loop.adapt_active else 0.0"),
 )
 
-# Added after the adapter's (a column is only ever added at the end): the pose in `map` (odom
-# with the pose fixes' correction; the same until a fix), its 1-sigma uncertainty
-# (ddrt/core/uncertainty.py, propagated every 20 ms) and the fixes fused so far.
-POSE_COLUMNS = (
+# Written every tick, after the adapter's (a column is only ever added at the end of the
+# header). `battery_v`: the supply voltage the motor model uses (V; measured and filtered, or
+# robot.motor.supply_v when not measured: ddrt/loop/power.py); `hw_estop`: 1 while the
+# hardware emergency-stop input is open.
+LATER_COLUMNS = (
+    Column("battery_v", "loop.power.v"),
+    Column("hw_estop", "1.0 if loop.power.hw_estop else 0.0"),
+    # The pose in `map` (odom until a fix; docs/estimation.md), its 1-sigma uncertainty
+    # (ddrt/core/uncertainty.py, propagated every 20 ms) and the fixes fused so far.
     Column("x_map", "est.frame.x"),
     Column("y_map", "est.frame.y"),
     Column("theta_map", "est.frame.th"),
@@ -90,18 +96,18 @@ POSE_COLUMNS = (
     Column("fixes", "float(est.frame.counters.fused)"),
 )
 
-COLUMNS = tuple(c.name for c in TICK_COLUMNS + ADAPTER_COLUMNS + POSE_COLUMNS)
+COLUMNS = tuple(c.name for c in TICK_COLUMNS + ADAPTER_COLUMNS + LATER_COLUMNS)
 
 
 def fill_row_source(tick: tuple[Column, ...] = TICK_COLUMNS, adapter: tuple[Column, ...] = ADAPTER_COLUMNS,
-                    pose: tuple[Column, ...] = POSE_COLUMNS) -> str:
+                    later: tuple[Column, ...] = LATER_COLUMNS) -> str:
     """The source of `fill_row(r, loop, t)` for these columns, in this order."""
     lines = ["def fill_row(r, loop, t):"]
     lines += [f"    {name} = {expr}" for name, expr in PARTS]
     lines += [f"    r[{i}] = {c.source}  # {c.name}" for i, c in enumerate(tick)]
+    lines += [f"    r[{i}] = {c.source}  # {c.name}" for i, c in enumerate(later, len(tick) + len(adapter))]
     lines += ["    ad = loop.adapter", "    if ad is not None:", "        th = ad.theta"]
     lines += [f"        r[{i}] = {c.source}  # {c.name}" for i, c in enumerate(adapter, len(tick))]
-    lines += [f"    r[{i}] = {c.source}  # {c.name}" for i, c in enumerate(pose, len(tick) + len(adapter))]
     return "\n".join(lines) + "\n"
 
 

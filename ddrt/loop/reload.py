@@ -22,7 +22,7 @@ from ddrt.path.reference import PathReference
 if TYPE_CHECKING:
     from ddrt.loop.tick import ControlLoop
 
-__all__ = ["REPROFILE_MAX_SAMPLES", "drive_limits", "reconfigure", "reprofile"]
+__all__ = ["REPROFILE_MAX_SAMPLES", "drive_limits", "put_limits", "reconfigure", "reprofile"]
 
 log = logging.getLogger("ddrt.loop")
 
@@ -56,6 +56,23 @@ def reconfigure(loop: ControlLoop, cfg: Config) -> None:
     # Swap (nothing below raises for values that passed validation).
     loop.estimator.reconfigure(cfg.estimator, cfg.robot.r_3,
                                loop.estimator.dyn if not model_changed else dyn, motor)
+    loop.controller.retune(cfg.controller, put_limits(loop, limits, cfg))
+    if model_changed:
+        loop.dyn, loop.seed_dyn, loop.motor = dyn, seed_dyn, motor
+        loop.controller.set_model(seed_dyn if cfg.controller.mode == "seed" else dyn, motor)
+        # A new robot description invalidates what the adapter learnt about the old one.
+        loop.adapter = adapter
+        loop.adapt_active = False
+    loop.cfg = cfg
+    loop.holds.bounds = HoldBounds.of(cfg, loop.hal.info.drive_timeout_s, loop.period)
+    loop.power.reconfigure(loop, cfg)  # the measured supply into the new motor model and limits
+    if model_changed:
+        reprofile(loop)
+
+
+def put_limits(loop: ControlLoop, limits: ResolvedLimits, cfg: Config) -> LimitsConfig:
+    """Make `limits` the loop's (the velocity mode's ramp included); returns the limits the
+    controller takes now (the caller sets them)."""
     ctrl = limits.limits
     loop.limits_after_braking = None
     ref = loop.reference
@@ -69,18 +86,8 @@ def reconfigure(loop: ControlLoop, cfg: Config) -> None:
             loop.limits_after_braking = ctrl
             ctrl = replace(ctrl, v_max=max(ctrl.v_max, abs(ref.v.value)),
                            omega_max=max(ctrl.omega_max, abs(ref.w.value)))
-    loop.controller.retune(cfg.controller, ctrl)
     loop.limits = limits
-    if model_changed:
-        loop.dyn, loop.seed_dyn, loop.motor = dyn, seed_dyn, motor
-        loop.controller.set_model(seed_dyn if cfg.controller.mode == "seed" else dyn, motor)
-        # A new robot description invalidates what the adapter learnt about the old one.
-        loop.adapter = adapter
-        loop.adapt_active = False
-    loop.cfg = cfg
-    loop.holds.bounds = HoldBounds.of(cfg, loop.hal.info.drive_timeout_s, loop.period)
-    if model_changed:
-        reprofile(loop)
+    return ctrl
 
 
 def reprofile(loop: ControlLoop) -> None:
@@ -98,7 +105,7 @@ def reprofile(loop: ControlLoop) -> None:
     if (path is None or not isinstance(ref, PathReference) or ref.path is not path
             or loop.state != LoopState.FOLLOWING or path.limits.envelope is None):
         return
-    env = replace(path.limits.envelope, dyn=loop.dyn, motor=loop.motor.params)
+    env = replace(path.limits.envelope, dyn=loop.dyn, motor=replace(loop.motor.params, supply_v=loop.power.limits_v))
     first = path.index(path.at_time(ref.t_sched).sigma) + 1
     left = len(path.sigma) - first
     if left < 2:

@@ -30,6 +30,7 @@ from ddrt.core.motor import Motor
 from ddrt.core.reference import Reference
 from ddrt.core.types import Setpoint
 from ddrt.loop.hold import HoldBounds, HoldMachine, RecoveryCounters
+from ddrt.loop.power import Power
 from ddrt.loop.record import COLUMNS, fill_row
 from ddrt.loop.reload import drive_limits, reconfigure
 from ddrt.loop.states import MOVING, LoopState
@@ -94,6 +95,7 @@ class ControlLoop:
         self.holds = HoldMachine(HoldBounds.of(cfg, hal.info.drive_timeout_s, self.period))
         # A reload's lower top speeds for the controller, once a drive has braked within them.
         self.limits_after_braking: LimitsConfig | None = None
+        self.power = Power(cfg, hal.info, self.period)  # the supply voltage, the hardware estop
 
     @property
     def recovery(self) -> RecoveryCounters:
@@ -119,6 +121,7 @@ class ControlLoop:
             t += self.period
             sleep_until(t)
             sample = self.hal.read()
+            self.power.step(self, sample)  # the supply known before the first path; the estop input
             if sample.fresh:  # a value the HAL held through a pause would count twice
                 raw.append(sample.gyro_z_raw)
         bias, std = calibrate_gyro(raw, self.hal.info.gyro_lsb_per_rad_s, est_cfg.gyro_scale,
@@ -149,6 +152,7 @@ class ControlLoop:
         to in place first (or refused, with `pursuit.start_turn: refuse`), and a start off
         the path or off its heading is joined at no more than the path's speed."""
         self._check_start(path, pose)
+        path = self.power.fit_path(self, path)  # under the motors at the measured supply
         p = self.cfg.pursuit
         ref: PathReference | StartReference = PathReference(
             path, p.lookahead_m, p.search_window_m, self.period,
@@ -191,6 +195,7 @@ class ControlLoop:
             raise ValueError("holding after a sensor gap: wait until it ends (or stop)")
         if self.state == DRIVING:
             raise ValueError("driving: send stop first, and follow once status says 'stopped'")
+        self.power.check_start()
         if path is not None:
             x, y, _ = pose if pose is not None else self.estimator_pose()
             start = path.at(0.0)
@@ -235,6 +240,7 @@ class ControlLoop:
             raise RuntimeError(f"cannot drive in state {state}: reset first")
         if state == HOLDING:
             raise ValueError("holding after a sensor gap: wait until it ends (or stop)")
+        self.power.check_start()
         if state in (FOLLOWING, STOPPING):
             raise ValueError(f"{state} a path: a drive does not take over a path; send stop, and drive once "
                              "status says 'stopped'")
@@ -263,8 +269,9 @@ class ControlLoop:
         """Resume an interrupted path from where the robot stands (after a hold ended
         stopped, with daemon.on_recover: wait)."""
         ref = self.reference
-        if self.state != STOPPED or ref is None or ref.done or not ref.resumable:
+        if self.state != STOPPED or ref is None or (ref.done and not self.power.resumable(ref)) or not ref.resumable:
             raise ValueError(f"nothing to resume in state {self.state}")
+        self.power.check_start()
         self.resume_reference(ref)
 
     def resume_reference(self, ref: Reference) -> None:
@@ -282,7 +289,9 @@ class ControlLoop:
         self.fault = reason
 
     def reset(self) -> None:
-        """Leave estop/fault: back to idle, motors still at zero."""
+        """Leave estop/fault: back to idle, motors still at zero (ValueError while the
+        hardware estop input is open)."""
+        self.power.check_reset()
         self.zero_motors()
         self.controller.reset()
         self._take_deferred_limits()
@@ -347,6 +356,7 @@ class ControlLoop:
         self.sample = sample
         if sample.faults:
             self.hal_fault_ticks += 1
+        self.power.step(self, sample)
         state = self.state
         moving = state in MOVING or (state == HOLDING and holds.braking)
         est = self.estimator

@@ -118,8 +118,11 @@ def _resume(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
 def _reset(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
     loop = d.loop
     assert loop is not None
+    try:
+        loop.reset()
+    except ValueError as exc:  # the hardware estop input is still open
+        return {"ok": False, "error": f"reset: {exc}"}
     d.audit.note(f"reset {who(d)}")
-    loop.reset()
     # The pose starts again from (0, 0, 0): a path is placed in this frame (or with --here).
     loop.estimator.set_pose((0.0, 0.0, 0.0), anchored=False)  # the first fix says where map is
     return {"ok": True, "state": loop.state.label}

@@ -105,6 +105,9 @@ def daemon_status(d: Daemon) -> dict[str, Any]:
         "speeds": {"v": est.v, "omega": est.omega},
         "gyro_bias_rad_s": est.bias,
         "duty": {"l": loop.duty_l, "r": loop.duty_r},
+        # The supply voltage in use (measured and filtered, or the config's), the low-battery
+        # stop and the hardware estop input: ddrt/loop/power.py.
+        "supply": loop.power.status(),
         "progress": progress,
         "timing": d.stats.summary(),
         "faults": {**est.health.counters(), **_hal_counters(d)},

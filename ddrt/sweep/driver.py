@@ -8,9 +8,12 @@ what finished and still writes the table of it; `--resume` runs the rest.
 
 from __future__ import annotations
 
+import signal
+import threading
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path as FsPath
-from typing import Sequence
+from typing import Iterator, Sequence
 
 from ddrt.sweep.campaign import CampaignError, load_campaign
 from ddrt.sweep.cases import Plan, expand
@@ -120,13 +123,16 @@ def sweep(req: SweepRequest) -> SweepReport:
         todo = todo[:req.limit]
     progress = Progress(len(todo), enabled=not req.quiet)
     try:
-        if todo:
-            with DaskCluster(req.workers, req.scheduler) as cluster:
-                progress.start()
-                for row in cluster.run(todo, plan.paths, plan.campaign.run):
-                    journal.append(row)
-                    report.ran += 1
-                    progress.update(row["status"] == "ok")
+        with _interrupt_flag() as interrupted:
+            if todo:
+                with DaskCluster(req.workers, req.scheduler) as cluster:
+                    progress.start()
+                    for row in cluster.run(todo, plan.paths, plan.campaign.run):
+                        journal.append(row)
+                        report.ran += 1
+                        progress.update(row["status"] == "ok")
+                        if interrupted.is_set():
+                            raise KeyboardInterrupt
     except KeyboardInterrupt:
         report.interrupted = True
     finally:
@@ -135,3 +141,24 @@ def sweep(req: SweepRequest) -> SweepReport:
     report.rows = sorted(journal.rows.values(), key=lambda r: r["case"])
     report.figures = write_results(plan, report.rows, report.out)
     return report
+
+
+@contextmanager
+def _interrupt_flag() -> Iterator[threading.Event]:
+    """A Ctrl-C both raises KeyboardInterrupt (to leave a wait at once) and sets a flag the
+    loop checks after every row: a KeyboardInterrupt that lands inside Dask's client code can
+    be swallowed there (seen on a loaded machine: the campaign ran to its end and exited 0)."""
+    flag = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield flag  # signal handlers belong to the main thread; nothing to install here
+        return
+
+    def on_sigint(signum: int, frame: object) -> None:
+        flag.set()
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGINT, on_sigint)
+    try:
+        yield flag
+    finally:
+        signal.signal(signal.SIGINT, previous)

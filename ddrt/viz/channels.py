@@ -9,7 +9,7 @@ server, an MCAP writer) gets the same topics, schemas and messages. A tick becom
 | `/tf_true` | foxglove.FrameTransform | odom -> base_link_true, the simulated robot's true pose |
 | `/reference` | foxglove.SceneUpdate | a sphere at the reference point |
 | `/uncertainty` | foxglove.SceneUpdate | the 2-sigma ellipse of the estimated position, at it (docs/estimation.md) |
-| `/state` | ddrt.State (JSON) | the telemetry row by column name, errors, the true state |
+| `/state` | ddrt.State (JSON) | the telemetry row by column name (the supply voltage `battery_v`, `hw_estop` among them), errors, the true state |
 | `/timing` | ddrt.Timing (JSON) | the daemon's lateness and tick cost (not in `ddrt sim`) |
 | `/path` | foxglove.SceneUpdate | the path as a line strip, once when it starts |
 | `/log` | foxglove.Log | state changes, faults, the daemon's log records |
