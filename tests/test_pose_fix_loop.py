@@ -66,3 +66,49 @@ def test_fixes_every_second_hold_a_robot_with_a_2pc_gyro_scale_error_on_its_path
     assert ct[1200:].max() < 0.010, ct[1200:].max()
     learnt = fixed.replies[-1]["learnt"]["gyro_scale"]
     assert learnt == pytest.approx(1.0 / 1.02 - 1.0, abs=0.002)
+
+
+def test_a_reload_of_the_uncertainty_figures_rescales_without_a_jump() -> None:
+    """estimator.* applies live: a new encoder_scale_std rescales its row of every covariance
+    (so they stay positive definite), a new fix_history_s starts a fresh history at the
+    present pose; the map pose does not move and fixes keep working."""
+    from ddrt.config import load_config
+    from ddrt.core.pose_fix import PoseFix
+    from ddrt.loop import ControlLoop
+    from ddrt.path import load_path
+    from ddrt.path.spec import speed_limits
+    from hal.registry import open_hal
+    from tests.support.repo import SIM_YAML
+
+    cfg = load_config(SIM_YAML, {"estimator": {"calibration_s": 0.2}})
+    path = load_path(CIRCLE, speed_limits(cfg), paths=cfg.paths)
+    hal = open_hal(cfg, start=path.start_pose, seed=1)
+    try:
+        loop = ControlLoop(cfg, hal)
+        loop.calibrate(hal.sleep_until, hal.now)  # type: ignore[attr-defined]
+        loop.follow(path, path.start_pose)
+        t0 = hal.now()  # type: ignore[attr-defined]
+        for i in range(400):
+            hal.sleep_until(t0 + (i + 1) * loop.period)  # type: ignore[attr-defined]
+            loop.tick()
+        est = loop.estimator
+        p_ss = est.track.p_map[3 * 6 + 3]
+        pose = est.map_pose()
+        cfg2 = load_config(SIM_YAML, {"estimator": {"calibration_s": 0.2, "encoder_scale_std": 0.02,
+                                                    "fix_history_s": 1.0}})
+        loop.reconfigure(cfg2)
+        assert est.map_pose() == pose
+        assert est.track.p_map[3 * 6 + 3] == pytest.approx(4.0 * p_ss)
+        assert np.all(np.linalg.eigvalsh(np.array(est.track.p_map).reshape(6, 6)) > -1e-12)
+        assert est.track.hist.cap == int(math.ceil(1.0 / loop.period)) + 2
+        fix = None
+        for i in range(400, 500):
+            hal.sleep_until(t0 + (i + 1) * loop.period)  # type: ignore[attr-defined]
+            loop.tick()
+            if i == 460:  # the true pose now, fused 0.2 s later
+                fix = PoseFix(*hal.robot.pose, (1e-4, 0, 0, 0, 1e-4, 0, 0, 0, 3e-4), est.t_est)  # type: ignore[union-attr]
+        assert fix is not None
+        reply = est.fuse_fix(fix)
+        assert reply["fused"] and reply["d2"] < 3.0, reply
+    finally:
+        hal.close()
