@@ -117,14 +117,14 @@ REALISTIC = {"gyro": {"drift_dps_per_s": 0.01, "register_hold": True, "clock_ppm
 
 def fix_run(spec: dict[str, Any], duration_s: float, fixes: bool, seed: int, scale_error: float = 0.02,
             fix_std: tuple[float, float, float] = (0.005, 0.005, math.radians(1.0)), latency_s: float = 0.1,
-            plant: dict[str, Any] | None = None) -> dict[str, Any]:
+            plant: dict[str, Any] | None = None, estimator: dict[str, Any] | None = None) -> dict[str, Any]:
     """Follow `spec` in map on the simulated robot with a gyro scale error (and `plant`'s sim:
     keys), fed fixes of its true pose every second (or none); the true cross-track and the
     duty steps at the fixes."""
     sim = {"gyro": {"scale_error": scale_error}, "seed": seed}
     for key, value in (plant or {}).items():
         sim[key] = {**sim.get(key, {}), **value} if isinstance(value, dict) else value
-    cfg = load_config(SIM_CONFIG, {"sim": sim})
+    cfg = load_config(SIM_CONFIG, {"sim": sim, "estimator": estimator or {}})
     path = load_path(spec, speed_limits(cfg), paths=cfg.paths)
     hal = open_hal(cfg, start=path.start_pose, seed=seed)
     rng = np.random.default_rng(seed)
@@ -156,6 +156,7 @@ def fix_run(spec: dict[str, Any], duration_s: float, fixes: bool, seed: int, sca
             if loop.state.label != "following":
                 break
         state = loop.state.label
+        learnt, reanchors = est.frame.g, est.frame.counters.reanchors
     finally:
         hal.close()
     ct = cross_track(np.asarray(path.x), np.asarray(path.y), np.array(true_xy))
@@ -169,7 +170,7 @@ def fix_run(spec: dict[str, Any], duration_s: float, fixes: bool, seed: int, sca
             "max_after_6s_mm": ct[t_settle:].max() * 1e3 if len(ct) > t_settle else math.nan,
             "rms_mm": float(np.sqrt(np.mean(ct ** 2))) * 1e3, "t_max_s": float(np.argmax(ct)) * loop.period,
             "fixes": sum(1 for r in replies if r["fused"]), "outliers": sum(1 for r in replies if r.get("outlier")),
-            "learnt_gyro_scale": replies[-1]["learnt"]["gyro_scale"] if replies else math.nan,
+            "learnt_gyro_scale": learnt if replies else math.nan, "reanchors": reanchors,
             "duty_step_at_fix": max(at) if at else math.nan, "duty_step_steady": float(d[mask].max())}
 
 
@@ -208,14 +209,18 @@ def main(argv: list[str] | None = None) -> int:
     print("Plain plant, and the realistic plant (a bias drifting 0.01 deg/s per s, the register held, "
           "the MCU's clock off, a slipping omni wheel).\n")
     print("| plant, seed | fixes | state | s | max (mm) | at (s) | max after 6 s (mm) | RMS (mm) | fused | outliers | "
-          "learnt gyro scale | duty step at a fix | steady max step |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "re-anchors | learnt gyro scale | duty step at a fix | steady max step |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     spec = {"shape": "circle", "radius": 1.0, "laps": 4, "speed": 0.4}
-    for plant, seed in [(None, s) for s in ((1,) if args.quick else (1, 2, 3))] + [(REALISTIC, s) for s in (1, 2)]:
+    runs: list[tuple[str, Any, Any, int]] = [("plain", None, None, s) for s in ((1,) if args.quick else (1, 2, 3))]
+    runs += [("realistic", REALISTIC, None, s) for s in (1, 2)]
+    runs += [("realistic, gyro_bias_walk 1e-3", REALISTIC, {"gyro_bias_walk": 1e-3}, s) for s in (1, 2)]
+    for label, plant, est_keys, seed in runs:
         for fixes in (False, True):
-            r = fix_run(spec, 60.0, fixes, seed, plant=plant)
-            print(f"| {'realistic, ' if plant else ''}{seed} | {'every 1 s' if fixes else 'none'} | {r['state']} | {r['seconds']:.1f} | {r['max_mm']:.1f} | "
+            r = fix_run(spec, 60.0, fixes, seed, plant=plant, estimator=est_keys)
+            print(f"| {label}, {seed} | {'every 1 s' if fixes else 'none'} | {r['state']} | {r['seconds']:.1f} | {r['max_mm']:.1f} | "
                   f"{r['t_max_s']:.1f} | {r['max_after_6s_mm']:.1f} | {r['rms_mm']:.2f} | {r['fixes']} | {r['outliers']} | "
+                  f"{r['reanchors']} | "
                   f"{_num(r['learnt_gyro_scale'], '+.4f')} | {_num(r['duty_step_at_fix'], '.4f')} | {r['duty_step_steady']:.4f} |")
             sys.stdout.flush()
     print(f"\n({time.time() - t0:.0f} s wall)")

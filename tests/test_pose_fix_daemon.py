@@ -50,7 +50,8 @@ def test_status_carries_the_map_pose_the_uncertainty_and_the_clock(idle: DaemonP
     u = s["uncertainty"]
     assert u["std_x"] >= 0.0 and u["std_theta"] >= 0.0 and len(u["cov_map"]) == 3 and len(u["cov_odom"][0]) == 3
     # After a reset nothing says where map is: the first fix will.
-    assert s["pose_fixes"] == {"anchored": False, "fused": 0, "outliers": 0, "last_d2": None, "last_stamp_s": None}
+    assert s["pose_fixes"] == {"anchored": False, "fused": 0, "outliers": 0, "reanchors": 0, "last_d2": None,
+                               "last_stamp_s": None}
     t1 = s["clock_s"]
     assert idle.status()["clock_s"] > t1  # the loop's clock runs: what a stamp is on
 

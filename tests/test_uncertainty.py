@@ -292,3 +292,23 @@ def test_fuzzed_fix_requests_never_raise_anything_but_a_named_field_error() -> N
         except FixError as exc:
             assert exc.field in fields + ("extra",) or exc.field.startswith("cov["), str(exc)
             assert track.p_map == p_before and (frame.x, frame.y, frame.th, frame.s, frame.g, frame.b) == c_before
+
+
+def test_after_five_outliers_in_a_row_the_next_fix_reanchors_map() -> None:
+    """A map that is wrong (the robot was carried away) must not refuse every fix from then on."""
+    from ddrt.core.pose_fix import MAX_OUTLIERS_IN_A_ROW
+
+    model = _model()
+    track = Tracker(model, 400, every=4, odom_every=20)
+    track.reset(0.0, (0.0, 0.0, 0.0))
+    frame = MapFrame(gate_chi2=16.27)
+    frame.reset((0.0, 0.0, 0.0))
+    ds, dth = _increments(400)
+    _feed(track, ds, dth, th0=0.0, frame=frame)
+    cov = (1e-4, 0, 0, 0, 1e-4, 0, 0, 0, 1e-3)
+    for i in range(MAX_OUTLIERS_IN_A_ROW):
+        assert frame.fuse(track, PoseFix(5.0, 5.0, 1.0, cov, 2.0))["outlier"]
+    r = frame.fuse(track, PoseFix(5.0, 5.0, 1.0, cov, 2.0))
+    assert r["fused"] and r["anchored"] and frame.counters.reanchors == 1
+    assert (frame.x, frame.y, frame.th) == pytest.approx((5.0, 5.0, 1.0))
+    assert std_of(track.p_map)[0] == pytest.approx(0.01)

@@ -15,6 +15,10 @@ and the count are re-synced, the distance the encoder counted meanwhile is put i
 and no motion is invented for the time nobody looked. Whether a gap stops the robot is the
 loop's decision (ddrt/loop/hold.py: the `holding` state); `health.fault` is only set for faults
 that must latch at once (a stuck or saturated gyro, a stuck encoder).
+
+Uncertainty and pose fixes (docs/estimation.md): every step of the dead reckoning also goes
+to the map frame (ddrt/core/pose_fix.py), whose history and covariances
+(ddrt/core/uncertainty.py) give the pose's 1-sigma and let a late fix be fused.
 """
 
 from __future__ import annotations

@@ -32,6 +32,10 @@ POSE_BOUND_M = 1e6  # |x|, |y| beyond this is no place on a floor
 COV_BOUND = 1e6  # a variance beyond this (m^2, rad^2) says nothing
 SYMMETRY_TOL = 1e-9  # relative: cov[i][j] and cov[j][i] may differ by this much of the largest entry
 FIELDS = ("x", "y", "theta", "cov", "stamp")
+# Outliers in a row after which the next fix is believed whole (re-anchors map), as the
+# sensors' gate re-syncs after estimator.max_rejects: a map that is wrong (a kidnapped robot,
+# a drift the error model does not allow for) must not reject every fix from then on.
+MAX_OUTLIERS_IN_A_ROW = 5
 
 
 class FixError(ValueError):
@@ -144,6 +148,8 @@ def parse_fix(req: dict[str, Any], now: float) -> PoseFix:
 class FixCounters:
     fused: int = 0
     outliers: int = 0  # beyond the gate: counted, not fused
+    outliers_in_a_row: int = 0
+    reanchors: int = 0  # fixes believed whole after MAX_OUTLIERS_IN_A_ROW outliers in a row
     last_d2: float = math.nan  # the last fix's squared Mahalanobis distance
     last_stamp: float = -math.inf  # the newest stamp fused
 
@@ -229,6 +235,9 @@ class MapFrame:
         a_f = h.at_time(fix.stamp)
         if not self.anchored:
             return self._anchor(track, fix, a_f)
+        if self.counters.outliers_in_a_row >= MAX_OUTLIERS_IN_A_ROW:
+            self.counters.reanchors += 1
+            return self._anchor(track, fix, a_f)
         k_f = h.find(fix.stamp)
         saved = track.saved_before(k_f)
         if saved is None:  # not expected: a save is made at every reset and propagation
@@ -245,7 +254,9 @@ class MapFrame:
         c.last_d2 = d2
         if not d2 <= self.gate_chi2:
             c.outliers += 1
+            c.outliers_in_a_row += 1
             return {"fused": False, "outlier": True, "d2": d2, "gate": self.gate_chi2, "innovation": y.tolist()}
+        c.outliers_in_a_row = 0
         now_k = h.n - 1
         if track.k_map != now_k:
             track.advance_map(now_k)
@@ -291,6 +302,7 @@ class MapFrame:
         self.anchored = True
         self.jumps += 1
         self.counters.fused += 1
+        self.counters.outliers_in_a_row = 0
         self.counters.last_d2 = math.nan
         self.counters.last_stamp = t_now
         return {"fused": True, "outlier": False, "anchored": True, "d2": None, "gate": self.gate_chi2,

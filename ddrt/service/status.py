@@ -136,6 +136,7 @@ def estimate_report(est: Any) -> dict[str, Any]:
                         "std_position": math.sqrt(max(p[0] + p[7], 0.0)),
                         "cov_map": [p[0:3], p[6:9], p[12:15]], "cov_odom": [q[0:3], q[6:9], q[12:15]]},
         "pose_fixes": {"anchored": est.frame.anchored, "fused": fc.fused, "outliers": fc.outliers,
+                       "reanchors": fc.reanchors,
                        "last_d2": fc.last_d2 if math.isfinite(fc.last_d2) else None,
                        "last_stamp_s": fc.last_stamp if math.isfinite(fc.last_stamp) else None},
     }
