@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from ddrt.service.commands import COMMANDS
+from ddrt.service.commands import COMMANDS, STREAMS
 
 
 FOLLOW_TIMEOUT_S = 120.0
@@ -167,6 +167,27 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     configure_logging(args.log_level)
     return run_daemon(args.config, args.socket, args.duration, args.stats_json, args.follow)
+
+
+def _cmd_ros2(args: argparse.Namespace) -> int:
+    from ddrt.ros2.main import run
+    from ddrt.service.telemetry import configure_logging
+
+    configure_logging(args.log_level)
+    return run(args)
+
+
+def _cmd_bag(args: argparse.Namespace) -> int:
+    from ddrt.config import load_config
+    from ddrt.config.ros2 import Ros2Config
+
+    cfg = load_config(args.config).daemon.ros2 if args.config else Ros2Config()
+    try:
+        from ddrt.ros2.bag import export_csv
+    except ImportError as exc:
+        raise ValueError(f"bag export: needs the ros2 extra (pip install 'ddrt[ros2]'): {exc}") from None
+    print(json.dumps(export_csv(args.telemetry, args.out, cfg, args.epoch), indent=2))
+    return 0
 
 
 def _cmd_ctl(args: argparse.Namespace) -> int:
@@ -449,7 +470,7 @@ def build_parser() -> argparse.ArgumentParser:
     ctl.add_argument("--timeout", type=float, default=None,
                      help=f"seconds to wait for the reply (default 2; {FOLLOW_TIMEOUT_S:g} for follow)")
     ctl.add_argument("command_name", metavar="COMMAND",
-                     choices=COMMANDS)
+                     choices=[c for c in COMMANDS if c not in STREAMS])
     ctl.add_argument("args", nargs="*", help="follow: the path file (its content is sent); drive: V (m/s) and "
                                              "OMEGA (rad/s); pose: X Y THETA (m, m, rad) sets the robot's pose "
                                              "(with --cov: a pose fix)")
@@ -464,6 +485,22 @@ def build_parser() -> argparse.ArgumentParser:
                                                   "clock (status: clock_s; default now)")
     ctl.add_argument("--frame", choices=("odom", "map"), help="follow: the frame the path is in (default odom)")
     ctl.set_defaults(func=_cmd_ctl)
+
+    r2 = sub.add_parser("ros2", help="the ROS 2 bridge to a running daemon (pip install 'ddrt[ros2]'; docs/ros2.md)")
+    from ddrt.ros2.main import add_arguments as ros2_arguments
+
+    ros2_arguments(r2)
+    r2.add_argument("--log-level", default="info", help="debug, info, warning or error")
+    r2.set_defaults(func=_cmd_ros2)
+
+    bag = sub.add_parser("bag", help="rosbag2 recordings (pip install 'ddrt[ros2]'; docs/ros2.md)")
+    bag_sub = bag.add_subparsers(dest="bag_command", required=True)
+    b_exp = bag_sub.add_parser("export", help="a telemetry CSV as a rosbag2 (MCAP): /odom, /tf, /diagnostics")
+    b_exp.add_argument("telemetry", help="telemetry.csv of ddrt run or ddrt sim")
+    b_exp.add_argument("out", help="the rosbag2 folder to write (must not exist)")
+    b_exp.add_argument("--config", help="frames, namespace and rates from this config's daemon.ros2")
+    b_exp.add_argument("--epoch", type=float, help="wall time (s since 1970) of t = 0 (default: from the file's time)")
+    b_exp.set_defaults(func=_cmd_bag)
 
     swp = sub.add_parser("sweep", help="a campaign of simulated runs on Dask: a table, a summary, figures "
                                        "(pip install 'ddrt[sweep]')")

@@ -54,7 +54,8 @@ def test_mutator_is_deterministic_and_covers_every_input_file(repo_root: Path) -
     files = seed_files()
     every = {p for ps in files.values() for p in ps}
     assert Path("sim.yaml") in every and Path("paths/waypoints_sparse.csv") in every
-    assert len(every) == len(list((repo_root / "configs").rglob("*.yaml"))) + 1
+    on_disk = [*(repo_root / "configs").rglob("*.yaml"), *(repo_root / "configs").rglob("*.csv")]
+    assert len(every) == len(on_disk)
     seen = {case.origin for case in a.cases(N_CASES)}
     assert seen == every  # every file of configs/ is mutated at least once
     only = Mutator(SEED, kinds=("config",))

@@ -18,6 +18,7 @@ from ddrt.config.schema import (
 from ddrt.config.sim_truth import (
     ActuatorTruth, BatteryTruth, EncoderTruth, EventsTruth, WheelsTruth, check_ppm,
 )
+from ddrt.config.ros2 import Ros2Config
 
 # --------------------------------------------------------------------------- sections
 
@@ -453,8 +454,9 @@ class DaemonConfig:
     on_recover: Literal["resume", "wait"] = applies(LIVE, "resume")  # after a hold: resume the path, or stop and wait
     # Velocity mode (`drive`): no command for this long and the robot brakes to a stop.
     command_timeout_s: float = applies(LIVE, 0.5)
-    telemetry_format: Literal["csv", "mcap", "both"] = "csv"  # mcap needs the foxglove extra
+    telemetry_format: Literal["csv", "mcap", "both", "rosbag2"] = "csv"  # mcap: foxglove extra; rosbag2: ros2
     foxglove: FoxgloveConfig = field(default_factory=FoxgloveConfig)
+    ros2: Ros2Config = field(default_factory=Ros2Config)
 
     def validate(self, where: str) -> None:
         if not 0 <= self.rt_priority <= 99:

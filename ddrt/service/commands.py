@@ -3,9 +3,14 @@ sends them (importing this costs nothing, so `ddrt ctl --help` stays fast)."""
 
 from __future__ import annotations
 
+<<<<<<< HEAD
 COMMANDS = ("status", "follow", "drive", "stop", "resume", "estop", "reset", "gains", "reload", "pose",
             "pose_fix")
+=======
+COMMANDS = ("status", "follow", "drive", "stop", "resume", "estop", "reset", "gains", "reload", "pose", "stream")
+>>>>>>> main
 # Served before other clients' requests; each supersedes the listed commands sent before it
 # and still waiting (so an estop cannot be undone by a reset that was queued ahead of it).
 PRIORITY = {"estop": ("follow", "reset", "drive", "resume", "pose"), "stop": ("follow", "drive", "resume")}
 NEVER_REFUSED = ("estop",)  # no rate limit, no shared queue bound
+STREAMS = ("stream",)  # for processes, not people: `ddrt ctl` does not offer them (ddrt/service/stream.py)

@@ -47,6 +47,7 @@ from ddrt.service.pathjob import Build, BuildJob
 from ddrt.service.pathworker import PathWorker
 from ddrt.service.reloading import Reloader
 from ddrt.service.sdnotify import Notifier
+from ddrt.service.taps import start_taps
 from ddrt.service.status import daemon_status, not_run_report, stats_report, status_line, write_stats
 from ddrt.service.telemetry import TelemetryLogger, TelemetryRing, open_csv_telemetry
 from ddrt.service.timing import RateScheduler, TimingStats
@@ -101,7 +102,7 @@ class Daemon:
         self._start_build: Build | None = None
         self._pending: PendingFollow | None = None
         self._teleop_refusal = ""  # the last teleop refusal logged
-        self.viz: Any = None  # ddrt.viz.service.VizService: Foxglove and MCAP, when configured
+        self.viz: Any = None  # Foxglove and MCAP, the state stream, the ROS 2 bridge (ddrt/service/taps.py)
 
     # ------------------------------------------------------------------ set-up
 
@@ -130,7 +131,7 @@ class Daemon:
         from ddrt.viz.service import start_service
 
         try:
-            self.viz = start_service(self, len(COLUMNS), self.hal)
+            self.viz = start_taps(self, start_service(self, len(COLUMNS), self.hal))
         except Exception as exc:  # noqa: BLE001 - the SDK raises its own types (port in use, ...)
             d = self.cfg.daemon
             self._fail(f"cannot start Foxglove (daemon.foxglove {d.foxglove.host}:{d.foxglove.port}, "

@@ -136,6 +136,15 @@ def _pose_fix(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
     return pose_fix_cmd(d, req, who(d))
 
 
+def _stream(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
+    """Send the loop's state to a datagram socket (ddrt/service/stream.py; the ROS 2 bridge)."""
+    from ddrt.service.taps import Taps
+
+    if not isinstance(d.viz, Taps):
+        return {"ok": False, "error": "stream: this daemon has no state stream"}
+    return d.viz.stream.subscribe(req)
+
+
 def _reload(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
     return d.reload()
 
@@ -161,5 +170,9 @@ def _follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
 HANDLERS = command_table({
     "status": _status, "follow": _follow, "drive": _drive, "stop": _stop, "resume": _resume,
     "estop": _estop, "reset": _reset, "gains": _gains, "reload": _reload, "pose": _pose,
+<<<<<<< HEAD
     "pose_fix": _pose_fix,
+=======
+    "stream": _stream,
+>>>>>>> main
 }, COMMANDS)

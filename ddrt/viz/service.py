@@ -36,6 +36,7 @@ if TYPE_CHECKING:
     from hal.base import Hal
 
 log = logging.getLogger("ddrt.viz")
+MCAP_FORMATS = ("mcap", "both")  # daemon.telemetry_format's values this service writes (rosbag2: ddrt/ros2)
 PENDING_SETS = 4  # parameter sets waiting for the loop; more are refused as busy
 SET_RATE_HZ = 10.0  # parameter sets planned per second, sustained (each plan costs ~1.5 ms of CPU)
 SET_BURST = 4  # and at once
@@ -58,7 +59,7 @@ def check_available(cfg: Config) -> None:
     """At start: a config that asks for Foxglove or MCAP needs the extra (ConfigError naming the key)."""
     d = cfg.daemon
     key = ("daemon.foxglove.enabled: true" if d.foxglove.enabled
-           else f"daemon.telemetry_format: {d.telemetry_format}" if d.telemetry_format != "csv" else None)
+           else f"daemon.telemetry_format: {d.telemetry_format}" if d.telemetry_format in MCAP_FORMATS else None)
     if key is not None:
         try:
             foxglove(key)
@@ -67,7 +68,7 @@ def check_available(cfg: Config) -> None:
 
 
 def wanted(cfg: Config) -> bool:
-    return cfg.daemon.foxglove.enabled or cfg.daemon.telemetry_format != "csv"
+    return cfg.daemon.foxglove.enabled or cfg.daemon.telemetry_format in MCAP_FORMATS
 
 
 def start_service(host: VizHost, width: int, hal: Hal) -> "VizService | None":
@@ -77,7 +78,7 @@ def start_service(host: VizHost, width: int, hal: Hal) -> "VizService | None":
         return None
     d = cfg.daemon
     mcap_dir = None
-    if d.telemetry_format != "csv":
+    if d.telemetry_format in MCAP_FORMATS:
         mcap_dir = os.environ.get("LOGS_DIRECTORY") or d.telemetry_dir
         try:
             os.makedirs(mcap_dir, exist_ok=True)
