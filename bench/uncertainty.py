@@ -1,5 +1,5 @@
 """`python -m bench.uncertainty [--quick]`: is the reported uncertainty honest, and do pose fixes
-hold a robot with a wrong gyro on its path? (docs/BENCHMARKS.md, section 12.)
+hold a robot with a wrong gyro on its path? (docs/BENCHMARKS.md, section 14.)
 
 1. Honest uncertainty: every scenario (configs/sim.yaml, configs/scenarios/*.yaml) as
    `ddrt sim` runs it, and a population of robots whose encoder radius and gyro scale are off

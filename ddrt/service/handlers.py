@@ -170,9 +170,5 @@ def _follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
 HANDLERS = command_table({
     "status": _status, "follow": _follow, "drive": _drive, "stop": _stop, "resume": _resume,
     "estop": _estop, "reset": _reset, "gains": _gains, "reload": _reload, "pose": _pose,
-<<<<<<< HEAD
-    "pose_fix": _pose_fix,
-=======
-    "stream": _stream,
->>>>>>> main
+    "stream": _stream, "pose_fix": _pose_fix,
 }, COMMANDS)
