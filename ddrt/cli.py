@@ -470,7 +470,7 @@ def build_parser() -> argparse.ArgumentParser:
     ctl.add_argument("--timeout", type=float, default=None,
                      help=f"seconds to wait for the reply (default 2; {FOLLOW_TIMEOUT_S:g} for follow)")
     ctl.add_argument("command_name", metavar="COMMAND",
-                     choices=[c for c in COMMANDS if c not in STREAMS])
+                     choices=[c for c in COMMANDS if c not in STREAMS and c != "pose_fix"])  # pose --cov sends a fix
     ctl.add_argument("args", nargs="*", help="follow: the path file (its content is sent); drive: V (m/s) and "
                                              "OMEGA (rad/s); pose: X Y THETA (m, m, rad) sets the robot's pose "
                                              "(with --cov: a pose fix)")
