@@ -4,7 +4,7 @@ One command measures everything and writes the Markdown; nobody edits BENCHMARKS
 so every number in it can be traced to a run on the machine it names. The timing sections run
 one after another on an otherwise idle process; only the accuracy grid uses a process pool.
 
-`--only N` measures section N alone (those in ONLY: 1, 9, 10, 11, 12) and splices it into the --out file:
+`--only N` measures section N alone (those in ONLY: 1, 9, 10, 11, 12, 13) and splices it into the --out file:
 the section's text from its `## N.` heading to the next `## ` heading is replaced (or, when
 the file has no such section, inserted after the last section that precedes it in SECTIONS);
 every other line of the file stays as it was. The spliced section says that it was measured
@@ -28,6 +28,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from bench import commissioning
 from bench import (accuracy, adaptation, battery, ctl_flood, foxglove_load, io_bound, loop_timing, paths_as_given,
                    population, startup, tick_cost, velocity_mode)
 from bench.common import REPO, SIM_CONFIG
@@ -51,6 +52,7 @@ SECTIONS = (
     "10. A population of robots",
     "11. Foxglove live view, MCAP and the velocity mode",
     "12. The supply voltage measured",
+    "13. Commissioning",
 )
 
 
@@ -101,6 +103,7 @@ class Results:
     robots: population.PopulationResult | None = None
     live: "LiveView | None" = None
     supply: battery.BatteryResult | None = None
+    commissioning: commissioning.CommissioningResult | None = None
     wall_s: dict[str, float] = field(default_factory=dict)
 
 
@@ -219,6 +222,11 @@ def measure_population_section(opts: BenchOptions) -> object:
     return population.measure_population(opts.robots, opts.workers)
 
 
+def measure_commissioning(opts: BenchOptions) -> object:
+    """Section 13: as many harsh robots as section 10 has (at most bench/commissioning.py's 20)."""
+    return commissioning.measure(min(opts.robots, commissioning.ROBOTS), opts.workers)
+
+
 def measure_speed(scenarios: Sequence[str], seeds: Sequence[int]) -> dict[str, list[float]]:
     """Closed-loop real-time factor (start-up excluded) of the dynamic controller, per seed."""
     out: dict[str, list[float]] = {}
@@ -262,12 +270,13 @@ def measure_all(opts: BenchOptions, command: str, say: Callable[[str], None] = _
     robots = timed("population", lambda: population.measure_population(opts.robots, opts.workers))
     live = timed("foxglove and velocity mode", lambda: measure_live(opts))
     supply = timed("supply voltage", lambda: battery.measure(opts.seeds))
+    com = timed("commissioning", lambda: measure_commissioning(opts))
     machine["load average at the end"] = (load_average() + " (other work on this machine shows in the maxima "
                                           "and the loop timing)")
     return Results(options=opts, command=command, machine=machine, accuracy=acc,  # type: ignore[arg-type]
                    ticks=ticks, loop=loop, speed=speed, startup=st, bound=io_bound.io_bound(),  # type: ignore[arg-type]
                    adapt=adapt, ctl=ctl, paths=paths, robots=robots, live=live, supply=supply,  # type: ignore[arg-type]
-                   wall_s=walls)  # type: ignore[arg-type]
+                   commissioning=com, wall_s=walls)  # type: ignore[arg-type]
 
 
 # --------------------------------------------------------------------------- the document
@@ -324,6 +333,8 @@ def render_document(r: Results) -> str:
     lines += render_live(r.live) if r.live is not None else ["Not measured in this run."]
     lines += ["", _header(12), ""]
     lines += battery.render(r.supply) if r.supply is not None else ["Not measured in this run."]
+    lines += ["", _header(13), ""]
+    lines += commissioning.render(r.commissioning) if r.commissioning is not None else ["Not measured in this run."]
     return "\n".join(lines) + "\n"
 
 
@@ -334,6 +345,7 @@ ONLY: dict[int, tuple[Callable[[BenchOptions], object], Callable[[object], list[
     10: (measure_population_section, population.render),  # type: ignore[dict-item]
     11: (measure_live, render_live),  # type: ignore[dict-item]
     12: (lambda opts: battery.measure(opts.seeds), battery.render),  # type: ignore[dict-item]
+    13: (measure_commissioning, commissioning.render),  # type: ignore[dict-item]
 }
 
 

@@ -36,7 +36,7 @@ class CalibrationRunError(RuntimeError):
 # --------------------------------------------------------------------------- driving
 
 
-def _clock(hal: Hal) -> Any:
+def clock_for(hal: Hal) -> Any:
     """A HAL whose robot runs in simulated time is its own clock; hardware runs on the
     monotonic clock."""
     if hal.owns_time:
@@ -46,7 +46,7 @@ def _clock(hal: Hal) -> Any:
     return MonotonicClock()
 
 
-def _drive(loop: ControlLoop, clock: Any, limit_s: float) -> None:
+def run_until_stopped(loop: ControlLoop, clock: Any, limit_s: float) -> None:
     """Tick on absolute deadlines until the loop stops; fault or timeout raise."""
     t0 = clock.now()
     holds = loop.recovery.holds
@@ -58,6 +58,9 @@ def _drive(loop: ControlLoop, clock: Any, limit_s: float) -> None:
             cause = loop.recovery.last_cause
             loop.estop("calibration run interrupted")
             raise CalibrationRunError(f"the calibration run was interrupted ({cause}): run it again")
+        if loop.state == LoopState.ESTOP:  # the robot's emergency-stop input (ddrt/loop/power.py)
+            raise CalibrationRunError(f"the robot was stopped ({loop.fault}): the motors are off; release the "
+                                      "emergency stop and run again")
         if loop.state == LoopState.STOPPED:
             return
         if loop.state == LoopState.FAULT:
@@ -66,9 +69,9 @@ def _drive(loop: ControlLoop, clock: Any, limit_s: float) -> None:
     raise CalibrationRunError(f"the calibration run did not finish within {limit_s:.0f} s")
 
 
-def _start(cfg: Config, hal: Hal) -> tuple[ControlLoop, Any]:
+def start_loop(cfg: Config, hal: Hal) -> tuple[ControlLoop, Any]:
     loop = ControlLoop(cfg, hal)
-    clock = _clock(hal)
+    clock = clock_for(hal)
     loop.calibrate(clock.sleep_until, clock.now)
     return loop, clock
 
@@ -86,7 +89,7 @@ class GyroResult:
 def calibrate_gyro_at_rest(cfg: Config, hal: Hal) -> GyroResult:
     """Bias and per-sample noise of the gyro with the motors held at zero."""
     loop = ControlLoop(cfg, hal)
-    clock = _clock(hal)
+    clock = clock_for(hal)
     bias, std = loop.calibrate(clock.sleep_until, clock.now)
     return GyroResult(bias, std, cfg.estimator.calibration_s)
 
@@ -173,7 +176,7 @@ def identify(cfg: Config, hal: Hal, width: float, height: float, max_s: float = 
              speed: float | None = None) -> IdentifyResult:
     """Drive the excitation path and fit (m_k, mbar, I, m_x, c_L, c_R) by least squares."""
     path = excitation_path(cfg, width, height, max_s, speed)
-    loop, clock = _start(cfg, hal)
+    loop, clock = start_loop(cfg, hal)
     adapter = DynamicsAdapter(loop.dyn, loop.motor, cfg.controller.adaptation, loop.period)
     adapter.recorder = []
     prev = [0.0, 0.0]
@@ -185,7 +188,7 @@ def identify(cfg: Config, hal: Hal, width: float, height: float, max_s: float = 
 
     loop.on_tick = feed
     loop.follow(path, path.start_pose)
-    _drive(loop, clock, path.duration + 15.0)
+    run_until_stopped(loop, clock, path.duration + 15.0)
     return fit(adapter.recorder, path.duration, (width, height))
 
 
@@ -310,23 +313,23 @@ def odometry_run(cfg: Config, hal: Hal, distance: float = 1.0, turns: float = 1.
     """Drive `distance` m straight ahead, stop, then turn in place `turns` full turns."""
     if not distance > 0.0 or not turns > 0.0:
         raise ValueError("odometry: distance and turns must be > 0")
-    loop, clock = _start(cfg, hal)
+    loop, clock = start_loop(cfg, hal)
     from ddrt.path.spec import speed_limits
 
     line = load_path({"shape": "line", "length": distance, "speed": min(0.3, speed_limits(cfg).v_max)}, speed_limits(cfg),
                      paths=cfg.paths)
     true0 = _truth(hal)
     loop.follow(line, (0.0, 0.0, 0.0))
-    _drive(loop, clock, line.duration + 15.0)
-    _settle(loop, clock)
+    run_until_stopped(loop, clock, line.duration + 15.0)
+    settle(loop, clock)
     x1, y1, th1 = loop.estimator_pose()
     true1 = _truth(hal)
     angle = 2.0 * math.pi * turns
     spin = SpinReference((x1, y1, th1), angle, min(1.5, cfg.limits.omega_max), min(3.0, cfg.limits.alpha_max),
                          loop.period)
     loop.follow_reference(spin)
-    _drive(loop, clock, spin.turn.t_end + 15.0)
-    _settle(loop, clock)
+    run_until_stopped(loop, clock, spin.turn.t_end + 15.0)
+    settle(loop, clock)
     th2 = loop.estimator_pose()[2]
     true2 = _truth(hal)
     true_d = true_t = None
@@ -336,7 +339,7 @@ def odometry_run(cfg: Config, hal: Hal, distance: float = 1.0, turns: float = 1.
     return OdometryRun(distance, math.hypot(x1, y1), th2 - th1, true_d, true_t)
 
 
-def _settle(loop: ControlLoop, clock: Any, seconds: float = 0.5) -> None:
+def settle(loop: ControlLoop, clock: Any, seconds: float = 0.5) -> None:
     """Stand still a moment (zero duty) so the robot has stopped before measuring."""
     t0 = clock.now()
     for i in range(int(seconds / loop.period)):

@@ -1,4 +1,4 @@
-"""The `ddrt` command: sim, path, run, ctl, calibrate, sweep."""
+"""The `ddrt` command: sim, path, run, ctl, calibrate, commission, sweep."""
 
 from __future__ import annotations
 
@@ -428,6 +428,43 @@ def _ask(prompt: str, what: str, tries: int = 5) -> float:
     raise ValueError(f"calibrate odometry: no usable {what} after {tries} tries; give it with {flag}")
 
 
+def _cmd_commission(args: argparse.Namespace) -> int:
+    """`ddrt commission`: the guided steps of ddrt/commission (docs/commissioning.md)."""
+    from ddrt.calibrate import parse_area
+    from ddrt.commission import commission, session_for
+    from ddrt.commission.answers import load_answers
+    from ddrt.commission.session import DEFAULT_NOISE, Options
+
+    if args.measurement_noise is not None and not args.from_sim_truth:
+        raise ValueError("--measurement-noise: only with --from-sim-truth")
+    noise = DEFAULT_NOISE
+    if args.measurement_noise is not None:
+        try:
+            noise = tuple(float(v) for v in args.measurement_noise.split(","))  # type: ignore[assignment]
+        except ValueError:
+            noise = ()  # type: ignore[assignment]
+        if len(noise) != 2 or not all(0.0 <= v < 1000.0 for v in noise):
+            raise ValueError(f"--measurement-noise: expected MM,DEG (two numbers >= 0), got {args.measurement_noise!r}")
+    if not 1 <= args.turns <= 20:
+        raise ValueError(f"--turns: 1 to 20, got {args.turns}")
+    if not 0.2 <= args.distance <= 10.0:
+        raise ValueError(f"--distance: 0.2 to 10 m, got {args.distance:g}")
+    if args.umbmark is not None and not 0.3 <= args.umbmark <= 10.0:
+        raise ValueError(f"--umbmark: a square's side of 0.3 to 10 m, got {args.umbmark:g}")
+    out = Path(args.out or f"{Path(args.config).stem}.commissioned.yaml")
+    given = load_answers(args.answers) if args.answers else {}
+    opts = Options(out=out, area=parse_area(args.area) if args.area else None, from_sim_truth=args.from_sim_truth,
+                   noise_mm_deg=noise, turns=args.turns, distance_m=args.distance, check=not args.no_check,
+                   umbmark_side_m=args.umbmark)
+    session = session_for(args.config, opts, given, yes=args.yes)
+    outcome = commission(session, args.step)
+    if outcome.config_file is not None:
+        print(f"wrote {outcome.config_file} and {outcome.report}")
+    else:
+        print(f"done: {', '.join(outcome.ran)} (stored in {session.state.path})")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="ddrt", description="Real-time controller for differential-drive robots.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -530,6 +567,26 @@ def build_parser() -> argparse.ArgumentParser:
         c.add_argument("config", help="YAML config of the robot")
         c.add_argument("--out", help="write the config fragment here (default calibration-KIND.yaml)")
         c.set_defaults(func=_cmd_calibrate)
+
+    com = sub.add_parser("commission", help="guided: link, wiring, at rest, dynamics, odometry -> a calibrated "
+                                            "config and a report (docs/commissioning.md)")
+    com.add_argument("config", help="YAML config of the robot (what a ruler, a scale and the datasheets give)")
+    com.add_argument("--out", metavar="FILE", help="the commissioned config (default CONFIG.commissioned.yaml); "
+                                                   "its state file and report folder go beside it")
+    com.add_argument("--area", metavar="WxH", help="free area in metres centred on the robot (default 2x1.5)")
+    com.add_argument("--answers", metavar="FILE", help="YAML file of answers to the prompts (docs/commissioning.md)")
+    com.add_argument("--from-sim-truth", action="store_true",
+                     help="simulation: take the measurements from the plant's true pose")
+    com.add_argument("--measurement-noise", metavar="MM,DEG",
+                     help="with --from-sim-truth: tape and protractor noise, one sigma (default 2,0.5)")
+    com.add_argument("--step", metavar="NAME", help="re-run one step: link, wiring, rest, dynamics, odometry, result")
+    com.add_argument("--yes", action="store_true", help="skip confirmations (never measurements), for scripts")
+    com.add_argument("--turns", type=int, default=5, help="odometry: full turns in place (default 5)")
+    com.add_argument("--distance", type=float, default=1.0, help="odometry: straight distance in m (default 1)")
+    com.add_argument("--umbmark", type=float, metavar="SIDE", help="odometry: also drive a SIDE m square both ways "
+                                                                     "(UMBmark) and measure where each ends")
+    com.add_argument("--no-check", action="store_true", help="result: no check path at the end")
+    com.set_defaults(func=_cmd_commission)
     return parser
 
 

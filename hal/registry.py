@@ -56,4 +56,8 @@ def open_hal(cfg: "Config", **options: Any) -> Hal:
         raise HalInitError(f"hal.backend: unknown backend {name!r} (known: {', '.join(BACKENDS)})") from None
     module_name, func_name = target.split(":")
     module = importlib.import_module(module_name)
-    return getattr(module, func_name)(cfg, **options)
+    hal = getattr(module, func_name)(cfg, **options)
+    # The one place the robot's wiring (hal.wiring) is fixed, for every backend alike.
+    from hal.wiring import wire
+
+    return wire(hal, cfg.hal.wiring)

@@ -14,7 +14,8 @@ in every sample's `battery_v`; `battery_measured=False`, `sim.battery_measured: 
 v1 MCU that does not) and has a hardware emergency-stop input, closed unless a test opens it
 (`estop_input_open`).
 
-Fault injection: `freeze(at, duration)` makes the sensors repeat their last reading, flagged
+Fault injection: `wiring` (sim_hal/wiring.py, `sim.wiring`) miswires the motors and sensors;
+`freeze(at, duration)` makes the sensors repeat their last reading, flagged
 not fresh, from sim time `at` for `duration` s (None: for good); `sim.sensors_freeze_after_s`
 with `sim.sensors_freeze_for_s` does it from the config.
 """
@@ -28,6 +29,7 @@ from ddrt.params.motor import MotorParams
 from hal.base import Hal, HalInfo, HalIOError, Sample
 from sim_hal.plant import PlantConfig, SimRobot
 from sim_hal.simtime import SimTime
+from sim_hal.wiring import WiringFaults
 
 
 class SimHal(Hal):
@@ -37,7 +39,7 @@ class SimHal(Hal):
     robot: SimRobot  # Hal's optional capability: the truth behind the readings
 
     def __init__(self, robot: SimRobot, paced: bool = False, drive_timeout_s: float | None = 0.1,
-                 battery_measured: bool = True) -> None:
+                 battery_measured: bool = True, wiring: WiringFaults | None = None) -> None:
         if drive_timeout_s is not None and not (math.isfinite(drive_timeout_s) and drive_timeout_s > 0):
             raise ValueError(f"drive_timeout_s: expected None or a positive number, got {drive_timeout_s!r}")
         self.robot = robot
@@ -58,6 +60,7 @@ class SimHal(Hal):
         self._last_drive_t = robot.t
         self._driving = False  # a nonzero command is in force (the watchdog can trip)
         self.watchdog_trips = 0
+        self.wiring = wiring if wiring is not None and wiring.faulty else None  # None: wired right
 
     @classmethod
     def from_params(cls, params: RobotParams, motor_l: MotorParams | None = None,
@@ -142,11 +145,16 @@ class SimHal(Hal):
         self._last_sample = Sample(t=t, encoder_count=robot.read_encoder(), gyro_z_raw=robot.read_gyro_raw(),
                                    battery_v=robot.battery_v if self.info.battery_measured else math.nan,
                                    hw_estop=self.estop_input_open)
+        if self.wiring is not None:
+            s = self._last_sample
+            s.encoder_count, s.gyro_z_raw = self.wiring.encoder(s.encoder_count), self.wiring.gyro(s.gyro_z_raw)
         return self._last_sample
 
     def _write(self, duty_l: float, duty_r: float) -> None:
         if self._closed:
             raise HalIOError("SimHal.write: the HAL is closed")
+        if self.wiring is not None:
+            duty_l, duty_r = self.wiring.motors(duty_l, duty_r)
         self.robot.command(duty_l, duty_r)
         self._last_drive_t = self.robot.t
         self._driving = duty_l != 0.0 or duty_r != 0.0

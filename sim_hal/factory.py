@@ -7,6 +7,7 @@ from typing import Any
 from ddrt.config import Config
 from sim_hal.plant import PlantConfig, Realism, SimRobot
 from sim_hal.backend import SimHal
+from sim_hal.wiring import WiringFaults
 
 
 def plant_config(cfg: Config, seed: int | None = None) -> PlantConfig:
@@ -34,7 +35,8 @@ def open_sim_hal(cfg: Config, start: tuple[float, float, float] = (0.0, 0.0, 0.0
                  seed: int | None = None, paced: bool = False, **_: Any) -> SimHal:
     """A SimHal around the plant described by `cfg` (truth: plant:, sim:, sensors:)."""
     robot = SimRobot(cfg.plant, cfg.plant_motor_l, cfg.plant_motor_r, plant_config(cfg, seed), start=start)
-    hal = SimHal(robot, paced=paced, battery_measured=cfg.sim.battery_measured)
+    hal = SimHal(robot, paced=paced, battery_measured=cfg.sim.battery_measured,
+                 wiring=WiringFaults.from_config(cfg.sim.wiring))
     if cfg.sim.sensors_freeze_after_s is not None:
         hal.freeze(robot.t + cfg.sim.sensors_freeze_after_s, cfg.sim.sensors_freeze_for_s)
     return hal

@@ -167,6 +167,8 @@ def test_document_has_every_section(tiny_results: run.Results, tmp_path) -> None
     assert robots is not None and len(robots.robots) == 1 and len(robots.runs) == 6
     assert "| dynamic | " in doc and "| kinematic | " in doc and "bench/population.py" in doc
     assert "### The velocity mode" in doc and "| drive | " in doc
+    assert doc.count("| yes | completed |") == 5  # every wiring fault fixed, its figure-eight completed
+    assert "### Harsh population, commissioned" in doc and "| commissioned (" in doc
     assert ("| missed ticks (in" in doc) == (tiny_results.live.foxglove is not None)
     assert "| lane change 5 m, 0.9 m/s | 9.3 V, measured | " in doc  # section 12, the supply voltage
     out = tmp_path / "BENCHMARKS.md"

@@ -12,6 +12,7 @@ from typing import Any, ClassVar, Literal, Mapping
 from ddrt.params.robot import RobotParams
 from ddrt.params.gyro_scale import GYRO_RANGES_DPS
 from ddrt.params.motor import MotorParams
+from ddrt.config.wiring import SimWiring, WiringConfig
 from ddrt.config.schema import (
     LIVE, NEXT_PATH, RESTART, ConfigError, applies, non_negative, positive, restart,
 )
@@ -88,6 +89,7 @@ class SimConfig:
     actuators: ActuatorTruth = field(default_factory=ActuatorTruth)
     events: EventsTruth = field(default_factory=EventsTruth)
     mcu_clock_ppm: float = 0.0  # the microcontroller's crystal error, on the t_us it stamps
+    wiring: SimWiring = field(default_factory=SimWiring)  # fault injection: miswired motors and sensors
 
     def validate(self, where: str) -> None:
         positive(where, step_hz=self.step_hz)
@@ -202,6 +204,7 @@ class HalConfig:
     bridge: BridgeConfig = field(default_factory=BridgeConfig)
     pwm_sysfs: PwmSysfsConfig = field(default_factory=PwmSysfsConfig)
     hold_ticks: int | None = None  # None: hold a stale value as long as hal.bridge.state_stale_s allows
+    wiring: WiringConfig = field(default_factory=WiringConfig)  # motor and sensor directions, fixed in software
 
     def validate(self, where: str) -> None:
         if self.hold_ticks is not None:
