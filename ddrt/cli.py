@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from importlib import import_module
 from pathlib import Path
 from typing import Sequence
 
@@ -193,14 +194,10 @@ def _cmd_bag(args: argparse.Namespace) -> int:
 def _cmd_ctl(args: argparse.Namespace) -> int:
     from ddrt.service.ctlclient import request
 
-    if args.for_s is not None and args.command_name != "drive":
-        raise ValueError("ctl: --for is for drive only")
-    if args.here and args.command_name != "follow":
-        raise ValueError("ctl: --here is for follow only")
-    if (args.cov is not None or args.stamp is not None) and args.command_name != "pose":
-        raise ValueError("ctl: --cov and --stamp are for pose only")
-    if args.frame is not None and args.command_name != "follow":
-        raise ValueError("ctl: --frame is for follow only")
+    for flag, value, cmd in (("--for", args.for_s, "drive"), ("--here", args.here or None, "follow"), ("--cov", args.cov, "pose"),
+                             ("--stamp", args.stamp, "pose"), ("--frame", args.frame, "follow")):
+        if value is not None and args.command_name != cmd:
+            raise ValueError(f"ctl: {flag} is for {cmd} only")
     payload: dict = {"cmd": args.command_name}
     if args.command_name == "drive":
         return _ctl_drive(args)
@@ -220,10 +217,9 @@ def _cmd_ctl(args: argparse.Namespace) -> int:
         if len(args.args) != 3:
             raise ValueError("ctl pose: give X Y THETA (metres, metres, radians)")
         xyt = [_number(v, name, "pose") for v, name in zip(args.args, ("X", "Y", "THETA"))]
-        if args.cov is None and args.stamp is None:
-            payload["pose"] = xyt  # set the pose (at rest)
-        else:  # a measured pose: a fix, fused in map (docs/estimation.md)
-            payload = {"cmd": "pose_fix", **_pose_fix_fields(xyt, args.cov, args.stamp)}
+        payload["pose"] = xyt  # set the pose (at rest); with --cov a measured pose: a fix (docs/estimation.md)
+        if args.cov is not None or args.stamp is not None:
+            payload = import_module("ddrt.service.posefix").ctl_fix_request(xyt, args.cov, args.stamp)
     elif args.args:
         raise ValueError(f"ctl {args.command_name}: takes no arguments, got {' '.join(args.args)!r}")
     timeout = args.timeout
@@ -239,24 +235,6 @@ def _cmd_ctl(args: argparse.Namespace) -> int:
         return 1
     print(json.dumps(reply, indent=2, sort_keys=True))
     return 0 if reply.get("ok") else 1
-
-
-def _pose_fix_fields(xyt: list[float], cov: str | None, stamp: str | None) -> dict:
-    """`ctl pose X Y THETA --cov C [--stamp T]` as a pose_fix request: C is 3 variances
-    (x, y, theta: m^2, m^2, rad^2) or the 9 entries of the 3x3 row by row, comma-separated."""
-    if cov is None:
-        raise ValueError("ctl pose: --cov: a fix (--stamp) needs its covariance: 3 variances (m^2, m^2, rad^2) "
-                         "or 9 entries, comma-separated")
-    parts = [p for p in cov.replace(" ", ",").split(",") if p]
-    if len(parts) not in (3, 9):
-        raise ValueError(f"ctl pose: --cov: expected 3 variances or 9 entries, comma-separated, got {len(parts)}")
-    values = [_number(p, "--cov", "pose") for p in parts]
-    if len(values) == 3:
-        values = [values[0], 0.0, 0.0, 0.0, values[1], 0.0, 0.0, 0.0, values[2]]
-    fields: dict = {"x": xyt[0], "y": xyt[1], "theta": xyt[2], "cov": [values[0:3], values[3:6], values[6:9]]}
-    if stamp is not None:
-        fields["stamp"] = _number(stamp, "--stamp", "pose")
-    return fields
 
 
 def _follow_content(fname: str, args: argparse.Namespace) -> dict:
@@ -509,17 +487,14 @@ def build_parser() -> argparse.ArgumentParser:
     ctl.add_argument("command_name", metavar="COMMAND",
                      choices=[c for c in COMMANDS if c not in STREAMS and c != "pose_fix"])  # pose --cov sends a fix
     ctl.add_argument("args", nargs="*", help="follow: the path file (its content is sent); drive: V (m/s) and "
-                                             "OMEGA (rad/s); pose: X Y THETA (m, m, rad) sets the robot's pose "
-                                             "(with --cov: a pose fix)")
+                                             "OMEGA (rad/s); pose: X Y THETA (m, m, rad) sets the pose (--cov: a fix)")
     ctl.add_argument("--here", action="store_true",
                      help="follow: place the path so that it starts at the robot's current pose and heading")
     ctl.add_argument("--for", dest="for_s", type=float, metavar="S",
                      help="drive: re-send the command at 10 Hz for S seconds, then stop")
-    ctl.add_argument("--cov", metavar="C", help="pose: send X Y THETA as a pose fix (fused in map, in any state) "
-                                                "with this covariance: 3 variances (m^2, m^2, rad^2) or 9 entries, "
-                                                "comma-separated")
-    ctl.add_argument("--stamp", metavar="T", help="pose (a fix, with --cov): when the pose was true, on the loop's "
-                                                  "clock (status: clock_s; default now)")
+    ctl.add_argument("--cov", metavar="C", help="pose: send a pose fix (fused in map, any state) with this covariance: "
+                                                "3 variances (m^2, m^2, rad^2) or 9 entries, comma-separated")
+    ctl.add_argument("--stamp", metavar="T", help="pose --cov: when the pose was true (the loop's clock: status clock_s)")
     ctl.add_argument("--frame", choices=("odom", "map"), help="follow: the frame the path is in (default odom)")
     ctl.set_defaults(func=_cmd_ctl)
 

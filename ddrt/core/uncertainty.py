@@ -8,9 +8,10 @@ Error state e = (ex, ey, eth, es, eg, eb), true = estimate + error:
 - eb: the gyro bias's error (rad/s; the true turn gains eb per second).
 
 es and eg are constants the odometry does not know (its configured r_3 and gyro_scale are
-taken as exact; the map frame learns them from pose fixes); eb drifts as a random walk (estimator.gyro_bias_walk) and is re-learnt
-whenever the robot stands still (the estimator's at-rest update, which this follows). A
-step of the dead reckoning (ds along the midpoint heading th_m, dth, dt) moves the error by
+taken as exact; the map frame learns them from pose fixes); eb drifts as a random walk
+(estimator.gyro_bias_walk) and is re-learnt whenever the robot stands still (the
+estimator's at-rest update, which this follows). A step of the dead reckoning (ds along
+the midpoint heading th_m, dth, dt) moves the error by
 
     ex  += -ds sin(th_m) eth + ds cos(th_m) es
     ey  +=  ds cos(th_m) eth + ds sin(th_m) es
@@ -18,12 +19,12 @@ step of the dead reckoning (ds along the midpoint heading th_m, dth, dt) moves t
 
 so over an interval a..b the transition Phi is the identity plus sums of the increments,
 which the history keeps as running sums (per tick: t, x, y, th of the map's dead reckoning
-and the steps weighted by their midpoint heading and time): Phi for any interval of the history is a few subtractions, exact
-for this linear error model whatever its length. That is what lets the covariance be
-propagated only every few ticks (`Tracker`: every 20 ms, off the per-tick cost) and a fix
-stamped in the past be fused against the pose and covariance of its own time
-(ddrt/core/pose_fix.py). docs/estimation.md derives the figures and holds the model
-against a Monte-Carlo of the dead reckoning (tests/test_uncertainty.py).
+and the steps weighted by their midpoint heading and time): Phi for any interval of the
+history is a few subtractions, exact for this linear error model whatever its length.
+That is what lets the covariance be propagated only every few ticks (`Tracker`: every
+20 ms, off the per-tick cost) and a fix stamped in the past be fused against the pose and
+covariance of its own time (ddrt/core/pose_fix.py). docs/estimation.md derives the figures
+and holds the model against a Monte-Carlo of the dead reckoning (tests/test_uncertainty.py).
 """
 
 from __future__ import annotations

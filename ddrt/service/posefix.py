@@ -91,3 +91,33 @@ def _finite(v: float) -> bool:
         return math.isfinite(v)
     except OverflowError:
         return False
+
+
+def ctl_fix_request(xyt: list[float], cov: str | None, stamp: str | None) -> dict[str, Any]:
+    """`ddrt ctl pose X Y THETA --cov C [--stamp T]` as a pose_fix request: C is 3 variances
+    (x, y, theta: m^2, m^2, rad^2) or the 9 entries of the 3x3 row by row, comma-separated;
+    ValueError naming the option (the daemon checks the values themselves)."""
+    if cov is None:
+        raise ValueError("ctl pose: --cov: a fix (--stamp) needs its covariance: 3 variances (m^2, m^2, rad^2) "
+                         "or 9 entries, comma-separated")
+    parts = [p for p in cov.replace(" ", ",").split(",") if p]
+    if len(parts) not in (3, 9):
+        raise ValueError(f"ctl pose: --cov: expected 3 variances or 9 entries, comma-separated, got {len(parts)}")
+    values = [_option_number(p, "--cov") for p in parts]
+    if len(values) == 3:
+        values = [values[0], 0.0, 0.0, 0.0, values[1], 0.0, 0.0, 0.0, values[2]]
+    req: dict[str, Any] = {"cmd": "pose_fix", "x": xyt[0], "y": xyt[1], "theta": xyt[2],
+                           "cov": [values[0:3], values[3:6], values[6:9]]}
+    if stamp is not None:
+        req["stamp"] = _option_number(stamp, "--stamp")
+    return req
+
+
+def _option_number(text: str, option: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"ctl pose: {option}: expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise ValueError(f"ctl pose: {option}: must be finite, got {text!r}")
+    return value
