@@ -337,8 +337,22 @@ class EstimatorConfig:
     zero_motors_after_s: float | None = None  # blind this long in a hold: motors to zero; None: the HAL's DRIVE watchdog
     stuck_gyro_ticks: int = 100  # identical raw gyro readings in a row = stuck sensor
     encoder_stuck_s: float = 0.3  # commanded motion but no encoder counts for this long
+    # The pose's uncertainty and pose fixes (docs/estimation.md).
+    encoder_scale_std: float = 0.01  # 1 sigma relative error of r_3 (metres per count)
+    gyro_scale_std: float = 0.0173  # 1 sigma relative error of gyro_scale (MPU-6050: +-3 %, uniform)
+    fix_history_s: float = 2.0  # how late a pose fix may arrive (s of odometry kept)
+    fix_gate_chi2: float = 16.27  # Mahalanobis^2 beyond which a fix is an outlier (chi-square 3 dof, 0.999)
+    map_blend_s: float = 0.5  # a path in `map` follows a fix's correction with this time constant
 
     def validate(self, where: str) -> None:
+        non_negative(where, encoder_scale_std=self.encoder_scale_std, gyro_scale_std=self.gyro_scale_std,
+                     map_blend_s=self.map_blend_s)
+        positive(where, fix_gate_chi2=self.fix_gate_chi2)
+        for key in ("encoder_scale_std", "gyro_scale_std"):
+            if getattr(self, key) > 0.5:
+                raise ConfigError(f"{where}.{key}: at most 0.5 (a relative error), got {getattr(self, key)}")
+        if not 0.05 <= self.fix_history_s <= 30.0:
+            raise ConfigError(f"{where}.fix_history_s: must be in [0.05, 30] s, got {self.fix_history_s}")
         positive(where, max_gap_s=self.max_gap_s, accel_noise=self.accel_noise,
                  odometry_accel_noise=self.odometry_accel_noise, yaw_accel_noise=self.yaw_accel_noise,
                  odometry_yaw_accel_noise=self.odometry_yaw_accel_noise,

@@ -15,6 +15,10 @@ and the count are re-synced, the distance the encoder counted meanwhile is put i
 and no motion is invented for the time nobody looked. Whether a gap stops the robot is the
 loop's decision (ddrt/loop/hold.py: the `holding` state); `health.fault` is only set for faults
 that must latch at once (a stuck or saturated gyro, a stuck encoder).
+
+Uncertainty and pose fixes (docs/estimation.md): every step of the dead reckoning also goes
+to the map frame (ddrt/core/pose_fix.py), whose history and covariances
+(ddrt/core/uncertainty.py) give the pose's 1-sigma and let a late fix be fused.
 """
 
 from __future__ import annotations
@@ -26,6 +30,8 @@ from ddrt.config import EstimatorConfig
 from ddrt.core.kalman import TravelFilter, YawFilter
 from ddrt.core.model import Dynamics
 from ddrt.core.motor import Motor
+from ddrt.core.pose_fix import MapFrame, PoseFix
+from ddrt.core.uncertainty import ErrorModel, Tracker
 from ddrt.core.types import HalInfo, Sample
 from ddrt.core.wrap import wrap_i32
 
@@ -33,6 +39,7 @@ NOISE_STEP_S = 0.005  # the step the configured process noises are given for
 _RESYNC_V_VAR = 0.01  # (m/s)^2: speed variance after a re-anchor, so the next samples set it
 _RESYNC_W_VAR = 0.01  # (rad/s)^2: likewise for the yaw rate
 DEG = math.pi / 180.0
+UNCERTAINTY_EVERY_S = 0.02  # the map covariance is propagated this often (the odometry's every 0.1 s)
 
 
 class CalibrationError(ValueError):
@@ -92,6 +99,9 @@ class Estimator:
         self.yaw = YawFilter(0.0, 0.0, 0.0)
         self.heading = YawFilter(0.0, 0.0, 0.0)
         self._configure(cfg, r_3)
+        self.t_est = 0.0  # the time the estimate is for (the loop's clock)
+        self.track = self._tracker(cfg)
+        self.frame = MapFrame(cfg.fix_gate_chi2)
         self._last_gyro_z: float | None = None
         self._last_gyro_t = 0.0
         self._travel_counts = 0  # unwrapped encoder counts since reset (or the last re-base)
@@ -147,6 +157,12 @@ class Estimator:
         # never less than max_gap_s, so a fast loop does not stop on a host's hiccup.
         self.max_gap = max(10.0 * period_s, cfg.max_gap_s)
 
+    def _tracker(self, cfg: EstimatorConfig) -> Tracker:
+        """The pose's uncertainty and history at this config (ddrt/core/uncertainty.py)."""
+        per = self.period
+        return Tracker(ErrorModel.from_config(cfg, per), int(math.ceil(cfg.fix_history_s / per)) + 2,
+                       max(1, int(round(UNCERTAINTY_EVERY_S / per))), max(1, int(round(5 * UNCERTAINTY_EVERY_S / per))))
+
     def reconfigure(self, cfg: EstimatorConfig, r_3: float, dyn: Dynamics, motor: Motor) -> None:
         """Take a new tuning, encoder radius (a calibrated r_3), gyro scale or model between
         two ticks, without a jump in the estimate.
@@ -156,8 +172,10 @@ class Estimator:
         times the gyro's scale, are rescaled with it.
         """
         old_lsb = self.rad_s_per_lsb
+        old_cfg = self.cfg
         travelled = self._travel_counts * self.metres_per_count
         self._configure(cfg, r_3)
+        self._retrack(old_cfg, cfg)
         self.dyn = dyn
         self.motor = motor
         for f in (self.travel, self.speed):
@@ -170,6 +188,31 @@ class Estimator:
                 f.b *= ratio
             if self._last_gyro_z is not None:
                 self._last_gyro_z *= ratio
+
+    def _retrack(self, old: EstimatorConfig, cfg: EstimatorConfig) -> None:
+        """A reload's uncertainty figures: the scale errors' rows rescaled (so the covariance
+        stays positive), a new history length takes a fresh history at the present pose."""
+        track = self.track
+        track.model = ErrorModel.from_config(cfg, self.period)
+        for i, (a, b) in ((3, (old.encoder_scale_std, cfg.encoder_scale_std)),
+                          (4, (old.gyro_scale_std, cfg.gyro_scale_std))):
+            if a != b:
+                k = b / a if a > 0.0 else 0.0
+                for p in [track.p_map, track.p_odom] + track.saved_p:
+                    for j in range(6):
+                        p[i * 6 + j] *= k
+                        p[j * 6 + i] *= k
+                    if a == 0.0:
+                        p[i * 6 + i] = b * b
+        self.frame.gate_chi2 = cfg.fix_gate_chi2
+        if cfg.fix_history_s != old.fix_history_s:
+            p_map, p_odom = list(track.p_map), list(track.p_odom)
+            self.track = self._tracker(cfg)
+            self.track.reset(self.t_est, self.map_pose())
+            self.track.p_map[:], self.track.p_odom[:] = p_map, p_odom
+            self.track.saved_p[0][:] = p_map
+            self.track._publish()
+            self.frame.counters.last_stamp = self.t_est
 
     # ------------------------------------------------------------------ set-up
 
@@ -194,9 +237,31 @@ class Estimator:
         self._ahead_of_anchor = 0.0
         self.blind_s = self.gap_s = 0.0
         self.health.stale_ticks = 0
+        self.t_est = sample.t
+        self.track.reset(sample.t, pose)
+        self.frame.reset(pose, anchored=False)  # nothing says where map is yet
 
-    def set_pose(self, pose: tuple[float, float, float]) -> None:
+    def set_pose(self, pose: tuple[float, float, float], cov: list[float] | None = None,
+                 anchored: bool = True) -> None:
+        """The robot is at `pose` (in both frames: the map correction is cleared), known to
+        `cov` (a 3x3 covariance, 9 floats row by row; None: exactly). `anchored`: this is
+        where it is in map (a pose set); False for a convention (a reset's origin), which
+        leaves the first fix to say where map is."""
         self.x, self.y, self.theta = pose
+        self.track.reset(self.t_est, pose, cov)
+        self.frame.reset(pose, anchored)
+
+    # ------------------------------------------------------------------ frames and fixes
+
+    def map_pose(self) -> tuple[float, float, float]:
+        """The pose in `map` (the same as odom's until a fix)."""
+        f = self.frame
+        return f.x, f.y, f.th
+
+    def fuse_fix(self, fix: PoseFix) -> dict[str, object]:
+        """Gate and fuse a pose fix (ddrt/core/pose_fix.py); FixError (naming the field) for a
+        fix that cannot be used, which changes nothing."""
+        return self.frame.fuse(self.track, fix)
 
     @property
     def v(self) -> float:
@@ -275,9 +340,16 @@ class Estimator:
         v = self.travel.v
         w = self.heading.w
         half = self.theta + 0.5 * w * dt
-        self.x += v * dt * math.cos(half)
-        self.y += v * dt * math.sin(half)
+        ds = v * dt
+        dx = ds * math.cos(half)
+        dy = ds * math.sin(half)
+        self.x += dx
+        self.y += dy
         self.theta += w * dt
+        t_est = sample.t if fresh else self._last_t + self._ahead_of_anchor
+        if t_est > self.t_est:  # the history's times never go back
+            self.t_est = t_est
+        self.frame.step(self.track, self.t_est, dt, ds, w * dt, self.x, self.y, self.theta)
         if fresh:
             self._last_fresh_t = sample.t
             if self._blind_ticks:
@@ -312,9 +384,13 @@ class Estimator:
         turn = 0.5 * (self.heading.w + w_now) * uncovered
         extra = measured - self._blind_travel
         half = self.theta + 0.5 * turn
-        self.x += extra * math.cos(half)
-        self.y += extra * math.sin(half)
+        dx = extra * math.cos(half)
+        dy = extra * math.sin(half)
+        self.x += dx
+        self.y += dy
         self.theta += turn
+        self.t_est = max(self.t_est, sample.t)
+        self.frame.step(self.track, self.t_est, gap, extra, turn, self.x, self.y, self.theta)
         z = self._travel_counts * self.metres_per_count
         v_new = measured / gap if stalled and gap > 0.0 else self.travel.v
         for f in (self.travel, self.speed):
@@ -383,6 +459,9 @@ class Estimator:
         if commanded_still and self._still_ticks >= 20:  # ~0.1 s without a count: at rest
             self.yaw.update_at_rest(1e-10)
             self.heading.update_at_rest(1e-10)
+            track = self.track
+            if self.heading.p11 < track.at_rest_var:
+                track.at_rest_var = self.heading.p11  # the bias is learnt: its error shrinks
         z = self._lead(z, t)
         row = self._fuse_pair(self.heading, self.yaw, z, self._gyro_rejects_row)
         if row > self._gyro_rejects_row:
