@@ -41,7 +41,9 @@ _WATCHED = (("lost_packets", "lost_packets"), ("crc_errors", "crc_error"),
 
 
 class Imu(Protocol):
-    """A gyro: raw z reading and its configured range."""
+    """A gyro: raw z reading and its configured range. An Mpu6050 also has `register_hold_s`
+    (its output register's hold, half of which is added to the reading's age) and
+    `read_temp_c()` (its die temperature, read at `temp_hz`)."""
 
     gyro_range_dps: int
     gyro_delay_s: float  # group delay of its low-pass
@@ -77,7 +79,7 @@ class RealHal(Hal):
 
     def __init__(self, imu: Imu, bridge: EncoderReader, clock: Clock | None = None, *,
                  motors: Motors | None = None, hold_ticks: int | None = None,
-                 closeables: Sequence[Any] = (), battery_scale: float = 1.0) -> None:
+                 closeables: Sequence[Any] = (), battery_scale: float = 1.0, temp_hz: float = 0.0) -> None:
         self.imu = imu
         self.encoder = bridge
         self.motors: Motors = motors if motors is not None else bridge  # type: ignore[assignment]
@@ -92,11 +94,13 @@ class RealHal(Hal):
         lsb, full = gyro_scale(imu.gyro_range_dps)
         self.info = HalInfo(encoder_counts_per_rev=int(bridge.counts_per_rev),
                             gyro_lsb_per_rad_s=lsb, gyro_full_scale_rad_s=full,
-                            gyro_delay_s=float(imu.gyro_delay_s),
+                            gyro_delay_s=float(imu.gyro_delay_s) + 0.5 * float(getattr(imu, "register_hold_s", 0.0)),
                             drive_timeout_s=drive_timeout_s(self.motors),
                             wheel_counts_per_rev=int(bridge.wheel_counts_per_rev),
                             battery_measured=bool(bridge.battery_measured),
-                            hw_estop_wired=bool(bridge.hw_estop_wired))
+                            hw_estop_wired=bool(bridge.hw_estop_wired),
+                            gyro_temp_hz=float(temp_hz) if hasattr(imu, "read_temp_c") else 0.0)
+        self._temp_next_t = -math.inf  # clock time of the next TEMP_OUT read
         # V per mV the MCU reports: its divider's calibration against a multimeter
         # (sensors.battery_scale, docs/hardware.md), 1.0 when the firmware's is right
         self._v_per_mv = float(battery_scale) / 1000.0 if self.info.battery_measured else math.nan
@@ -114,7 +118,7 @@ class RealHal(Hal):
         self._counters = {
             "reads": 0, "stale_reads": 0, "encoder_retries": 0, "encoder_holds": 0,
             "imu_retries": 0, "imu_holds": 0, "timeouts": 0, "write_errors": 0,
-            "stop_errors": 0, "close_errors": 0,
+            "stop_errors": 0, "close_errors": 0, "temp_errors": 0,
         }
 
     @property
@@ -136,6 +140,7 @@ class RealHal(Hal):
         self._read_t = t
         count, enc_fresh = self._read_encoder(faults)
         gyro, gyro_fresh = self._read_gyro(faults)
+        temp_c = self._read_temp(t) if self.info.gyro_temp_hz > 0.0 and t >= self._temp_next_t else math.nan
         self._note_bridge_faults(faults)
         fresh = enc_fresh and gyro_fresh
         self._counters["reads"] += 1
@@ -143,7 +148,19 @@ class RealHal(Hal):
             self._counters["stale_reads"] += 1
         return Sample(t=t, encoder_count=count, gyro_z_raw=gyro, fresh=fresh,
                       faults=",".join(faults), battery_v=self._battery_v, hw_estop=self._hw_estop,
-                      count_left=self._wheels[0], count_right=self._wheels[1])
+                      count_left=self._wheels[0], count_right=self._wheels[1], gyro_temp_c=temp_c)
+
+    def _read_temp(self, t: float) -> float:
+        """TEMP_OUT, at most `gyro_temp_hz` times a second; NaN (counted) if it fails: a missing
+        temperature only leaves the bias where it was, so it is no fault."""
+        period = 1.0 / self.info.gyro_temp_hz
+        nxt = self._temp_next_t + period
+        self._temp_next_t = nxt if nxt > t else t + period  # no burst to catch up
+        try:
+            return float(self.imu.read_temp_c())  # type: ignore[attr-defined]
+        except HalError:
+            self._counters["temp_errors"] += 1
+            return math.nan
 
     def _write(self, duty_l: float, duty_r: float) -> None:
         try:
@@ -318,7 +335,7 @@ class RealHal(Hal):
                 opened.append(motors)
             owned = [bus] if i2c_bus is None else []
             return cls(imu, bridge, clock, motors=motors, hold_ticks=hal.hold_ticks, closeables=owned,
-                       battery_scale=cfg.sensors.battery_scale)
+                       battery_scale=cfg.sensors.battery_scale, temp_hz=cfg.sensors.gyro_temp_hz)
         except BaseException:
             for obj in reversed(opened):
                 try:

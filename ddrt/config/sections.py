@@ -32,9 +32,13 @@ class SensorsConfig:
     gyro_range_dps: int = 250
     wheel_counts_per_rev: int = 0  # drive-wheel encoders (protocol v2); 0: not counted
     battery_scale: float = 1.0  # true / reported supply voltage (divider calibration)
+    gyro_temp_hz: float = 0.0  # Hz: how often the gyro's TEMP_OUT is read (temperature-compensated bias); 0: never
 
     def validate(self, where: str) -> None:
         positive(where, encoder_counts_per_rev=self.encoder_counts_per_rev)
+        if not 0.0 <= self.gyro_temp_hz <= 50.0:
+            raise ConfigError(f"{where}.gyro_temp_hz: must be in [0, 50] Hz (0: TEMP_OUT not read), "
+                              f"got {self.gyro_temp_hz}")
         non_negative(where, wheel_counts_per_rev=self.wheel_counts_per_rev)
         if not 0.5 <= self.battery_scale <= 2.0:
             raise ConfigError(f"{where}.battery_scale: must be in [0.5, 2] (true / reported "
@@ -238,6 +242,9 @@ class EstimatorConfig:
     gyro_scale: float = 1.0  # believed gyro scale factor (1 + scale error), from calibration
     gyro_noise_dps: float = 0.07  # std of one gyro sample (deg/s) after the MPU's low-pass
     gyro_delay_s: float | None = None  # lag of the gyro's low-pass to undo; None: what the HAL reports
+    # deg/s per degC: the zero-rate bias's temperature slope (commissioning); None: learnt at
+    # the stops (ddrt/core/gyro_bias.py; only with sensors.gyro_temp_hz > 0)
+    gyro_bias_per_c_dps: float | None = None
     gate_sigma: float = 5.0  # innovations beyond this many sigma are outliers
     max_rejects: int = 10  # after this many outliers in a row, re-sync and report
     stale_ticks: int = 20  # ticks without a fresh sample while moving: hold (controlled stop)
@@ -274,6 +281,9 @@ class EstimatorConfig:
             raise ConfigError(f"{where}.calibration_s: at most 60 s, got {self.calibration_s}")
         if self.gyro_delay_s is not None and not 0.0 <= self.gyro_delay_s <= 0.05:
             raise ConfigError(f"{where}.gyro_delay_s: must be null or in [0, 0.05] s, got {self.gyro_delay_s}")
+        if self.gyro_bias_per_c_dps is not None and not abs(self.gyro_bias_per_c_dps) <= 1.0:
+            raise ConfigError(f"{where}.gyro_bias_per_c_dps: must be null (learn it) or in [-1, 1] deg/s per degC, "
+                              f"got {self.gyro_bias_per_c_dps}")
         positive(where, max_rejects=self.max_rejects, stale_ticks=self.stale_ticks,
                  stuck_gyro_ticks=self.stuck_gyro_ticks, fault_latch_s=self.fault_latch_s,
                  hold_window_s=self.hold_window_s)

@@ -19,6 +19,10 @@ that must latch at once (a stuck or saturated gyro, a stuck encoder).
 Uncertainty and pose fixes (docs/estimation.md): every step of the dead reckoning also goes
 to the map frame (ddrt/core/pose_fix.py), whose history and covariances
 (ddrt/core/uncertainty.py) give the pose's 1-sigma and let a late fix be fused.
+
+Temperature: with TEMP_OUT read (HalInfo.gyro_temp_hz > 0) the bias follows the die's
+temperature between stops and is re-learnt at every stop, which also corrects the heading
+turned since the last one (ddrt/core/gyro_bias.py); without it, as before.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ import math
 from dataclasses import dataclass
 
 from ddrt.config import EstimatorConfig
+from ddrt.core.gyro_bias import GyroBias
 from ddrt.core.kalman import TravelFilter, YawFilter
 from ddrt.core.model import Dynamics
 from ddrt.core.motor import Motor
@@ -98,6 +103,8 @@ class Estimator:
         # Likewise for yaw: `yaw` is fed back, `heading` (trusting the gyro) is integrated.
         self.yaw = YawFilter(0.0, 0.0, 0.0)
         self.heading = YawFilter(0.0, 0.0, 0.0)
+        self.gyro_bias: GyroBias | None = None  # the temperature's bias model (TEMP_OUT read)
+        self._rest, self._rest_z = False, math.nan  # at rest at the last fresh gyro reading, and its rate
         self._configure(cfg, r_3)
         self.t_est = 0.0  # the time the estimate is for (the loop's clock)
         self.track = self._tracker(cfg)
@@ -156,6 +163,11 @@ class Estimator:
         # How long the estimate may go without a fresh sample while moving: ten ticks, but
         # never less than max_gap_s, so a fast loop does not stop on a host's hiccup.
         self.max_gap = max(10.0 * period_s, cfg.max_gap_s)
+        if info.gyro_temp_hz > 0.0:
+            args = (cfg.gyro_bias_per_c_dps, cfg.gyro_bias_walk, cfg.gate_sigma, cfg.calibration_max_std_dps)
+            if self.gyro_bias is None:
+                self.gyro_bias = GyroBias(period_s, *args)
+            self.gyro_bias.configure(*args)
 
     def _tracker(self, cfg: EstimatorConfig) -> Tracker:
         """The pose's uncertainty and history at this config (ddrt/core/uncertainty.py)."""
@@ -188,6 +200,8 @@ class Estimator:
                 f.b *= ratio
             if self._last_gyro_z is not None:
                 self._last_gyro_z *= ratio
+            if self.gyro_bias is not None:
+                self.gyro_bias.rescale(ratio)
 
     def _retrack(self, old: EstimatorConfig, cfg: EstimatorConfig) -> None:
         """A reload's uncertainty figures: the scale errors' rows rescaled (so the covariance
@@ -240,6 +254,10 @@ class Estimator:
         self.t_est = sample.t
         self.track.reset(sample.t, pose)
         self.frame.reset(pose, anchored=False)  # nothing says where map is yet
+        if self.gyro_bias is not None:  # a new calibration: the line starts again from it
+            c = self.cfg
+            self.gyro_bias = GyroBias(self.period, c.gyro_bias_per_c_dps, c.gyro_bias_walk, c.gate_sigma,
+                                      c.calibration_max_std_dps)
 
     def set_pose(self, pose: tuple[float, float, float], cov: list[float] | None = None,
                  anchored: bool = True) -> None:
@@ -336,9 +354,13 @@ class Estimator:
             self._fuse_encoder(sample.encoder_count, dt)
             self._fuse_gyro(sample.gyro_z_raw, sample.t, commanded_still)
 
-        # Dead reckoning of A with the odometry filters' velocities (midpoint heading).
+        # Dead reckoning of A with the odometry filters' velocities (midpoint heading), plus
+        # the heading's correction when a stop re-learnt the bias (temperature model only).
+        dth = 0.0 if self.gyro_bias is None else self._temperature_bias(sample, fresh, dt)
         v = self.travel.v
         w = self.heading.w
+        if dth:
+            self.theta += dth
         half = self.theta + 0.5 * w * dt
         ds = v * dt
         dx = ds * math.cos(half)
@@ -349,7 +371,7 @@ class Estimator:
         t_est = sample.t if fresh else self._last_t + self._ahead_of_anchor
         if t_est > self.t_est:  # the history's times never go back
             self.t_est = t_est
-        self.frame.step(self.track, self.t_est, dt, ds, w * dt, self.x, self.y, self.theta)
+        self.frame.step(self.track, self.t_est, dt, ds, w * dt + dth if dth else w * dt, self.x, self.y, self.theta)
         if fresh:
             self._last_fresh_t = sample.t
             if self._blind_ticks:
@@ -359,6 +381,18 @@ class Estimator:
                 self._blind_moving = False
         else:
             self._blind_travel += v * dt
+
+    def _temperature_bias(self, sample: Sample, fresh: bool, dt: float) -> float:
+        """ddrt/core/gyro_bias.py's tick: the bias follows the temperature, a stop's pair
+        re-learns it; returns the heading's correction (rad)."""
+        gb = self.gyro_bias
+        assert gb is not None
+        db, dth = gb.tick(sample.t if fresh else self.t_est, dt, sample.gyro_temp_c, self._rest,
+                          self._rest_z if fresh else math.nan, self.heading.b)
+        if db:
+            self.yaw.b += db
+            self.heading.b += db
+        return dth
 
     def _reanchor(self, sample: Sample, dt: float, commanded_still: bool) -> None:
         """The first fresh sample after a gap beyond max_gap: re-sync instead of fusing.
@@ -456,7 +490,8 @@ class Estimator:
         z = raw * self.rad_s_per_lsb
         if abs(z) >= self.gyro_full_scale * 0.999:
             health.fault = "gyro saturated"
-        if commanded_still and self._still_ticks >= 20:  # ~0.1 s without a count: at rest
+        self._rest, self._rest_z = commanded_still and self._still_ticks >= 20, z
+        if self._rest:  # ~0.1 s without a count: at rest
             self.yaw.update_at_rest(1e-10)
             self.heading.update_at_rest(1e-10)
             track = self.track
