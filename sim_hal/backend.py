@@ -14,6 +14,9 @@ in every sample's `battery_v`; `battery_measured=False`, `sim.battery_measured: 
 v1 MCU that does not) and has a hardware emergency-stop input, closed unless a test opens it
 (`estop_input_open`).
 
+With `sensors.wheel_counts_per_rev` > 0 every sample carries the drive wheels' counts
+(`count_left`/`count_right`, `SimRobot.read_wheel_counts`), as a v2 MCU counting them does.
+
 Fault injection: `wiring` (sim_hal/wiring.py, `sim.wiring`) miswires the motors and sensors;
 `freeze(at, duration)` makes the sensors repeat their last reading, flagged
 not fresh, from sim time `at` for `duration` s (None: for good); `sim.sensors_freeze_after_s`
@@ -53,6 +56,7 @@ class SimHal(Hal):
             drive_timeout_s=drive_timeout_s,
             battery_measured=battery_measured,
             hw_estop_wired=True,
+            wheel_counts_per_rev=robot.wheel_counts_per_rev,
         )
         self.estop_input_open = False  # the robot's emergency-stop button, pressed (tests)
         self._freezes: list[tuple[float, float]] = []  # fault injection: [start, end) in sim time
@@ -140,14 +144,17 @@ class SimHal(Hal):
         if self._freezes and last is not None and self._frozen(t):
             return Sample(t=last.t, encoder_count=last.encoder_count, gyro_z_raw=last.gyro_z_raw,
                           fresh=False, faults="sensors frozen (injected)", battery_v=last.battery_v,
-                          hw_estop=self.estop_input_open)
+                          hw_estop=self.estop_input_open, count_left=last.count_left, count_right=last.count_right)
         robot = self.robot
         self._last_sample = Sample(t=t, encoder_count=robot.read_encoder(), gyro_z_raw=robot.read_gyro_raw(),
                                    battery_v=robot.battery_v if self.info.battery_measured else math.nan,
                                    hw_estop=self.estop_input_open)
+        if self.info.wheel_counts_per_rev > 0:  # the drive wheels' encoders (sensors.wheel_counts_per_rev)
+            self._last_sample.count_left, self._last_sample.count_right = robot.read_wheel_counts()
         if self.wiring is not None:
             s = self._last_sample
             s.encoder_count, s.gyro_z_raw = self.wiring.encoder(s.encoder_count), self.wiring.gyro(s.gyro_z_raw)
+            s.count_left, s.count_right = self.wiring.wheels(s.count_left, s.count_right)
         return self._last_sample
 
     def _write(self, duty_l: float, duty_r: float) -> None:

@@ -92,7 +92,8 @@ def test_every_column_holds_its_source(cfg_path: Path) -> None:
     xm, ym, thm = est.map_pose()
     p = est.track.p_map
     expected.update({"x_map": xm, "y_map": ym, "theta_map": thm, "std_x": math.sqrt(p[0]), "std_y": math.sqrt(p[7]),
-                     "std_theta": math.sqrt(p[14]), "cov_xy": p[1], "fixes": 0.0})
+                     "std_theta": math.sqrt(p[14]), "cov_xy": p[1], "fixes": 0.0,
+                     "wheel_slip": 0.0})
     assert set(expected) == set(COLUMNS)
     for name in COLUMNS:
         assert row[name] == expected[name] and isinstance(row[name], float), name
