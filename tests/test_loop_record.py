@@ -28,6 +28,7 @@ HEADER = (
     "ad_m_k", "ad_mbar", "ad_I", "ad_m_x", "ad_fric_l", "ad_fric_r", "ad_active",
     "battery_v", "hw_estop",
     "x_map", "y_map", "theta_map", "std_x", "std_y", "std_theta", "cov_xy", "fixes",
+    "wheel_slip",
 )
 # The state column's codes as they have always been.
 CODES = ("idle", "following", "stopping", "stopped", "estop", "fault", "holding", "driving")

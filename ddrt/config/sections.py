@@ -258,7 +258,7 @@ class EstimatorConfig:
     fix_gate_chi2: float = 16.27  # Mahalanobis^2 beyond which a fix is an outlier (chi-square 3 dof, 0.999)
     map_blend_s: float = 0.5  # a path in `map` follows a fix's correction with this time constant
     # With drive-wheel encoders (sensors.wheel_counts_per_rev > 0; ddrt/core/wheel_odometry.py).
-    wheel_bias_walk: float = 1e-3  # rad/s per sqrt(s): the bias drift the wheels track on the move
+    wheel_bias_walk: float = 1e-4  # rad/s per sqrt(s): the bias drift the wheels track on the move
     wheel_scale_std: float = 0.02  # 1 sigma relative error of r_L, r_R (tyres under load)
 
     def validate(self, where: str) -> None:

@@ -10,7 +10,10 @@ travel filters' position measurement) and the turn, which the gyro also measures
 turns differ by the gyro's bias, so while the robot moves straight-ish and no wheel slips, a
 window of `BIAS_WINDOW_S` gives a measurement of the bias (gyro turn - wheel turn) / window,
 fused into both yaw filters (YawFilter.update_bias): the bias is tracked on the move, not only
-at stops. Its random walk while moving is `estimator.wheel_bias_walk`.
+at stops. Its random walk while moving is `estimator.wheel_bias_walk`, small, so the 0.1 deg/s
+the wheels' quantisation gives a window does not wander the heading; a step is caught apart:
+a window beyond 3 sigma is not fused, and `BIAS_RESYNC` of them in a row that agree mean the
+bias moved, which is then re-synced (the bias's variance widened by the innovation).
 
 Slip: over the last `SLIP_WINDOW_S` the wheels' turn is held against the pose's (the gyro's)
 and, with a front encoder, the wheels' distance against the omni wheel's, each against the
@@ -55,6 +58,7 @@ MAX_SLIP_S = 0.5  # a slip flag longer than this stops down-weighting the wheels
 MIN_SPEED = 0.05  # m/s: slower than this the window tells nothing about the bias (stops do)
 MAX_TURN = 0.3  # rad/s: turning faster, the gyro's scale error would pass for bias
 BIAS_RESYNC = 3  # rejected bias windows in a row that agree: the bias moved, re-sync
+BIAS_GATE2 = 3.0 ** 2  # a bias window this many sigma off is not fused (a step: re-synced instead)
 DELTA_WALK = 1e-4  # per sqrt(s): how fast the wheels' radius difference may change
 _BIAS_FLOOR = (0.01 * math.pi / 180.0) ** 2  # (rad/s)^2: the gyro's lag and what else is not modelled
 
@@ -161,7 +165,10 @@ class WheelOdometry:
         gyro_z = sample.gyro_z_raw * est.rad_s_per_lsb
         est.wheel_slip = self.check(est, dt, front_ds, gyro_z, est.heading.w * dt, not still)
         if not front:
-            self.z += est.travel.v * dt if est.wheel_slip else self.a_l * self.dl + self.a_r * self.dr
+            # The learnt radius difference split evenly (their mean is what the config says).
+            h = 0.5 * self.delta
+            ds = self.a_l * self.dl * (1.0 - h) + self.a_r * self.dr * (1.0 + h)
+            self.z += est.travel.v * dt if est.wheel_slip else ds
             est._fuse_travel(self.moved, self.z, dt)
 
     def catch_up(self, sample: Sample) -> float:
@@ -249,9 +256,9 @@ class WheelOdometry:
         r_b = r + self.delta_var * u * u
         y = z - b0
         s = b0_var + r_b
-        if y * y > self.gate2 * s:
+        if y * y > BIAS_GATE2 * s:
             # An outlier; several in a row that agree mean the bias itself moved: re-sync.
-            agree = self.bias_rejects > 0 and (y - self.bias_last_y) ** 2 <= self.gate2 * 2.0 * r_b
+            agree = self.bias_rejects > 0 and (y - self.bias_last_y) ** 2 <= BIAS_GATE2 * 2.0 * r_b
             self.bias_rejects = self.bias_rejects + 1 if agree or self.bias_rejects == 0 else 1
             self.bias_last_y = y
             if self.bias_rejects < BIAS_RESYNC:
