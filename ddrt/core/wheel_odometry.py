@@ -55,8 +55,8 @@ if TYPE_CHECKING:
 SLIP_WINDOW_S = 0.1  # the slip check compares turns and distances over this long
 BIAS_WINDOW_S = 0.5  # one bias measurement per this much straight-ish motion
 MAX_SLIP_S = 0.5  # a slip flag longer than this stops down-weighting the wheels
-MIN_SPEED = 0.05  # m/s: slower than this the window tells nothing about the bias (stops do)
-MAX_TURN = 0.3  # rad/s: turning faster, the gyro's scale error would pass for bias
+MIN_SPEED = 0.01  # m/s: slower than this the window is left to the stops
+MAX_TURN = 0.3  # rad/s: turning faster, the gyro's scale error would pass for bias (delta is still learnt)
 BIAS_RESYNC = 3  # rejected bias windows in a row that agree: the bias moved, re-sync
 BIAS_GATE2 = 3.0 ** 2  # a bias window this many sigma off is not fused (a step: re-synced instead)
 DELTA_WALK = 1e-4  # per sqrt(s): how fast the wheels' radius difference may change
@@ -235,7 +235,8 @@ class WheelOdometry:
         if self.bias_t < BIAS_WINDOW_S:
             return
         t = self.bias_t
-        ok = (self.bias_clean and abs(self.bias_s) > MIN_SPEED * t and abs(self.bias_w) < MAX_TURN * t)
+        ok = self.bias_clean and abs(self.bias_s) > MIN_SPEED * t
+        straight = abs(self.bias_w) < MAX_TURN * t
         y = (self.bias_g - self.bias_w) / t  # = b + delta u
         turn = self.bias_w / t
         u = self.bias_s / t / self.track_w
@@ -256,7 +257,9 @@ class WheelOdometry:
         r_b = r + self.delta_var * u * u
         y = z - b0
         s = b0_var + r_b
-        if y * y > BIAS_GATE2 * s:
+        if not straight:
+            pass  # the bias is not fused turning: the radius difference is, with the turn's variance
+        elif y * y > BIAS_GATE2 * s:
             # An outlier; several in a row that agree mean the bias itself moved: re-sync.
             agree = self.bias_rejects > 0 and (y - self.bias_last_y) ** 2 <= BIAS_GATE2 * 2.0 * r_b
             self.bias_rejects = self.bias_rejects + 1 if agree or self.bias_rejects == 0 else 1
@@ -266,11 +269,19 @@ class WheelOdometry:
             est.health.resyncs += 1
             for f in (yaw, heading):
                 f.p11 += y * y
-        self.bias_rejects = 0
-        for f in (yaw, heading):
-            f.update_bias(z, r_b)
+            self._fuse_b(est, z, r_b)
+            return  # the step was the bias's, not the radii's
+        else:
+            self._fuse_b(est, z, r_b)
         # The radius difference: (y - b) / u, with the bias's variance (before this update).
+        if u * u < 1e-6:
+            return
         d_var = (r + b0_var) / (u * u)
         k = self.delta_var / (self.delta_var + d_var)
         self.delta += k * ((y + self.delta * u) / u - self.delta)
         self.delta_var *= 1.0 - k
+
+    def _fuse_b(self, est: "Estimator", z: float, var: float) -> None:
+        self.bias_rejects = 0
+        est.yaw.update_bias(z, var)
+        est.heading.update_bias(z, var)
