@@ -56,6 +56,7 @@ SLIP_WINDOW_S = 0.1  # the slip check compares turns and distances over this lon
 BIAS_WINDOW_S = 0.5  # one bias measurement per this much straight-ish motion
 MAX_SLIP_S = 0.5  # a slip flag longer than this stops down-weighting the wheels
 MIN_SPEED = 0.01  # m/s: slower than this the window is left to the stops
+MIN_BIAS_SPEED = 0.05  # m/s: slower, delta u is too small to tell delta (the bias is left to the stops)
 MAX_TURN = 0.3  # rad/s: turning faster, the gyro's scale error would pass for bias (delta is still learnt)
 BIAS_RESYNC = 3  # rejected bias windows in a row that agree: the bias moved, re-sync
 BIAS_GATE2 = 3.0 ** 2  # a bias window this many sigma off is not fused (a step: re-synced instead)
@@ -236,7 +237,7 @@ class WheelOdometry:
             return
         t = self.bias_t
         ok = self.bias_clean and abs(self.bias_s) > MIN_SPEED * t
-        straight = abs(self.bias_w) < MAX_TURN * t
+        straight = abs(self.bias_w) < MAX_TURN * t and abs(self.bias_s) > MIN_BIAS_SPEED * t
         y = (self.bias_g - self.bias_w) / t  # = b + delta u
         turn = self.bias_w / t
         u = self.bias_s / t / self.track_w
@@ -258,7 +259,7 @@ class WheelOdometry:
         y = z - b0
         s = b0_var + r_b
         if not straight:
-            pass  # the bias is not fused turning: the radius difference is, with the turn's variance
+            pass  # the bias is not fused turning or slow: the radius difference is, with its variance
         elif y * y > BIAS_GATE2 * s:
             # An outlier; several in a row that agree mean the bias itself moved: re-sync.
             agree = self.bias_rejects > 0 and (y - self.bias_last_y) ** 2 <= BIAS_GATE2 * 2.0 * r_b
