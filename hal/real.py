@@ -87,10 +87,11 @@ class RealHal(Hal):
         self.hold_s = hold_bound_s(bridge)
         self.hold_ticks = hold_ticks  # None: hold while the value is within hold_s (derived)
         self._closeables = list(closeables)
-        if int(bridge.counts_per_rev) <= 0:
-            # protocol v2 allows an MCU without a front encoder; the estimator needs one
+        if int(bridge.counts_per_rev) <= 0 and int(bridge.wheel_counts_per_rev) <= 0:
+            # protocol v2 allows an MCU without a front encoder; the estimator then needs the wheels'
             raise HalInitError("the microcontroller reports no front encoder (encoder_counts_per_rev 0 "
-                               "in its HELLO_REPLY); ddrt's estimator needs the front encoder's count")
+                               "in its HELLO_REPLY) and no drive-wheel encoders: ddrt's estimator needs one "
+                               "of them to measure distance")
         lsb, full = gyro_scale(imu.gyro_range_dps)
         self.info = HalInfo(encoder_counts_per_rev=int(bridge.counts_per_rev),
                             gyro_lsb_per_rad_s=lsb, gyro_full_scale_rad_s=full,

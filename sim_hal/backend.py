@@ -18,6 +18,9 @@ Like the real driver, it reads the gyro's die temperature (TEMP_OUT's 1/340 degC
 `gyro_temp_hz` (`sensors.gyro_temp_hz`; 0: never), and reports the reading's age as the
 low-pass's lag plus half the output register's hold (`sim.gyro.register_hold`).
 
+With `sensors.wheel_counts_per_rev` > 0 every sample carries the drive wheels' counts
+(`count_left`/`count_right`, `SimRobot.read_wheel_counts`), as a v2 MCU counting them does.
+
 Fault injection: `wiring` (sim_hal/wiring.py, `sim.wiring`) miswires the motors and sensors;
 `freeze(at, duration)` makes the sensors repeat their last reading, flagged
 not fresh, from sim time `at` for `duration` s (None: for good); `sim.sensors_freeze_after_s`
@@ -60,6 +63,7 @@ class SimHal(Hal):
             battery_measured=battery_measured,
             hw_estop_wired=True,
             gyro_temp_hz=gyro_temp_hz,
+            wheel_counts_per_rev=robot.wheel_counts_per_rev,
         )
         self._temp_next_t = -math.inf  # sim time of the next TEMP_OUT read
         self.estop_input_open = False  # the robot's emergency-stop button, pressed (tests)
@@ -148,7 +152,7 @@ class SimHal(Hal):
         if self._freezes and last is not None and self._frozen(t):
             return Sample(t=last.t, encoder_count=last.encoder_count, gyro_z_raw=last.gyro_z_raw,
                           fresh=False, faults="sensors frozen (injected)", battery_v=last.battery_v,
-                          hw_estop=self.estop_input_open)
+                          hw_estop=self.estop_input_open, count_left=last.count_left, count_right=last.count_right)
         robot = self.robot
         self._last_sample = Sample(t=t, encoder_count=robot.read_encoder(), gyro_z_raw=robot.read_gyro_raw(),
                                    battery_v=robot.battery_v if self.info.battery_measured else math.nan,
@@ -157,9 +161,12 @@ class SimHal(Hal):
             nxt = self._temp_next_t + 1.0 / self.info.gyro_temp_hz
             self._temp_next_t = nxt if nxt > t else t + 1.0 / self.info.gyro_temp_hz
             self._last_sample.gyro_temp_c = temp_out_c(temp_out_raw(robot.gyro_die_temp_c))
+        if self.info.wheel_counts_per_rev > 0:  # the drive wheels' encoders (sensors.wheel_counts_per_rev)
+            self._last_sample.count_left, self._last_sample.count_right = robot.read_wheel_counts()
         if self.wiring is not None:
             s = self._last_sample
             s.encoder_count, s.gyro_z_raw = self.wiring.encoder(s.encoder_count), self.wiring.gyro(s.gyro_z_raw)
+            s.count_left, s.count_right = self.wiring.wheels(s.count_left, s.count_right)
         return self._last_sample
 
     def _write(self, duty_l: float, duty_r: float) -> None:

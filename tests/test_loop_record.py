@@ -28,6 +28,7 @@ HEADER = (
     "ad_m_k", "ad_mbar", "ad_I", "ad_m_x", "ad_fric_l", "ad_fric_r", "ad_active",
     "battery_v", "hw_estop",
     "x_map", "y_map", "theta_map", "std_x", "std_y", "std_theta", "cov_xy", "fixes",
+    "wheel_slip",
 )
 # The state column's codes as they have always been.
 CODES = ("idle", "following", "stopping", "stopped", "estop", "fault", "holding", "driving")
@@ -92,7 +93,8 @@ def test_every_column_holds_its_source(cfg_path: Path) -> None:
     xm, ym, thm = est.map_pose()
     p = est.track.p_map
     expected.update({"x_map": xm, "y_map": ym, "theta_map": thm, "std_x": math.sqrt(p[0]), "std_y": math.sqrt(p[7]),
-                     "std_theta": math.sqrt(p[14]), "cov_xy": p[1], "fixes": 0.0})
+                     "std_theta": math.sqrt(p[14]), "cov_xy": p[1], "fixes": 0.0,
+                     "wheel_slip": 0.0})
     assert set(expected) == set(COLUMNS)
     for name in COLUMNS:
         assert row[name] == expected[name] and isinstance(row[name], float), name

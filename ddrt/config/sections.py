@@ -28,18 +28,21 @@ class SensorsConfig:
 
     APPLY: ClassVar[str] = RESTART  # the devices are configured when opened
 
-    encoder_counts_per_rev: int = 8192
+    encoder_counts_per_rev: int = 8192  # the front omni wheel's encoder; 0: none (then the drive wheels' are needed)
     gyro_range_dps: int = 250
     wheel_counts_per_rev: int = 0  # drive-wheel encoders (protocol v2); 0: not counted
     battery_scale: float = 1.0  # true / reported supply voltage (divider calibration)
     gyro_temp_hz: float = 0.0  # Hz: how often the gyro's TEMP_OUT is read (temperature-compensated bias); 0: never
 
     def validate(self, where: str) -> None:
-        positive(where, encoder_counts_per_rev=self.encoder_counts_per_rev)
+        non_negative(where, encoder_counts_per_rev=self.encoder_counts_per_rev,
+                     wheel_counts_per_rev=self.wheel_counts_per_rev)
+        if self.encoder_counts_per_rev == 0 and self.wheel_counts_per_rev == 0:
+            raise ConfigError(f"{where}.encoder_counts_per_rev: 0 (no front encoder) needs the drive wheels' "
+                              f"encoders ({where}.wheel_counts_per_rev > 0): the robot needs one distance sensor")
         if not 0.0 <= self.gyro_temp_hz <= 50.0:
             raise ConfigError(f"{where}.gyro_temp_hz: must be in [0, 50] Hz (0: TEMP_OUT not read), "
                               f"got {self.gyro_temp_hz}")
-        non_negative(where, wheel_counts_per_rev=self.wheel_counts_per_rev)
         if not 0.5 <= self.battery_scale <= 2.0:
             raise ConfigError(f"{where}.battery_scale: must be in [0.5, 2] (true / reported "
                               f"voltage), got {self.battery_scale}")
@@ -261,12 +264,16 @@ class EstimatorConfig:
     fix_history_s: float = 2.0  # how late a pose fix may arrive (s of odometry kept)
     fix_gate_chi2: float = 16.27  # Mahalanobis^2 beyond which a fix is an outlier (chi-square 3 dof, 0.999)
     map_blend_s: float = 0.5  # a path in `map` follows a fix's correction with this time constant
+    # With drive-wheel encoders (sensors.wheel_counts_per_rev > 0; ddrt/core/wheel_odometry.py).
+    wheel_bias_walk: float = 1e-4  # rad/s per sqrt(s): the bias drift the wheels track on the move
+    wheel_scale_std: float = 0.02  # 1 sigma relative error of r_L, r_R (tyres under load)
 
     def validate(self, where: str) -> None:
         non_negative(where, encoder_scale_std=self.encoder_scale_std, gyro_scale_std=self.gyro_scale_std,
                      map_blend_s=self.map_blend_s)
         positive(where, fix_gate_chi2=self.fix_gate_chi2)
-        for key in ("encoder_scale_std", "gyro_scale_std"):
+        non_negative(where, wheel_bias_walk=self.wheel_bias_walk, wheel_scale_std=self.wheel_scale_std)
+        for key in ("encoder_scale_std", "gyro_scale_std", "wheel_scale_std"):
             if getattr(self, key) > 0.5:
                 raise ConfigError(f"{where}.{key}: at most 0.5 (a relative error), got {getattr(self, key)}")
         if not 0.05 <= self.fix_history_s <= 30.0:

@@ -209,9 +209,13 @@ class GyroTruth:
     drift_dps_per_s: float = 0.0
     register_hold: bool = False  # the output register refreshes at 1 kHz / (1 + hal.imu.sample_rate_div)
     clock_ppm: float = 0.0  # the MPU's own oscillator error (sets when it refreshes)
+    bias_step_dps: float = 0.0  # a step in the zero-rate bias (deg/s) ...
+    bias_step_at_s: float = 0.0  # ... at this sim time (s): what tracking the bias on the move must follow
 
     def validate(self, where: str) -> None:
-        non_negative(where, noise_dps_rthz=self.noise_dps_rthz)
+        non_negative(where, noise_dps_rthz=self.noise_dps_rthz, bias_step_at_s=self.bias_step_at_s)
+        if abs(self.bias_step_dps) > 50.0:
+            raise ConfigError(f"{where}.bias_step_dps: within +-50 deg/s, got {self.bias_step_dps}")
         positive(where, dlpf_hz=self.dlpf_hz, warmup_tau_s=self.warmup_tau_s)
         if abs(self.scale_error) >= 0.5:
             raise ConfigError(f"{where}.scale_error: must be within +-0.5, got {self.scale_error}")

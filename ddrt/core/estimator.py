@@ -23,6 +23,10 @@ to the map frame (ddrt/core/pose_fix.py), whose history and covariances
 Temperature: with TEMP_OUT read (HalInfo.gyro_temp_hz > 0) the bias follows the die's
 temperature between stops and is re-learnt at every stop, which also corrects the heading
 turned since the last one (ddrt/core/gyro_bias.py); without it, as before.
+
+Drive-wheel encoders (HalInfo.wheel_counts_per_rev > 0): ddrt/core/wheel_odometry.py gives the
+distance when there is no front encoder (encoder_counts_per_rev 0), tracks the gyro's bias on
+the move and flags wheel slip; the hooks here are `self.wheels` (None without them).
 """
 
 from __future__ import annotations
@@ -38,6 +42,7 @@ from ddrt.core.motor import Motor
 from ddrt.core.pose_fix import MapFrame, PoseFix
 from ddrt.core.uncertainty import ErrorModel, Tracker
 from ddrt.core.types import HalInfo, Sample
+from ddrt.core.wheel_odometry import WheelOdometry, error_model
 from ddrt.core.wrap import wrap_i32
 
 NOISE_STEP_S = 0.005  # the step the configured process noises are given for
@@ -61,12 +66,13 @@ class EstimatorHealth:
     stale_ticks: int = 0  # stale samples in a row, now
     gaps: int = 0  # gaps beyond max_gap that ended while commanded to move (each re-anchored)
     longest_gap_s: float = 0.0
+    wheel_slips: int = 0  # times the drive wheels began to slip (ddrt/core/wheel_odometry.py)
     fault: str = ""
 
     def counters(self) -> dict[str, float | int]:
         return {"gyro_rejects": self.gyro_rejects, "encoder_rejects": self.encoder_rejects,
                 "resyncs": self.resyncs, "stale_ticks": self.stale_ticks, "gaps": self.gaps,
-                "longest_gap_ms": self.longest_gap_s * 1000.0}
+                "longest_gap_ms": self.longest_gap_s * 1000.0, "wheel_slips": self.wheel_slips}
 
 
 def calibrate_gyro(raw: list[int], lsb_per_rad_s: float, scale: float, max_std_dps: float) -> tuple[float, float]:
@@ -105,7 +111,11 @@ class Estimator:
         self.heading = YawFilter(0.0, 0.0, 0.0)
         self.gyro_bias: GyroBias | None = None  # the temperature's bias model (TEMP_OUT read)
         self._rest, self._rest_z = False, math.nan  # at rest at the last fresh gyro reading, and its rate
+        self.wheels: WheelOdometry | None = None
+        self.wheel_slip = False  # the drive wheels slip this tick (telemetry)
         self._configure(cfg, r_3)
+        if info.wheel_counts_per_rev > 0:
+            self.wheels = WheelOdometry(self, info.wheel_counts_per_rev)
         self.t_est = 0.0  # the time the estimate is for (the loop's clock)
         self.track = self._tracker(cfg)
         self.frame = MapFrame(cfg.fix_gate_chi2)
@@ -140,7 +150,8 @@ class Estimator:
         """Derive the scales, noises and bounds from `cfg` and the encoder wheel's radius."""
         info, period_s = self.info, self.period
         self.cfg = cfg
-        self.metres_per_count = 2.0 * math.pi * r_3 / info.encoder_counts_per_rev
+        cpr = info.encoder_counts_per_rev  # 0: no front encoder (the wheels give the distance)
+        self.metres_per_count = 2.0 * math.pi * r_3 / cpr if cpr > 0 else 0.0
         self.rad_s_per_lsb = 1.0 / (info.gyro_lsb_per_rad_s * cfg.gyro_scale)
         self.gyro_full_scale = info.gyro_full_scale_rad_s / cfg.gyro_scale
         # The filters' noise is per step; scaled so that their bandwidth, i.e. how much they
@@ -168,12 +179,17 @@ class Estimator:
             if self.gyro_bias is None:
                 self.gyro_bias = GyroBias(period_s, *args)
             self.gyro_bias.configure(*args)
+        if self.wheels is not None:
+            self.wheels.configure(self)
 
     def _tracker(self, cfg: EstimatorConfig) -> Tracker:
         """The pose's uncertainty and history at this config (ddrt/core/uncertainty.py)."""
         per = self.period
-        return Tracker(ErrorModel.from_config(cfg, per), int(math.ceil(cfg.fix_history_s / per)) + 2,
+        return Tracker(self._error_model(cfg), int(math.ceil(cfg.fix_history_s / per)) + 2,
                        max(1, int(round(UNCERTAINTY_EVERY_S / per))), max(1, int(round(5 * UNCERTAINTY_EVERY_S / per))))
+
+    def _error_model(self, cfg: EstimatorConfig) -> ErrorModel:
+        return error_model(cfg, self.period, self.metres_per_count <= 0.0)
 
     def reconfigure(self, cfg: EstimatorConfig, r_3: float, dyn: Dynamics, motor: Motor) -> None:
         """Take a new tuning, encoder radius (a calibrated r_3), gyro scale or model between
@@ -185,14 +201,17 @@ class Estimator:
         """
         old_lsb = self.rad_s_per_lsb
         old_cfg = self.cfg
-        travelled = self._travel_counts * self.metres_per_count
-        self._configure(cfg, r_3)
-        self._retrack(old_cfg, cfg)
+        travelled = self._z()
         self.dyn = dyn
         self.motor = motor
+        old_model = self.track.model
+        self._configure(cfg, r_3)
+        self._retrack(old_cfg, cfg, old_model)
         for f in (self.travel, self.speed):
             f.p -= travelled
         self._travel_counts = 0
+        if self.wheels is not None:
+            self.wheels.z = 0.0
         ratio = self.rad_s_per_lsb / old_lsb
         if ratio != 1.0:
             for f in (self.yaw, self.heading):
@@ -203,13 +222,13 @@ class Estimator:
             if self.gyro_bias is not None:
                 self.gyro_bias.rescale(ratio)
 
-    def _retrack(self, old: EstimatorConfig, cfg: EstimatorConfig) -> None:
+    def _retrack(self, old: EstimatorConfig, cfg: EstimatorConfig, old_model: ErrorModel) -> None:
         """A reload's uncertainty figures: the scale errors' rows rescaled (so the covariance
         stays positive), a new history length takes a fresh history at the present pose."""
         track = self.track
-        track.model = ErrorModel.from_config(cfg, self.period)
-        for i, (a, b) in ((3, (old.encoder_scale_std, cfg.encoder_scale_std)),
-                          (4, (old.gyro_scale_std, cfg.gyro_scale_std))):
+        track.model = new = self._error_model(cfg)
+        for i, (a, b) in ((3, (old_model.encoder_scale_std, new.encoder_scale_std)),
+                          (4, (old_model.gyro_scale_std, new.gyro_scale_std))):
             if a != b:
                 k = b / a if a > 0.0 else 0.0
                 for p in [track.p_map, track.p_odom] + track.saved_p:
@@ -244,6 +263,8 @@ class Estimator:
             f.b = bias
         self._last_raw_gyro = sample.gyro_z_raw
         self._last_gyro_z = None
+        if self.wheels is not None:
+            self.wheels.reset(sample)
         self._last_fresh_t = sample.t
         self._blind_ticks = 0
         self._blind_travel = 0.0
@@ -351,8 +372,11 @@ class Estimator:
         self.heading.predict(dt, alpha)
 
         if fresh:
-            self._fuse_encoder(sample.encoder_count, dt)
-            self._fuse_gyro(sample.gyro_z_raw, sample.t, commanded_still)
+            if self.wheels is None:
+                self._fuse_encoder(sample.encoder_count, dt)
+                self._fuse_gyro(sample.gyro_z_raw, sample.t, commanded_still)
+            else:
+                self.wheels.fuse(self, sample, dt, commanded_still)
 
         # Dead reckoning of A with the odometry filters' velocities (midpoint heading), plus
         # the heading's correction when a stop re-learnt the bias (temperature model only).
@@ -410,6 +434,9 @@ class Estimator:
         self._last_count = sample.encoder_count
         self._travel_counts += delta
         measured = delta * self.metres_per_count
+        if self.wheels is not None:  # their windows restart; without a front encoder, their distance
+            ds = self.wheels.catch_up(sample)
+            measured = ds if self.wheels.gives_distance else measured
         w_now = sample.gyro_z_raw * self.rad_s_per_lsb - self.heading.b
         stalled = self._blind_ticks == 0  # nothing was dead-reckoned through this gap
         # The heading turns through the time dead reckoning did not cover (all of a stall,
@@ -425,7 +452,7 @@ class Estimator:
         self.theta += turn
         self.t_est = max(self.t_est, sample.t)
         self.frame.step(self.track, self.t_est, gap, extra, turn, self.x, self.y, self.theta)
-        z = self._travel_counts * self.metres_per_count
+        z = self._z()
         v_new = measured / gap if stalled and gap > 0.0 else self.travel.v
         for f in (self.travel, self.speed):
             f.p = z
@@ -438,7 +465,8 @@ class Estimator:
             f.p00 = max(f.p00, _RESYNC_W_VAR)
             f.p01 = 0.0
         self._last_gyro_z = None  # no lead across the gap
-        self._still_ticks = 1 if delta == 0 else 0
+        moved = delta != 0 if self.wheels is None or not self.wheels.gives_distance else self.wheels.moved
+        self._still_ticks = 0 if moved else 1
         self._count_still_s = 0.0
         self._enc_rejects_row = self._gyro_rejects_row = 0
         self._last_t = sample.t
@@ -459,20 +487,30 @@ class Estimator:
         if abs(raw) >= self.gyro_full_scale * 0.999:
             health.fault = "gyro saturated"
 
+    def _z(self) -> float:
+        """The distance measured since the reset (or the last re-base): the front encoder's,
+        or the drive wheels' when there is none."""
+        if self.wheels is not None and self.wheels.gives_distance:
+            return self.wheels.z
+        return self._travel_counts * self.metres_per_count
+
     def _fuse_encoder(self, count: int, dt: float) -> None:
         delta = wrap_i32(count - self._last_count)
         self._last_count = count
         self._travel_counts += delta
-        health = self.health
         self._still_ticks = self._still_ticks + 1 if delta == 0 else 0
-        if delta == 0 and abs(self.speed.v) > 0.05:
+        self._fuse_travel(delta != 0, self._travel_counts * self.metres_per_count, dt)
+
+    def _fuse_travel(self, moved: bool, z: float, dt: float) -> None:
+        """Fuse the distance `z` (m since the reset); `moved`: a count came this tick."""
+        health = self.health
+        if not moved and abs(self.speed.v) > 0.05:
             self._count_still_s += dt
             if self._count_still_s > self.cfg.encoder_stuck_s:
                 health.fault = (f"encoder stuck: no counts for {self._count_still_s:.2f} s "
                                 f"while moving at {self.speed.v:.2f} m/s")
         else:
             self._count_still_s = 0.0
-        z = self._travel_counts * self.metres_per_count
         row = self._fuse_pair(self.travel, self.speed, z, self._enc_rejects_row)
         if row > self._enc_rejects_row:
             health.encoder_rejects += 1

@@ -94,6 +94,9 @@ LATER_COLUMNS = (
     Column("std_theta", "est.track.std[2]"),
     Column("cov_xy", "est.track.cov_xy"),
     Column("fixes", "float(est.frame.counters.fused)"),
+    # 1 while the drive wheels slip (their turn or distance disagrees with the gyro's or the
+    # omni wheel's beyond their noise: ddrt/core/wheel_odometry.py); 0 without wheel encoders.
+    Column("wheel_slip", "1.0 if est.wheel_slip else 0.0"),
 )
 
 COLUMNS = tuple(c.name for c in TICK_COLUMNS + ADAPTER_COLUMNS + LATER_COLUMNS)
