@@ -132,7 +132,7 @@ def render(b: IoBound, compute_p50_us: float | None, compute_p99_us: float | Non
     us = 1e6
     f = b.frames
     lines = [
-        "Computed, not measured: the time one tick's sensor I/O spends on the wire, from protocol v1 "
+        "Computed, not measured: the time one tick's sensor I/O spends on the wire, from protocol v2 "
         "(docs/protocol.md) and the MPU-6050 register map. Driver and kernel overhead come on top.",
         "",
         "| transfer | size | bus | time (us) |",

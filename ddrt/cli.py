@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from importlib import import_module
 from pathlib import Path
 from typing import Sequence
 
@@ -193,10 +194,10 @@ def _cmd_bag(args: argparse.Namespace) -> int:
 def _cmd_ctl(args: argparse.Namespace) -> int:
     from ddrt.service.ctlclient import request
 
-    if args.for_s is not None and args.command_name != "drive":
-        raise ValueError("ctl: --for is for drive only")
-    if args.here and args.command_name != "follow":
-        raise ValueError("ctl: --here is for follow only")
+    for flag, value, cmd in (("--for", args.for_s, "drive"), ("--here", args.here or None, "follow"), ("--cov", args.cov, "pose"),
+                             ("--stamp", args.stamp, "pose"), ("--frame", args.frame, "follow")):
+        if value is not None and args.command_name != cmd:
+            raise ValueError(f"ctl: {flag} is for {cmd} only")
     payload: dict = {"cmd": args.command_name}
     if args.command_name == "drive":
         return _ctl_drive(args)
@@ -210,10 +211,15 @@ def _cmd_ctl(args: argparse.Namespace) -> int:
             return 1
         if args.here:
             payload["here"] = True  # the daemon moves the path to start at the robot's pose
+        if args.frame is not None:
+            payload["frame"] = args.frame
     elif args.command_name == "pose":
         if len(args.args) != 3:
             raise ValueError("ctl pose: give X Y THETA (metres, metres, radians)")
-        payload["pose"] = [_number(v, name, "pose") for v, name in zip(args.args, ("X", "Y", "THETA"))]
+        xyt = [_number(v, name, "pose") for v, name in zip(args.args, ("X", "Y", "THETA"))]
+        payload["pose"] = xyt  # set the pose (at rest); with --cov a measured pose: a fix (docs/estimation.md)
+        if args.cov is not None or args.stamp is not None:
+            payload = import_module("ddrt.service.posefix").ctl_fix_request(xyt, args.cov, args.stamp)
     elif args.args:
         raise ValueError(f"ctl {args.command_name}: takes no arguments, got {' '.join(args.args)!r}")
     timeout = args.timeout
@@ -479,13 +485,17 @@ def build_parser() -> argparse.ArgumentParser:
     ctl.add_argument("--timeout", type=float, default=None,
                      help=f"seconds to wait for the reply (default 2; {FOLLOW_TIMEOUT_S:g} for follow)")
     ctl.add_argument("command_name", metavar="COMMAND",
-                     choices=[c for c in COMMANDS if c not in STREAMS])
+                     choices=[c for c in COMMANDS if c not in STREAMS and c != "pose_fix"])  # pose --cov sends a fix
     ctl.add_argument("args", nargs="*", help="follow: the path file (its content is sent); drive: V (m/s) and "
-                                             "OMEGA (rad/s); pose: X Y THETA (m, m, rad) sets the robot's pose")
+                                             "OMEGA (rad/s); pose: X Y THETA (m, m, rad) sets the pose (--cov: a fix)")
     ctl.add_argument("--here", action="store_true",
                      help="follow: place the path so that it starts at the robot's current pose and heading")
     ctl.add_argument("--for", dest="for_s", type=float, metavar="S",
                      help="drive: re-send the command at 10 Hz for S seconds, then stop")
+    ctl.add_argument("--cov", metavar="C", help="pose: send a pose fix (fused in map, any state) with this covariance: "
+                                                "3 variances (m^2, m^2, rad^2) or 9 entries, comma-separated")
+    ctl.add_argument("--stamp", metavar="T", help="pose --cov: when the pose was true (the loop's clock: status clock_s)")
+    ctl.add_argument("--frame", choices=("odom", "map"), help="follow: the frame the path is in (default odom)")
     ctl.set_defaults(func=_cmd_ctl)
 
     r2 = sub.add_parser("ros2", help="the ROS 2 bridge to a running daemon (pip install 'ddrt[ros2]'; docs/ros2.md)")

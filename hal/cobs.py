@@ -1,7 +1,7 @@
 """Consistent Overhead Byte Stuffing: removes every 0x00 from a packet so 0x00 can end frames.
 
 A receiver that loses sync (a dropped or garbled byte) recovers at the next 0x00, which is
-why protocol v1 frames with it. Overhead is one byte per 254 bytes, plus one.
+why the serial protocol frames with it. Overhead is one byte per 254 bytes, plus one.
 """
 
 from __future__ import annotations

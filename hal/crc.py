@@ -1,4 +1,4 @@
-"""CRC-16/CCITT-FALSE, the checksum of protocol v1 (docs/protocol.md).
+"""CRC-16/CCITT-FALSE, the checksum of the serial protocol (docs/protocol.md).
 
 Chosen because every microcontroller SDK ships it and a byte-wise table costs 512 bytes of
 flash. Parameters: poly 0x1021, init 0xFFFF, not reflected, xorout 0; check value 0x29B1

@@ -5,6 +5,11 @@ The bus is handed in (anything with smbus2.SMBus's `read_byte_data`, `write_byte
 ONE 2-byte block read, so the high and low bytes cannot come from different samples. A
 transfer that fails with EIO/EREMOTEIO/ETIMEDOUT is retried once, then raised; a fake value
 is never returned.
+
+The die temperature (TEMP_OUT, one more 2-byte block read) is read only when asked, a few
+times a second: the estimator compensates the gyro's zero-rate bias for it. A reading's age
+is the low-pass's group delay plus the output register's hold, 0 to one sample period
+(`register_hold_s`), which `sample_age_s` takes at its mean.
 """
 
 from __future__ import annotations
@@ -19,7 +24,7 @@ from hal.base import HalInitError, HalIOError, HalTimeoutError, HalValueError
 
 __all__ = [
     "DEFAULT_ADDRESS", "GYRO_CONFIG", "GYRO_DELAY_S", "GYRO_FS_SEL", "GYRO_ZOUT_H", "PWR_MGMT_1",
-    "SMPLRT_DIV", "CONFIG", "WHO_AM_I", "WHO_AM_I_VALUE", "Mpu6050", "SmbusLike",
+    "SMPLRT_DIV", "CONFIG", "TEMP_OUT_H", "WHO_AM_I", "WHO_AM_I_VALUE", "Mpu6050", "SmbusLike",
     "gyro_scale", "open_i2c_bus",
 ]
 
@@ -29,6 +34,7 @@ SMPLRT_DIV = 0x19
 CONFIG = 0x1A  # DLPF_CFG in bits 2:0
 GYRO_CONFIG = 0x1B  # FS_SEL in bits 4:3
 GYRO_ZOUT_H = 0x47  # GYRO_ZOUT_L follows at 0x48
+TEMP_OUT_H = 0x41  # TEMP_OUT_L follows at 0x42; degC = TEMP_OUT / 340 + 36.53 (register map 4.18)
 PWR_MGMT_1 = 0x6B
 WHO_AM_I = 0x75
 WHO_AM_I_VALUE = 0x68
@@ -42,6 +48,8 @@ GYRO_FS_SEL: dict[int, int] = {rng: fs_sel for fs_sel, rng in enumerate(GYRO_RAN
 # Gyro group delay (s) by DLPF_CFG 0..6 (Register Map rev 4.2, register 26): the
 # estimator compensates it so the heading does not lag the encoder's distance.
 GYRO_DELAY_S: tuple[float, ...] = (0.00098, 0.0019, 0.0028, 0.0048, 0.0083, 0.0134, 0.0186)
+_TEMP_LSB_PER_C = 340.0
+_TEMP_OFFSET_C = 36.53
 _RETRY_ERRNOS = frozenset({errno.EIO, errno.EREMOTEIO, errno.ETIMEDOUT})
 _DEG = math.pi / 180.0
 
@@ -105,6 +113,16 @@ class Mpu6050:
         return GYRO_DELAY_S[self.dlpf_cfg]
 
     @property
+    def register_hold_s(self) -> float:
+        """How long the output register holds one sample: one sample period."""
+        return 1.0 / self.sample_rate_hz
+
+    @property
+    def sample_age_s(self) -> float:
+        """The mean age of a reading: the low-pass's delay plus half the register's hold."""
+        return self.gyro_delay_s + 0.5 * self.register_hold_s
+
+    @property
     def sample_rate_hz(self) -> float:
         """Gyro output rate: 1 kHz with the DLPF on (cfg 1..6), 8 kHz off, over 1 + div."""
         base = 8000.0 if self.dlpf_cfg == 0 else 1000.0
@@ -154,6 +172,16 @@ class Mpu6050:
                              f"{len(data)} bytes, expected 2")
         raw = (data[0] << 8) | data[1]
         return raw - 0x10000 if raw & 0x8000 else raw
+
+    def read_temp_c(self) -> float:
+        """The die temperature (degC) from TEMP_OUT: one 2-byte block read."""
+        data = self._xfer(self.bus.read_i2c_block_data, self.address, TEMP_OUT_H, 2)
+        if len(data) != 2:
+            self.errors += 1
+            raise HalIOError(f"MPU-6050 at 0x{self.address:02x}: TEMP_OUT read returned "
+                             f"{len(data)} bytes, expected 2")
+        raw = (data[0] << 8) | data[1]
+        return (raw - 0x10000 if raw & 0x8000 else raw) / _TEMP_LSB_PER_C + _TEMP_OFFSET_C
 
     def read_gyro_z(self) -> float:
         """z rate in rad/s (bias not removed)."""

@@ -16,12 +16,13 @@ Fault reactions (the same for the emulated devices, which is how they are tested
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING, Any, Callable, Mapping, Protocol, Sequence
 
 from ddrt.core.types import Clock
 from ddrt.runtime.clock import MonotonicClock
 from hal.base import (
-    Hal, HalError, HalInfo, HalIOError, HalTimeoutError, Sample,
+    Hal, HalError, HalInfo, HalInitError, HalIOError, HalTimeoutError, Sample,
 )
 from hal.bridge import Bridge
 from hal.mpu6050 import Mpu6050, gyro_scale, open_i2c_bus
@@ -40,7 +41,9 @@ _WATCHED = (("lost_packets", "lost_packets"), ("crc_errors", "crc_error"),
 
 
 class Imu(Protocol):
-    """A gyro: raw z reading and its configured range."""
+    """A gyro: raw z reading and its configured range. An Mpu6050 also has `register_hold_s`
+    (its output register's hold, half of which is added to the reading's age) and
+    `read_temp_c()` (its die temperature, read at `temp_hz`)."""
 
     gyro_range_dps: int
     gyro_delay_s: float  # group delay of its low-pass
@@ -49,10 +52,16 @@ class Imu(Protocol):
 
 
 class EncoderReader(Protocol):
-    """The encoder side of the Bridge: `state()` returns an object with `count`, `new` and
-    `resets` (hal.bridge.BridgeState) and raises HalTimeoutError when stale."""
+    """The encoder side of the Bridge: `state()` returns an object with `count`, `new`,
+    `resets`, and protocol v2's `battery_mv`, `hw_estop`, `count_left`, `count_right`
+    (hal.bridge.BridgeState), and raises HalTimeoutError when stale. The MCU's facts from its
+    handshake say what those carry: no wheel counts while `wheel_counts_per_rev` is 0, no
+    battery unless `battery_measured`."""
 
     counts_per_rev: int
+    wheel_counts_per_rev: int
+    battery_measured: bool
+    hw_estop_wired: bool
 
     def state(self) -> Any: ...
     def close(self) -> None: ...
@@ -70,7 +79,7 @@ class RealHal(Hal):
 
     def __init__(self, imu: Imu, bridge: EncoderReader, clock: Clock | None = None, *,
                  motors: Motors | None = None, hold_ticks: int | None = None,
-                 closeables: Sequence[Any] = ()) -> None:
+                 closeables: Sequence[Any] = (), battery_scale: float = 1.0, temp_hz: float = 0.0) -> None:
         self.imu = imu
         self.encoder = bridge
         self.motors: Motors = motors if motors is not None else bridge  # type: ignore[assignment]
@@ -78,11 +87,27 @@ class RealHal(Hal):
         self.hold_s = hold_bound_s(bridge)
         self.hold_ticks = hold_ticks  # None: hold while the value is within hold_s (derived)
         self._closeables = list(closeables)
+        if int(bridge.counts_per_rev) <= 0 and int(bridge.wheel_counts_per_rev) <= 0:
+            # protocol v2 allows an MCU without a front encoder; the estimator then needs the wheels'
+            raise HalInitError("the microcontroller reports no front encoder (encoder_counts_per_rev 0 "
+                               "in its HELLO_REPLY) and no drive-wheel encoders: ddrt's estimator needs one "
+                               "of them to measure distance")
         lsb, full = gyro_scale(imu.gyro_range_dps)
         self.info = HalInfo(encoder_counts_per_rev=int(bridge.counts_per_rev),
                             gyro_lsb_per_rad_s=lsb, gyro_full_scale_rad_s=full,
-                            gyro_delay_s=float(imu.gyro_delay_s),
-                            drive_timeout_s=drive_timeout_s(self.motors))
+                            gyro_delay_s=float(imu.gyro_delay_s) + 0.5 * float(getattr(imu, "register_hold_s", 0.0)),
+                            drive_timeout_s=drive_timeout_s(self.motors),
+                            wheel_counts_per_rev=int(bridge.wheel_counts_per_rev),
+                            battery_measured=bool(bridge.battery_measured),
+                            hw_estop_wired=bool(bridge.hw_estop_wired),
+                            gyro_temp_hz=float(temp_hz) if hasattr(imu, "read_temp_c") else 0.0)
+        self._temp_next_t = -math.inf  # clock time of the next TEMP_OUT read
+        # V per mV the MCU reports: its divider's calibration against a multimeter
+        # (sensors.battery_scale, docs/hardware.md), 1.0 when the firmware's is right
+        self._v_per_mv = float(battery_scale) / 1000.0 if self.info.battery_measured else math.nan
+        self._battery_v = math.nan
+        self._hw_estop = False
+        self._wheels = (0, 0)
         self._count: int | None = None
         self._read_t = 0.0
         self._gyro: int | None = None
@@ -94,7 +119,7 @@ class RealHal(Hal):
         self._counters = {
             "reads": 0, "stale_reads": 0, "encoder_retries": 0, "encoder_holds": 0,
             "imu_retries": 0, "imu_holds": 0, "timeouts": 0, "write_errors": 0,
-            "stop_errors": 0, "close_errors": 0,
+            "stop_errors": 0, "close_errors": 0, "temp_errors": 0,
         }
 
     @property
@@ -116,13 +141,27 @@ class RealHal(Hal):
         self._read_t = t
         count, enc_fresh = self._read_encoder(faults)
         gyro, gyro_fresh = self._read_gyro(faults)
+        temp_c = self._read_temp(t) if self.info.gyro_temp_hz > 0.0 and t >= self._temp_next_t else math.nan
         self._note_bridge_faults(faults)
         fresh = enc_fresh and gyro_fresh
         self._counters["reads"] += 1
         if not fresh:
             self._counters["stale_reads"] += 1
         return Sample(t=t, encoder_count=count, gyro_z_raw=gyro, fresh=fresh,
-                      faults=",".join(faults))
+                      faults=",".join(faults), battery_v=self._battery_v, hw_estop=self._hw_estop,
+                      count_left=self._wheels[0], count_right=self._wheels[1], gyro_temp_c=temp_c)
+
+    def _read_temp(self, t: float) -> float:
+        """TEMP_OUT, at most `gyro_temp_hz` times a second; NaN (counted) if it fails: a missing
+        temperature only leaves the bias where it was, so it is no fault."""
+        period = 1.0 / self.info.gyro_temp_hz
+        nxt = self._temp_next_t + period
+        self._temp_next_t = nxt if nxt > t else t + period  # no burst to catch up
+        try:
+            return float(self.imu.read_temp_c())  # type: ignore[attr-defined]
+        except HalError:
+            self._counters["temp_errors"] += 1
+            return math.nan
 
     def _write(self, duty_l: float, duty_r: float) -> None:
         try:
@@ -217,6 +256,7 @@ class RealHal(Hal):
             self._hold("encoder", self._enc_missing, self._enc_new_t, self._count is not None, faults)
             if st is not _MISSING:
                 self._count = st.count  # same value; keeps a stitched count consistent
+                self._note_v2(st, None)
             return self._count, False  # type: ignore[return-value]
         self._enc_missing = 0
         self._enc_new_t = self.clock.now()
@@ -225,7 +265,16 @@ class RealHal(Hal):
         count_at = getattr(st, "count_at", None)
         count = count_at(self._read_t) if count_at is not None else st.count
         self._count = count
+        self._note_v2(st, self._read_t)
         return count, True
+
+    def _note_v2(self, st: Any, t: float | None) -> None:
+        """Protocol v2's parts of a STATE: the supply (V; NaN when not measured), the
+        hardware estop input, the drive-wheel counts (at the read time `t` when new)."""
+        self._battery_v = st.battery_mv * self._v_per_mv  # NaN * anything: not measured
+        self._hw_estop = bool(st.hw_estop)
+        if self.info.wheel_counts_per_rev > 0:
+            self._wheels = st.wheel_counts_at(t) if t is not None else (st.count_left, st.count_right)
 
     def _read_gyro(self, faults: list[str]) -> tuple[int, bool]:
         self._last_error = None
@@ -286,7 +335,8 @@ class RealHal(Hal):
                                         direction_gpios=pwm_cfg.direction_gpios, root=pwm_cfg.root)
                 opened.append(motors)
             owned = [bus] if i2c_bus is None else []
-            return cls(imu, bridge, clock, motors=motors, hold_ticks=hal.hold_ticks, closeables=owned)
+            return cls(imu, bridge, clock, motors=motors, hold_ticks=hal.hold_ticks, closeables=owned,
+                       battery_scale=cfg.sensors.battery_scale, temp_hz=cfg.sensors.gyro_temp_hz)
         except BaseException:
             for obj in reversed(opened):
                 try:

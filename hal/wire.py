@@ -1,4 +1,5 @@
-"""Protocol v1 between the robot computer and the motor microcontroller (docs/protocol.md).
+"""Protocol v2 between the robot computer and the motor microcontroller (docs/protocol.md),
+and the v1 layouts a v2 host still accepts (HelloReplyV1, StateV1).
 
 Wire format: each packet `type u8 | seq u8 | payload | crc u16` (little-endian, at most
 64 bytes) is COBS-encoded and followed by one 0x00. This module is pure: no I/O, so the host
@@ -15,13 +16,16 @@ from hal import cobs
 from hal.crc import crc16_ccitt_false
 
 __all__ = [
-    "DELIMITER", "DUTY_FULL_SCALE", "FLAG_BAD_FRAME", "FLAG_OUTPUTS_ON", "FLAG_WATCHDOG",
-    "MAX_FRAME_LEN", "MAX_PACKET_LEN", "PROTOCOL_VERSION", "TIMEOUT_MS_MAX", "TIMEOUT_MS_MIN",
-    "Drive", "FrameDecoder", "Hello", "HelloReply", "Message", "Packet", "ProtocolError",
-    "State", "Stop", "Unknown", "decode_packet", "encode_frame", "encode_packet", "seq_gap",
+    "DELIMITER", "DUTY_FULL_SCALE", "FEATURE_BATTERY", "FEATURE_HW_ESTOP", "FEATURE_WHEELS",
+    "FLAG_BAD_FRAME", "FLAG_HW_ESTOP", "FLAG_OUTPUTS_ON", "FLAG_WATCHDOG",
+    "MAX_FRAME_LEN", "MAX_PACKET_LEN", "PROTOCOL_V1", "PROTOCOL_VERSION", "TIMEOUT_MS_MAX",
+    "TIMEOUT_MS_MIN", "Drive", "FrameDecoder", "Hello", "HelloReply", "HelloReplyV1", "Message",
+    "Packet", "ProtocolError", "State", "StateV1", "Stop", "Unknown", "decode_packet",
+    "encode_frame", "encode_packet", "seq_gap", "wire_bytes",
 ]
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2  # what this side speaks
+PROTOCOL_V1 = 1  # the older MCU a v2 host still accepts
 MAX_PACKET_LEN = 64  # type + seq + payload + crc, before COBS
 MAX_FRAME_LEN = cobs.max_encoded_len(MAX_PACKET_LEN)  # COBS bytes of one frame, no delimiter
 DELIMITER = b"\x00"
@@ -32,6 +36,11 @@ TIMEOUT_MS_MAX = 1000
 FLAG_WATCHDOG = 0x01  # outputs zeroed by the watchdog since the previous STATE
 FLAG_OUTPUTS_ON = 0x02  # at least one output is non-zero
 FLAG_BAD_FRAME = 0x04  # a frame failed its CRC (or COBS) check since the previous STATE
+FLAG_HW_ESTOP = 0x08  # v2: the hardware estop input is open (outputs held at zero)
+
+FEATURE_BATTERY = 0x01  # HELLO_REPLY v2 features: STATE.battery_mv is measured
+FEATURE_HW_ESTOP = 0x02  # a hardware estop input is wired (STATE flag bit3)
+FEATURE_WHEELS = 0x04  # the two drive wheels' encoders are counted (count_left, count_right)
 
 _HEADER = struct.Struct("<BB")
 _CRC = struct.Struct("<H")
@@ -88,7 +97,21 @@ class Stop:
 
 @dataclass(frozen=True, slots=True)
 class HelloReply:
-    """MCU -> host 0x81: sent for every HELLO and once, unsolicited, after the MCU boots."""
+    """MCU -> host 0x81 (v2, 12 bytes): sent for every HELLO and once, unsolicited, after the
+    MCU boots. `encoder_counts_per_rev` is 0 without a front encoder; `features` FEATURE_*."""
+
+    protocol_version: int
+    encoder_counts_per_rev: int
+    state_rate_hz: int
+    features: int = 0
+    wheel_counts_per_rev: int = 0
+    TYPE: ClassVar[int] = 0x81
+    FMT: ClassVar[struct.Struct] = struct.Struct("<BIHBI")
+
+
+@dataclass(frozen=True, slots=True)
+class HelloReplyV1:
+    """MCU -> host 0x81 as a v1 MCU sends it (7 bytes; protocol_version 1)."""
 
     protocol_version: int
     encoder_counts_per_rev: int
@@ -99,14 +122,35 @@ class HelloReply:
 
 @dataclass(frozen=True, slots=True)
 class State:
-    """MCU -> host 0x82, streamed at state_rate_hz: clock, encoder count, flags, last ack."""
+    """MCU -> host 0x82 (v2, 20 bytes), streamed at state_rate_hz: clock, front encoder
+    count, flags, last ack, battery (mV, 0 when not measured) and the drive-wheel counts
+    (0 when not counted; each wraps as a signed 32-bit integer, like `count`)."""
 
     t_us: int  # MCU clock, u32, wraps
     count: int  # encoder counter, i32, wraps
     flags: int
     ack_seq: int  # seq of the last accepted DRIVE or STOP
+    battery_mv: int = 0
+    count_left: int = 0
+    count_right: int = 0
+    TYPE: ClassVar[int] = 0x82
+    FMT: ClassVar[struct.Struct] = struct.Struct("<IiBBHii")
+
+
+@dataclass(frozen=True, slots=True)
+class StateV1:
+    """MCU -> host 0x82 as a v1 MCU sends it (10 bytes)."""
+
+    t_us: int
+    count: int
+    flags: int
+    ack_seq: int
     TYPE: ClassVar[int] = 0x82
     FMT: ClassVar[struct.Struct] = struct.Struct("<IiBB")
+
+    def as_v2(self) -> State:
+        """The same STATE in the v2 shape: nothing measured, no wheel counts."""
+        return State(self.t_us, self.count, self.flags, self.ack_seq)
 
 
 @dataclass(frozen=True, slots=True)
@@ -117,8 +161,13 @@ class Unknown:
     payload: bytes
 
 
-Message = Union[Hello, Drive, Stop, HelloReply, State, Unknown]
-_KNOWN: dict[int, type] = {c.TYPE: c for c in (Hello, Drive, Stop, HelloReply, State)}
+Message = Union[Hello, Drive, Stop, HelloReply, HelloReplyV1, State, StateV1, Unknown]
+# (type, payload length) -> layout: a v2 receiver takes both versions' lengths of 0x81, 0x82
+_KNOWN: dict[tuple[int, int], type] = {
+    (c.TYPE, c.FMT.size): c for c in (Hello, Drive, Stop, HelloReply, HelloReplyV1, State, StateV1)}
+_KNOWN_TYPES: dict[int, list[int]] = {}
+for _t, _n in _KNOWN:
+    _KNOWN_TYPES.setdefault(_t, []).append(_n)
 
 
 @dataclass(frozen=True, slots=True)
@@ -174,13 +223,21 @@ def decode_packet(raw: bytes) -> Packet:
         raise _error("crc", "CRC mismatch")
     ptype, seq = _HEADER.unpack_from(body, 0)
     payload = bytes(body[2:])
-    cls = _KNOWN.get(ptype)
-    if cls is None:
+    sizes = _KNOWN_TYPES.get(ptype)
+    if sizes is None:
         return Packet(seq, Unknown(ptype, payload))
-    if len(payload) != cls.FMT.size:
+    cls = _KNOWN.get((ptype, len(payload)))
+    if cls is None:
+        want = " or ".join(str(n) for n in sorted(sizes))
         raise _error("malformed", f"type 0x{ptype:02x} payload of {len(payload)} bytes, "
-                                  f"expected {cls.FMT.size}")
+                                  f"expected {want}")
     return Packet(seq, cls(*cls.FMT.unpack(payload)))
+
+
+def wire_bytes(payload_len: int) -> int:
+    """Bytes one packet of this payload takes on the wire (COBS, delimiter; no 0xFF runs)."""
+    raw = _HEADER.size + payload_len + _CRC.size
+    return cobs.max_encoded_len(raw) + len(DELIMITER)
 
 
 def _error(kind: str, text: str) -> ProtocolError:

@@ -30,7 +30,11 @@ def negate_gyro(raw: int) -> int:
 
 class WiredHal(Hal):
     """`inner` as a correctly wired robot: duties are inverted and swapped on the way out,
-    encoder and gyro readings sign-corrected on the way in. Everything else (info, clock,
+    encoder and gyro readings sign-corrected on the way in. The drive wheels' counts follow
+    their motors' fixes: a wheel's encoder sits on its motor's shaft and shares its harness, so
+    with `motors_swapped` the left wheel's counts arrive on the right channel (swapped back),
+    and an inverted motor's counts run backwards too (negated), as with mirror-mounted motors
+    (docs/commissioning.md). Everything else (info, clock,
     the simulated robot's truth, fault counters, fault injection) is the inner backend's."""
 
     def __init__(self, inner: Hal, wiring: WiringConfig) -> None:
@@ -44,6 +48,7 @@ class WiredHal(Hal):
         self._swap = wiring.motors_swapped
         self._enc_flip = wiring.encoder_sign == -1
         self._gyro_flip = wiring.gyro_sign == -1
+        self._wheels = inner.info.wheel_counts_per_rev > 0
 
     def read(self) -> Sample:
         s = self.inner.read()
@@ -51,6 +56,10 @@ class WiredHal(Hal):
             s.encoder_count = negate_count(s.encoder_count)
         if self._gyro_flip:
             s.gyro_z_raw = negate_gyro(s.gyro_z_raw)
+        if self._wheels:
+            left, right = (s.count_right, s.count_left) if self._swap else (s.count_left, s.count_right)
+            s.count_left = negate_count(left) if self._l_sign < 0.0 else left
+            s.count_right = negate_count(right) if self._r_sign < 0.0 else right
         return s
 
     def _write(self, duty_l: float, duty_r: float) -> None:

@@ -14,6 +14,13 @@ in every sample's `battery_v`; `battery_measured=False`, `sim.battery_measured: 
 v1 MCU that does not) and has a hardware emergency-stop input, closed unless a test opens it
 (`estop_input_open`).
 
+Like the real driver, it reads the gyro's die temperature (TEMP_OUT's 1/340 degC steps) at
+`gyro_temp_hz` (`sensors.gyro_temp_hz`; 0: never), and reports the reading's age as the
+low-pass's lag plus half the output register's hold (`sim.gyro.register_hold`).
+
+With `sensors.wheel_counts_per_rev` > 0 every sample carries the drive wheels' counts
+(`count_left`/`count_right`, `SimRobot.read_wheel_counts`), as a v2 MCU counting them does.
+
 Fault injection: `wiring` (sim_hal/wiring.py, `sim.wiring`) miswires the motors and sensors;
 `freeze(at, duration)` makes the sensors repeat their last reading, flagged
 not fresh, from sim time `at` for `duration` s (None: for good); `sim.sensors_freeze_after_s`
@@ -29,6 +36,7 @@ from ddrt.params.motor import MotorParams
 from hal.base import Hal, HalInfo, HalIOError, HalValueError, Sample
 from sim_hal.plant import PlantConfig, SimRobot
 from sim_hal.simtime import SimTime
+from sim_hal.mpu_emulator import temp_out_c, temp_out_raw
 from sim_hal.wiring import WiringFaults
 
 
@@ -39,7 +47,8 @@ class SimHal(Hal):
     robot: SimRobot  # Hal's optional capability: the truth behind the readings
 
     def __init__(self, robot: SimRobot, paced: bool = False, drive_timeout_s: float | None = 0.1,
-                 battery_measured: bool = True, wiring: WiringFaults | None = None) -> None:
+                 battery_measured: bool = True, wiring: WiringFaults | None = None,
+                 gyro_temp_hz: float = 0.0) -> None:
         if drive_timeout_s is not None and not (math.isfinite(drive_timeout_s) and drive_timeout_s > 0):
             raise ValueError(f"drive_timeout_s: expected None or a positive number, got {drive_timeout_s!r}")
         self.robot = robot
@@ -49,11 +58,14 @@ class SimHal(Hal):
             encoder_counts_per_rev=robot.encoder_counts_per_rev,
             gyro_lsb_per_rad_s=robot.gyro_lsb_per_rad_s,
             gyro_full_scale_rad_s=robot.gyro_full_scale_rad_s,
-            gyro_delay_s=robot.gyro_delay_s,
+            gyro_delay_s=robot.gyro_delay_s + 0.5 * robot.gyro_hold_s,
             drive_timeout_s=drive_timeout_s,
             battery_measured=battery_measured,
             hw_estop_wired=True,
+            gyro_temp_hz=gyro_temp_hz,
+            wheel_counts_per_rev=robot.wheel_counts_per_rev,
         )
+        self._temp_next_t = -math.inf  # sim time of the next TEMP_OUT read
         self.estop_input_open = False  # the robot's emergency-stop button, pressed (tests)
         self._freezes: list[tuple[float, float]] = []  # fault injection: [start, end) in sim time
         self._last_sample: Sample | None = None
@@ -147,14 +159,22 @@ class SimHal(Hal):
         if self._freezes and last is not None and self._frozen(t):
             return Sample(t=last.t, encoder_count=last.encoder_count, gyro_z_raw=last.gyro_z_raw,
                           fresh=False, faults="sensors frozen (injected)", battery_v=last.battery_v,
-                          hw_estop=self.estop_input_open)
+                          hw_estop=self.estop_input_open, count_left=last.count_left, count_right=last.count_right)
         count, gyro = robot.read_sensors()
         # Positional (t, encoder_count, gyro_z_raw, fresh, faults, battery_v, hw_estop): every tick.
         s = self._last_sample = Sample(t, count, gyro, True, "",
                                        robot.battery_v if self.info.battery_measured else math.nan,
                                        self.estop_input_open)
+        info = self.info
+        if info.gyro_temp_hz > 0.0 and t >= self._temp_next_t:
+            nxt = self._temp_next_t + 1.0 / info.gyro_temp_hz
+            self._temp_next_t = nxt if nxt > t else t + 1.0 / info.gyro_temp_hz
+            s.gyro_temp_c = temp_out_c(temp_out_raw(robot.gyro_die_temp_c))
+        if info.wheel_counts_per_rev > 0:  # the drive wheels' encoders (sensors.wheel_counts_per_rev)
+            s.count_left, s.count_right = robot.read_wheel_counts()
         if self.wiring is not None:
             s.encoder_count, s.gyro_z_raw = self.wiring.encoder(s.encoder_count), self.wiring.gyro(s.gyro_z_raw)
+            s.count_left, s.count_right = self.wiring.wheels(s.count_left, s.count_right)
         return s
 
     def write(self, duty_l: float, duty_r: float) -> None:

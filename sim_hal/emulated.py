@@ -1,4 +1,4 @@
-"""The real drivers on emulated devices: MPU-6050 register file + protocol-v1 MCU, both
+"""The real drivers on emulated devices: MPU-6050 register file + protocol-v2 MCU, both
 backed by the simulated robot (`hal.backend: real`, `hal.imu.bus: sim`,
 `hal.bridge.url: ddrtsim://NAME`).
 
@@ -15,6 +15,7 @@ from typing import Any
 
 from ddrt.config import Config
 from hal.base import Hal, Sample
+from hal.wire import PROTOCOL_V1, PROTOCOL_VERSION
 from hal.real import RealHal
 from sim_hal.serial_urls import protocol_ddrtsim
 from sim_hal.factory import plant_config
@@ -52,19 +53,33 @@ class _PlantGyro:
 class EmulatedDevices:
     """The simulated robot, its two emulated devices, and the clock that drives them (`time`).
 
+    The MCU is the reference firmware's model: protocol v2, measuring the robot's battery,
+    with a hardware estop input (closed until `set_estop(True)`), counting the drive wheels
+    when `sensors.wheel_counts_per_rev` > 0. `protocol_version=1`: an MCU of the old protocol
+    (no battery, no estop input, no wheel counts).
+
     The MCU runs on its own crystal, `sim.mcu_clock_ppm` off: its time (the t_us it stamps,
     its STATE period, its DRIVE watchdog) is the plant's scaled by 1 + ppm 1e-6. With
     `sim.gyro.register_hold`, the emulated MPU-6050 refreshes its registers at its sample rate.
     """
 
     def __init__(self, cfg: Config, start: tuple[float, float, float], seed: int | None = None,
-                 paced: bool = False, state_rate_hz: int | None = None) -> None:
+                 paced: bool = False, state_rate_hz: int | None = None,
+                 protocol_version: int = PROTOCOL_VERSION) -> None:
         self.robot = SimRobot(cfg.plant, cfg.plant_motor_l, cfg.plant_motor_r, plant_config(cfg, seed), start=start)
         self._mcu_scale = 1.0 + cfg.sim.mcu_clock_ppm * 1e-6
         rate = state_rate_hz or int(round(cfg.controller.rate_hz))
+        robot = self.robot
+        v2: dict[str, Any] = {}
+        if protocol_version != PROTOCOL_V1:
+            v2 = dict(battery_v=lambda: robot.battery_v, estop_wired=True)
+            if cfg.sensors.wheel_counts_per_rev > 0:
+                v2.update(wheel_counts=robot.read_wheel_counts,
+                          wheel_counts_per_rev=cfg.sensors.wheel_counts_per_rev)
         self.mcu = McuEmulator(_PlantMotorsAndEncoder(self.robot), now=self.mcu_time(self.robot.t),
-                               counts_per_rev=cfg.sensors.encoder_counts_per_rev, state_rate_hz=rate)
-        url = cfg.hal.bridge.url or "ddrtsim://robot"
+                               counts_per_rev=cfg.sensors.encoder_counts_per_rev, state_rate_hz=rate,
+                               protocol_version=protocol_version, **v2)
+        url = (cfg.hal.bridge.url or "ddrtsim://robot").partition("?")[0]
         self.name = f"{url.split('://', 1)[-1].strip('/') or 'robot'}-{next(_names)}"
         self.url = f"ddrtsim://{self.name}"
         self.link = protocol_ddrtsim.register(self.name, self.mcu, self.mcu_time(self.robot.t))
@@ -78,6 +93,11 @@ class EmulatedDevices:
     def mcu_time(self, t: float) -> float:
         """The MCU's own time at plant time `t` (its crystal's error applied)."""
         return t * self._mcu_scale if self._mcu_scale != 1.0 else t
+
+    def set_estop(self, open_: bool) -> None:
+        """Open (True) or close the robot's hardware estop input now (tests, fault drills);
+        the in-process link is pumped from the caller's thread, at the plant's steps."""
+        self.mcu.set_estop(open_, self.mcu_time(self.robot.t))
 
     def _advance(self, t: float) -> None:
         """Integrate in plant steps, letting the MCU run at each, so STATE frames carry the
@@ -148,7 +168,16 @@ def real_hal_on(cfg: Config, devices: Any) -> RealHal:
         raise
 
 
+def mcu_protocol(url: str | None) -> int:
+    """The emulated MCU's protocol version from `hal.bridge.url`: `ddrtsim://NAME?v1` is an
+    MCU of protocol v1 (to try the host's fallback), anything else the reference firmware's."""
+    query = (url or "").partition("?")[2]
+    return PROTOCOL_V1 if "v1" in query.split("&") else PROTOCOL_VERSION
+
+
 def open_emulated_real_hal(cfg: Config, start: tuple[float, float, float] = (0.0, 0.0, 0.0),
                            seed: int | None = None, paced: bool = False, **_: Any) -> EmulatedRealHal:
-    devices = EmulatedDevices(cfg, start, seed, paced)
-    return EmulatedRealHal(real_hal_on(cfg, devices), devices)
+    devices = EmulatedDevices(cfg, start, seed, paced, protocol_version=mcu_protocol(cfg.hal.bridge.url))
+    real = real_hal_on(cfg, devices)
+    real.encoder.byte_time_s = 0.0  # the in-process link has no line: bytes arrive as sent
+    return EmulatedRealHal(real, devices)

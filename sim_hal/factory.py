@@ -27,6 +27,7 @@ def plant_config(cfg: Config, seed: int | None = None) -> PlantConfig:
         gyro_noise_dps_rthz=s.gyro.noise_dps_rthz,
         gyro_scale_error=s.gyro.scale_error,
         gyro_dlpf_hz=s.gyro.dlpf_hz,
+        wheel_counts_per_rev=cfg.sensors.wheel_counts_per_rev,
         realism=Realism.from_sim(s, cfg.hal.imu.sample_rate_div),
     )
 
@@ -36,7 +37,7 @@ def open_sim_hal(cfg: Config, start: tuple[float, float, float] = (0.0, 0.0, 0.0
     """A SimHal around the plant described by `cfg` (truth: plant:, sim:, sensors:)."""
     robot = SimRobot(cfg.plant, cfg.plant_motor_l, cfg.plant_motor_r, plant_config(cfg, seed), start=start)
     hal = SimHal(robot, paced=paced, battery_measured=cfg.sim.battery_measured,
-                 wiring=WiringFaults.from_config(cfg.sim.wiring))
+                 wiring=WiringFaults.from_config(cfg.sim.wiring), gyro_temp_hz=cfg.sensors.gyro_temp_hz)
     if cfg.sim.sensors_freeze_after_s is not None:
         hal.freeze(robot.t + cfg.sim.sensors_freeze_after_s, cfg.sim.sensors_freeze_for_s)
     return hal

@@ -1,4 +1,5 @@
-"""A microcontroller that speaks protocol v1, so hal/bridge.py can be tested byte for byte.
+"""A microcontroller that speaks protocol v2 (or v1, `protocol_version=1`), so hal/bridge.py
+can be tested byte for byte.
 
 `McuEmulator` is the firmware model and does no I/O: `receive(data, now)` takes bytes from
 the host, `service(now)` runs the watchdog and the STATE stream and returns the bytes to
@@ -23,8 +24,10 @@ from typing import Callable, Protocol
 
 from ddrt.core.wrap import wrap_i32
 from hal.wire import (
-    DUTY_FULL_SCALE, FLAG_BAD_FRAME, FLAG_OUTPUTS_ON, FLAG_WATCHDOG, PROTOCOL_VERSION, Drive,
-    FrameDecoder, Hello, HelloReply, Message, Packet, State, Stop, encode_frame,
+    DUTY_FULL_SCALE, FEATURE_BATTERY, FEATURE_HW_ESTOP, FEATURE_WHEELS, FLAG_BAD_FRAME,
+    FLAG_HW_ESTOP, FLAG_OUTPUTS_ON, FLAG_WATCHDOG, PROTOCOL_V1, PROTOCOL_VERSION, Drive,
+    FrameDecoder, Hello, HelloReply, HelloReplyV1, Message, Packet, State, StateV1, Stop,
+    encode_frame,
 )
 
 __all__ = [
@@ -79,23 +82,48 @@ class DutyIntegratingEncoder:
 
 
 class McuEmulator:
-    """Protocol v1 firmware, transport-free. All times in seconds on the caller's clock.
+    """Protocol v2 firmware (v1 with `protocol_version=1`), transport-free. All times in
+    seconds on the caller's clock.
 
     At boot (construction, `reset`) it announces itself with an unsolicited HELLO_REPLY, its
-    seq restarts at 0, its clock restarts at 0 and its counter restarts at 0 (the wheel has not
-    moved, so the host sees the count jump). STATE streams from boot at `state_rate_hz`.
+    seq restarts at 0, its clock restarts at 0 and its counters restart at 0 (the wheels have
+    not moved, so the host sees the counts jump). STATE streams from boot at `state_rate_hz`.
+
+    v2 inputs, each present when given (and announced in HELLO_REPLY's features):
+    `battery_v()` the supply at the driver (V, reported in whole mV), `wheel_counts()` the
+    drive wheels' counters at `wheel_counts_per_rev`, and the hardware estop input
+    (`estop_wired`, opened and closed with `set_estop`): while it is open the outputs are held
+    at zero, a DRIVE is acknowledged but not applied, and STATE's flag bit3 is set (also in
+    the first STATE after an opening shorter than a STATE period). When it closes nothing is
+    applied until the next DRIVE. A v1 MCU has none of them.
     """
 
     def __init__(self, plant: MotorsAndEncoder, *, now: float = 0.0,
                  counts_per_rev: int = 8192, state_rate_hz: int = 200,
-                 protocol_version: int = PROTOCOL_VERSION, t_us_offset: int = 0) -> None:
+                 protocol_version: int = PROTOCOL_VERSION, t_us_offset: int = 0,
+                 battery_v: Callable[[], float] | None = None,
+                 wheel_counts: Callable[[], tuple[int, int]] | None = None,
+                 wheel_counts_per_rev: int = 0, estop_wired: bool = False) -> None:
         if state_rate_hz <= 0:
             raise ValueError(f"state_rate_hz: must be positive, got {state_rate_hz!r}")
+        if not 1 <= protocol_version <= 255:  # v1's layouts for 1, v2's for any other (tests)
+            raise ValueError(f"protocol_version: must be 1..255, got {protocol_version!r}")
+        if (wheel_counts is None) != (wheel_counts_per_rev <= 0):
+            raise ValueError("wheel_counts and wheel_counts_per_rev > 0 go together")
+        v1 = protocol_version == PROTOCOL_V1
+        if v1 and (battery_v is not None or wheel_counts is not None or estop_wired):
+            raise ValueError("a v1 MCU measures no battery, counts no wheels, has no estop input")
         self.plant = plant
         self.counts_per_rev = counts_per_rev
         self.state_rate_hz = state_rate_hz
         self.protocol_version = protocol_version
         self.t_us_offset = t_us_offset
+        self.battery_v = battery_v
+        self.wheel_counts = wheel_counts
+        self.wheel_counts_per_rev = wheel_counts_per_rev if wheel_counts is not None else 0
+        self.estop_wired = estop_wired
+        self.estop_open = False
+        self.drives_unapplied = 0  # acknowledged while the estop input was open
         self.boots = 0
         self.drives_accepted = 0
         self.drives_rejected = 0
@@ -115,6 +143,7 @@ class McuEmulator:
         self._seq = 0
         self._boot_t = now
         self._count_base = self.plant.encoder_count()
+        self._wheel_base = self.wheel_counts() if self.wheel_counts is not None else (0, 0)
         self.duty_l = 0
         self.duty_r = 0
         self.plant.set_duty(0.0, 0.0)
@@ -134,6 +163,25 @@ class McuEmulator:
     def bad_frames(self) -> int:
         d = self._decoder
         return d.crc_errors + d.undecodable + d.oversize + d.malformed
+
+    @property
+    def features(self) -> int:
+        """HELLO_REPLY v2's features bits for what this MCU has."""
+        return ((FEATURE_BATTERY if self.battery_v is not None else 0)
+                | (FEATURE_HW_ESTOP if self.estop_wired else 0)
+                | (FEATURE_WHEELS if self.wheel_counts is not None else 0))
+
+    def set_estop(self, open_: bool, now: float) -> None:
+        """The estop input opens (True) or closes (False) at `now`. Opening zeroes the
+        outputs at once and disarms the DRIVE watchdog; closing applies nothing."""
+        if not self.estop_wired:
+            raise ValueError("this MCU has no hardware estop input (estop_wired=False)")
+        self._check_watchdog(now)
+        self.estop_open = bool(open_)
+        if self.estop_open:
+            self._flags |= FLAG_HW_ESTOP
+            self._apply(0, 0)
+            self._deadline = None
 
     def receive(self, data: bytes, now: float) -> None:
         """Bytes from the host (any chunking); commands take effect at once."""
@@ -171,6 +219,9 @@ class McuEmulator:
                 return
             self.drives_accepted += 1
             self.ack_seq = pkt.seq
+            if self.estop_open:
+                self.drives_unapplied += 1  # acknowledged, not applied: outputs stay zero
+                return
             self._apply(msg.duty_l, msg.duty_r)
             self._deadline = now + msg.timeout_ms * 1e-3
         elif isinstance(msg, Stop):
@@ -192,16 +243,31 @@ class McuEmulator:
             self._flags |= FLAG_WATCHDOG
             self.watchdog_trips += 1
 
-    def _hello_reply(self) -> HelloReply:
-        return HelloReply(self.protocol_version, self.counts_per_rev, self.state_rate_hz)
+    def _hello_reply(self) -> HelloReply | HelloReplyV1:
+        if self.protocol_version == PROTOCOL_V1:
+            return HelloReplyV1(self.protocol_version, self.counts_per_rev, self.state_rate_hz)
+        return HelloReply(self.protocol_version, self.counts_per_rev, self.state_rate_hz,
+                          self.features, self.wheel_counts_per_rev)
 
-    def _state(self, now: float) -> State:
+    def _state(self, now: float) -> State | StateV1:
         t_us = (round((now - self._boot_t) * 1e6) + self.t_us_offset) & 0xFFFFFFFF
-        count = wrap_i32(self.plant.encoder_count() - self._count_base)
+        count = wrap_i32(self.plant.encoder_count() - self._count_base) if self.counts_per_rev else 0
         flags = self._flags | (FLAG_OUTPUTS_ON if (self.duty_l or self.duty_r) else 0)
+        if self.estop_open:
+            flags |= FLAG_HW_ESTOP
         self._flags = 0
         self.states_sent += 1
-        return State(t_us, count, flags, self.ack_seq)
+        if self.protocol_version == PROTOCOL_V1:
+            return StateV1(t_us, count, flags, self.ack_seq)
+        mv = 0
+        if self.battery_v is not None:
+            mv = min(0xFFFF, max(0, round(self.battery_v() * 1000.0)))
+        left = right = 0
+        if self.wheel_counts is not None:
+            wl, wr = self.wheel_counts()
+            left = wrap_i32(wl - self._wheel_base[0])
+            right = wrap_i32(wr - self._wheel_base[1])
+        return State(t_us, count, flags, self.ack_seq, mv, left, right)
 
     def _send(self, msg: Message) -> None:
         self._out += encode_frame(Packet(self._seq, msg))

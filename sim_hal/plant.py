@@ -239,6 +239,12 @@ class SimRobot:
         return (1.0 - a) / a * self._h
 
     @property
+    def gyro_hold_s(self) -> float:
+        """How long the gyro's output register holds a sample (`sim.gyro.register_hold`: one
+        sample period of its own clock); 0: read at the tick."""
+        return self._real.odr_period if self._real is not None else 0.0
+
+    @property
     def gyro_full_scale_rad_s(self) -> float:
         return raw_readings.INT16_MAX / self.gyro_lsb_per_rad_s
 

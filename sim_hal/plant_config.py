@@ -39,6 +39,8 @@ class Realism:
     gyro_drift_dps_per_s: float = 0.0
     gyro_odr_hz: float = 0.0
     gyro_clock_ppm: float = 0.0
+    gyro_bias_step_dps: float = 0.0  # added to the bias from gyro_bias_step_at_s on
+    gyro_bias_step_at_s: float = 0.0
     encoder_slip: WanderingScale = field(default_factory=WanderingScale)
     wheels: WheelsTruth = field(default_factory=WheelsTruth)
     actuators: ActuatorTruth = field(default_factory=ActuatorTruth)
@@ -46,7 +48,8 @@ class Realism:
 
     def __post_init__(self) -> None:
         for name in ("gyro_temp_start_c", "gyro_warmup_rise_c", "gyro_warmup_tau_s", "gyro_bias_per_c_dps",
-                     "gyro_drift_dps_per_s", "gyro_odr_hz", "gyro_clock_ppm"):
+                     "gyro_drift_dps_per_s", "gyro_odr_hz", "gyro_clock_ppm", "gyro_bias_step_dps",
+                     "gyro_bias_step_at_s"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise ValueError(f"Realism.{name}: expected a finite number, got {value!r}")
@@ -80,6 +83,7 @@ class Realism:
             gyro_warmup_tau_s=g.warmup_tau_s, gyro_bias_per_c_dps=g.bias_per_c_dps,
             gyro_drift_dps_per_s=g.drift_dps_per_s,
             gyro_odr_hz=1000.0 / (1 + sample_rate_div) if g.register_hold else 0.0, gyro_clock_ppm=g.clock_ppm,
+            gyro_bias_step_dps=g.bias_step_dps, gyro_bias_step_at_s=g.bias_step_at_s,
             encoder_slip=enc.slip, wheels=sim.wheels, actuators=sim.actuators, events=sim.events,
         )
 
@@ -128,7 +132,7 @@ class PlantConfig:
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise ValueError(f"PlantConfig.{f.name}: expected a finite number, got {value!r}")
             object.__setattr__(self, f.name, float(value))
-        positive = ("step_hz", "gyro_dlpf_hz", "encoder_counts_per_rev")
+        positive = ("step_hz", "gyro_dlpf_hz")
         non_negative = ("slip_fraction", "slip_sigma_nm", "command_latency_s", "sensor_latency_s",
                         "gyro_noise_dps_rthz")
         for name in positive:
@@ -141,8 +145,9 @@ class PlantConfig:
             raise ValueError(
                 f"PlantConfig.slip_probability: must be in [0, 1], got {self.slip_probability!r}"
             )
-        if self.wheel_counts_per_rev < 0:
-            raise ValueError(f"PlantConfig.wheel_counts_per_rev: must be >= 0, got {self.wheel_counts_per_rev!r}")
+        for name in ("encoder_counts_per_rev", "wheel_counts_per_rev"):  # 0: that encoder is not there
+            if getattr(self, name) < 0:
+                raise ValueError(f"PlantConfig.{name}: must be >= 0, got {getattr(self, name)!r}")
         if self.gyro_scale_error <= -1.0:
             raise ValueError(f"PlantConfig.gyro_scale_error: must be > -1, got {self.gyro_scale_error!r}")
         gyro_lsb_per_rad_s(self.gyro_range_dps)  # raises for a range the part lacks

@@ -121,8 +121,11 @@ class RealisticPlant:
 
     def bias_dps(self, t: float) -> float:
         r = self.r
-        return (self.robot.cfg.gyro_bias_dps + r.gyro_bias_per_c_dps * (self.die_temp_c(t) - r.gyro_temp_start_c)
-                + r.gyro_drift_dps_per_s * t)
+        b = (self.robot.cfg.gyro_bias_dps + r.gyro_bias_per_c_dps * (self.die_temp_c(t) - r.gyro_temp_start_c)
+             + r.gyro_drift_dps_per_s * t)
+        if r.gyro_bias_step_dps != 0.0 and t >= r.gyro_bias_step_at_s:  # sim.gyro.bias_step_dps
+            b += r.gyro_bias_step_dps
+        return b
 
     def ocv_v(self) -> float:
         return self.battery.ocv_v(self.soc) if self.battery is not None else self.motors[0].supply_v

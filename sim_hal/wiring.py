@@ -48,5 +48,12 @@ class WiringFaults:
     def encoder(self, count: int) -> int:
         return _neg32(count) if self.encoder_reversed else count
 
+    def wheels(self, left: int, right: int) -> tuple[int, int]:
+        """The (left, right) channels' counts from the (left, right) wheels' encoders: each
+        encoder sits on its motor and shares its harness, so it is reversed and swapped with it."""
+        left = _neg32(left) if self.left_reversed else left
+        right = _neg32(right) if self.right_reversed else right
+        return (right, left) if self.swapped else (left, right)
+
     def gyro(self, raw: int) -> int:
         return _neg16(raw) if self.gyro_upside_down else raw

@@ -19,7 +19,8 @@ from hal.base import HalInitError, HalIOError, HalTimeoutError, HalValueError
 from hal.bridge import Bridge
 from hal.mpu6050 import Mpu6050
 from hal.wire import (
-    FLAG_BAD_FRAME, FLAG_WATCHDOG, Drive, HelloReply, Packet, State, Stop, encode_frame,
+    FEATURE_BATTERY, FEATURE_HW_ESTOP, FEATURE_WHEELS, FLAG_BAD_FRAME, FLAG_HW_ESTOP,
+    FLAG_WATCHDOG, Drive, HelloReply, HelloReplyV1, Packet, State, StateV1, Stop, encode_frame,
 )
 from hal.real import RealHal
 from sim_hal.faults import FaultyI2cBus, SerialFaults, reset_mcu
@@ -27,7 +28,7 @@ from sim_hal.mcu_emulator import DutyIntegratingEncoder, McuEmulator, PtyLink, T
 from sim_hal.mpu_emulator import ConstantGyro, MpuEmulator
 from tests.support.repo import SIM_YAML
 
-HELLO_REPLY = HelloReply(1, 8192, 200)
+HELLO_REPLY = HelloReply(2, 8192, 200)
 
 
 def real_config(hal: dict, **sections: dict) -> Config:
@@ -89,7 +90,7 @@ def test_loop_hello_bytes_and_no_reply_is_init_error() -> None:
 
 def test_loop_handshake_drive_stop_and_close_bytes() -> None:
     b = loop_bridge()
-    assert (b.protocol_version, b.counts_per_rev, b.state_rate_hz) == (1, 8192, 200)
+    assert (b.protocol_version, b.counts_per_rev, b.state_rate_hz) == (2, 8192, 200)
     b.drive(0.5, -0.25)
     assert b.port.read(100) == bytes.fromhex("08 02 01 88 13 3c f6 64 03 d4 c0 00")
     assert b.last_drive_seq == 1
@@ -116,13 +117,89 @@ def test_loop_drive_rejects_bad_duty_without_sending() -> None:
 
 
 def test_loop_wrong_version_is_init_error() -> None:
-    with pytest.raises(HalInitError, match="version 2"):
-        loop_bridge(reply=HelloReply(2, 8192, 200))
+    with pytest.raises(HalInitError, match="version 3"):
+        loop_bridge(reply=HelloReply(3, 8192, 200))
+    # each version in its own layout: a 7-byte reply saying 2, a 12-byte one saying 1
+    with pytest.raises(HalInitError, match="version 2 .in a 7-byte"):
+        loop_bridge(reply=HelloReplyV1(2, 8192, 200))
+    with pytest.raises(HalInitError, match="version 1 .in a 12-byte"):
+        loop_bridge(reply=HelloReply(1, 8192, 200))
 
 
 def test_loop_state_rate_too_slow_for_stale_bound_is_init_error() -> None:
     with pytest.raises(HalInitError, match="10 Hz"):
-        loop_bridge(reply=HelloReply(1, 8192, 10))
+        loop_bridge(reply=HelloReply(2, 8192, 10))
+
+
+V2_FULL = HelloReply(2, 0, 250, FEATURE_BATTERY | FEATURE_HW_ESTOP | FEATURE_WHEELS, 1320)
+
+
+def test_loop_v2_handshake_features_battery_estop_and_wheels(caplog) -> None:
+    """A v2 MCU with everything (and no front encoder): the facts from HELLO_REPLY, the
+    STATE's battery, estop flag and wheel counts (stitched across a reset like `count`)."""
+    clock = FakeClock()
+    with caplog.at_level("WARNING", logger="hal.bridge"):
+        b = loop_bridge(clock, reply=V2_FULL)
+    assert not caplog.records  # the battery is measured: nothing to say
+    assert (b.protocol_version, b.counts_per_rev, b.wheel_counts_per_rev) == (2, 0, 1320)
+    assert b.battery_measured and b.hw_estop_wired
+    feed(b, Packet(1, State(1000, 0, 0, 0, 11_873, 500, -700)),
+         Packet(2, State(5000, 0, FLAG_HW_ESTOP, 3, 11_850, 540, -740)))
+    st = b.state()
+    assert (st.battery_mv, st.count_left, st.count_right, st.hw_estop) == (11_850, 540, -740, True)
+    assert st.left_per_s == pytest.approx(40 / 0.004) and st.right_per_s == pytest.approx(-40 / 0.004)
+    assert b.stats["hw_estop_states"] == 1
+    # a reboot (clock backwards): the wheel counts continue from where they were
+    feed(b, Packet(0, V2_FULL), Packet(1, State(0, 0, 0, 0, 11_800, 0, 0)),
+         Packet(2, State(4000, 0, 0, 0, 11_800, 10, -10)))
+    st = b.state()
+    assert b.stats["mcu_resets"] == 1 and not st.hw_estop
+    assert (st.count_left, st.count_right) == (550, -750)
+    b.close()
+
+
+def test_loop_wheel_count_jump_is_a_reset() -> None:
+    b = loop_bridge(FakeClock(), reply=V2_FULL)
+    feed(b, Packet(1, State(100_000, 0, 0, 0, 0, 40_000, 0)),
+         Packet(2, State(104_000, 0, 0, 0, 0, 0, 0)))  # 40 000 counts back in 4 ms: a reboot
+    assert b.state().count_left == 40_000 and b.stats["mcu_resets"] == 1
+    b.close()
+
+
+def test_loop_v1_mcu_is_accepted_and_warned_about_once(caplog) -> None:
+    """A v1 MCU (7-byte HELLO_REPLY, 10-byte STATEs): driven as before, nothing measured,
+    and one warning that the config's supply_v stands in for the battery."""
+    clock = FakeClock()
+    with caplog.at_level("WARNING", logger="hal.bridge"):
+        b = loop_bridge(clock, reply=HelloReplyV1(1, 8192, 200))
+        assert (b.protocol_version, b.features, b.wheel_counts_per_rev) == (1, 0, 0)
+        assert not b.battery_measured and not b.hw_estop_wired
+        feed(b, Packet(1, StateV1(1000, 10, 0, 0)), Packet(2, StateV1(6000, 20, 0x02, 0)))
+        st = b.state()
+        assert (st.count, st.flags, st.battery_mv, st.count_left, st.hw_estop) == (20, 2, 0, 0, False)
+        b.port.write(encode_frame(Packet(3, HelloReplyV1(1, 8192, 200))))
+        b.connect(flush_input=False)  # a second handshake does not repeat the warning
+        b.drive(0.5, -0.25)
+    warnings = [r.getMessage() for r in caplog.records]
+    assert len(warnings) == 1, warnings
+    assert "protocol v1" in warnings[0] and "supply_v" in warnings[0]
+    assert b.port.read(100)[-12:] == encode_frame(Packet(b.last_drive_seq, Drive(5000, -2500, 100)))
+    b.close()
+
+
+def test_loop_v2_mcu_without_battery_is_warned_about_too(caplog) -> None:
+    with caplog.at_level("WARNING", logger="hal.bridge"):
+        b = loop_bridge(reply=HelloReply(2, 8192, 250, FEATURE_HW_ESTOP))
+    assert len(caplog.records) == 1 and "firmware does not measure" in caplog.records[0].getMessage()
+    b.close()
+
+
+def test_loop_mcu_back_with_other_features_is_an_error() -> None:
+    b = loop_bridge(FakeClock(), reply=V2_FULL)
+    feed(b, Packet(0, HelloReply(2, 0, 250, FEATURE_BATTERY, 0)))
+    with pytest.raises(HalIOError, match="came back as protocol v2"):
+        b.state()
+    b.close()
 
 
 def test_loop_state_newest_kept_and_staleness() -> None:
@@ -262,10 +339,10 @@ def test_emulator_watchdog_zeroes_within_drive_timeout(emu) -> None:
 
 
 def test_emulator_wrong_version_is_init_error() -> None:
-    mcu = McuEmulator(DutyIntegratingEncoder(), now=time.monotonic(), protocol_version=2)
+    mcu = McuEmulator(DutyIntegratingEncoder(), now=time.monotonic(), protocol_version=3)
     with PtyLink(mcu) as link:
         link.start()
-        with pytest.raises(HalInitError, match="version 2"):
+        with pytest.raises(HalInitError, match="version 3"):
             Bridge(link.url)
 
 
@@ -437,10 +514,14 @@ def test_i2c_bursts_retry_then_hold_then_timeout(rig) -> None:
 class FakeState:
     def __init__(self, count: int, new: bool, resets: int = 0) -> None:
         self.count, self.new, self.resets = count, new, resets
+        self.battery_mv, self.hw_estop, self.count_left, self.count_right = 0, False, 0, 0
 
 
 class FakeEncoder:
     counts_per_rev = 8192
+    wheel_counts_per_rev = 0
+    battery_measured = False
+    hw_estop_wired = False
 
     def __init__(self) -> None:
         self.script: list = []
@@ -621,3 +702,12 @@ def test_from_config_pwm_sysfs_motors(tmp_path: Path) -> None:
             hal.close()
         assert (pwm0 / "duty_cycle").read_text() == "0"
         assert (pwm0 / "enable").read_text() == "0"
+
+
+def test_realhal_refuses_an_mcu_without_a_front_encoder_clearly() -> None:
+    """Protocol v2 lets an MCU say it has no front encoder; the estimator needs one, so the
+    backend says so at start instead of dividing by zero later."""
+    enc = FakeEncoder()
+    enc.counts_per_rev = 0
+    with pytest.raises(HalInitError, match="no front encoder"):
+        RealHal(FakeImu(), enc, FakeClock())

@@ -381,7 +381,7 @@ def test_the_link_step_on_the_emulated_devices(tmp_path: Path) -> None:
     session = _session(src, tmp_path / "o.yaml")
     commission(session, step="link")
     link = session.state.get("link")
-    assert link["backend"] == "emulated" and link["protocol_version"] == 1
+    assert link["backend"] == "emulated" and link["protocol_version"] == 2
     assert link["fresh_fraction"] > 0.5 and link["gyro_raw_span"] > 0
 
 

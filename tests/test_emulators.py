@@ -45,7 +45,7 @@ def run(clock: FakeTime, mcu: McuEmulator, dec: FrameDecoder, until: float, step
 def test_boot_announces_and_streams(rig) -> None:
     clock, plant, mcu, dec = rig
     pkts = dec.feed(mcu.service(0.0))
-    assert pkts[0] == Packet(0, HelloReply(1, 8192, 100))
+    assert pkts[0] == Packet(0, HelloReply(2, 8192, 100))
     assert isinstance(pkts[1].msg, State) and pkts[1].seq == 1
     more = run(clock, mcu, dec, 0.1)
     assert len(more) == 10  # 100 Hz for 0.1 s
@@ -124,7 +124,7 @@ def test_reset_restarts_seq_clock_and_count(rig) -> None:
     reset_mcu(mcu, clock.t)
     assert mcu.outputs == (0.0, 0.0) and mcu.boots == 2
     pkts = dec.feed(mcu.service(clock.t))
-    assert pkts[0] == Packet(0, HelloReply(1, 8192, 100))
+    assert pkts[0] == Packet(0, HelloReply(2, 8192, 100))
     assert pkts[1].seq == 1 and pkts[1].msg.t_us == 0 and pkts[1].msg.count == 0
 
 

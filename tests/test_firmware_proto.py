@@ -14,7 +14,8 @@ from hypothesis import strategies as st
 from hal import cobs
 from hal.crc import crc16_ccitt_false
 from hal.wire import (
-    Drive, FrameDecoder, Hello, HelloReply, Packet, State, Stop, Unknown, decode_packet,
+    Drive, FrameDecoder, Hello, HelloReply, HelloReplyV1, Packet, State, StateV1, Stop, Unknown,
+    decode_packet,
     encode_frame, encode_packet,
 )
 from tests.support.firmware import require
@@ -93,7 +94,8 @@ def test_crc_check_value_and_random(lib) -> None:
 
 PACKETS = [
     Packet(0, Hello()), Packet(1, Drive(5000, -2500, 100)), Packet(255, Stop()),
-    Packet(0, HelloReply(1, 8192, 500)), Packet(7, State(0xFFFFFFFF, -(2 ** 31), 7, 255)),
+    Packet(0, HelloReply(2, 8192, 250, 7, 1320)), Packet(7, State(0xFFFFFFFF, -(2 ** 31), 15, 255, 12000, -5, 2 ** 31 - 1)),
+    Packet(0, HelloReplyV1(1, 8192, 500)), Packet(7, StateV1(0xFFFFFFFF, -(2 ** 31), 7, 255)),
     Packet(3, Drive(0, 0, 1)), Packet(9, Unknown(0x33, b"\x00" * 10)),
     Packet(10, Unknown(0x44, bytes(range(60)))), Packet(0, State(0, 0, 0, 0)),
 ]
@@ -138,6 +140,12 @@ def test_decoder_edge_cases(lib) -> None:
         bytes([0x42] * 200) + b"\x00" + good,  # far oversize
         encode_frame(Packet(2, Unknown(0x02, b"\x01\x02"))),  # DRIVE of the wrong length
         encode_frame(Packet(2, Unknown(0x82, b"\x01"))),  # STATE of the wrong length
+        encode_frame(Packet(2, Unknown(0x82, bytes(10)))),  # a v1 STATE: both lengths are known
+        encode_frame(Packet(2, Unknown(0x82, bytes(20)))),  # a v2 STATE
+        encode_frame(Packet(2, Unknown(0x82, bytes(15)))),  # neither
+        encode_frame(Packet(2, Unknown(0x81, bytes(7)))),  # HELLO_REPLY, v1 and v2, and neither
+        encode_frame(Packet(2, Unknown(0x81, bytes(12)))),
+        encode_frame(Packet(2, Unknown(0x81, bytes(10)))),
         encode_frame(Packet(2, Unknown(0x7E, b""))),  # unknown type, valid CRC
         encode_frame(Packet(4, Unknown(0x10, bytes(60)))),  # 64-byte packet
         cobs.encode(bytes(range(1, 255)) + b"\x01\x02") + b"\x00",  # a 0xFF code run
@@ -154,7 +162,8 @@ def frame_stream(rng: random.Random, n: int) -> bytes:
         kind = rng.random()
         msg = rng.choice([Hello(), Stop(), Drive(rng.randint(-32768, 32767), rng.randint(-32768, 32767),
                                                  rng.randint(0, 65535)),
-                          HelloReply(1, 8192, 500), State(rng.getrandbits(32), 0, 3, 4),
+                          HelloReply(2, 8192, 250, 3, 0), State(rng.getrandbits(32), 0, 3, 4, 11000, -3, 3),
+                          HelloReplyV1(1, 8192, 500), StateV1(rng.getrandbits(32), 0, 3, 4),
                           Unknown(rng.randrange(256), bytes(rng.randrange(256) for _ in range(rng.randrange(61))))])
         frame = bytearray(encode_frame(Packet(rng.randrange(256), msg)))
         if kind < 0.15:

@@ -205,6 +205,7 @@ def test_sim_mcap_has_one_message_per_tick_and_the_csvs_values(tmp_path: Path) -
         counts = {c.topic: summary.statistics.channel_message_counts[i] for i, c in summary.channels.items()}
         schemas = {c.topic: summary.schemas[c.schema_id].name for c in summary.channels.values()}
         assert counts["/tf"] == counts["/tf_true"] == counts["/reference"] == counts["/state"] == ticks
+        assert counts["/uncertainty"] == ticks and schemas["/uncertainty"] == "foxglove.SceneUpdate"
         assert counts["/path"] == 1
         assert schemas["/tf"] == "foxglove.FrameTransform" and schemas["/state"] == "ddrt.State"
         assert schemas["/path"] == schemas["/reference"] == "foxglove.SceneUpdate"

@@ -1,7 +1,7 @@
 """One contract, every backend: the simulated HAL, and the real drivers on emulated devices.
 
 The real backend here is hal.real.RealHal (Mpu6050 over an emulated I2C register file,
-Bridge over protocol v1 to an emulated microcontroller), both backed by the same simulated
+Bridge over protocol v2 to an emulated microcontroller), both backed by the same simulated
 robot, wired in process through pyserial's URL mechanism (ddrtsim://); and the same with the
 reference firmware in simavr as the microcontroller (simavr://, over a pseudo-terminal).
 """

@@ -27,6 +27,8 @@ HEADER = (
     "fresh", "hal_fault_ticks",
     "ad_m_k", "ad_mbar", "ad_I", "ad_m_x", "ad_fric_l", "ad_fric_r", "ad_active",
     "battery_v", "hw_estop",
+    "x_map", "y_map", "theta_map", "std_x", "std_y", "std_theta", "cov_xy", "fixes",
+    "wheel_slip",
 )
 # The state column's codes as they have always been.
 CODES = ("idle", "following", "stopping", "stopped", "estop", "fault", "holding", "driving")
@@ -88,8 +90,14 @@ def test_every_column_holds_its_source(cfg_path: Path) -> None:
         expected.update(dict(zip(HEADER[24:30], ad.theta)))
         expected["ad_active"] = float(loop.adapt_active)
         assert any(v != 0.0 for v in ad.theta)
+    xm, ym, thm = est.map_pose()
+    p = est.track.p_map
+    expected.update({"x_map": xm, "y_map": ym, "theta_map": thm, "std_x": math.sqrt(p[0]), "std_y": math.sqrt(p[7]),
+                     "std_theta": math.sqrt(p[14]), "cov_xy": p[1], "fixes": 0.0,
+                     "wheel_slip": 0.0})
     assert set(expected) == set(COLUMNS)
     for name in COLUMNS:
         assert row[name] == expected[name] and isinstance(row[name], float), name
+    assert row["std_x"] > 0.0 and row["std_theta"] > 0.0  # moving: the uncertainty has grown
     assert row["sigma"] > 0.01 and row["v_ref"] > 0.0 and math.isfinite(row["v_cmd"])  # really moving
     assert row["battery_v"] == 12.0 == loop.motor.supply_v  # the simulated supply, measured

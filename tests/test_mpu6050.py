@@ -172,6 +172,7 @@ def test_open_i2c_bus_sim_is_left_to_caller() -> None:
 def test_reports_the_datasheet_delay_of_its_low_pass(cfg: int, delay_ms: float) -> None:
     imu = Mpu6050(MpuEmulator(ConstantGyro()), dlpf_cfg=cfg)
     assert imu.gyro_delay_s == pytest.approx(delay_ms * 1e-3)
+    assert imu.sample_age_s == pytest.approx(delay_ms * 1e-3 + 0.5 / imu.sample_rate_hz)  # plus half the hold
 
 
 def test_one_range_table_for_driver_simulator_and_config(sim_yaml: Path) -> None:

@@ -15,12 +15,14 @@ from ddrt.config import ConfigError, load_config
 from ddrt.config.policy import plan_reload
 from ddrt.core.envelope import resolve_limits
 from ddrt.core.motor import Motor
-from ddrt.loop import ControlLoop, LoopState
+from ddrt.loop import COLUMNS, ControlLoop, LoopState
 from ddrt.loop.power import HW_ESTOP_REASON, HYSTERESIS, TAU_MODEL_S, TAU_SLOW_S
 from ddrt.path.spec import load_path, speed_limits
 from ddrt.simrun.runner import run_sim
 from hal.registry import open_hal
 from tests.support.repo import SIM_YAML
+
+BATTERY_V, HW_ESTOP = COLUMNS.index("battery_v"), COLUMNS.index("hw_estop")  # telemetry row indices
 
 FROM_MOTORS = {"v_max": None, "accel": None, "torque_max_nm": None}
 S_CURVE = {"shape": "s_curve", "length": 5.0, "offset": 0.8, "speed": 0.9}
@@ -102,7 +104,7 @@ def test_without_a_measurement_the_config_supply_is_used(rigs: list[Rig]) -> Non
     assert not rig.hal.info.battery_measured
     rig.run(0.1)
     assert rig.loop.sample is not None and math.isnan(rig.loop.sample.battery_v)
-    assert rig.loop.motor.supply_v == 12.0 and rig.loop.row[-2] == 12.0
+    assert rig.loop.motor.supply_v == 12.0 and rig.loop.row[BATTERY_V] == 12.0
     st = rig.loop.power.status()
     assert st["measured"] is False and st["min_v"] is None and not st["low"]  # nothing to compare with
 
@@ -230,12 +232,12 @@ def test_the_hardware_estop_input_latches_estop_until_closed_and_reset(rigs: lis
     hal.estop_input_open = True  # type: ignore[attr-defined]
     rig.run(loop.period)
     assert loop.state == LoopState.ESTOP and loop.fault == HW_ESTOP_REASON
-    assert (loop.duty_l, loop.duty_r) == (0.0, 0.0) and loop.row[-1] == 1.0
+    assert (loop.duty_l, loop.duty_r) == (0.0, 0.0) and loop.row[HW_ESTOP] == 1.0
     with pytest.raises(ValueError, match="hardware emergency-stop input open"):
         loop.reset()
     hal.estop_input_open = False  # type: ignore[attr-defined]
     rig.run(0.5)
-    assert loop.state == LoopState.ESTOP and loop.row[-1] == 0.0  # latched: closing it is not a reset
+    assert loop.state == LoopState.ESTOP and loop.row[HW_ESTOP] == 0.0  # latched: closing it is not a reset
     assert hal.robot.applied_duty == (0.0, 0.0)
     loop.reset()
     assert loop.state == LoopState.IDLE
@@ -256,7 +258,8 @@ def test_telemetry_and_foxglove_carry_the_voltage() -> None:
     from ddrt.loop import COLUMNS
     from ddrt.viz.channels import STATE_FIELDS
 
-    assert COLUMNS[-2:] == ("battery_v", "hw_estop") and {"battery_v", "hw_estop"} <= set(STATE_FIELDS)
+    at = COLUMNS.index("battery_v")
+    assert COLUMNS[at:at + 2] == ("battery_v", "hw_estop") and {"battery_v", "hw_estop"} <= set(STATE_FIELDS)
 
 
 def _end_error_mm(result) -> float:

@@ -1,4 +1,4 @@
-"""CRC, COBS, protocol v1 packets and frame decoding (hal/crc.py, cobs.py, wire.py)."""
+"""CRC, COBS, protocol v2 (and v1) packets and frame decoding (hal/crc.py, cobs.py, wire.py)."""
 
 from __future__ import annotations
 
@@ -8,15 +8,17 @@ from hypothesis import given, settings, strategies as st
 from hal import cobs
 from hal.crc import crc16_ccitt_false
 from hal.wire import (
-    MAX_FRAME_LEN, Drive, FrameDecoder, Hello, HelloReply, Packet, ProtocolError, State, Stop,
-    Unknown, decode_packet, encode_frame, encode_packet, seq_gap,
+    MAX_FRAME_LEN, Drive, FrameDecoder, Hello, HelloReply, HelloReplyV1, Packet, ProtocolError,
+    State, StateV1, Stop, Unknown, wire_bytes, decode_packet, encode_frame, encode_packet, seq_gap,
 )
 
 FAST = settings(max_examples=150, derandomize=True, deadline=None)
 
 ALL_MESSAGES = [
     Hello(), Stop(), Drive(10000, -10000, 1), Drive(0, 1, 1000),
-    HelloReply(1, 8192, 200), State(0xFFFFFFFF, -(2**31), 0x07, 255), State(0, 2**31 - 1, 0, 0),
+    HelloReply(2, 8192, 200, 0x07, 2**32 - 1), HelloReply(2, 0, 250),
+    State(0xFFFFFFFF, -(2**31), 0x0F, 255, 65535, 2**31 - 1, -(2**31)), State(0, 2**31 - 1, 0, 0),
+    HelloReplyV1(1, 8192, 200), StateV1(0xFFFFFFFF, -(2**31), 0x07, 255), StateV1(0, 2**31 - 1, 0, 0),
     Unknown(0x40, b"\x00\x01\x02"),
 ]
 
@@ -186,3 +188,31 @@ def test_multi_byte_corruption_never_accepts_a_different_packet(msg, data) -> No
         # Up to 4 changed bytes: CRC-16 misses such an error with probability ~2^-16;
         # the derandomized examples are checked to be caught.
         assert accepted == [] or accepted == [pkt]
+
+
+def test_protocol_docs_v2_example_bytes_and_link_budget() -> None:
+    """docs/protocol.md's v2 examples and its link budget, from the encoder itself."""
+    hello = Packet(0, HelloReply(2, 8192, 250, 0x03, 0))
+    state = Packet(1, State(40_000, 80, 0, 0, 11_080, 0, 0))
+    v1 = Packet(1, StateV1(40_000, 80, 0, 0))
+    assert encode_frame(hello) == bytes.fromhex("02 81 02 02 02 20 01 02 fa 02 03 01 01 01 03 96 88 00")
+    assert encode_frame(state) == bytes.fromhex(
+        "05 82 01 40 9c 01 02 50 01 01 01 01 03 48 2b 01 01 01 01 01 01 01 03 8b d8 00")
+    assert encode_frame(v1) == bytes.fromhex("05 82 01 40 9c 01 02 50 01 01 01 01 03 29 ab 00")
+    assert (HelloReply.FMT.size, HelloReplyV1.FMT.size, State.FMT.size, StateV1.FMT.size) == (12, 7, 20, 10)
+    # a v2 STATE is 26 bytes on the wire whatever its values (no zero runs reach 254)
+    assert wire_bytes(State.FMT.size) == 26 == len(encode_frame(Packet(255, State(2**32 - 1, -1, 255, 255, 65535, -1, -1))))
+    # 250 Hz (the default) is under 70 % of 115200 baud; 320 Hz would not be
+    assert wire_bytes(State.FMT.size) * 10 * 250 < 0.7 * 115200 < wire_bytes(State.FMT.size) * 10 * 320
+    assert wire_bytes(State.FMT.size) * 10 * 1000 < 0.7 * 1_000_000
+
+
+def test_both_versions_lengths_decode_and_others_are_malformed() -> None:
+    for ptype, good, bad in ((0x81, (7, 12), (6, 8, 11, 13)), (0x82, (10, 20), (9, 11, 19, 21))):
+        for n in good:
+            pkt = decode_packet(encode_packet(Packet(3, Unknown(ptype, bytes(n)))))
+            assert type(pkt.msg) is {7: HelloReplyV1, 12: HelloReply, 10: StateV1, 20: State}[n]
+        for n in bad:
+            with pytest.raises(ProtocolError, match="expected") as e:
+                decode_packet(encode_packet(Packet(3, Unknown(ptype, bytes(n)))))
+            assert e.value.kind == "malformed"

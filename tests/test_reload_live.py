@@ -42,6 +42,8 @@ def _changed(key: str, value: Any) -> Any:
         return not value
     if key == "sensors.gyro_range_dps":
         return 500
+    if key.endswith("_sign"):
+        return -value
     if key == "estimator.gyro_delay_s":
         return 0.002
     if key.endswith(("forgetting",)):

@@ -112,6 +112,8 @@ def test_every_changed_leaf_is_reported_once_and_put_in_force_by_its_mode() -> N
             new_value = value * 0.5 if value else 0.1
         elif key == "sensors.gyro_range_dps":
             new_value = 500
+        elif key.endswith("_sign"):
+            new_value = -value
         elif key == "estimator.gyro_delay_s":
             new_value = 0.001
         elif key in ("daemon.rt_priority", "daemon.spin_us"):

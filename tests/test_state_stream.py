@@ -5,6 +5,7 @@ itself. In-process, over real Unix datagram sockets, with a stand-in for the loo
 from __future__ import annotations
 
 import contextlib
+import math
 import socket
 import threading
 import time
@@ -20,7 +21,9 @@ from tests.support.daemon import wait_for
 
 def fake_loop() -> SimpleNamespace:
     est = SimpleNamespace(x=1.5, y=-2.0, theta=0.25, speed=SimpleNamespace(v=0.3, p11=1e-4),
-                          yaw=SimpleNamespace(w=0.1, p00=2e-4, meas_var=3e-5, b=0.01), rad_s_per_lsb=0.001)
+                          yaw=SimpleNamespace(w=0.1, p00=2e-4, meas_var=3e-5, b=0.01), rad_s_per_lsb=0.001,
+                          track=SimpleNamespace(p_odom=[float(i) for i in range(36)]),
+                          frame=SimpleNamespace(x=1.6, y=-1.9, th=0.3, counters=SimpleNamespace(fused=0)))
     sample = SimpleNamespace(t=12.5, gyro_z_raw=150, fresh=True)
     power = SimpleNamespace(v_slow=11.7, good=True, hw_estop=False)
     return SimpleNamespace(estimator=est, sample=sample, state=LoopState.DRIVING, power=power)
@@ -83,6 +86,13 @@ def test_a_subscriber_gets_the_loops_state_at_its_rate(stream) -> None:
         assert (values["x"], values["y"], values["theta"], values["v"], values["omega"]) == (1.5, -2.0, 0.25, 0.3, 0.1)
         assert values["gyro"] == pytest.approx(0.15) and values["state"] == float(LoopState.DRIVING)
         assert values["battery_v"] == 11.7 and values["hw_estop"] == 0.0
+        # The odometry's covariance (x, y, theta entries of the 6x6); no map pose before a fix.
+        assert (values["var_x"], values["var_y"], values["cov_xy"], values["var_theta"]) == (0.0, 7.0, 1.0, 14.0)
+        assert math.isnan(values["map_x"]) and math.isnan(values["map_theta"])
+        loop.estimator.frame.counters.fused = 1
+        s.put(43.0)
+        values = dict(zip(reply["fields"], st.decode(r.recv(4096))))
+        assert (values["map_x"], values["map_y"], values["map_theta"]) == (1.6, -1.9, 0.3)
         with ticking(s):
             t0, n0 = time.monotonic(), 0
             while time.monotonic() - t0 < 1.0:

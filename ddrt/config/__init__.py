@@ -5,10 +5,11 @@ from ddrt.config.load import (
 )
 from ddrt.config.schema import ConfigError
 from ddrt.config.sections import (
-    AdaptationConfig, BridgeConfig, Config, ControllerConfig, DaemonConfig, DriveConfig, EstimatorConfig, GyroTruth,
+    AdaptationConfig, BridgeConfig, Config, ControllerConfig, DaemonConfig, DriveConfig, EstimatorConfig,
     HalConfig, ImuConfig, LimitsConfig, OuterGains, PathsConfig, PidGains, PursuitConfig, PwmSysfsConfig,
-    SensorsConfig, SimConfig, SlipConfig,
+    SensorsConfig,
 )
+from ddrt.config.sim_truth import GyroTruth, SimConfig, SlipConfig
 
 __all__ = [
     "AdaptationConfig", "BridgeConfig", "Config", "ConfigError", "ControllerConfig", "DaemonConfig", "DriveConfig",

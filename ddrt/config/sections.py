@@ -12,103 +12,14 @@ from typing import Any, ClassVar, Literal, Mapping
 from ddrt.params.robot import RobotParams
 from ddrt.params.gyro_scale import GYRO_RANGES_DPS
 from ddrt.params.motor import MotorParams
-from ddrt.config.wiring import SimWiring, WiringConfig
+from ddrt.config.wiring import WiringConfig
 from ddrt.config.schema import (
     LIVE, NEXT_PATH, RESTART, ConfigError, applies, non_negative, positive, restart,
 )
-from ddrt.config.sim_truth import (
-    ActuatorTruth, BatteryTruth, EncoderTruth, EventsTruth, WheelsTruth, check_ppm,
-)
+from ddrt.config.sim_truth import SimConfig
 from ddrt.config.ros2 import Ros2Config
 
 # --------------------------------------------------------------------------- sections
-
-
-@dataclass(frozen=True)
-class SlipConfig:
-    """The seed's torque slip noise: per wheel and plant step, with this probability."""
-
-    probability: float = 0.25
-    sigma_nm: float = 0.01
-
-    def validate(self, where: str) -> None:
-        if not 0.0 <= self.probability <= 1.0:
-            raise ConfigError(f"{where}.probability: must be in [0, 1], got {self.probability}")
-        non_negative(where, sigma_nm=self.sigma_nm)
-
-
-@dataclass(frozen=True)
-class GyroTruth:
-    """How the simulated MPU-6050 departs from the truth."""
-
-    noise_dps_rthz: float = 0.005
-    bias_dps: float = 1.5
-    scale_error: float = 0.0
-    dlpf_hz: float = 98.0
-    # Zero-rate bias = bias_dps + bias_per_c_dps * (T - temp_start_c) + drift_dps_per_s * t, with the
-    # die warming as T = temp_start_c + warmup_rise_c * (1 - exp(-t / warmup_tau_s)) (sim_truth.py).
-    temp_start_c: float = 25.0
-    warmup_rise_c: float = 0.0
-    warmup_tau_s: float = 120.0
-    bias_per_c_dps: float = 0.0
-    drift_dps_per_s: float = 0.0
-    register_hold: bool = False  # the output register refreshes at 1 kHz / (1 + hal.imu.sample_rate_div)
-    clock_ppm: float = 0.0  # the MPU's own oscillator error (sets when it refreshes)
-
-    def validate(self, where: str) -> None:
-        non_negative(where, noise_dps_rthz=self.noise_dps_rthz)
-        positive(where, dlpf_hz=self.dlpf_hz, warmup_tau_s=self.warmup_tau_s)
-        if abs(self.scale_error) >= 0.5:
-            raise ConfigError(f"{where}.scale_error: must be within +-0.5, got {self.scale_error}")
-        if not -60.0 <= self.temp_start_c <= 100.0 or abs(self.warmup_rise_c) > 80.0:
-            raise ConfigError(f"{where}: temp_start_c in [-60, 100] and warmup_rise_c within +-80 degC")
-        check_ppm(where, "clock_ppm", self.clock_ppm)
-
-
-@dataclass(frozen=True)
-class SimConfig:
-    """The simulated robot's own settings (the plant's truth beyond its parameters)."""
-
-    APPLY: ClassVar[str] = RESTART  # the simulated robot is built once
-
-    step_hz: float = 1000.0
-    friction: bool = True
-    seed: int = 1
-    command_latency_s: float = 0.0015
-    sensor_latency_s: float = 0.001
-    slip: SlipConfig = field(default_factory=SlipConfig)
-    gyro: GyroTruth = field(default_factory=GyroTruth)
-    sensors_freeze_after_s: float | None = None  # fault injection: no fresh samples after this
-    sensors_freeze_for_s: float | None = None  # ... for this long (None: for good)
-    start_delay_s: float = 2.0  # `ddrt sim`: stand still this long after calibration (bias settles)
-    battery_measured: bool = True  # the simulated MCU reports the supply voltage (false: like protocol v1)
-    # Issue 23's realism (ddrt/config/sim_truth.py); every default is the ideal plant of before.
-    battery: BatteryTruth | None = None  # null: an ideal supply at the plant motors' supply_v
-    encoder: EncoderTruth = field(default_factory=EncoderTruth)
-    wheels: WheelsTruth = field(default_factory=WheelsTruth)
-    actuators: ActuatorTruth = field(default_factory=ActuatorTruth)
-    events: EventsTruth = field(default_factory=EventsTruth)
-    mcu_clock_ppm: float = 0.0  # the microcontroller's crystal error, on the t_us it stamps
-    wiring: SimWiring = field(default_factory=SimWiring)  # fault injection: miswired motors and sensors
-
-    def validate(self, where: str) -> None:
-        positive(where, step_hz=self.step_hz)
-        check_ppm(where, "mcu_clock_ppm", self.mcu_clock_ppm)
-        non_negative(where, command_latency_s=self.command_latency_s, sensor_latency_s=self.sensor_latency_s,
-                     start_delay_s=self.start_delay_s)
-        # Bounds on the work of a run: plant steps per simulated second, seconds of standing still.
-        if not 10.0 <= self.step_hz <= 100_000.0:
-            raise ConfigError(f"{where}.step_hz: must be in [10, 100000] Hz, got {self.step_hz}")
-        if self.start_delay_s > 60.0:
-            raise ConfigError(f"{where}.start_delay_s: at most 60 s, got {self.start_delay_s}")
-        if self.sensors_freeze_after_s is not None:
-            non_negative(where, sensors_freeze_after_s=self.sensors_freeze_after_s)
-        if self.sensors_freeze_for_s is not None:
-            positive(where, sensors_freeze_for_s=self.sensors_freeze_for_s)
-            if self.sensors_freeze_after_s is None:
-                raise ConfigError(f"{where}.sensors_freeze_for_s: needs sim.sensors_freeze_after_s (when the freeze starts)")
-        if self.command_latency_s > 0.1 or self.sensor_latency_s > 0.1:
-            raise ConfigError(f"{where}: latencies above 0.1 s are not a robot this controller can drive")
 
 
 @dataclass(frozen=True)
@@ -117,11 +28,24 @@ class SensorsConfig:
 
     APPLY: ClassVar[str] = RESTART  # the devices are configured when opened
 
-    encoder_counts_per_rev: int = 8192
+    encoder_counts_per_rev: int = 8192  # the front omni wheel's encoder; 0: none (then the drive wheels' are needed)
     gyro_range_dps: int = 250
+    wheel_counts_per_rev: int = 0  # drive-wheel encoders (protocol v2); 0: not counted
+    battery_scale: float = 1.0  # true / reported supply voltage (divider calibration)
+    gyro_temp_hz: float = 0.0  # Hz: how often the gyro's TEMP_OUT is read (temperature-compensated bias); 0: never
 
     def validate(self, where: str) -> None:
-        positive(where, encoder_counts_per_rev=self.encoder_counts_per_rev)
+        non_negative(where, encoder_counts_per_rev=self.encoder_counts_per_rev,
+                     wheel_counts_per_rev=self.wheel_counts_per_rev)
+        if self.encoder_counts_per_rev == 0 and self.wheel_counts_per_rev == 0:
+            raise ConfigError(f"{where}.encoder_counts_per_rev: 0 (no front encoder) needs the drive wheels' "
+                              f"encoders ({where}.wheel_counts_per_rev > 0): the robot needs one distance sensor")
+        if not 0.0 <= self.gyro_temp_hz <= 50.0:
+            raise ConfigError(f"{where}.gyro_temp_hz: must be in [0, 50] Hz (0: TEMP_OUT not read), "
+                              f"got {self.gyro_temp_hz}")
+        if not 0.5 <= self.battery_scale <= 2.0:
+            raise ConfigError(f"{where}.battery_scale: must be in [0.5, 2] (true / reported "
+                              f"voltage), got {self.battery_scale}")
         if self.gyro_range_dps not in GYRO_RANGES_DPS:
             raise ConfigError(f"{where}.gyro_range_dps: must be one of {', '.join(map(str, GYRO_RANGES_DPS))}, "
                               f"got {self.gyro_range_dps}")
@@ -321,6 +245,9 @@ class EstimatorConfig:
     gyro_scale: float = 1.0  # believed gyro scale factor (1 + scale error), from calibration
     gyro_noise_dps: float = 0.07  # std of one gyro sample (deg/s) after the MPU's low-pass
     gyro_delay_s: float | None = None  # lag of the gyro's low-pass to undo; None: what the HAL reports
+    # deg/s per degC: the zero-rate bias's temperature slope (commissioning); None: learnt at
+    # the stops (ddrt/core/gyro_bias.py; only with sensors.gyro_temp_hz > 0)
+    gyro_bias_per_c_dps: float | None = None
     gate_sigma: float = 5.0  # innovations beyond this many sigma are outliers
     max_rejects: int = 10  # after this many outliers in a row, re-sync and report
     stale_ticks: int = 20  # ticks without a fresh sample while moving: hold (controlled stop)
@@ -331,8 +258,26 @@ class EstimatorConfig:
     zero_motors_after_s: float | None = None  # blind this long in a hold: motors to zero; None: the HAL's DRIVE watchdog
     stuck_gyro_ticks: int = 100  # identical raw gyro readings in a row = stuck sensor
     encoder_stuck_s: float = 0.3  # commanded motion but no encoder counts for this long
+    # The pose's uncertainty and pose fixes (docs/estimation.md).
+    encoder_scale_std: float = 0.01  # 1 sigma relative error of r_3 (metres per count)
+    gyro_scale_std: float = 0.0173  # 1 sigma relative error of gyro_scale (MPU-6050: +-3 %, uniform)
+    fix_history_s: float = 2.0  # how late a pose fix may arrive (s of odometry kept)
+    fix_gate_chi2: float = 16.27  # Mahalanobis^2 beyond which a fix is an outlier (chi-square 3 dof, 0.999)
+    map_blend_s: float = 0.5  # a path in `map` follows a fix's correction with this time constant
+    # With drive-wheel encoders (sensors.wheel_counts_per_rev > 0; ddrt/core/wheel_odometry.py).
+    wheel_bias_walk: float = 1e-4  # rad/s per sqrt(s): the bias drift the wheels track on the move
+    wheel_scale_std: float = 0.02  # 1 sigma relative error of r_L, r_R (tyres under load)
 
     def validate(self, where: str) -> None:
+        non_negative(where, encoder_scale_std=self.encoder_scale_std, gyro_scale_std=self.gyro_scale_std,
+                     map_blend_s=self.map_blend_s)
+        positive(where, fix_gate_chi2=self.fix_gate_chi2)
+        non_negative(where, wheel_bias_walk=self.wheel_bias_walk, wheel_scale_std=self.wheel_scale_std)
+        for key in ("encoder_scale_std", "gyro_scale_std", "wheel_scale_std"):
+            if getattr(self, key) > 0.5:
+                raise ConfigError(f"{where}.{key}: at most 0.5 (a relative error), got {getattr(self, key)}")
+        if not 0.05 <= self.fix_history_s <= 30.0:
+            raise ConfigError(f"{where}.fix_history_s: must be in [0.05, 30] s, got {self.fix_history_s}")
         positive(where, max_gap_s=self.max_gap_s, accel_noise=self.accel_noise,
                  odometry_accel_noise=self.odometry_accel_noise, yaw_accel_noise=self.yaw_accel_noise,
                  odometry_yaw_accel_noise=self.odometry_yaw_accel_noise,
@@ -343,6 +288,9 @@ class EstimatorConfig:
             raise ConfigError(f"{where}.calibration_s: at most 60 s, got {self.calibration_s}")
         if self.gyro_delay_s is not None and not 0.0 <= self.gyro_delay_s <= 0.05:
             raise ConfigError(f"{where}.gyro_delay_s: must be null or in [0, 0.05] s, got {self.gyro_delay_s}")
+        if self.gyro_bias_per_c_dps is not None and not abs(self.gyro_bias_per_c_dps) <= 1.0:
+            raise ConfigError(f"{where}.gyro_bias_per_c_dps: must be null (learn it) or in [-1, 1] deg/s per degC, "
+                              f"got {self.gyro_bias_per_c_dps}")
         positive(where, max_rejects=self.max_rejects, stale_ticks=self.stale_ticks,
                  stuck_gyro_ticks=self.stuck_gyro_ticks, fault_latch_s=self.fault_latch_s,
                  hold_window_s=self.hold_window_s)

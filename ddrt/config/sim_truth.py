@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import ClassVar
 
-from ddrt.config.schema import ConfigError, non_negative, positive
+from ddrt.config.schema import RESTART, ConfigError, non_negative, positive
+from ddrt.config.wiring import SimWiring
 
 # Open-circuit voltage of one Li-ion (NMC/graphite) cell against its state of charge, at rest
 # and 25 degC: a typical published curve (3.0 V empty, 3.7 V around half, 4.2 V full), the
@@ -173,3 +175,96 @@ class EventsTruth:
 def check_ppm(where: str, key: str, value: float) -> None:
     if not math.isfinite(value) or abs(value) > 50_000.0:
         raise ConfigError(f"{where}.{key}: must be within +-50000 ppm, got {value}")
+
+
+# ------------------------------------------------- the sim: section itself
+
+@dataclass(frozen=True)
+class SlipConfig:
+    """The seed's torque slip noise: per wheel and plant step, with this probability."""
+
+    probability: float = 0.25
+    sigma_nm: float = 0.01
+
+    def validate(self, where: str) -> None:
+        if not 0.0 <= self.probability <= 1.0:
+            raise ConfigError(f"{where}.probability: must be in [0, 1], got {self.probability}")
+        non_negative(where, sigma_nm=self.sigma_nm)
+
+
+@dataclass(frozen=True)
+class GyroTruth:
+    """How the simulated MPU-6050 departs from the truth."""
+
+    noise_dps_rthz: float = 0.005
+    bias_dps: float = 1.5
+    scale_error: float = 0.0
+    dlpf_hz: float = 98.0
+    # Zero-rate bias = bias_dps + bias_per_c_dps * (T - temp_start_c) + drift_dps_per_s * t, with the
+    # die warming as T = temp_start_c + warmup_rise_c * (1 - exp(-t / warmup_tau_s)) (sim_truth.py).
+    temp_start_c: float = 25.0
+    warmup_rise_c: float = 0.0
+    warmup_tau_s: float = 120.0
+    bias_per_c_dps: float = 0.0
+    drift_dps_per_s: float = 0.0
+    register_hold: bool = False  # the output register refreshes at 1 kHz / (1 + hal.imu.sample_rate_div)
+    clock_ppm: float = 0.0  # the MPU's own oscillator error (sets when it refreshes)
+    bias_step_dps: float = 0.0  # a step in the zero-rate bias (deg/s) ...
+    bias_step_at_s: float = 0.0  # ... at this sim time (s): what tracking the bias on the move must follow
+
+    def validate(self, where: str) -> None:
+        non_negative(where, noise_dps_rthz=self.noise_dps_rthz, bias_step_at_s=self.bias_step_at_s)
+        if abs(self.bias_step_dps) > 50.0:
+            raise ConfigError(f"{where}.bias_step_dps: within +-50 deg/s, got {self.bias_step_dps}")
+        positive(where, dlpf_hz=self.dlpf_hz, warmup_tau_s=self.warmup_tau_s)
+        if abs(self.scale_error) >= 0.5:
+            raise ConfigError(f"{where}.scale_error: must be within +-0.5, got {self.scale_error}")
+        if not -60.0 <= self.temp_start_c <= 100.0 or abs(self.warmup_rise_c) > 80.0:
+            raise ConfigError(f"{where}: temp_start_c in [-60, 100] and warmup_rise_c within +-80 degC")
+        check_ppm(where, "clock_ppm", self.clock_ppm)
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """The simulated robot's own settings (the plant's truth beyond its parameters)."""
+
+    APPLY: ClassVar[str] = RESTART  # the simulated robot is built once
+
+    step_hz: float = 1000.0
+    friction: bool = True
+    seed: int = 1
+    command_latency_s: float = 0.0015
+    sensor_latency_s: float = 0.001
+    slip: SlipConfig = field(default_factory=SlipConfig)
+    gyro: GyroTruth = field(default_factory=GyroTruth)
+    sensors_freeze_after_s: float | None = None  # fault injection: no fresh samples after this
+    sensors_freeze_for_s: float | None = None  # ... for this long (None: for good)
+    start_delay_s: float = 2.0  # `ddrt sim`: stand still this long after calibration (bias settles)
+    battery_measured: bool = True  # the simulated MCU reports the supply voltage (false: like protocol v1)
+    # Issue 23's realism (ddrt/config/sim_truth.py); every default is the ideal plant of before.
+    battery: BatteryTruth | None = None  # null: an ideal supply at the plant motors' supply_v
+    encoder: EncoderTruth = field(default_factory=EncoderTruth)
+    wheels: WheelsTruth = field(default_factory=WheelsTruth)
+    actuators: ActuatorTruth = field(default_factory=ActuatorTruth)
+    events: EventsTruth = field(default_factory=EventsTruth)
+    mcu_clock_ppm: float = 0.0  # the microcontroller's crystal error, on the t_us it stamps
+    wiring: SimWiring = field(default_factory=SimWiring)  # fault injection: miswired motors and sensors
+
+    def validate(self, where: str) -> None:
+        positive(where, step_hz=self.step_hz)
+        check_ppm(where, "mcu_clock_ppm", self.mcu_clock_ppm)
+        non_negative(where, command_latency_s=self.command_latency_s, sensor_latency_s=self.sensor_latency_s,
+                     start_delay_s=self.start_delay_s)
+        # Bounds on the work of a run: plant steps per simulated second, seconds of standing still.
+        if not 10.0 <= self.step_hz <= 100_000.0:
+            raise ConfigError(f"{where}.step_hz: must be in [10, 100000] Hz, got {self.step_hz}")
+        if self.start_delay_s > 60.0:
+            raise ConfigError(f"{where}.start_delay_s: at most 60 s, got {self.start_delay_s}")
+        if self.sensors_freeze_after_s is not None:
+            non_negative(where, sensors_freeze_after_s=self.sensors_freeze_after_s)
+        if self.sensors_freeze_for_s is not None:
+            positive(where, sensors_freeze_for_s=self.sensors_freeze_for_s)
+            if self.sensors_freeze_after_s is None:
+                raise ConfigError(f"{where}.sensors_freeze_for_s: needs sim.sensors_freeze_after_s (when the freeze starts)")
+        if self.command_latency_s > 0.1 or self.sensor_latency_s > 0.1:
+            raise ConfigError(f"{where}: latencies above 0.1 s are not a robot this controller can drive")

@@ -15,6 +15,18 @@ and the count are re-synced, the distance the encoder counted meanwhile is put i
 and no motion is invented for the time nobody looked. Whether a gap stops the robot is the
 loop's decision (ddrt/loop/hold.py: the `holding` state); `health.fault` is only set for faults
 that must latch at once (a stuck or saturated gyro, a stuck encoder).
+
+Uncertainty and pose fixes (docs/estimation.md): every step of the dead reckoning also goes
+to the map frame (ddrt/core/pose_fix.py), whose history and covariances
+(ddrt/core/uncertainty.py) give the pose's 1-sigma and let a late fix be fused.
+
+Temperature: with TEMP_OUT read (HalInfo.gyro_temp_hz > 0) the bias follows the die's
+temperature between stops and is re-learnt at every stop, which also corrects the heading
+turned since the last one (ddrt/core/gyro_bias.py); without it, as before.
+
+Drive-wheel encoders (HalInfo.wheel_counts_per_rev > 0): ddrt/core/wheel_odometry.py gives the
+distance when there is no front encoder (encoder_counts_per_rev 0), tracks the gyro's bias on
+the move and flags wheel slip; the hooks here are `self.wheels` (None without them).
 """
 
 from __future__ import annotations
@@ -23,16 +35,21 @@ import math
 from dataclasses import dataclass
 
 from ddrt.config import EstimatorConfig
+from ddrt.core.gyro_bias import GyroBias
 from ddrt.core.kalman import TravelFilter, YawFilter
 from ddrt.core.model import Dynamics
 from ddrt.core.motor import Motor
+from ddrt.core.pose_fix import MapFrame, PoseFix
+from ddrt.core.uncertainty import ErrorModel, Tracker
 from ddrt.core.types import HalInfo, Sample
+from ddrt.core.wheel_odometry import WheelOdometry, error_model
 from ddrt.core.wrap import wrap_i32
 
 NOISE_STEP_S = 0.005  # the step the configured process noises are given for
 _RESYNC_V_VAR = 0.01  # (m/s)^2: speed variance after a re-anchor, so the next samples set it
 _RESYNC_W_VAR = 0.01  # (rad/s)^2: likewise for the yaw rate
 DEG = math.pi / 180.0
+UNCERTAINTY_EVERY_S = 0.02  # the map covariance is propagated this often (the odometry's every 0.1 s)
 
 
 class CalibrationError(ValueError):
@@ -49,12 +66,13 @@ class EstimatorHealth:
     stale_ticks: int = 0  # stale samples in a row, now
     gaps: int = 0  # gaps beyond max_gap that ended while commanded to move (each re-anchored)
     longest_gap_s: float = 0.0
+    wheel_slips: int = 0  # times the drive wheels began to slip (ddrt/core/wheel_odometry.py)
     fault: str = ""
 
     def counters(self) -> dict[str, float | int]:
         return {"gyro_rejects": self.gyro_rejects, "encoder_rejects": self.encoder_rejects,
                 "resyncs": self.resyncs, "stale_ticks": self.stale_ticks, "gaps": self.gaps,
-                "longest_gap_ms": self.longest_gap_s * 1000.0}
+                "longest_gap_ms": self.longest_gap_s * 1000.0, "wheel_slips": self.wheel_slips}
 
 
 def calibrate_gyro(raw: list[int], lsb_per_rad_s: float, scale: float, max_std_dps: float) -> tuple[float, float]:
@@ -91,7 +109,16 @@ class Estimator:
         # Likewise for yaw: `yaw` is fed back, `heading` (trusting the gyro) is integrated.
         self.yaw = YawFilter(0.0, 0.0, 0.0)
         self.heading = YawFilter(0.0, 0.0, 0.0)
+        self.gyro_bias: GyroBias | None = None  # the temperature's bias model (TEMP_OUT read)
+        self._rest, self._rest_z = False, math.nan  # at rest at the last fresh gyro reading, and its rate
+        self.wheels: WheelOdometry | None = None
+        self.wheel_slip = False  # the drive wheels slip this tick (telemetry)
         self._configure(cfg, r_3)
+        if info.wheel_counts_per_rev > 0:
+            self.wheels = WheelOdometry(self, info.wheel_counts_per_rev)
+        self.t_est = 0.0  # the time the estimate is for (the loop's clock)
+        self.track = self._tracker(cfg)
+        self.frame = MapFrame(cfg.fix_gate_chi2)
         self._last_gyro_z: float | None = None
         self._last_gyro_t = 0.0
         self._travel_counts = 0  # unwrapped encoder counts since reset (or the last re-base)
@@ -123,7 +150,8 @@ class Estimator:
         """Derive the scales, noises and bounds from `cfg` and the encoder wheel's radius."""
         info, period_s = self.info, self.period
         self.cfg = cfg
-        self.metres_per_count = 2.0 * math.pi * r_3 / info.encoder_counts_per_rev
+        cpr = info.encoder_counts_per_rev  # 0: no front encoder (the wheels give the distance)
+        self.metres_per_count = 2.0 * math.pi * r_3 / cpr if cpr > 0 else 0.0
         self.rad_s_per_lsb = 1.0 / (info.gyro_lsb_per_rad_s * cfg.gyro_scale)
         self.gyro_full_scale = info.gyro_full_scale_rad_s / cfg.gyro_scale
         # The filters' noise is per step; scaled so that their bandwidth, i.e. how much they
@@ -146,6 +174,22 @@ class Estimator:
         # How long the estimate may go without a fresh sample while moving: ten ticks, but
         # never less than max_gap_s, so a fast loop does not stop on a host's hiccup.
         self.max_gap = max(10.0 * period_s, cfg.max_gap_s)
+        if info.gyro_temp_hz > 0.0:
+            args = (cfg.gyro_bias_per_c_dps, cfg.gyro_bias_walk, cfg.gate_sigma, cfg.calibration_max_std_dps)
+            if self.gyro_bias is None:
+                self.gyro_bias = GyroBias(period_s, *args)
+            self.gyro_bias.configure(*args)
+        if self.wheels is not None:
+            self.wheels.configure(self)
+
+    def _tracker(self, cfg: EstimatorConfig) -> Tracker:
+        """The pose's uncertainty and history at this config (ddrt/core/uncertainty.py)."""
+        per = self.period
+        return Tracker(self._error_model(cfg), int(math.ceil(cfg.fix_history_s / per)) + 2,
+                       max(1, int(round(UNCERTAINTY_EVERY_S / per))), max(1, int(round(5 * UNCERTAINTY_EVERY_S / per))))
+
+    def _error_model(self, cfg: EstimatorConfig) -> ErrorModel:
+        return error_model(cfg, self.period, self.metres_per_count <= 0.0)
 
     def reconfigure(self, cfg: EstimatorConfig, r_3: float, dyn: Dynamics, motor: Motor) -> None:
         """Take a new tuning, encoder radius (a calibrated r_3), gyro scale or model between
@@ -156,13 +200,18 @@ class Estimator:
         times the gyro's scale, are rescaled with it.
         """
         old_lsb = self.rad_s_per_lsb
-        travelled = self._travel_counts * self.metres_per_count
-        self._configure(cfg, r_3)
+        old_cfg = self.cfg
+        travelled = self._z()
         self.dyn = dyn
         self.motor = motor
+        old_model = self.track.model
+        self._configure(cfg, r_3)
+        self._retrack(old_cfg, cfg, old_model)
         for f in (self.travel, self.speed):
             f.p -= travelled
         self._travel_counts = 0
+        if self.wheels is not None:
+            self.wheels.z = 0.0
         ratio = self.rad_s_per_lsb / old_lsb
         if ratio != 1.0:
             for f in (self.yaw, self.heading):
@@ -170,6 +219,33 @@ class Estimator:
                 f.b *= ratio
             if self._last_gyro_z is not None:
                 self._last_gyro_z *= ratio
+            if self.gyro_bias is not None:
+                self.gyro_bias.rescale(ratio)
+
+    def _retrack(self, old: EstimatorConfig, cfg: EstimatorConfig, old_model: ErrorModel) -> None:
+        """A reload's uncertainty figures: the scale errors' rows rescaled (so the covariance
+        stays positive), a new history length takes a fresh history at the present pose."""
+        track = self.track
+        track.model = new = self._error_model(cfg)
+        for i, (a, b) in ((3, (old_model.encoder_scale_std, new.encoder_scale_std)),
+                          (4, (old_model.gyro_scale_std, new.gyro_scale_std))):
+            if a != b:
+                k = b / a if a > 0.0 else 0.0
+                for p in [track.p_map, track.p_odom] + track.saved_p:
+                    for j in range(6):
+                        p[i * 6 + j] *= k
+                        p[j * 6 + i] *= k
+                    if a == 0.0:
+                        p[i * 6 + i] = b * b
+        self.frame.gate_chi2 = cfg.fix_gate_chi2
+        if cfg.fix_history_s != old.fix_history_s:
+            p_map, p_odom = list(track.p_map), list(track.p_odom)
+            self.track = self._tracker(cfg)
+            self.track.reset(self.t_est, self.map_pose())
+            self.track.p_map[:], self.track.p_odom[:] = p_map, p_odom
+            self.track.saved_p[0][:] = p_map
+            self.track._publish()
+            self.frame.counters.last_stamp = self.t_est
 
     # ------------------------------------------------------------------ set-up
 
@@ -187,6 +263,8 @@ class Estimator:
             f.b = bias
         self._last_raw_gyro = sample.gyro_z_raw
         self._last_gyro_z = None
+        if self.wheels is not None:
+            self.wheels.reset(sample)
         self._last_fresh_t = sample.t
         self._blind_ticks = 0
         self._blind_travel = 0.0
@@ -194,9 +272,35 @@ class Estimator:
         self._ahead_of_anchor = 0.0
         self.blind_s = self.gap_s = 0.0
         self.health.stale_ticks = 0
+        self.t_est = sample.t
+        self.track.reset(sample.t, pose)
+        self.frame.reset(pose, anchored=False)  # nothing says where map is yet
+        if self.gyro_bias is not None:  # a new calibration: the line starts again from it
+            c = self.cfg
+            self.gyro_bias = GyroBias(self.period, c.gyro_bias_per_c_dps, c.gyro_bias_walk, c.gate_sigma,
+                                      c.calibration_max_std_dps)
 
-    def set_pose(self, pose: tuple[float, float, float]) -> None:
+    def set_pose(self, pose: tuple[float, float, float], cov: list[float] | None = None,
+                 anchored: bool = True) -> None:
+        """The robot is at `pose` (in both frames: the map correction is cleared), known to
+        `cov` (a 3x3 covariance, 9 floats row by row; None: exactly). `anchored`: this is
+        where it is in map (a pose set); False for a convention (a reset's origin), which
+        leaves the first fix to say where map is."""
         self.x, self.y, self.theta = pose
+        self.track.reset(self.t_est, pose, cov)
+        self.frame.reset(pose, anchored)
+
+    # ------------------------------------------------------------------ frames and fixes
+
+    def map_pose(self) -> tuple[float, float, float]:
+        """The pose in `map` (the same as odom's until a fix)."""
+        f = self.frame
+        return f.x, f.y, f.th
+
+    def fuse_fix(self, fix: PoseFix) -> dict[str, object]:
+        """Gate and fuse a pose fix (ddrt/core/pose_fix.py); FixError (naming the field) for a
+        fix that cannot be used, which changes nothing."""
+        return self.frame.fuse(self.track, fix)
 
     @property
     def v(self) -> float:
@@ -268,16 +372,30 @@ class Estimator:
         self.heading.predict(dt, alpha)
 
         if fresh:
-            self._fuse_encoder(sample.encoder_count, dt)
-            self._fuse_gyro(sample.gyro_z_raw, sample.t, commanded_still)
+            if self.wheels is None:
+                self._fuse_encoder(sample.encoder_count, dt)
+                self._fuse_gyro(sample.gyro_z_raw, sample.t, commanded_still)
+            else:
+                self.wheels.fuse(self, sample, dt, commanded_still)
 
-        # Dead reckoning of A with the odometry filters' velocities (midpoint heading).
+        # Dead reckoning of A with the odometry filters' velocities (midpoint heading), plus
+        # the heading's correction when a stop re-learnt the bias (temperature model only).
+        dth = 0.0 if self.gyro_bias is None else self._temperature_bias(sample, fresh, dt)
         v = self.travel.v
         w = self.heading.w
+        if dth:
+            self.theta += dth
         half = self.theta + 0.5 * w * dt
-        self.x += v * dt * math.cos(half)
-        self.y += v * dt * math.sin(half)
+        ds = v * dt
+        dx = ds * math.cos(half)
+        dy = ds * math.sin(half)
+        self.x += dx
+        self.y += dy
         self.theta += w * dt
+        t_est = sample.t if fresh else self._last_t + self._ahead_of_anchor
+        if t_est > self.t_est:  # the history's times never go back
+            self.t_est = t_est
+        self.frame.step(self.track, self.t_est, dt, ds, w * dt + dth if dth else w * dt, self.x, self.y, self.theta)
         if fresh:
             self._last_fresh_t = sample.t
             if self._blind_ticks:
@@ -287,6 +405,18 @@ class Estimator:
                 self._blind_moving = False
         else:
             self._blind_travel += v * dt
+
+    def _temperature_bias(self, sample: Sample, fresh: bool, dt: float) -> float:
+        """ddrt/core/gyro_bias.py's tick: the bias follows the temperature, a stop's pair
+        re-learns it; returns the heading's correction (rad)."""
+        gb = self.gyro_bias
+        assert gb is not None
+        db, dth = gb.tick(sample.t if fresh else self.t_est, dt, sample.gyro_temp_c, self._rest,
+                          self._rest_z if fresh else math.nan, self.heading.b)
+        if db:
+            self.yaw.b += db
+            self.heading.b += db
+        return dth
 
     def _reanchor(self, sample: Sample, dt: float, commanded_still: bool) -> None:
         """The first fresh sample after a gap beyond max_gap: re-sync instead of fusing.
@@ -304,6 +434,9 @@ class Estimator:
         self._last_count = sample.encoder_count
         self._travel_counts += delta
         measured = delta * self.metres_per_count
+        if self.wheels is not None:  # their windows restart; without a front encoder, their distance
+            ds = self.wheels.catch_up(sample)
+            measured = ds if self.wheels.gives_distance else measured
         w_now = sample.gyro_z_raw * self.rad_s_per_lsb - self.heading.b
         stalled = self._blind_ticks == 0  # nothing was dead-reckoned through this gap
         # The heading turns through the time dead reckoning did not cover (all of a stall,
@@ -312,10 +445,14 @@ class Estimator:
         turn = 0.5 * (self.heading.w + w_now) * uncovered
         extra = measured - self._blind_travel
         half = self.theta + 0.5 * turn
-        self.x += extra * math.cos(half)
-        self.y += extra * math.sin(half)
+        dx = extra * math.cos(half)
+        dy = extra * math.sin(half)
+        self.x += dx
+        self.y += dy
         self.theta += turn
-        z = self._travel_counts * self.metres_per_count
+        self.t_est = max(self.t_est, sample.t)
+        self.frame.step(self.track, self.t_est, gap, extra, turn, self.x, self.y, self.theta)
+        z = self._z()
         v_new = measured / gap if stalled and gap > 0.0 else self.travel.v
         for f in (self.travel, self.speed):
             f.p = z
@@ -328,7 +465,8 @@ class Estimator:
             f.p00 = max(f.p00, _RESYNC_W_VAR)
             f.p01 = 0.0
         self._last_gyro_z = None  # no lead across the gap
-        self._still_ticks = 1 if delta == 0 else 0
+        moved = delta != 0 if self.wheels is None or not self.wheels.gives_distance else self.wheels.moved
+        self._still_ticks = 0 if moved else 1
         self._count_still_s = 0.0
         self._enc_rejects_row = self._gyro_rejects_row = 0
         self._last_t = sample.t
@@ -349,20 +487,30 @@ class Estimator:
         if abs(raw) >= self.gyro_full_scale * 0.999:
             health.fault = "gyro saturated"
 
+    def _z(self) -> float:
+        """The distance measured since the reset (or the last re-base): the front encoder's,
+        or the drive wheels' when there is none."""
+        if self.wheels is not None and self.wheels.gives_distance:
+            return self.wheels.z
+        return self._travel_counts * self.metres_per_count
+
     def _fuse_encoder(self, count: int, dt: float) -> None:
         delta = wrap_i32(count - self._last_count)
         self._last_count = count
         self._travel_counts += delta
-        health = self.health
         self._still_ticks = self._still_ticks + 1 if delta == 0 else 0
-        if delta == 0 and abs(self.speed.v) > 0.05:
+        self._fuse_travel(delta != 0, self._travel_counts * self.metres_per_count, dt)
+
+    def _fuse_travel(self, moved: bool, z: float, dt: float) -> None:
+        """Fuse the distance `z` (m since the reset); `moved`: a count came this tick."""
+        health = self.health
+        if not moved and abs(self.speed.v) > 0.05:
             self._count_still_s += dt
             if self._count_still_s > self.cfg.encoder_stuck_s:
                 health.fault = (f"encoder stuck: no counts for {self._count_still_s:.2f} s "
                                 f"while moving at {self.speed.v:.2f} m/s")
         else:
             self._count_still_s = 0.0
-        z = self._travel_counts * self.metres_per_count
         row = self._fuse_pair(self.travel, self.speed, z, self._enc_rejects_row)
         if row > self._enc_rejects_row:
             health.encoder_rejects += 1
@@ -380,9 +528,13 @@ class Estimator:
         z = raw * self.rad_s_per_lsb
         if abs(z) >= self.gyro_full_scale * 0.999:
             health.fault = "gyro saturated"
-        if commanded_still and self._still_ticks >= 20:  # ~0.1 s without a count: at rest
+        self._rest, self._rest_z = commanded_still and self._still_ticks >= 20, z
+        if self._rest:  # ~0.1 s without a count: at rest
             self.yaw.update_at_rest(1e-10)
             self.heading.update_at_rest(1e-10)
+            track = self.track
+            if self.heading.p11 < track.at_rest_var:
+                track.at_rest_var = self.heading.p11  # the bias is learnt: its error shrinks
         z = self._lead(z, t)
         row = self._fuse_pair(self.heading, self.yaw, z, self._gyro_rejects_row)
         if row > self._gyro_rejects_row:

@@ -110,3 +110,17 @@ class YawFilter:
         self.p00 = p00 - k0 * p00
         self.p01 = p01 - k0 * p01
         self.p11 = p11 - k1 * p01
+
+    def update_bias(self, z: float, var: float) -> None:
+        """Fuse a measurement of the bias itself (H = [0, 1], R = var): the gyro's turn less the
+        drive wheels' over a window (ddrt/core/wheel_odometry.py)."""
+        s = self.p11 + var
+        k0 = self.p01 / s
+        k1 = self.p11 / s
+        y = z - self.b
+        self.w += k0 * y
+        self.b += k1 * y
+        p01, p11 = self.p01, self.p11
+        self.p00 -= k0 * p01
+        self.p01 = p01 - k0 * p11
+        self.p11 = p11 - k1 * p11

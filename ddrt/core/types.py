@@ -31,13 +31,18 @@ class HalInfo:
     encoder_counts_per_rev: int  # counts per revolution of the front wheel (lines x 4)
     gyro_lsb_per_rad_s: float  # raw gyro z units per rad/s (131 LSB per deg/s at +-250 dps)
     gyro_full_scale_rad_s: float  # magnitude at which the raw reading saturates
-    gyro_delay_s: float = 0.0  # how far the gyro's low-pass lags the encoder (s)
+    # How old the gyro's reading is at the read, against the encoder's (s): its low-pass's group
+    # delay plus, for a part that holds its output register one sample period (an MPU-6050 at
+    # 1 kHz / (1 + SMPLRT_DIV)), half that period, the hold's mean (its phase to the loop's
+    # ticks is not known, and wanders with the two clocks).
+    gyro_delay_s: float = 0.0
     # The motor driver's own watchdog: it zeroes the motors when no command arrived for this
     # long (the microcontroller's DRIVE timeout); None when the motors have none (sysfs PWM).
     drive_timeout_s: float | None = None
     wheel_counts_per_rev: int = 0  # counts per revolution of each drive wheel; 0: not counted
     battery_measured: bool = False  # Sample.battery_v is the driver's measured supply voltage
     hw_estop_wired: bool = False  # Sample.hw_estop reports a hardware emergency-stop input
+    gyro_temp_hz: float = 0.0  # how often Sample.gyro_temp_c is read (TEMP_OUT); 0: never
 
 
 @dataclass(slots=True)
@@ -53,6 +58,8 @@ class Sample:
     measured at the motor driver (V; NaN when not measured), `hw_estop` True while the robot's
     hardware emergency-stop input is open, `count_left`/`count_right` the raw drive-wheel
     counters (signed 32-bit, wrapping; meaningful only when HalInfo.wheel_counts_per_rev > 0).
+    `gyro_temp_c` is the gyro's die temperature (degC, its TEMP_OUT), read now and then
+    (HalInfo.gyro_temp_hz): NaN on the ticks it was not read.
     """
 
     t: float
@@ -64,6 +71,7 @@ class Sample:
     hw_estop: bool = False
     count_left: int = 0
     count_right: int = 0
+    gyro_temp_c: float = math.nan
 
 
 @dataclass(slots=True)

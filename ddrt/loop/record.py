@@ -84,6 +84,19 @@ ADAPTER_COLUMNS = (
 LATER_COLUMNS = (
     Column("battery_v", "loop.power.v"),
     Column("hw_estop", "1.0 if loop.power.hw_estop else 0.0"),
+    # The pose in `map` (odom until a fix; docs/estimation.md), its 1-sigma uncertainty
+    # (ddrt/core/uncertainty.py, propagated every 20 ms) and the fixes fused so far.
+    Column("x_map", "est.frame.x"),
+    Column("y_map", "est.frame.y"),
+    Column("theta_map", "est.frame.th"),
+    Column("std_x", "est.track.std[0]"),
+    Column("std_y", "est.track.std[1]"),
+    Column("std_theta", "est.track.std[2]"),
+    Column("cov_xy", "est.track.cov_xy"),
+    Column("fixes", "float(est.frame.counters.fused)"),
+    # 1 while the drive wheels slip (their turn or distance disagrees with the gyro's or the
+    # omni wheel's beyond their noise: ddrt/core/wheel_odometry.py); 0 without wheel encoders.
+    Column("wheel_slip", "1.0 if est.wheel_slip else 0.0"),
 )
 
 COLUMNS = tuple(c.name for c in TICK_COLUMNS + ADAPTER_COLUMNS + LATER_COLUMNS)

@@ -3,7 +3,8 @@ sends them (importing this costs nothing, so `ddrt ctl --help` stays fast)."""
 
 from __future__ import annotations
 
-COMMANDS = ("status", "follow", "drive", "stop", "resume", "estop", "reset", "gains", "reload", "pose", "stream")
+COMMANDS = ("status", "follow", "drive", "stop", "resume", "estop", "reset", "gains", "reload", "pose", "stream",
+            "pose_fix")
 # Served before other clients' requests; each supersedes the listed commands sent before it
 # and still waiting (so an estop cannot be undone by a reset that was queued ahead of it).
 PRIORITY = {"estop": ("follow", "reset", "drive", "resume", "pose"), "stop": ("follow", "drive", "resume")}

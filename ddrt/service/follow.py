@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ddrt.path import PathError
+from ddrt.path.frame import in_map, inverse
 from ddrt.path.spec import config_path_error, speed_limits
 from ddrt.service.audit import peer_text
 from ddrt.service.ctlqueue import Deferred
@@ -35,7 +36,7 @@ PREPARE_SAMPLES = 1 << 14  # lateness samples kept while a path is prepared (82 
 class PendingFollow:
     """A follow whose path is being built in the worker; the loop switches to it when ready."""
 
-    __slots__ = ("build", "pose", "reply", "what", "ticks", "late", "missed0", "who")
+    __slots__ = ("build", "pose", "reply", "what", "ticks", "late", "missed0", "who", "built")
 
     def __init__(self, build: Build, pose: tuple[float, float, float] | None, reply: Deferred | None,
                  what: str, missed0: int, who: str = "") -> None:
@@ -47,6 +48,7 @@ class PendingFollow:
         self.ticks = 0
         self.late = array("d")  # each tick's lateness while the path is prepared (bounded)
         self.missed0 = missed0
+        self.built: tuple[float, float, float] | None = None  # frame map: the correction the path was built at
 
     def report(self, missed: int) -> dict[str, Any]:
         """What preparing the path cost the loop: the ticks it ran meanwhile, how late."""
@@ -88,7 +90,7 @@ def start_follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
     elif "points" in req or "shape" in req:
         # An inline spec: every key but the request's own goes to the path loader, which
         # refuses unknown ones and clamps limits above the config's (reported below).
-        source = {k: v for k, v in req.items() if k not in ("cmd", "id", "pose", "here")}
+        source = {k: v for k, v in req.items() if k not in ("cmd", "id", "pose", "here", "frame")}
         if "points" in source:
             source.setdefault("speed", min(0.3, speed_limits(d.cfg).v_max))
     else:
@@ -107,9 +109,20 @@ def start_follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
     if here and pose is not None:
         return {"ok": False, "error": "follow: here and pose: give one (here places the path at the robot's "
                                       "pose; pose says where the robot is)"}
+    frame = req.get("frame", "odom")
+    if frame not in ("odom", "map"):
+        return {"ok": False, "error": f"follow: frame: expected 'odom' or 'map', got {frame!r:.40}"}
+    built = None
+    if frame == "map":
+        if pose is not None:
+            return {"ok": False, "error": "follow: pose and frame map: give one (set the pose first with the pose "
+                                          "command, then follow in map)"}
+        # Built in odom as the fixes' correction stands now (ddrt/path/frame.py follows it from there).
+        built = loop.estimator.frame.correction()
     # here: the path is moved (in the worker) so that it starts at the robot's pose and heading
-    place_at = loop.estimator_pose() if here else None
-    job = BuildJob(source, speed_limits(d.cfg), d.cfg.paths, where="request", place_at=place_at)
+    place_at = (loop.estimator.map_pose() if frame == "map" else loop.estimator_pose()) if here else None
+    job = BuildJob(source, speed_limits(d.cfg), d.cfg.paths, where="request", place_at=place_at,
+                   to_odom=inverse(built) if built is not None else None)
     who = peer_text(d.server.peer if d.server is not None else "")
     what = describe(source)
     if d.paths is None:
@@ -119,10 +132,13 @@ def start_follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
             build._finish(path=build_path(job))
         except (PathError, ValueError, TypeError, OSError) as exc:
             return {"ok": False, "error": f"follow: {exc}"}
-        return switch(d, PendingFollow(build, pose, None, what, d.stats.missed, who), build)
+        pending = PendingFollow(build, pose, None, what, d.stats.missed, who)
+        pending.built = built
+        return switch(d, pending, build)
     build = d.paths.submit(job)
     reply = Deferred()
     d._pending = PendingFollow(build, pose, reply, what, d.stats.missed, who)
+    d._pending.built = built
     log.info("follow: preparing %s", what)
     return reply
 
@@ -162,6 +178,9 @@ def switch(d: Daemon, p: PendingFollow, build: Build) -> dict[str, Any]:
             raise ValueError(f"already {loop.state}")
         d.audit.note(f"follow of {p.what} {p.who or 'at start-up (--follow)'}", always=False)
         loop.follow(path, p.pose)
+        if p.built is not None:  # a path in map, steered in odom (ddrt/path/frame.py)
+            loop.reference = in_map(loop.reference, loop.estimator.frame, p.built, d.cfg.estimator.map_blend_s,
+                                    loop.period)
     except (ValueError, RuntimeError) as exc:
         if d.paths is not None:
             d.paths.dispose(path)

@@ -11,7 +11,6 @@ completes later (a follow, once its path is built).
 from __future__ import annotations
 
 import logging
-import math
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping
 
 from ddrt.service.audit import peer_text
@@ -19,7 +18,7 @@ from ddrt.service.commands import COMMANDS
 from ddrt.service.ctlqueue import Deferred
 from ddrt.service.drivecmd import drive_fields
 from ddrt.service.follow import cancel_follow, start_follow
-from ddrt.core.wrap import wrap_angle
+from ddrt.service.posefix import pose_cmd, pose_fix_cmd
 from ddrt.loop import LoopState
 
 if TYPE_CHECKING:
@@ -125,39 +124,16 @@ def _reset(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
         return {"ok": False, "error": f"reset: {exc}"}
     d.audit.note(f"reset {who(d)}")
     # The pose starts again from (0, 0, 0): a path is placed in this frame (or with --here).
-    loop.estimator.set_pose((0.0, 0.0, 0.0))
+    loop.estimator.set_pose((0.0, 0.0, 0.0), anchored=False)  # the first fix says where map is
     return {"ok": True, "state": loop.state.label}
 
 
-POSE_BOUND_M = 1e6
-
-
 def _pose(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
-    """Set the estimator's pose: {"cmd": "pose", "pose": [x, y, theta]} (m, m, rad). Refused
-    while the robot moves along a reference or a follow is prepared; changes nothing then."""
-    loop = d.loop
-    assert loop is not None
-    extra = sorted(k for k in req if k not in ("cmd", "id", "pose"))
-    if extra:
-        return {"ok": False, "error": f"pose: {extra[0]}: unknown key (give pose: [x, y, theta])"}
-    pose = req.get("pose")
-    if not isinstance(pose, list) or len(pose) != 3:
-        return {"ok": False, "error": "pose: pose: expected [x, y, theta] (metres, metres, radians)"}
-    for name, v in zip(("x", "y", "theta"), pose):
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            return {"ok": False, "error": f"pose: {name}: expected a finite number, got {v!r:.40}"}
-        if abs(v) > POSE_BOUND_M:
-            return {"ok": False, "error": f"pose: {name}: {v:g} is beyond +-{POSE_BOUND_M:g}"}
-    if loop.state in (LoopState.FOLLOWING, LoopState.STOPPING, LoopState.DRIVING, LoopState.HOLDING):
-        return {"ok": False, "error": f"pose: refused while {loop.state}: send stop, and set the pose once "
-                                      "status says 'stopped'"}
-    if d._pending is not None:
-        return {"ok": False, "error": f"pose: refused while preparing {d._pending.what} to follow: "
-                                      "send stop to cancel it"}
-    x, y, theta = float(pose[0]), float(pose[1]), wrap_angle(float(pose[2]))
-    loop.estimator.set_pose((x, y, theta))
-    log.info("pose set to (%.4f, %.4f, %.4f) %s", x, y, theta, who(d))
-    return {"ok": True, "state": loop.state.label, "pose": [x, y, theta]}
+    return pose_cmd(d, req, who(d))  # ddrt/service/posefix.py, beside pose_fix
+
+
+def _pose_fix(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
+    return pose_fix_cmd(d, req, who(d))
 
 
 def _stream(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
@@ -194,5 +170,5 @@ def _follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
 HANDLERS = command_table({
     "status": _status, "follow": _follow, "drive": _drive, "stop": _stop, "resume": _resume,
     "estop": _estop, "reset": _reset, "gains": _gains, "reload": _reload, "pose": _pose,
-    "stream": _stream,
+    "stream": _stream, "pose_fix": _pose_fix,
 }, COMMANDS)

@@ -17,7 +17,7 @@ from typing import Any, Mapping
 
 
 CONTENT_FORMATS = {"csv": ".csv", "yaml": ".yaml"}
-CONTENT_KEYS = ("cmd", "id", "pose", "here", "content", "format", "name")
+CONTENT_KEYS = ("cmd", "id", "pose", "here", "frame", "content", "format", "name")
 
 
 @dataclass(frozen=True)
@@ -72,6 +72,7 @@ class BuildJob:
     base_dir: str | None = None
     where: str = "<mapping>"
     place_at: tuple[float, float, float] | None = None  # --here: the path moved to start at this pose
+    to_odom: tuple[float, float, float] | None = None  # frame map: then moved rigidly by this (map -> odom)
 
 
 @dataclass(eq=False)
@@ -159,7 +160,13 @@ def build_path(job: BuildJob) -> Any:
     """Check the files, then load_path (in the worker; also usable in-process); moved to
     start at `job.place_at` when given (follow --here)."""
     path = _load(job)
-    return path if job.place_at is None else path.moved(job.place_at)
+    if job.place_at is not None:
+        path = path.moved(job.place_at)
+    if job.to_odom is not None:  # a rigid motion is fixed by where it takes one pose: the start
+        from ddrt.path.frame import compose
+
+        path = path.moved(compose(job.to_odom, path.start_pose))
+    return path
 
 
 def _load(job: BuildJob) -> Any:

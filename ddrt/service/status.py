@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 import resource
 import time
@@ -100,6 +101,7 @@ def daemon_status(d: Daemon) -> dict[str, Any]:
         "fault": loop.fault,
         **drive_status(loop),
         "pose": {"x": est.x, "y": est.y, "theta": est.theta},
+        **estimate_report(est),
         "speeds": {"v": est.v, "omega": est.omega},
         "gyro_bias_rad_s": est.bias,
         "duty": {"l": loop.duty_l, "r": loop.duty_r},
@@ -115,6 +117,28 @@ def daemon_status(d: Daemon) -> dict[str, Any]:
         "adaptation": loop.adapter.status() if loop.adapter is not None else None,
         "control_socket": d.server.counters() if d.server is not None else None,
         "preparing": preparing(d),
+    }
+
+
+def estimate_report(est: Any) -> dict[str, Any]:
+    """The pose in `map`, the uncertainty of both frames and the pose fixes (docs/estimation.md);
+    `clock_s` is the loop's clock now, what a fix's stamp is on."""
+    xm, ym, thm = est.map_pose()
+    cx, cy, cth = est.frame.correction()
+    track, fc = est.track, est.frame.counters
+    p, q = track.p_map, track.p_odom
+    return {
+        "clock_s": est.t_est,
+        "pose_map": {"x": xm, "y": ym, "theta": thm},
+        "map_to_odom": {"x": cx, "y": cy, "theta": cth},
+        "learnt": {"encoder_scale": est.frame.s, "gyro_scale": est.frame.g, "gyro_bias_rad_s": est.frame.b},
+        "uncertainty": {"std_x": track.std[0], "std_y": track.std[1], "std_theta": track.std[2],
+                        "std_position": math.sqrt(max(p[0] + p[7], 0.0)),
+                        "cov_map": [p[0:3], p[6:9], p[12:15]], "cov_odom": [q[0:3], q[6:9], q[12:15]]},
+        "pose_fixes": {"anchored": est.frame.anchored, "fused": fc.fused, "outliers": fc.outliers,
+                       "reanchors": fc.reanchors,
+                       "last_d2": fc.last_d2 if math.isfinite(fc.last_d2) else None,
+                       "last_stamp_s": fc.last_stamp if math.isfinite(fc.last_stamp) else None},
     }
 
 

@@ -41,7 +41,7 @@ MAX_ADDRESS = 100
 
 # The state, declared once: (name, unit, source over `loop`, `est` = loop.estimator, `sample`
 # = loop.sample, `mono` = the tick's monotonic start; the supply from ddrt/loop/power.py). "nan" where ddrt does not know the value
-# yet (the map frame and the pose's covariance come with pose fixes).
+# (the map pose before the first pose fix).
 FIELDS: tuple[tuple[str, str, str], ...] = (
     ("seq", "count", "seq"),  # states packed so far: a reader sees whether it is new
     ("mono", "s", "mono"),
@@ -60,13 +60,15 @@ FIELDS: tuple[tuple[str, str, str], ...] = (
     ("fresh", "0/1", "1.0 if (sample is not None and sample.fresh) else 0.0"),
     ("battery_v", "V", "loop.power.v_slow if loop.power.good else nan"),  # measured, filtered over 1 s
     ("hw_estop", "0/1", "1.0 if loop.power.hw_estop else 0.0"),
-    ("var_x", "m^2", "nan"),
-    ("var_y", "m^2", "nan"),
-    ("cov_xy", "m^2", "nan"),
-    ("var_theta", "rad^2", "nan"),
-    ("map_x", "m", "nan"),  # map -> odom correction (pose fixes): the robot's pose in the map
-    ("map_y", "m", "nan"),
-    ("map_theta", "rad", "nan"),
+    # The odometry's own pose covariance (/odom's; it never shrinks: docs/estimation.md).
+    ("var_x", "m^2", "est.track.p_odom[0]"),
+    ("var_y", "m^2", "est.track.p_odom[7]"),
+    ("cov_xy", "m^2", "est.track.p_odom[1]"),
+    ("var_theta", "rad^2", "est.track.p_odom[14]"),
+    # The robot's pose in map (ddrt/core/pose_fix.py), once a fix has arrived (map -> odom).
+    ("map_x", "m", "est.frame.x if est.frame.counters.fused else nan"),
+    ("map_y", "m", "est.frame.y if est.frame.counters.fused else nan"),
+    ("map_theta", "rad", "est.frame.th if est.frame.counters.fused else nan"),
 )
 NAMES = tuple(name for name, _, _ in FIELDS)
 BODY = struct.Struct(f"<{len(FIELDS)}d")

@@ -8,6 +8,7 @@ server, an MCAP writer) gets the same topics, schemas and messages. A tick becom
 | `/tf` | foxglove.FrameTransform | odom -> base_link, the estimated pose |
 | `/tf_true` | foxglove.FrameTransform | odom -> base_link_true, the simulated robot's true pose |
 | `/reference` | foxglove.SceneUpdate | a sphere at the reference point |
+| `/uncertainty` | foxglove.SceneUpdate | the 2-sigma ellipse of the estimated position, at it (docs/estimation.md) |
 | `/state` | ddrt.State (JSON) | the telemetry row by column name (the supply voltage `battery_v`, `hw_estop` among them), errors, the true state |
 | `/timing` | ddrt.Timing (JSON) | the daemon's lateness and tick cost (not in `ddrt sim`) |
 | `/path` | foxglove.SceneUpdate | the path as a line strip, once when it starts |
@@ -27,7 +28,7 @@ from ddrt.core.wrap import wrap_angle
 from ddrt.loop import COLUMNS, LoopState, state_label
 
 ODOM, BASE, BASE_TRUE = "odom", "base_link", "base_link_true"
-TOPICS = ("/tf", "/tf_true", "/reference", "/state", "/timing", "/path", "/log")
+TOPICS = ("/tf", "/tf_true", "/reference", "/state", "/timing", "/path", "/log", "/uncertainty")
 TICK_TOPICS = ("/tf", "/reference", "/state")  # one message per tick, always
 TRUTH = ("true_x", "true_y", "true_theta", "true_v", "true_omega")
 ERRORS = ("err_v", "err_omega", "err_heading", "err_position")
@@ -62,6 +63,8 @@ class Channels:
         self.tf = ch.FrameTransformChannel("/tf", context=context)
         self.tf_true = ch.FrameTransformChannel("/tf_true", context=context) if truth else None
         self.reference = ch.SceneUpdateChannel("/reference", context=context)
+        self.uncertainty = ch.SceneUpdateChannel("/uncertainty", context=context)
+        self._ellipse_color = m.Color(r=0.6, g=0.2, b=0.9, a=0.35)
         self.path = ch.SceneUpdateChannel("/path", context=context)
         self.log = ch.LogChannel("/log", context=context)
         self.state = fg.Channel("/state", context=context, message_encoding="json",
@@ -113,6 +116,8 @@ class Channels:
             self.reference.log(m.SceneUpdate(entities=[m.SceneEntity(timestamp=ts, frame_id=ODOM, id="reference",
                                                                      frame_locked=True, spheres=[sphere])]),
                                log_time=log_ns)
+        if self.uncertainty.has_sinks():
+            self._publish_ellipse(ts, log_ns, x, y, row[c["std_x"]], row[c["std_y"]], row[c["cov_xy"]])
         code = int(row[c["state"]])
         if self.state.has_sinks():
             values = [_finite(v) for v in row]
@@ -133,6 +138,21 @@ class Channels:
                 level = 4 if code == LoopState.FAULT else 3 if code in (LoopState.ESTOP, LoopState.HOLDING) else 2
                 self.publish_log(level, f"state {old} -> {new}" + (f": {why}" if why else ""), "ddrt.loop", log_ns)
             self._last_state = code
+
+    def _publish_ellipse(self, ts: object, log_ns: int, x: float, y: float, sx: float, sy: float, cxy: float) -> None:
+        """The position's 2-sigma ellipse: a flat elliptic cylinder along the covariance's axes."""
+        m = self._m
+        a, b, half = sx * sx, sy * sy, 0.5 * (sx * sx - sy * sy)
+        r = math.sqrt(half * half + cxy * cxy)
+        l1, l2 = 0.5 * (a + b) + r, max(0.5 * (a + b) - r, 0.0)
+        angle = 0.5 * math.atan2(2.0 * cxy, a - b)
+        if not all(math.isfinite(v) for v in (x, y, l1, l2, angle)):
+            return
+        cyl = m.CylinderPrimitive(pose=m.Pose(position=m.Vector3(x=x, y=y, z=0.0), orientation=self._quat(angle)),
+                                  size=m.Vector3(x=4.0 * math.sqrt(l1), y=4.0 * math.sqrt(l2), z=0.002),
+                                  bottom_scale=1.0, top_scale=1.0, color=self._ellipse_color)
+        self.uncertainty.log(m.SceneUpdate(entities=[m.SceneEntity(timestamp=ts, frame_id=ODOM, id="uncertainty",
+                                                                   frame_locked=True, cylinders=[cyl])]), log_time=log_ns)
 
     def publish_path(self, xs: Sequence[float], ys: Sequence[float], log_ns: int) -> None:
         """The path as one line strip in the odom frame (replaces the previous one)."""

@@ -1,23 +1,30 @@
 /* ddrt-simavr: the bridge firmware (an ATmega328P ELF) in simavr, wired to a simulated robot.
  *
- *   ddrt-simavr [--paced] [--pipe] [--driver dir2|drv8871] [--freq HZ] FIRMWARE.elf
+ *   ddrt-simavr [--paced] [--pipe] [--driver dir2|drv8871] [--freq HZ] [--batt-full-mv MV] FIRMWARE.elf
  *
  * UART0 goes to a pseudo-terminal (own glue, not the parts library's uart_pty: its thread
  * moves bytes on the wall clock, which a lockstep run must not) or, with --pipe, through
- * the control channel. The encoder's A/B pins (PD2/PD3) are driven with avr_raise_irq from
- * a piecewise-linear count trajectory; the motor outputs are read from Timer1's compare
- * registers and the direction pins, sampled once per PWM period, as the mean drive each
- * H-bridge applies (-1..1). The pin map is firmware/src/board.h's.
+ * the control channel. The encoders' A/B pins (front: PD2/PD3; drive wheels: PC2/PC3 and
+ * PC4/PC5) are driven with avr_raise_irq, each from a piecewise-linear count trajectory; the
+ * battery divider's voltage goes to ADC0 (PC0) and the estop input is PC1 (low: closed,
+ * high: open). The motor outputs are read from Timer1's compare registers and the direction
+ * pins, sampled once per PWM period, as the mean drive each H-bridge applies (-1..1). The
+ * pin map is firmware/src/board.h's.
  *
  * Control channel: one command per line on stdin, replies on stdout, each ending with an
  * "ok ..." line (or "err ..."). Times are CPU cycles since power-on.
  *
- *   run CYCLE DELTA SYNC   lockstep: first take SYNC host bytes in total from the pty (the
- *                          host wrote them before this command), then simulate up to CYCLE
- *                          with the encoder moving DELTA counts evenly over the interval
- *   enc COUNT RATE         the encoder heads for COUNT (absolute, since power-on), then goes
- *                          on at RATE counts/s (paced mode: the plant's latest state); replies
- *                          as `out`
+ *   run CYCLE DELTA [SYNC [DL DR [MV]]]
+ *                          lockstep: first take SYNC host bytes in total from the pty (the
+ *                          host wrote them before this command; "-": none), then simulate up
+ *                          to CYCLE with the front encoder moving DELTA counts and the drive
+ *                          wheels DL, DR evenly over the interval, the battery at MV mV
+ *   enc COUNT RATE [L LRATE R RRATE]
+ *                          the encoder heads for COUNT (absolute, since power-on), then goes
+ *                          on at RATE counts/s (paced mode: the plant's latest state), and
+ *                          the drive wheels likewise; replies as `out`
+ *   bat MV                 the battery (mV, before the divider) from now
+ *   estop 0|1              the estop input closed (0) or open (1) from now
  *   out                    (paced) outputs now, and the mean since the previous out
  *   send HEX               host bytes into the UART now (queued at the line rate);
  *                          replies "ok CYCLE" with the cycle the last byte is received
@@ -27,8 +34,9 @@
  *   quit
  *
  * The reply to run/enc/out is "ok CYCLE INST_L INST_R MEAN_L MEAN_R ENC_COUNT RESETS TX_TOTAL
- * STATE" (drives -1..1 now and averaged since the last report, the count the A/B lines show,
- * resets so far, MCU -> host bytes delivered so far, the CPU state), after any "ev CYCLE L R",
+ * STATE WHEEL_L WHEEL_R" (drives -1..1 now and averaged since the last report, the count the
+ * front A/B lines show, resets so far, MCU -> host bytes delivered so far, the CPU state, the
+ * counts the wheels' lines show), after any "ev CYCLE L R",
  * "rst CYCLE MCUSR" (a reset, with the cause the firmware found in MCUSR) and, with --pipe,
  * "tx END BYTE_CYCLES HEX" lines (MCU -> host bytes sent back to back; END is the cycle the
  * first one's stop bit ends, each next one a byte time later).
@@ -52,6 +60,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "avr_adc.h"
 #include "avr_extint.h"
 #include "avr_ioport.h"
 #include "avr_uart.h"
@@ -61,6 +70,9 @@
 #include "sim_irq.h"
 
 /* ATmega328P data-space addresses of the registers read here. */
+#define R_PINC 0x26
+#define R_DDRC 0x27
+#define R_PORTC 0x28
 #define R_PIND 0x29
 #define R_DDRD 0x2A
 #define R_PORTD 0x2B
@@ -86,6 +98,9 @@
 #define R_IN2 7     /* PD7 */
 #define PWM_L 1     /* PB1 OC1A */
 #define PWM_R 2     /* PB2 OC1B */
+#define ESTOP_PIN 1 /* PC1 */
+#define WHL_A_PIN 2 /* PC2, B = PC3 */
+#define WHR_A_PIN 4 /* PC4, B = PC5 */
 
 enum { DRIVER_DIR2, DRIVER_DRV8871 };
 
@@ -202,112 +217,186 @@ static avr_cycle_count_t sampler(struct avr_t *a, avr_cycle_count_t when, void *
     return when + pwm_period;
 }
 
-/* ------------------------------------------------------------------ encoder */
+/* ------------------------------------------------------------------ encoders */
 
-static avr_irq_t *irq_a, *irq_b;
-static int64_t enc_emitted;           /* the count the A/B lines show, since power-on */
-static avr_cycle_count_t enc_last;    /* cycle of the last transition */
+/* One quadrature channel: its A/B lines and the count trajectory they follow. The target is
+ * linear from (c0, v0) to (c1, v1), then v1 + rate * (t - c1); the lines show
+ * floor(target + 0.5), one transition at a time, at least ENC_MIN_GAP apart. */
+typedef struct {
+    avr_irq_t *a, *b;
+    int pin_reg, a_pin; /* data-space PINx and the A bit (B is the next one) */
+    int64_t emitted;        /* the count the lines show, since power-on */
+    avr_cycle_count_t last; /* cycle of the last transition */
+    double c0, v0, c1, v1, rate;
+} enc_ch_t;
+
+enum { CH_FRONT, CH_LEFT, CH_RIGHT, N_CH };
+static enc_ch_t ch[N_CH];
 static const avr_cycle_count_t ENC_MIN_GAP = 16; /* 1 us: far faster than any encoder here */
-/* target trajectory: linear from (c0, v0) to (c1, v1), then v1 + rate * (t - c1); the lines
- * show floor(target + 0.5), one transition at a time, at least ENC_MIN_GAP apart */
-static double seg_c0, seg_v0, seg_c1, seg_v1, seg_rate;
+static const uint8_t a_of[4] = {0, 1, 1, 0}, b_of[4] = {0, 0, 1, 1}; /* counting up: A leads */
 
-static double target_at(double c)
+static double target_at(const enc_ch_t *e, double c)
 {
-    if (c <= seg_c0)
-        return seg_v0;
-    if (c < seg_c1)
-        return seg_v0 + (seg_v1 - seg_v0) * (c - seg_c0) / (seg_c1 - seg_c0);
-    return seg_v1 + seg_rate * (c - seg_c1) / avr->frequency;
+    if (c <= e->c0)
+        return e->v0;
+    if (c < e->c1)
+        return e->v0 + (e->v1 - e->v0) * (c - e->c0) / (e->c1 - e->c0);
+    return e->v1 + e->rate * (c - e->c1) / avr->frequency;
 }
 
-static int64_t goal_at(double c) { return (int64_t)floor(target_at(c) + 0.5); }
+static int64_t goal_at(const enc_ch_t *e, double c) { return (int64_t)floor(target_at(e, c) + 0.5); }
 
 /* The earliest cycle >= from at which goal_at() differs from n (approximately: the timer
  * re-checks), or -1 if the trajectory stays. */
-static double next_change(double from, int64_t n)
+static double next_change(const enc_ch_t *e, double from, int64_t n)
 {
-    if (goal_at(from) != n)
+    if (goal_at(e, from) != n)
         return from;
     double hi = (double)n + 0.5, lo = (double)n - 0.5;
-    double v = target_at(from);
-    if (from < seg_c1) {
-        double k = (seg_c1 - seg_c0) / (seg_v1 - seg_v0);
-        if (seg_v1 >= hi) {
-            double c = seg_c0 + (hi - seg_v0) * k;
+    double v = target_at(e, from);
+    if (from < e->c1) {
+        double k = (e->c1 - e->c0) / (e->v1 - e->v0);
+        if (e->v1 >= hi) {
+            double c = e->c0 + (hi - e->v0) * k;
             return c > from ? c : from;
         }
-        if (seg_v1 < lo) {
-            double c = seg_c0 + (lo - seg_v0) * k;
+        if (e->v1 < lo) {
+            double c = e->c0 + (lo - e->v0) * k;
             return c > from ? c : from;
         }
-        from = seg_c1;
-        v = seg_v1;
+        from = e->c1;
+        v = e->v1;
     }
-    if (seg_rate > 0)
-        return from + (hi - v) / seg_rate * avr->frequency;
-    if (seg_rate < 0)
-        return from + (lo - v) / seg_rate * avr->frequency;
+    if (e->rate > 0)
+        return from + (hi - v) / e->rate * avr->frequency;
+    if (e->rate < 0)
+        return from + (lo - v) / e->rate * avr->frequency;
     return -1;
 }
 
-static void set_ab(int64_t count)
+static void set_ab(enc_ch_t *e)
 {
-    /* Gray sequence counting up: (A, B) = 00, 10, 11, 01 (A leads B) */
-    static const uint8_t a_of[4] = {0, 1, 1, 0}, b_of[4] = {0, 0, 1, 1};
-    int g = (int)(count & 3);
-    avr_raise_irq(irq_a, a_of[g]);
-    avr_raise_irq(irq_b, b_of[g]);
+    int g = (int)(e->emitted & 3);
+    avr_raise_irq(e->a, a_of[g]);
+    avr_raise_irq(e->b, b_of[g]);
 }
 
 static avr_cycle_count_t enc_timer(struct avr_t *a, avr_cycle_count_t when, void *param)
 {
     (void)a;
-    (void)param;
-    int64_t m = goal_at((double)when);
-    if (m == enc_emitted) { /* early by a rounding error, or nothing to do */
-        double c = next_change((double)when, enc_emitted);
+    enc_ch_t *e = param;
+    int64_t m = goal_at(e, (double)when);
+    if (m == e->emitted) { /* early by a rounding error, or nothing to do */
+        double c = next_change(e, (double)when, e->emitted);
         if (c < 0)
             return 0;
         avr_cycle_count_t at = (avr_cycle_count_t)ceil(c);
         return at > when ? at : when + 1;
     }
-    enc_emitted += m > enc_emitted ? 1 : -1;
-    set_ab(enc_emitted);
-    enc_last = when;
-    double c = next_change((double)when, enc_emitted);
+    e->emitted += m > e->emitted ? 1 : -1;
+    set_ab(e);
+    e->last = when;
+    double c = next_change(e, (double)when, e->emitted);
     if (c < 0)
         return 0;
     avr_cycle_count_t at = (avr_cycle_count_t)ceil(c);
     return at > when + ENC_MIN_GAP ? at : when + ENC_MIN_GAP;
 }
 
-static void enc_schedule(void)
+static void enc_schedule(enc_ch_t *e)
 {
-    avr_cycle_timer_cancel(avr, enc_timer, NULL);
-    double c = next_change((double)avr->cycle, enc_emitted);
+    avr_cycle_timer_cancel(avr, enc_timer, e);
+    double c = next_change(e, (double)avr->cycle, e->emitted);
     if (c < 0)
         return;
     avr_cycle_count_t at = (avr_cycle_count_t)ceil(c);
-    if (at < enc_last + ENC_MIN_GAP)
-        at = enc_last + ENC_MIN_GAP;
+    if (at < e->last + ENC_MIN_GAP)
+        at = e->last + ENC_MIN_GAP;
     if (at <= avr->cycle)
         at = avr->cycle + 1;
-    avr_cycle_timer_register(avr, at - avr->cycle, enc_timer, NULL);
+    avr_cycle_timer_register(avr, at - avr->cycle, enc_timer, e);
 }
 
 /* From now, move the target linearly to v1 at cycle c1, then on at `rate` counts/s. */
-static void enc_segment(double c1, double v1, double rate)
+static void enc_segment(enc_ch_t *e, double c1, double v1, double rate)
 {
     double now = (double)avr->cycle;
-    seg_v0 = target_at(now);
-    seg_c0 = now;
-    seg_c1 = c1 > now ? c1 : now;
-    seg_v1 = v1;
-    seg_rate = rate;
-    if (seg_c1 == seg_c0)
-        seg_v0 = v1;
-    enc_schedule();
+    e->v0 = target_at(e, now);
+    e->c0 = now;
+    e->c1 = c1 > now ? c1 : now;
+    e->v1 = v1;
+    e->rate = rate;
+    if (e->c1 == e->c0)
+        e->v0 = v1;
+    enc_schedule(e);
+}
+
+/* Head for COUNT within a millisecond (no faster than the encoder could), then go on. */
+static void enc_head_for(enc_ch_t *e, double count, double rate)
+{
+    double now = (double)avr->cycle;
+    double dist = fabs(count - target_at(e, now));
+    double ms = avr->frequency / 1000.0;
+    double span = dist * ENC_MIN_GAP * 4 > ms ? dist * ENC_MIN_GAP * 4 : ms;
+    enc_segment(e, now + span, count + rate * span / avr->frequency, rate);
+}
+
+/* After a reset cleared the PINx registers (or a pull-up moved them): the lines still show
+ * what they showed. The pins' IRQs keep the same value, or simavr would drop the next raise
+ * of the value they took meanwhile as no change. */
+static void enc_restore_pins(struct avr_t *a, const enc_ch_t *e)
+{
+    int g = (int)(e->emitted & 3);
+    e->a->value = a_of[g];
+    e->b->value = b_of[g];
+    a->data[e->pin_reg] = (uint8_t)((a->data[e->pin_reg] & ~(3 << e->a_pin)) |
+                                    (a_of[g] << e->a_pin) | (b_of[g] << (e->a_pin + 1)));
+}
+
+static void enc_init(enc_ch_t *e, char port, int pin_reg, int a_pin)
+{
+    e->a = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(port), a_pin);
+    e->b = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(port), a_pin + 1);
+    e->pin_reg = pin_reg;
+    e->a_pin = a_pin;
+}
+
+/* ------------------------------------------------------------------ battery, estop */
+
+static avr_irq_t *adc0, *estop_irq;
+static double batt_full_mv = 20743.0; /* the firmware's BATT_FULL_MV: 1100 mV at the ADC pin */
+static uint32_t batt_mv = 12000;
+static int estop_is_open;
+
+static void apply_battery(void)
+{
+    avr_raise_irq(adc0, (uint32_t)floor(batt_mv * 1100.0 / batt_full_mv + 0.5));
+}
+
+static void estop_pin(struct avr_t *a)
+{
+    estop_irq->value = (uint32_t)estop_is_open;
+    a->data[R_PINC] = (uint8_t)((a->data[R_PINC] & ~(1 << ESTOP_PIN)) | (estop_is_open << ESTOP_PIN));
+}
+
+static void apply_estop(struct avr_t *a)
+{
+    avr_raise_irq(estop_irq, estop_is_open ? 1 : 0);
+    estop_pin(a);
+}
+
+/* The firmware turns pull-ups on (PORTx bits of inputs), and simavr then reads those pins
+ * high; but the lines here are driven (push-pull encoder outputs, the estop loop to GND),
+ * which a pull-up does not move: after each PORTC/PORTD write, the pins read what they are
+ * driven to again. */
+static void port_write(struct avr_t *a, avr_io_addr_t addr, uint8_t v, void *param)
+{
+    (void)addr;
+    (void)v;
+    (void)param;
+    for (int i = 0; i < N_CH; i++)
+        enc_restore_pins(a, &ch[i]);
+    estop_pin(a);
 }
 
 /* ------------------------------------------------------------------ UART */
@@ -467,7 +556,8 @@ static int reset_seen;
 static void arm_timers(void)
 {
     avr_cycle_timer_register(avr, pwm_period, sampler, NULL);
-    enc_schedule();
+    for (int i = 0; i < N_CH; i++)
+        enc_schedule(&ch[i]);
     feed_schedule();
 }
 
@@ -477,11 +567,11 @@ static void on_reset(struct avr_t *a)
     core_reset(a);
     resets++;
     reset_seen = 1;
-    /* the reset cleared PIND: the encoder's lines still show what they showed */
-    int g = (int)(enc_emitted & 3);
-    static const uint8_t a_of[4] = {0, 1, 1, 0}, b_of[4] = {0, 0, 1, 1};
-    a->data[R_PIND] = (uint8_t)((a->data[R_PIND] & ~((1 << ENC_A_PIN) | (1 << ENC_B_PIN))) |
-                                (a_of[g] << ENC_A_PIN) | (b_of[g] << ENC_B_PIN));
+    /* the reset cleared PINC, PIND: the encoders' lines, the estop input, the battery stay */
+    for (int i = 0; i < N_CH; i++)
+        enc_restore_pins(a, &ch[i]);
+    apply_estop(a);
+    apply_battery();
     arm_timers();
 }
 
@@ -566,8 +656,9 @@ static void report(void)
     double mr = drive_n ? drive_sum[1] / (double)drive_n : d[1];
     drive_sum[0] = drive_sum[1] = 0.0;
     drive_n = 0;
-    emit("ok %" PRIu64 " %.6f %.6f %.6f %.6f %" PRId64 " %u %" PRIu64 " %s\n", (uint64_t)avr->cycle,
-         d[0], d[1], ml, mr, enc_emitted, resets, tx_total, state_name());
+    emit("ok %" PRIu64 " %.6f %.6f %.6f %.6f %" PRId64 " %u %" PRIu64 " %s %" PRId64 " %" PRId64 "\n",
+         (uint64_t)avr->cycle, d[0], d[1], ml, mr, ch[CH_FRONT].emitted, resets, tx_total,
+         state_name(), ch[CH_LEFT].emitted, ch[CH_RIGHT].emitted);
 }
 
 static int hexval(int c)
@@ -590,36 +681,64 @@ static void command(char *line)
         return;
     if (!strcmp(cmd, "run")) {
         char *a = strtok(NULL, " \t\r\n"), *b = strtok(NULL, " \t\r\n"), *c = strtok(NULL, " \t\r\n");
-        if (!a || !b) {
-            emit("err run CYCLE DELTA [SYNC]\n");
+        char *dl = strtok(NULL, " \t\r\n"), *dr = strtok(NULL, " \t\r\n"), *mv = strtok(NULL, " \t\r\n");
+        if (!a || !b || (dl && !dr)) {
+            emit("err run CYCLE DELTA [SYNC|- [DL DR [MV]]]\n");
             return;
         }
         avr_cycle_count_t target = strtoull(a, NULL, 10);
-        long long delta = strtoll(b, NULL, 10);
-        if (c && !pipe_mode && pty_sync(strtoull(c, NULL, 10)) < 0) {
+        long long delta[N_CH] = {strtoll(b, NULL, 10), dl ? strtoll(dl, NULL, 10) : 0,
+                                 dr ? strtoll(dr, NULL, 10) : 0};
+        if (c && strcmp(c, "-") && !pipe_mode && pty_sync(strtoull(c, NULL, 10)) < 0) {
             emit("err host bytes did not come through the pty\n");
             return;
         }
         if (!pipe_mode)
             pty_read();
+        if (mv && (uint32_t)strtoul(mv, NULL, 10) != batt_mv) {
+            batt_mv = (uint32_t)strtoul(mv, NULL, 10);
+            apply_battery();
+        }
         if (target > avr->cycle) /* DELTA counts more than the trajectory stands at now */
-            enc_segment((double)target, target_at((double)avr->cycle) + (double)delta, 0.0);
+            for (int i = 0; i < N_CH; i++)
+                if (delta[i] || i == CH_FRONT)
+                    enc_segment(&ch[i], (double)target,
+                                target_at(&ch[i], (double)avr->cycle) + (double)delta[i], 0.0);
         run_until(target);
         report();
     } else if (!strcmp(cmd, "enc")) {
-        char *a = strtok(NULL, " \t\r\n"), *b = strtok(NULL, " \t\r\n");
-        if (!a) {
-            emit("err enc COUNT [RATE]\n");
+        char *arg[6];
+        int n = 0;
+        while (n < 6 && (arg[n] = strtok(NULL, " \t\r\n")) != NULL)
+            n++;
+        if (n < 1 || (n > 2 && n != 6)) {
+            emit("err enc COUNT [RATE [L LRATE R RRATE]]\n");
             return;
         }
-        double count = strtod(a, NULL), rate = b ? strtod(b, NULL) : 0.0;
-        /* head for COUNT within a millisecond (no faster than the encoder could), then go on */
-        double now = (double)avr->cycle;
-        double dist = fabs(count - target_at(now));
-        double ms = avr->frequency / 1000.0;
-        double span = dist * ENC_MIN_GAP * 4 > ms ? dist * ENC_MIN_GAP * 4 : ms;
-        enc_segment(now + span, count + rate * span / avr->frequency, rate);
+        enc_head_for(&ch[CH_FRONT], strtod(arg[0], NULL), n > 1 ? strtod(arg[1], NULL) : 0.0);
+        if (n == 6) {
+            enc_head_for(&ch[CH_LEFT], strtod(arg[2], NULL), strtod(arg[3], NULL));
+            enc_head_for(&ch[CH_RIGHT], strtod(arg[4], NULL), strtod(arg[5], NULL));
+        }
         report(); /* as `out`: one round trip per plant update */
+    } else if (!strcmp(cmd, "bat")) {
+        char *a = strtok(NULL, " \t\r\n");
+        if (!a) {
+            emit("err bat MV\n");
+            return;
+        }
+        batt_mv = (uint32_t)strtoul(a, NULL, 10);
+        apply_battery();
+        emit("ok %" PRIu64 "\n", (uint64_t)avr->cycle);
+    } else if (!strcmp(cmd, "estop")) {
+        char *a = strtok(NULL, " \t\r\n");
+        if (!a) {
+            emit("err estop 0|1\n");
+            return;
+        }
+        estop_is_open = atoi(a) != 0;
+        apply_estop(avr);
+        emit("ok %" PRIu64 "\n", (uint64_t)avr->cycle);
     } else if (!strcmp(cmd, "out")) {
         report();
     } else if (!strcmp(cmd, "send")) {
@@ -646,10 +765,11 @@ static void command(char *line)
         emit("ok %" PRIu64 "\n", (uint64_t)avr->cycle);
     } else if (!strcmp(cmd, "regs")) {
         emit("ok %" PRIu64 " tccr1a=%u tccr1b=%u icr1=%u ocr1a=%u ocr1b=%u portd=%u ddrd=%u portb=%u "
-             "ddrb=%u pind=%u tx_lost=%" PRIu64 " host_rx=%" PRIu64 "\n",
+             "ddrb=%u pind=%u pinc=%u portc=%u ddrc=%u tx_lost=%" PRIu64 " host_rx=%" PRIu64 "\n",
              (uint64_t)avr->cycle, avr->data[R_TCCR1A], avr->data[R_TCCR1B], reg16(R_ICR1L),
              reg16(R_OCR1AL), reg16(R_OCR1BL), avr->data[R_PORTD], avr->data[R_DDRD],
-             avr->data[R_PORTB], avr->data[R_DDRB], avr->data[R_PIND], tx_lost, host_rx_total);
+             avr->data[R_PORTB], avr->data[R_DDRB], avr->data[R_PIND], avr->data[R_PINC],
+             avr->data[R_PORTC], avr->data[R_DDRC], tx_lost, host_rx_total);
     } else if (!strcmp(cmd, "quit")) {
         quit = 1;
         emit("ok %" PRIu64 "\n", (uint64_t)avr->cycle);
@@ -730,7 +850,7 @@ int main(int argc, char **argv)
     static const struct option opts[] = {
         {"paced", no_argument, NULL, 'p'}, {"pipe", no_argument, NULL, 'P'},
         {"driver", required_argument, NULL, 'd'}, {"freq", required_argument, NULL, 'f'},
-        {NULL, 0, NULL, 0}};
+        {"batt-full-mv", required_argument, NULL, 'b'}, {NULL, 0, NULL, 0}};
     uint32_t freq = 16000000;
     int o;
     while ((o = getopt_long(argc, argv, "", opts, NULL)) != -1) {
@@ -739,11 +859,12 @@ int main(int argc, char **argv)
         case 'P': pipe_mode = 1; break;
         case 'd': driver = !strcmp(optarg, "drv8871") ? DRIVER_DRV8871 : DRIVER_DIR2; break;
         case 'f': freq = (uint32_t)strtoul(optarg, NULL, 10); break;
-        default: fprintf(stderr, "usage: %s [--paced] [--pipe] [--driver dir2|drv8871] [--freq HZ] FIRMWARE.elf\n", argv[0]); return 2;
+        case 'b': batt_full_mv = strtod(optarg, NULL); break;
+        default: fprintf(stderr, "usage: %s [--paced] [--pipe] [--driver dir2|drv8871] [--freq HZ] [--batt-full-mv MV] FIRMWARE.elf\n", argv[0]); return 2;
         }
     }
     if (optind != argc - 1) {
-        fprintf(stderr, "usage: %s [--paced] [--pipe] [--driver dir2|drv8871] [--freq HZ] FIRMWARE.elf\n", argv[0]);
+        fprintf(stderr, "usage: %s [--paced] [--pipe] [--driver dir2|drv8871] [--freq HZ] [--batt-full-mv MV] FIRMWARE.elf\n", argv[0]);
         return 2;
     }
     signal(SIGPIPE, SIG_IGN);
@@ -770,13 +891,21 @@ int main(int argc, char **argv)
     avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &flags);
     uart_in = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT), uart_out, NULL);
-    irq_a = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), ENC_A_PIN);
-    irq_b = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), ENC_B_PIN);
+    enc_init(&ch[CH_FRONT], 'D', R_PIND, ENC_A_PIN);
+    enc_init(&ch[CH_LEFT], 'C', R_PINC, WHL_A_PIN);
+    enc_init(&ch[CH_RIGHT], 'C', R_PINC, WHR_A_PIN);
+    adc0 = avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_ADC0);
+    estop_irq = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('C'), ESTOP_PIN);
     avr_register_io_write(avr, R_MCUSR, mcusr_write, NULL);
+    avr_register_io_write(avr, R_PORTC, port_write, NULL); /* after the ioport's own */
+    avr_register_io_write(avr, R_PORTD, port_write, NULL);
     core_reset = avr->reset;
     avr->reset = on_reset;
-    no_level_polling();
-    set_ab(0);
+    apply_battery();
+    apply_estop(avr);
+    no_level_polling(); /* before any pin moves: a low INT0/INT1 pin would start the polling */
+    for (int i = 0; i < N_CH; i++)
+        set_ab(&ch[i]);
     arm_timers();
 
     if (!pipe_mode) {

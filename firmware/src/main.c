@@ -1,12 +1,15 @@
-/* main.c: the ddrt motor/encoder bridge, protocol v1 (docs/protocol.md), ATmega328P.
+/* main.c: the ddrt motor/encoder bridge, protocol v2 (docs/protocol.md), ATmega328P.
  *
  * Interrupts do the least:
- *   INT0/INT1      quadrature: one table lookup on the new A/B state, count += -1/0/+1
- *   TIMER0_COMPA   10 kHz tick: the clock, the DRIVE watchdog, the STATE schedule
+ *   INT0/INT1      front quadrature: one table lookup on the new A/B state, count += -1/0/+1
+ *   PCINT1         the drive wheels' quadrature (port C), the same for each wheel
+ *   TIMER0_COMPA   10 kHz tick: the clock, the DRIVE watchdog, the estop input, the STATE
+ *                  schedule
  *   USART_RX       byte into the RX ring
  *   USART_UDRE     byte out of the TX ring
- * The main loop decodes frames, acts on packets, builds STATE frames, feeds the hardware
- * watchdog, and sleeps (idle) until the next interrupt. No dynamic memory.
+ * The main loop decodes frames, acts on packets, filters the battery's ADC readings, builds
+ * STATE frames, feeds the hardware watchdog, and sleeps (idle) until the next interrupt. No
+ * dynamic memory.
  */
 #include <avr/interrupt.h>
 #include <avr/io.h>
@@ -49,6 +52,70 @@ ISR(INT0_vect)
     enc_acc += enc_table[idx];
 }
 ISR_ALIAS(INT1_vect, INT0_vect);
+
+#if WHEEL_CPR > 0
+/* The drive wheels: both on port C's pin-change interrupt; each wheel as the front one. */
+static uint8_t whl_prev4, whr_prev4;
+static volatile int8_t whl_acc, whr_acc;
+static int32_t whl_count, whr_count; /* the tick ISR's own */
+
+ISR(PCINT1_vect)
+{
+    uint8_t pins = PC_PIN;
+    uint8_t l = (uint8_t)((pins >> WHL_A_BIT) & 0x03u);
+    uint8_t r = (uint8_t)((pins >> WHR_A_BIT) & 0x03u);
+    whl_acc += enc_table[whl_prev4 | l];
+    whl_prev4 = (uint8_t)(l << 2);
+    whr_acc += enc_table[whr_prev4 | r];
+    whr_prev4 = (uint8_t)(r << 2);
+}
+#endif
+
+/* ---------------------------------------------------------------- estop input, battery */
+
+#if ESTOP
+/* A normally-closed loop to GND holds the pin low; pressed (or a cut wire) the pull-up
+ * takes it high: open is the safe reading. */
+static inline uint8_t estop_open(void) { return (uint8_t)((PC_PIN >> ESTOP_BIT) & 1u); }
+#else
+static inline uint8_t estop_open(void) { return 0; }
+#endif
+
+#if BATTERY
+#if BATT_FULL_MV > 65535UL
+#error "BATT_FULL_MV must be at most 65535 (battery_mv is a u16)"
+#endif
+/* 64 x the ADC reading, low-passed in the main loop (time constant 64 conversions, about
+ * 10 ms); the first conversions after the reference switches on are skipped. */
+static uint16_t batt_acc;
+static uint8_t batt_skip = 4;
+
+static void battery_init(void)
+{
+    ADMUX = (uint8_t)((1u << REFS1) | (1u << REFS0) | BATT_ADC_CH); /* internal 1.1 V */
+    DIDR0 = (uint8_t)(1u << ADC0D);
+    ADCSRA = (uint8_t)((1u << ADEN) | (1u << ADSC) | (1u << ADPS2) | (1u << ADPS1) | (1u << ADPS0));
+}
+
+static void battery_poll(void)
+{
+    if (ADCSRA & (1u << ADSC))
+        return; /* converting */
+    uint16_t v = ADC;
+    ADCSRA |= (uint8_t)(1u << ADSC);
+    if (batt_skip) {
+        if (--batt_skip == 0)
+            batt_acc = (uint16_t)(v << 6);
+        return;
+    }
+    batt_acc = (uint16_t)(batt_acc - (batt_acc >> 6) + v);
+}
+
+static uint16_t battery_mv(void)
+{
+    return (uint16_t)(((uint32_t)batt_acc * BATT_FULL_MV) >> 16); /* acc / 64 / 1024 * full */
+}
+#endif
 
 /* ---------------------------------------------------------------- outputs */
 
@@ -162,8 +229,12 @@ static volatile uint8_t drive_armed;     /* a DRIVE's timeout is running */
 static volatile uint32_t drive_deadline; /* now_us at which the outputs go to zero */
 static volatile uint8_t wd_tripped;      /* zeroed by the DRIVE watchdog since the last STATE */
 static volatile uint8_t state_due;
-static volatile uint32_t state_t_us; /* the STATE snapshot: time and count taken together */
+static volatile uint8_t estop_seen;  /* the estop input was open at a tick since the last STATE */
+static volatile uint32_t state_t_us; /* the STATE snapshot: time and counts taken together */
 static volatile int32_t state_count;
+#if WHEEL_CPR > 0
+static volatile int32_t state_left, state_right;
+#endif
 static uint8_t state_phase;
 
 /* Interrupts stay enabled in here (ISR_NOBLOCK), so an encoder edge never waits for the tick;
@@ -174,8 +245,17 @@ ISR(TIMER0_COMPA_vect, ISR_NOBLOCK)
     cli();
     int8_t d = enc_acc;
     enc_acc = 0;
+#if WHEEL_CPR > 0
+    int8_t dl = whl_acc, dr = whr_acc;
+    whl_acc = 0;
+    whr_acc = 0;
+#endif
     sei();
     enc_count += d;
+#if WHEEL_CPR > 0
+    whl_count += dl;
+    whr_count += dr;
+#endif
     uint32_t t = now_us + TICK_US;
     now_us = t;
     tick_alive++;
@@ -184,10 +264,21 @@ ISR(TIMER0_COMPA_vect, ISR_NOBLOCK)
         outputs_zero_locked();
         wd_tripped = 1;
     }
+    if (estop_open()) {
+        estop_seen = 1;
+        if (drive_armed || out_l || out_r) {
+            drive_armed = 0;
+            outputs_zero_locked();
+        }
+    }
     if (++state_phase >= STATE_TICKS) {
         state_phase = 0;
         state_t_us = t;
         state_count = enc_count;
+#if WHEEL_CPR > 0
+        state_left = whl_count;
+        state_right = whr_count;
+#endif
         state_due = 1;
     }
 }
@@ -283,8 +374,11 @@ static void send_hello_reply(void)
 {
     uint8_t p[PL_HELLO_REPLY];
     p[0] = PROTO_VERSION;
-    proto_put_u32(&p[1], ENCODER_COUNTS_PER_REV);
+    proto_put_u32(&p[1], ENCODER_CPR);
     proto_put_u16(&p[5], (uint16_t)STATE_HZ);
+    p[7] = (uint8_t)((BATTERY ? FEATURE_BATTERY : 0u) | (ESTOP ? FEATURE_HW_ESTOP : 0u) |
+                     (WHEEL_CPR > 0 ? FEATURE_WHEELS : 0u));
+    proto_put_u32(&p[8], WHEEL_CPR);
     if (send_packet(PT_HELLO_REPLY, p, sizeof p))
         hello_pending--;
 }
@@ -292,16 +386,22 @@ static void send_hello_reply(void)
 static void send_state(void)
 {
     uint32_t t;
-    int32_t c;
+    int32_t c, cl = 0, cr = 0;
     uint8_t flags;
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE)
     {
         t = state_t_us;
         c = state_count;
+#if WHEEL_CPR > 0
+        cl = state_left;
+        cr = state_right;
+#endif
         state_due = 0;
         flags = wd_tripped ? FLAG_WATCHDOG : 0;
         if (out_l || out_r)
             flags |= FLAG_OUTPUTS_ON;
+        if (estop_seen)
+            flags |= FLAG_HW_ESTOP;
     }
     if (bad_frame)
         flags |= FLAG_BAD_FRAME;
@@ -310,12 +410,22 @@ static void send_state(void)
     proto_put_u32(&p[4], (uint32_t)c);
     p[8] = flags;
     p[9] = ack_seq;
+#if BATTERY
+    proto_put_u16(&p[10], battery_mv());
+#else
+    proto_put_u16(&p[10], 0);
+#endif
+    proto_put_u32(&p[12], (uint32_t)cl);
+    proto_put_u32(&p[16], (uint32_t)cr);
     if (send_packet(PT_STATE, p, sizeof p)) {
-        /* the flags went out: clear what they reported (a trip after the snapshot stays) */
+        /* the flags went out: clear what they reported (a trip after the snapshot stays,
+         * and so does the estop while its input is still open) */
         ATOMIC_BLOCK(ATOMIC_RESTORESTATE)
         {
             if (flags & FLAG_WATCHDOG)
                 wd_tripped = 0;
+            if (flags & FLAG_HW_ESTOP)
+                estop_seen = estop_open();
         }
         bad_frame = 0;
     }
@@ -335,15 +445,19 @@ static void on_packet(void)
         proto_drive_t d;
         if (!proto_parse_drive(payload, &d))
             break; /* out of range: ignored entirely, no ack, watchdog not re-armed */
-        ack_seq = seq;
+        ack_seq = seq; /* acknowledged even while the estop input is open */
         outputs_t o;
         outputs_compute(d.duty_l, d.duty_r, &o);
         uint32_t span = (uint32_t)d.timeout_ms * 1000u + TICK_US; /* + a tick: never early */
         ATOMIC_BLOCK(ATOMIC_RESTORESTATE)
         {
-            drive_deadline = now_us + span;
-            drive_armed = 1;
-            outputs_write_locked(&o);
+            if (estop_open()) {
+                estop_seen = 1; /* not applied: the outputs stay zero */
+            } else {
+                drive_deadline = now_us + span;
+                drive_armed = 1;
+                outputs_write_locked(&o);
+            }
         }
         break;
     }
@@ -381,6 +495,10 @@ void early_init(void)
 int main(void)
 {
     outputs_init(); /* outputs zero first: the pins were inputs (high-Z) through reset */
+#if ESTOP
+    PC_PORT |= (uint8_t)(1u << ESTOP_BIT); /* pull-up: an unwired input reads open */
+#endif
+#if ENCODER_CPR > 0
     enc_prev4 = (uint8_t)(enc_read_state() << 2);
 #if ENCODER_PULLUPS
     ENC_PORT |= (uint8_t)((1u << ENC_A_BIT) | (1u << ENC_B_BIT));
@@ -388,6 +506,20 @@ int main(void)
     EICRA = (uint8_t)((1u << ISC10) | (1u << ISC00)); /* INT0, INT1: any logical change */
     EIFR = (uint8_t)((1u << INTF0) | (1u << INTF1));
     EIMSK = (uint8_t)((1u << INT0) | (1u << INT1));
+#endif
+#if WHEEL_CPR > 0
+#if WHEEL_PULLUPS
+    PC_PORT |= (uint8_t)(0x0Fu << WHL_A_BIT);
+#endif
+    whl_prev4 = (uint8_t)(((PC_PIN >> WHL_A_BIT) & 0x03u) << 2);
+    whr_prev4 = (uint8_t)(((PC_PIN >> WHR_A_BIT) & 0x03u) << 2);
+    PCMSK1 = (uint8_t)((1u << PCINT10) | (1u << PCINT11) | (1u << PCINT12) | (1u << PCINT13));
+    PCIFR = (uint8_t)(1u << PCIF1);
+    PCICR = (uint8_t)(1u << PCIE1);
+#endif
+#if BATTERY
+    battery_init();
+#endif
     proto_decoder_init(&dec);
     uart_init();
     timebase_init();
@@ -416,6 +548,9 @@ int main(void)
             errors_seen = errors;
             bad_frame = 1;
         }
+#if BATTERY
+        battery_poll();
+#endif
         if (hello_pending)
             send_hello_reply();
         if (state_due)

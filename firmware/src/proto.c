@@ -1,4 +1,4 @@
-/* proto.c: protocol v1 framing in plain C99; see proto.h. */
+/* proto.c: protocol v2 framing in plain C99; see proto.h. */
 #include "proto.h"
 
 /* CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF, no reflection, xorout 0), one byte at a
@@ -18,14 +18,14 @@ uint16_t proto_crc16(uint16_t crc, const uint8_t *p, uint8_t n)
     return crc;
 }
 
-int8_t proto_payload_len(uint8_t type)
+int8_t proto_payload_ok(uint8_t type, uint8_t n)
 {
     switch (type) {
-    case PT_HELLO: return PL_HELLO;
-    case PT_DRIVE: return PL_DRIVE;
-    case PT_STOP: return PL_STOP;
-    case PT_HELLO_REPLY: return PL_HELLO_REPLY;
-    case PT_STATE: return PL_STATE;
+    case PT_HELLO: return n == PL_HELLO;
+    case PT_DRIVE: return n == PL_DRIVE;
+    case PT_STOP: return n == PL_STOP;
+    case PT_HELLO_REPLY: return n == PL_HELLO_REPLY || n == PL_HELLO_REPLY_V1;
+    case PT_STATE: return n == PL_STATE || n == PL_STATE_V1;
     default: return -1;
     }
 }
@@ -72,8 +72,7 @@ static uint8_t end_frame(proto_decoder_t *d)
         if (proto_crc16(0xFFFFu, d->buf, body) != crc) {
             d->crc_errors++;
         } else {
-            int8_t want = proto_payload_len(d->buf[0]);
-            if (want >= 0 && (uint8_t)want != (uint8_t)(body - 2u)) {
+            if (proto_payload_ok(d->buf[0], (uint8_t)(body - 2u)) == 0) {
                 d->malformed++;
             } else {
                 d->frames_ok++;

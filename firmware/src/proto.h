@@ -1,4 +1,4 @@
-/* proto.h: protocol v1 (docs/protocol.md) in plain C99: CRC-16/CCITT-FALSE, COBS framing,
+/* proto.h: protocol v2 (docs/protocol.md) in plain C99: CRC-16/CCITT-FALSE, COBS framing,
  * a byte-at-a-time frame decoder and the packet encoder. No hardware, no dynamic memory:
  * the firmware uses it on the AVR and tests/test_firmware_proto.py holds the same file,
  * compiled for the host, byte for byte against hal/protocol.py.
@@ -8,7 +8,7 @@
 
 #include <stdint.h>
 
-#define PROTO_VERSION 1
+#define PROTO_VERSION 2
 #define PROTO_MAX_PACKET 64u /* type + seq + payload + crc, before COBS */
 #define PROTO_MAX_FRAME 65u  /* COBS bytes of the longest packet, without the delimiter */
 #define PROTO_MAX_WIRE (PROTO_MAX_FRAME + 1u) /* ... and with it */
@@ -25,18 +25,26 @@
 #define PL_HELLO 0u
 #define PL_DRIVE 6u
 #define PL_STOP 0u
-#define PL_HELLO_REPLY 7u
-#define PL_STATE 10u
+#define PL_HELLO_REPLY 12u
+#define PL_STATE 20u
+#define PL_HELLO_REPLY_V1 7u /* what a v1 MCU sends; a v2 receiver accepts both lengths */
+#define PL_STATE_V1 10u
 
 #define FLAG_WATCHDOG 0x01u
 #define FLAG_OUTPUTS_ON 0x02u
 #define FLAG_BAD_FRAME 0x04u
+#define FLAG_HW_ESTOP 0x08u
+
+#define FEATURE_BATTERY 0x01u  /* STATE.battery_mv is measured */
+#define FEATURE_HW_ESTOP 0x02u /* a hardware estop input is wired */
+#define FEATURE_WHEELS 0x04u   /* the drive wheels' encoders are counted */
 
 uint16_t proto_crc16_byte(uint16_t crc, uint8_t b);
 uint16_t proto_crc16(uint16_t crc, const uint8_t *p, uint8_t n);
 
-/* Payload length of a known type, or -1 for a type this protocol does not define. */
-int8_t proto_payload_len(uint8_t type);
+/* 1: a known type with a payload of a length it defines (either version's, for 0x81 and
+ * 0x82); 0: a known type with another length (malformed); -1: a type not defined. */
+int8_t proto_payload_ok(uint8_t type, uint8_t n);
 
 typedef struct {
     uint8_t buf[PROTO_MAX_PACKET]; /* decoded packet: type, seq, payload, crc */

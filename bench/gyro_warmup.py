@@ -1,0 +1,166 @@
+"""`python -m bench.gyro_warmup`: the heading after ten minutes of driving while the gyro warms up.
+
+Issue 23's Done-when "Gyro warm-up": the seed robot (configs/sim.yaml) on the realistic plant
+whose gyro's die warms by RISE_C with a TAU_S time constant and whose zero-rate output follows
+at SLOPE_DPS_PER_C, so that it moves 1 deg/s over the first 5 minutes (1.04 in all); the output
+register holds each sample for a period of the MPU's own 200 Hz clock, 0.5 % fast. The robot
+drives a figure-eight of about 28 s again and again, with a 2 s stop after each (a stop every
+30 s), until it has driven 10 minutes.
+
+How it drives: paths cannot pause part way, so each lap pair is one path, followed through a
+ControlLoop in-process (as `ddrt sim` does, no daemon): `follow` from where the robot believes
+it is, tick until it stops at the end, tick 2 s at rest, again. Reported per setting: the
+heading error (estimate minus truth, deg) at the end (after the last stop) and its largest
+magnitude at the end of any stop, and the position error at the end (mm).
+
+Settings: TEMP_OUT not read (`sensors.gyro_temp_hz: 0`, the estimator as before); read at
+5 Hz with the slope learnt at the stops (`estimator.gyro_bias_per_c_dps: null`); read with the
+slope set by commissioning (the true one); and that again with the register read at the tick
+(`sim.gyro.register_hold: false`), which shows what the hold's tick-to-tick age costs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import statistics
+import sys
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+from bench.common import SIM_CONFIG
+from ddrt.config import load_config
+from ddrt.loop import ControlLoop, LoopState
+from ddrt.path.spec import load_path, speed_limits
+from hal.registry import open_hal
+
+RISE_C = 8.0
+TAU_S = 120.0
+SLOPE_DPS_PER_C = 1.0 / (RISE_C * (1.0 - math.exp(-300.0 / TAU_S)))  # 1 deg/s over the first 5 minutes
+DRIVE_S = 600.0
+STOP_S = 2.0
+LAP_S = 28.0  # a path of about this long, then a stop: a stop every 30 s
+TEMP_HZ = 5.0
+SETTINGS = (  # (label, gyro_temp_hz, estimator.gyro_bias_per_c_dps, register held)
+    ("TEMP_OUT not read (before)", 0.0, None, True),
+    ("TEMP_OUT at 5 Hz, slope learnt at stops", TEMP_HZ, None, True),
+    ("TEMP_OUT at 5 Hz, slope commissioned", TEMP_HZ, SLOPE_DPS_PER_C, True),
+    ("the same, register read at the tick (no hold)", TEMP_HZ, SLOPE_DPS_PER_C, False),
+)
+SEEDS = (1, 2, 3)
+
+
+@dataclass
+class Run:
+    heading_end_deg: float
+    heading_worst_deg: float
+    position_end_mm: float
+    driven_s: float
+    stops: int
+    slope_dps_per_c: float
+    fault: str
+
+
+def config(temp_hz: float, slope: float | None, seed: int, hold: bool = True) -> Any:
+    over = {"sim": {"seed": seed, "gyro": {"warmup_rise_c": RISE_C, "warmup_tau_s": TAU_S,
+                                           "bias_per_c_dps": SLOPE_DPS_PER_C, "register_hold": hold,
+                                           "clock_ppm": 5000.0}},
+            "sensors": {"gyro_temp_hz": temp_hz}, "estimator": {"gyro_bias_per_c_dps": slope}}
+    return load_config(SIM_CONFIG, over)
+
+
+def one_run(temp_hz: float, slope: float | None, seed: int, drive_s: float = DRIVE_S, hold: bool = True) -> Run:
+    cfg = config(temp_hz, slope, seed, hold)
+    probe = load_path({"shape": "figure_eight", "width": 1.6, "height": 0.8, "speed": 0.4, "laps": 2},
+                      speed_limits(cfg), paths=cfg.paths)
+    speed = 0.4 * probe.duration / LAP_S
+    path = load_path({"shape": "figure_eight", "width": 1.6, "height": 0.8, "speed": speed, "laps": 2},
+                     speed_limits(cfg), paths=cfg.paths)
+    hal = open_hal(cfg, start=path.start_pose, seed=seed)
+    try:
+        loop = ControlLoop(cfg, hal)
+        robot = hal.robot
+        loop.calibrate(hal.sleep_until, hal.now)
+        period = loop.period
+        t = hal.now()
+
+        def tick() -> None:
+            nonlocal t
+            t += period
+            hal.sleep_until(t)
+            loop.tick()
+
+        for _ in range(int(round(cfg.sim.start_delay_s / period))):
+            tick()
+        driven = 0.0
+        stops = 0
+        worst = 0.0
+        first = True
+        while driven < drive_s and loop.state not in (LoopState.FAULT, LoopState.ESTOP):
+            loop.follow(path, path.start_pose if first else None)
+            first = False
+            t0 = t
+            while loop.state != LoopState.STOPPED and loop.state not in (LoopState.FAULT, LoopState.ESTOP):
+                tick()
+                if t - t0 > 3.0 * path.duration + 10.0:
+                    break
+            driven += t - t0
+            for _ in range(int(round(STOP_S / period))):
+                tick()
+            stops += 1
+            err = _heading_err(loop, robot)
+            worst = max(worst, abs(err))
+        x, y, _ = robot.pose
+        est = loop.estimator
+        gb = est.gyro_bias
+        return Run(_heading_err(loop, robot), worst, 1e3 * math.hypot(est.x - x, est.y - y), driven, stops,
+                   gb.k * 180.0 / math.pi if gb is not None else math.nan, loop.fault)
+    finally:
+        hal.close()
+
+
+def _heading_err(loop: ControlLoop, robot: Any) -> float:
+    d = loop.estimator.theta - robot.pose[2]
+    return math.degrees(math.atan2(math.sin(d), math.cos(d)))
+
+
+def render(runs: dict[str, list[Run]], seeds: Sequence[int]) -> list[str]:
+    lines = [
+        f"The seed robot on the realistic plant: the gyro's die warms {RISE_C:g} degC with a {TAU_S:g} s time "
+        f"constant, its bias follows at {SLOPE_DPS_PER_C:.4f} deg/s per degC (1 deg/s over the first 5 min), "
+        "its register held at its own 200 Hz (0.5 % fast). A ~28 s figure-eight (two laps) then a 2 s stop, "
+        f"again, for {DRIVE_S / 60:g} min of driving, through ControlLoop in-process. Heading error (estimate "
+        "minus truth) at the end and its worst at the end of a stop, position error at the end: median over "
+        f"seeds {', '.join(map(str, seeds))} (each seed in brackets). `python -m bench.gyro_warmup`.",
+        "",
+        "| setting | heading error at the end (deg) | worst at a stop (deg) | position error at the end (mm) "
+        "| slope learnt (deg/s/degC) | stops |",
+        "|---|---|---|---|---|---|",
+    ]
+
+    def cell(values: list[float], fmt: str = ".3f") -> str:
+        return f"{statistics.median(values):{fmt}} ({', '.join(f'{v:{fmt}}' for v in values)})"
+
+    for label, rs in runs.items():
+        faults = "; ".join(sorted({r.fault for r in rs if r.fault}))
+        lines.append(f"| {label}{' (fault: ' + faults + ')' if faults else ''} | "
+                     f"{cell([r.heading_end_deg for r in rs])} | {cell([r.heading_worst_deg for r in rs])} | "
+                     f"{cell([r.position_end_mm for r in rs], '.1f')} | "
+                     f"{cell([r.slope_dps_per_c for r in rs], '.4f')} | {rs[0].stops} |")
+    return lines
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m bench.gyro_warmup", description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=len(SEEDS), help="seeds 1..N (default: 3)")
+    ap.add_argument("--minutes", type=float, default=DRIVE_S / 60.0, help="driving time (default: 10)")
+    args = ap.parse_args(argv)
+    seeds = tuple(range(1, args.seeds + 1))
+    runs = {label: [one_run(hz, slope, s, 60.0 * args.minutes, hold) for s in seeds]
+            for label, hz, slope, hold in SETTINGS}
+    print("\n".join(render(runs, seeds)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
