@@ -11,7 +11,7 @@ from typing import Any
 
 import pytest
 
-from tests.support.daemon import DaemonProc, ctl, ready_daemon, wait_for
+from tests.support.daemon import DaemonProc, at_rest_and_reset, ctl, ready_daemon, wait_for
 
 COV = [[1e-4, 0.0, 0.0], [0.0, 1e-4, 0.0], [0.0, 0.0, 3e-4]]
 
@@ -24,10 +24,7 @@ def daemon() -> Iterator[DaemonProc]:
 
 @pytest.fixture()
 def idle(daemon: DaemonProc) -> DaemonProc:
-    daemon.request({"cmd": "stop"})
-    wait_for(lambda: daemon.status()["state"] in ("idle", "stopped"), 10.0, "at rest")
-    assert daemon.request({"cmd": "reset"})["ok"] is True
-    return daemon
+    return at_rest_and_reset(daemon)
 
 
 def _snapshot(d: DaemonProc) -> tuple[Any, ...]:

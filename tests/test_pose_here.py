@@ -13,7 +13,7 @@ from typing import Any
 import pytest
 
 from ddrt.path import load_path
-from tests.support.daemon import DaemonProc, PATHS, ctl, ready_daemon, wait_for
+from tests.support.daemon import DaemonProc, PATHS, at_rest_and_reset, ctl, ready_daemon, wait_for
 
 
 @pytest.fixture(scope="module")
@@ -24,10 +24,7 @@ def daemon() -> Iterator[DaemonProc]:
 
 @pytest.fixture()
 def idle(daemon: DaemonProc) -> DaemonProc:
-    daemon.request({"cmd": "stop"})
-    wait_for(lambda: daemon.status()["state"] in ("idle", "stopped"), 10.0, "at rest")
-    assert daemon.request({"cmd": "reset"})["ok"] is True
-    return daemon
+    return at_rest_and_reset(daemon)
 
 
 def pose_of(d: DaemonProc) -> tuple[float, float, float]:

@@ -262,3 +262,11 @@ def read_reply(s: socket.socket) -> dict[str, Any]:
             raise AssertionError(f"connection closed without a reply (got {buf[:200]!r})")
         buf += chunk
     return json.loads(buf[: buf.index(b"\n")])
+
+
+def at_rest_and_reset(d: "DaemonProc") -> "DaemonProc":
+    """A shared daemon stopped, at rest and reset: a clean start for the next test on it."""
+    d.request({"cmd": "stop"})
+    wait_for(lambda: d.status()["state"] in ("idle", "stopped"), 10.0, "at rest")
+    assert d.request({"cmd": "reset"})["ok"] is True
+    return d

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from bench.uncertainty import cross_track as polyline_cross_track
 from ddrt.config import load_config
 from ddrt.core.pose_fix import PoseFix
 from ddrt.loop import ControlLoop
@@ -32,21 +33,8 @@ class FixRun:
 
 
 def cross_track(path: Any, xy: np.ndarray) -> np.ndarray:
-    """Distance of each point to the path's sampled polyline (a window follows the nearest)."""
-    px, py = np.asarray(path.x), np.asarray(path.y)
-    out = np.empty(len(xy))
-    i0 = 0
-    for k, (x, y) in enumerate(xy):
-        lo, hi = max(0, i0 - 400), min(len(px) - 1, i0 + 400)
-        ax, ay, bx, by = px[lo:hi], py[lo:hi], px[lo + 1:hi + 1], py[lo + 1:hi + 1]
-        dx, dy = bx - ax, by - ay
-        den = dx * dx + dy * dy
-        u = np.clip(((x - ax) * dx + (y - ay) * dy) / np.where(den > 0, den, 1.0), 0.0, 1.0)
-        d = np.hypot(ax + u * dx - x, ay + u * dy - y)
-        j = int(np.argmin(d))
-        out[k] = d[j]
-        i0 = lo + j
-    return out
+    """Distance of each point to the path's sampled polyline (the bench's measure)."""
+    return polyline_cross_track(np.asarray(path.x), np.asarray(path.y), xy)
 
 
 def run_with_fixes(path_spec: dict[str, Any], duration_s: float, overrides: dict[str, Any] | None = None,
