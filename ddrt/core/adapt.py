@@ -20,10 +20,11 @@ the regressor (driving straight at constant speed carries no information about t
 and forgetting without information would wind the covariance up) and while both wheels turn
 faster than `min_wheel_speed` (near zero speed friction flips sign and sticks, and the
 torque the motor model reports is not the torque the wheel gets). Every estimate is clamped
-to bounds around the configured values; the adapted model is handed out only once enough
-excited samples have been seen and while it predicts the torques better than the configured
-model does (a running comparison of both residuals), else the configured model is the
-fallback; the model in use then follows the target with a first-order blend, so the
+to bounds around the configured values. The configured values are the prior, weighed per
+robot and per rate (`noise_n`), so data outweighs them only where it carries information.
+The adapted model is handed out only once enough excited samples have been seen and while it
+predicts the torques clearly better than the configured model does (a running comparison of
+both residuals, `min_improvement`), else the configured model is the fallback; the model in use then follows the target with a first-order blend, so the
 compensator's torque never jumps. Plain floats: one update costs two scalar RLS steps on a 6x6
 covariance (about 25 us on the development machine).
 """
