@@ -305,7 +305,7 @@ def test_telemetry_columns_appended_at_the_end() -> None:
 def test_a_payload_put_on_mid_run_is_learnt() -> None:
     """Where adaptation is for (issue 23 item 5): 1 kg put on at 8 s and a draggy floor patch on
     the 0.8 m/s figure-eight; from the payload on, the estimated pose tracks at least 1.5x
-    better with adaptation (measured 2.5x, BENCHMARKS.md section 16)."""
+    better with adaptation (measured 2.5x, BENCHMARKS.md section 19)."""
     from bench.adaptation import measure_events
 
     name = "realistic/payload_floor_fast.yaml"
