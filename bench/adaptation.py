@@ -260,3 +260,58 @@ def render(r: AdaptationResult) -> list[str]:
     lines += ["", "Verdicts against the targets of adaptation.md (\"Against the targets\"):", ""]
     lines += [f"- {v}" for v in r.verdict]
     return lines
+
+
+# --------------------------------------------------------------------------- events (issue 23 item 5)
+
+EVENT_CONFIGS = ("realistic/actuators_events.yaml", "realistic/payload_floor_fast.yaml")
+
+
+def _event_job(args: tuple[str, bool, int]) -> tuple[tuple[str, bool], float, float, float]:
+    """One run: est and true RMS over the run, and est RMS from the first payload on."""
+    import numpy as np
+
+    name, on, seed = args
+    cfg = load_config(REPO / "configs" / "scenarios" / name, {"controller": {"adaptation": {"enabled": on}}})
+    r = run_sim(cfg, resolve_path(cfg), seed=seed)
+    t = r.column("t") - r.column("t")[0]
+    at = min((p.at_s for p in cfg.sim.events.payloads), default=0.0)
+    after = float(np.sqrt(np.mean(r.column("cross_track_est")[t >= at] ** 2)))
+    return (name, on), float(r.metrics["rms_tracking_m"]), float(r.metrics["rms_cross_track_m"]), after
+
+
+def measure_events(seeds: Sequence[int], workers: int = 1,
+                   names: Sequence[str] = EVENT_CONFIGS) -> dict[tuple[str, bool], tuple[float, float, float]]:
+    """The realistic scenarios with a payload put on mid-run and a draggy floor, adaptation off
+    and on (medians over `seeds`)."""
+    jobs = [(n, on, s) for n in names for on in (False, True) for s in seeds]
+    return {k: tuple(_medians(v)) for k, v in pooled_by_key(_event_job, jobs, workers).items()}
+
+
+def render_events(cells: dict[tuple[str, bool], tuple[float, float, float]], seeds: Sequence[int]) -> list[str]:
+    lines = [f"Payload and floor events, adaptation off and on (medians over seeds {', '.join(map(str, seeds))}; "
+             "mm; \"after\": est RMS from the payload on):", "",
+             "| scenario | off: est / true / after | on: est / true / after |", "|---|---|---|"]
+    for name in dict.fromkeys(n for n, _ in cells):
+        a, b = cells[(name, False)], cells[(name, True)]
+        lines.append(f"| {name} | {a[0] * 1e3:.4f} / {a[1] * 1e3:.3f} / {a[2] * 1e3:.4f} | {b[0] * 1e3:.4f} "
+                     f"({b[0] / a[0] - 1:+.0%}) / {b[1] * 1e3:.3f} / {b[2] * 1e3:.4f} ({b[2] / a[2] - 1:+.0%}) |")
+    return lines
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    import argparse
+
+    ap = argparse.ArgumentParser(prog="python -m bench.adaptation",
+                                 description="adaptation off and on where it should help: payload and floor events "
+                                             "(the rest of this module is section 7 of `python -m bench.run`)")
+    ap.add_argument("--seeds", default="1,2,3", help="comma-separated noise seeds (default 1,2,3)")
+    ap.add_argument("--workers", type=int, default=1)
+    args = ap.parse_args(argv)
+    seeds = [int(s) for s in args.seeds.split(",") if s]
+    print("\n".join(render_events(measure_events(seeds, args.workers), seeds)))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -195,6 +195,8 @@ class AdaptationConfig:
     min_wheel_speed: float = 1.0  # rad/s: both wheels faster than this, else no update
     blend_s: float = 1.0  # time constant with which the model in use follows the estimate
     update_estimator: bool = False  # also hand the estimate to the estimator's prediction
+    min_improvement: float = 0.2  # the estimate is used once its RMS residual is this fraction below the configured model's
+    noise_accel: float = 0.3  # m/s^2: residual of one filtered row / (m + k); sets how fast data outweighs the configured values
 
     def validate(self, where: str) -> None:
         if not 0.9 <= self.forgetting <= 1.0:
@@ -202,7 +204,9 @@ class AdaptationConfig:
         non_negative(where, min_excitation=self.min_excitation, min_updates=self.min_updates,
                      blend_s=self.blend_s, min_wheel_speed=self.min_wheel_speed)
         positive(where, filter_hz=self.filter_hz, max_com_shift_m=self.max_com_shift_m,
-                 max_friction_nm=self.max_friction_nm)
+                 max_friction_nm=self.max_friction_nm, noise_accel=self.noise_accel)
+        if not 0.0 <= self.min_improvement < 1.0:
+            raise ConfigError(f"{where}.min_improvement: must be in [0, 1), got {self.min_improvement}")
         if not self.bound_ratio > 1.0:
             raise ConfigError(f"{where}.bound_ratio: must be > 1, got {self.bound_ratio}")
 

@@ -20,10 +20,11 @@ the regressor (driving straight at constant speed carries no information about t
 and forgetting without information would wind the covariance up) and while both wheels turn
 faster than `min_wheel_speed` (near zero speed friction flips sign and sticks, and the
 torque the motor model reports is not the torque the wheel gets). Every estimate is clamped
-to bounds around the configured values; the adapted model is handed out only once enough
-excited samples have been seen and while it predicts the torques better than the configured
-model does (a running comparison of both residuals), else the configured model is the
-fallback; the model in use then follows the target with a first-order blend, so the
+to bounds around the configured values. The configured values are the prior, weighed per
+robot and per rate (`noise_n`), so data outweighs them only where it carries information.
+The adapted model is handed out only once enough excited samples have been seen and while it
+predicts the torques clearly better than the configured model does (a running comparison of
+both residuals, `min_improvement`), else the configured model is the fallback; the model in use then follows the target with a first-order blend, so the
 compensator's torque never jumps. Plain floats: one update costs two scalar RLS steps on a 6x6
 covariance (about 25 us on the development machine).
 """
@@ -40,7 +41,6 @@ from ddrt.core.motor import Motor
 NAMES = ("m_k", "mbar", "I", "m_x", "fric_l", "fric_r")
 N = 6
 FRICTION_SIGN_SPEED = 0.2  # rad/s: w_s of the smoothed sign in the friction regressors
-FORCE_NOISE_N = 0.5  # N: assumed std of one filtered force residual (sets the prior's weight)
 RESIDUAL_TAU_S = 2.0  # s: time constant of the running residual comparison
 
 
@@ -54,11 +54,19 @@ class AdaptedDynamics(Dynamics):
 
     fric_l: float = 0.0
     fric_r: float = 0.0
+    fric_full_speed: float = 0.0  # rad/s: below this wheel speed the friction fades out linearly
 
     def _friction(self, v: float, w: float) -> tuple[float, float]:
-        sl = math.tanh((v - self.L * w) / (self.r_L * FRICTION_SIGN_SPEED))
-        sr = math.tanh((v + self.R * w) / (self.r_R * FRICTION_SIGN_SPEED))
-        return self.fric_l * sl, self.fric_r * sr
+        return (self._wheel((v - self.L * w) / self.r_L, self.fric_l),
+                self._wheel((v + self.R * w) / self.r_R, self.fric_r))
+
+    def _wheel(self, ws: float, c: float) -> float:
+        """The friction torque at wheel speed ws: the adapter learns it only from ticks where
+        both wheels turn faster than `min_wheel_speed`, so below that it fades to zero rather
+        than switch sign as a wheel reverses (a pivot), where nothing was learnt."""
+        full = self.fric_full_speed
+        fade = 1.0 if abs(ws) >= full else abs(ws) / full
+        return c * fade * math.tanh(ws / FRICTION_SIGN_SPEED)
 
     def forward(self, v: float, w: float, tau_l: float, tau_r: float) -> tuple[float, float]:
         fl, fr = self._friction(v, w)
@@ -106,12 +114,24 @@ class DynamicsAdapter:
         # Prior std of each parameter: half the nominal for the masses, a centre-of-mass shift
         # of the whole mass by 2 cm sideways and 5 cm forward for the moments, 0.03 N m friction.
         prior = [0.5 * m_k0, 0.02 * m_k0, 0.5 * nominal.I, 0.05 * m_k0, 0.03, 0.03]
-        self.p0 = [(s / FORCE_NOISE_N) ** 2 for s in prior]
+        self.p0 = [(s / self.noise_n(nominal, cfg, period_s)) ** 2 for s in prior]
         self.k_res = 1.0 - math.exp(-period_s / RESIDUAL_TAU_S)
         # Batch identification (ddrt calibrate identify) collects the gated-in rows here.
         self.recorder: list[tuple[list[float], float]] | None = None
         self.fallbacks = 0  # resets to the configured values after a non-finite number
         self.reset()
+
+    @staticmethod
+    def noise_n(nominal: Dynamics, cfg: AdaptationConfig, period_s: float) -> float:
+        """The std (N) RLS assumes for one row's residual: what sets the prior's weight.
+
+        `noise_accel` times the configured m + k, so the prior weighs the same on a light
+        robot and a heavy one, times the square root of the ticks within the filter's time
+        constant: the filtered rows of successive ticks are nearly the same sample, and counted
+        as independent they would outweigh the configured values within a fraction of a
+        second, whatever the rate."""
+        ticks = max(1.0, 1.0 / (2.0 * math.pi * cfg.filter_hz * period_s))
+        return cfg.noise_accel * nominal.m_k * math.sqrt(ticks)
 
     def reset(self) -> None:
         """Back to the configured values and the prior covariance; filters emptied."""
@@ -230,15 +250,18 @@ class DynamicsAdapter:
 
     @property
     def trusted(self) -> bool:
-        """Enough excited samples, and the estimate explains the torques at least as well."""
-        return self.updates >= self.cfg.min_updates and self.res_adapt <= self.res_nominal
+        """Enough excited samples, and the estimate explains the torques clearly better: its
+        running RMS residual at least `min_improvement` below the configured model's (a
+        model that is only as good changes the loop for nothing)."""
+        keep = (1.0 - self.cfg.min_improvement) ** 2
+        return self.updates >= self.cfg.min_updates and self.res_adapt <= keep * self.res_nominal
 
     def estimate(self) -> AdaptedDynamics:
         """The current estimate as a model (whether or not it is trusted)."""
         th = self.theta
         n = self.nominal
         return AdaptedDynamics(m_k=th[0], mbar=th[1], I=th[2], m_x=th[3], L=n.L, R=n.R, r_L=n.r_L,
-                               r_R=n.r_R, fric_l=th[4], fric_r=th[5])
+                               r_R=n.r_R, fric_l=th[4], fric_r=th[5], fric_full_speed=self.cfg.min_wheel_speed)
 
     def target(self) -> list[float]:
         """The parameters the controller should converge to: the estimate if trusted, else
@@ -258,7 +281,7 @@ class DynamicsAdapter:
             used[i] += k * (tgt[i] - used[i])
         n = self.nominal
         return AdaptedDynamics(m_k=used[0], mbar=used[1], I=used[2], m_x=used[3], L=n.L, R=n.R, r_L=n.r_L,
-                               r_R=n.r_R, fric_l=used[4], fric_r=used[5])
+                               r_R=n.r_R, fric_l=used[4], fric_r=used[5], fric_full_speed=self.cfg.min_wheel_speed)
 
     def status(self) -> dict[str, object]:
         """What the daemon's status shows."""
