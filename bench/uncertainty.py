@@ -29,6 +29,7 @@ from ddrt.loop import ControlLoop
 from ddrt.path import load_path
 from ddrt.path.frame import in_map
 from ddrt.path.spec import resolve_path, speed_limits
+from ddrt.simrun.metrics import cross_track
 from ddrt.simrun.runner import run_sim
 from hal.registry import open_hal
 
@@ -89,23 +90,6 @@ def population_rows(n: int, seed: int) -> list[tuple[str, dict[str, float]]]:
         res = run_sim(cfg, resolve_path(cfg), keep_rows=True)
         out.append((f"r{i:02d} {shape[:-5]} r_3 {es * 100:+.2f} %, gyro {eg * 100:+.2f} %",
                     coverage(res.rows_array(), res.columns)))
-    return out
-
-
-def cross_track(px: np.ndarray, py: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """Distance of each point to the polyline (px, py), a window following the nearest segment."""
-    out = np.empty(len(xy))
-    i0 = 0
-    for k, (x, y) in enumerate(xy):
-        lo, hi = max(0, i0 - 400), min(len(px) - 1, i0 + 400)
-        ax, ay, bx, by = px[lo:hi], py[lo:hi], px[lo + 1:hi + 1], py[lo + 1:hi + 1]
-        dx, dy = bx - ax, by - ay
-        den = dx * dx + dy * dy
-        u = np.clip(((x - ax) * dx + (y - ay) * dy) / np.where(den > 0, den, 1.0), 0.0, 1.0)
-        d = np.hypot(ax + u * dx - x, ay + u * dy - y)
-        j = int(np.argmin(d))
-        out[k] = d[j]
-        i0 = lo + j
     return out
 
 

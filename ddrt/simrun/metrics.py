@@ -265,3 +265,21 @@ def tracking_metrics(path: Path, true_xy: np.ndarray, est_xy: np.ndarray, headin
     acc.add(np.asarray(true_xy, dtype=float).reshape(-1, 2), np.asarray(est_xy, dtype=float).reshape(-1, 2),
             heading_err, saturated, sigma)
     return acc.result()
+
+
+def cross_track(px: np.ndarray, py: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Distance of each point of a run (in order) to the polyline (px, py): a window of 800
+    segments follows the nearest one, so a long run costs its length, not length x path."""
+    out = np.empty(len(xy))
+    i0 = 0
+    for k, (x, y) in enumerate(xy):
+        lo, hi = max(0, i0 - 400), min(len(px) - 1, i0 + 400)
+        ax, ay, bx, by = px[lo:hi], py[lo:hi], px[lo + 1:hi + 1], py[lo + 1:hi + 1]
+        dx, dy = bx - ax, by - ay
+        den = dx * dx + dy * dy
+        u = np.clip(((x - ax) * dx + (y - ay) * dy) / np.where(den > 0, den, 1.0), 0.0, 1.0)
+        d = np.hypot(ax + u * dx - x, ay + u * dy - y)
+        j = int(np.argmin(d))
+        out[k] = d[j]
+        i0 = lo + j
+    return out

@@ -9,13 +9,13 @@ from typing import Any
 
 import numpy as np
 
-from bench.uncertainty import cross_track as polyline_cross_track
 from ddrt.config import load_config
 from ddrt.core.pose_fix import PoseFix
 from ddrt.loop import ControlLoop
 from ddrt.path import load_path
 from ddrt.path.frame import in_map
 from ddrt.path.spec import speed_limits
+from ddrt.simrun.metrics import cross_track as polyline_cross_track
 from hal.registry import open_hal
 from tests.support.repo import REPO
 
