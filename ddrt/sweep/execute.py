@@ -115,6 +115,12 @@ class DaskCluster:
         return self
 
     def __exit__(self, *exc: object) -> None:
+        if exc and exc[0] is not None:
+            # Leaving on an error or a Ctrl-C: the client's event loop may still run callbacks
+            # for futures the shutdown cancels, and tornado logs each one's traceback (seen
+            # once in ten Ctrl-Cs). What finished is in the journal; the rest is cancelled.
+            for name in ("tornado", "asyncio", "distributed"):
+                logging.getLogger(name).setLevel(logging.CRITICAL)
         for thing in (self.client, self.cluster):
             if thing is not None:
                 try:
