@@ -9,7 +9,7 @@ from importlib import import_module
 from pathlib import Path
 from typing import Sequence
 
-from ddrt.service.commands import COMMANDS, STREAMS
+from ddrt.service.commands import COMMANDS, STREAMS, ctl_number
 
 
 FOLLOW_TIMEOUT_S = 120.0
@@ -216,7 +216,7 @@ def _cmd_ctl(args: argparse.Namespace) -> int:
     elif args.command_name == "pose":
         if len(args.args) != 3:
             raise ValueError("ctl pose: give X Y THETA (metres, metres, radians)")
-        xyt = [_number(v, name, "pose") for v, name in zip(args.args, ("X", "Y", "THETA"))]
+        xyt = [ctl_number(v, name, "pose") for v, name in zip(args.args, ("X", "Y", "THETA"))]
         payload["pose"] = xyt  # set the pose (at rest); with --cov a measured pose: a fix (docs/estimation.md)
         if args.cov is not None or args.stamp is not None:
             payload = import_module("ddrt.service.posefix").ctl_fix_request(xyt, args.cov, args.stamp)
@@ -278,18 +278,6 @@ def _follow_content(fname: str, args: argparse.Namespace) -> dict:
     return {"content": text, "format": fmt, "name": Path(fname).name}
 
 
-def _number(text: str, what: str, command: str = "drive") -> float:
-    import math
-
-    try:
-        value = float(text)
-    except ValueError:
-        raise ValueError(f"ctl {command}: {what}: expected a number, got {text!r}") from None
-    if not math.isfinite(value):
-        raise ValueError(f"ctl {command}: {what}: must be finite, got {text!r}")
-    return value
-
-
 def _ctl_drive(args: argparse.Namespace) -> int:
     """`ddrt ctl drive V W [--for S]`: one drive command, or S seconds of them then a stop."""
     from ddrt.service.ctlclient import request
@@ -297,8 +285,8 @@ def _ctl_drive(args: argparse.Namespace) -> int:
 
     if len(args.args) != 2:
         raise ValueError("ctl drive: give V (m/s) and OMEGA (rad/s), e.g. ddrt ctl drive 0.3 0 --for 2")
-    v = _number(args.args[0], "V (m/s)")
-    omega = _number(args.args[1], "OMEGA (rad/s)")
+    v = ctl_number(args.args[0], "V (m/s)", "drive")
+    omega = ctl_number(args.args[1], "OMEGA (rad/s)", "drive")
     timeout = args.timeout if args.timeout is not None else 2.0
     socket, source = control_socket(args)
 

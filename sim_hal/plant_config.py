@@ -16,6 +16,7 @@ from ddrt.config.sim_truth import (
     ActuatorTruth, BatteryTruth, EncoderTruth, EventsTruth, WanderingScale, WheelsTruth,
 )
 from ddrt.params.gyro_scale import gyro_lsb_per_rad_s
+from ddrt.params.numbers import from_known_keys
 
 __all__ = ["EnergyLedger", "PlantConfig", "Realism"]
 
@@ -154,11 +155,7 @@ class PlantConfig:
 
     @classmethod
     def from_mapping(cls, mapping: Mapping[str, Any]) -> "PlantConfig":
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(mapping) - known)
-        if unknown:
-            raise ValueError(f"PlantConfig: unknown key(s) {', '.join(unknown)}")
-        return cls(**dict(mapping))
+        return from_known_keys(cls, mapping)
 
 
 @dataclass(frozen=True, slots=True)

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from ddrt.commission.session import CommissionError, Session
+from ddrt.commission.session import CommissionError, Session, follow_to_end
 from ddrt.config import Config
 from ddrt.loop import ControlLoop, LoopState
 
@@ -47,12 +47,7 @@ def run(session: Session, cfg: Config) -> dict[str, Any]:
                 trace.append((sp.x_d, sp.y_d, x, y, tx, ty))
 
         loop.on_tick = record
-        loop.follow(path, start)
-        try:
-            cal.run_until_stopped(loop, clock, path.duration + 15.0)
-        except cal.CalibrationRunError as exc:
-            raise CommissionError(f"check: {exc}") from None
-        cal.settle(loop, clock)
+        follow_to_end(loop, clock, path, start, "check")
         p1 = truth.pose if truth is not None else None
     out: dict[str, Any] = {"path_s": path.duration, "path_m": path.length,
                            "est_rms_mm": 1e3 * math.sqrt(est_sq / max(n, 1)),

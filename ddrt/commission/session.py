@@ -119,3 +119,16 @@ def explicit_robot(cfg: Config) -> dict[str, Any]:
         plant["motor_r"] = asdict(cfg.plant_motor_r)
         data["plant"] = plant
     return data
+
+
+def follow_to_end(loop: Any, clock: Any, path: Any, start: tuple[float, float, float], step: str) -> None:
+    """Follow `path` from `start` to its end and let the robot settle; a run that ends early
+    (a fault, estop, Ctrl-C) is this step's CommissionError."""
+    from ddrt import calibrate as cal  # the loop helpers, imported when a step drives
+
+    loop.follow(path, start)
+    try:
+        cal.run_until_stopped(loop, clock, path.duration + 15.0)
+    except cal.CalibrationRunError as exc:
+        raise CommissionError(f"{step}: {exc}") from None
+    cal.settle(loop, clock)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from ddrt.commission.session import CommissionError, Session
+from ddrt.commission.session import CommissionError, Session, follow_to_end
 
 
 def predicted_end(k: float, c: float, side: float, direction: int) -> tuple[float, float]:
@@ -68,12 +68,7 @@ def _square(session: Session, cfg: Any, side: float, direction: int) -> tuple[fl
         loop, clock = cal.start_loop(cfg, hal)
         truth = hal.robot
         p0 = truth.pose if truth is not None else None
-        loop.follow(path, (0.0, 0.0, 0.0))
-        try:
-            cal.run_until_stopped(loop, clock, path.duration + 15.0)
-        except cal.CalibrationRunError as exc:
-            raise CommissionError(f"odometry (UMBmark): {exc}") from None
-        cal.settle(loop, clock)
+        follow_to_end(loop, clock, path, (0.0, 0.0, 0.0), "odometry (UMBmark)")
         p1 = truth.pose if truth is not None else None
     if session.opts.from_sim_truth and p0 is not None and p1 is not None:
         dx, dy = p1[0] - p0[0], p1[1] - p0[1]

@@ -16,6 +16,8 @@ import math
 from dataclasses import dataclass, fields
 from typing import Any, Mapping
 
+from ddrt.params.numbers import from_known_keys
+
 
 # Magnitudes no gearmotor of a wheeled robot reaches (SI units, at the wheel): they catch a
 # typo or a unit slip before the model feeds it forward.
@@ -50,11 +52,7 @@ class MotorParams:
 
     @classmethod
     def from_mapping(cls, mapping: Mapping[str, Any]) -> "MotorParams":
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(mapping) - known)
-        if unknown:
-            raise ValueError(f"MotorParams: unknown key(s) {', '.join(unknown)}")
-        return cls(**dict(mapping))
+        return from_known_keys(cls, mapping)
 
     @property
     def stall_torque_nm(self) -> float:

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 from ddrt.core.pose_fix import POSE_BOUND_M, FixError, parse_cov, parse_fix
 from ddrt.core.wrap import wrap_angle
 from ddrt.loop import LoopState
+from ddrt.service.commands import ctl_number
 
 if TYPE_CHECKING:
     from ddrt.service.daemon import Daemon
@@ -103,21 +104,11 @@ def ctl_fix_request(xyt: list[float], cov: str | None, stamp: str | None) -> dic
     parts = [p for p in cov.replace(" ", ",").split(",") if p]
     if len(parts) not in (3, 9):
         raise ValueError(f"ctl pose: --cov: expected 3 variances or 9 entries, comma-separated, got {len(parts)}")
-    values = [_option_number(p, "--cov") for p in parts]
+    values = [ctl_number(p, "--cov", "pose") for p in parts]
     if len(values) == 3:
         values = [values[0], 0.0, 0.0, 0.0, values[1], 0.0, 0.0, 0.0, values[2]]
     req: dict[str, Any] = {"cmd": "pose_fix", "x": xyt[0], "y": xyt[1], "theta": xyt[2],
                            "cov": [values[0:3], values[3:6], values[6:9]]}
     if stamp is not None:
-        req["stamp"] = _option_number(stamp, "--stamp")
+        req["stamp"] = ctl_number(stamp, "--stamp", "pose")
     return req
-
-
-def _option_number(text: str, option: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise ValueError(f"ctl pose: {option}: expected a number, got {text!r}") from None
-    if not math.isfinite(value):
-        raise ValueError(f"ctl pose: {option}: must be finite, got {text!r}")
-    return value
