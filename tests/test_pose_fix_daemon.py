@@ -6,25 +6,19 @@ carries the map pose, the uncertainty and the fix counters; a follow takes frame
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
 from typing import Any
 
 import pytest
 
-from tests.support.daemon import DaemonProc, at_rest_and_reset, ctl, ready_daemon, wait_for
+from tests.support.daemon import DaemonProc, at_rest_and_reset, ctl, wait_for
 
 COV = [[1e-4, 0.0, 0.0], [0.0, 1e-4, 0.0], [0.0, 0.0, 3e-4]]
 
 
-@pytest.fixture(scope="module")
-def daemon() -> Iterator[DaemonProc]:
-    with ready_daemon() as d:
-        yield d
-
-
 @pytest.fixture()
-def idle(daemon: DaemonProc) -> DaemonProc:
-    return at_rest_and_reset(daemon)
+def idle(module_daemon: DaemonProc) -> DaemonProc:
+    """The module's daemon (conftest's `module_daemon`), stopped and reset for this test."""
+    return at_rest_and_reset(module_daemon)
 
 
 def _snapshot(d: DaemonProc) -> tuple[Any, ...]:

@@ -7,24 +7,18 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterator
 from typing import Any
 
 import pytest
 
 from ddrt.path import load_path
-from tests.support.daemon import DaemonProc, PATHS, at_rest_and_reset, ctl, ready_daemon, wait_for
-
-
-@pytest.fixture(scope="module")
-def daemon() -> Iterator[DaemonProc]:
-    with ready_daemon() as d:
-        yield d
+from tests.support.daemon import DaemonProc, PATHS, at_rest_and_reset, ctl, wait_for
 
 
 @pytest.fixture()
-def idle(daemon: DaemonProc) -> DaemonProc:
-    return at_rest_and_reset(daemon)
+def idle(module_daemon: DaemonProc) -> DaemonProc:
+    """The module's daemon (conftest's `module_daemon`), stopped and reset for this test."""
+    return at_rest_and_reset(module_daemon)
 
 
 def pose_of(d: DaemonProc) -> tuple[float, float, float]:

@@ -60,6 +60,22 @@ def rows_in(out: Path) -> int:
         return 0
 
 
+def interrupted_sweep(cmd: list[str], out: Path, rows: int, interrupt: Callable[[subprocess.Popen], None],
+                      new_session: bool = False) -> tuple[subprocess.Popen, str, str]:
+    """Start `cmd`, wait until `out` holds `rows` rows (or it ended), `interrupt` it, and
+    return the finished process with its stdout and stderr."""
+    sweep = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                             start_new_session=new_session)
+    try:
+        wait_for(f"{rows} row(s)", lambda: rows_in(out) >= rows or sweep.poll() is not None, timeout=RUN_TIMEOUT_S)
+        interrupt(sweep)
+        stdout, stderr = sweep.communicate(timeout=RUN_TIMEOUT_S)
+    finally:
+        if sweep.poll() is None:
+            sweep.kill()
+    return sweep, stdout, stderr
+
+
 def sweep_cmd(campaign: Path, out: Path, *extra: str) -> list[str]:
     return [sys.executable, "-m", "ddrt.cli", "sweep", str(campaign), "--out", str(out), "--quiet", *extra]
 
@@ -192,15 +208,8 @@ def test_a_worker_killed_mid_campaign_loses_no_row(cluster: Cluster, campaign: P
 
 def test_ctrl_c_keeps_what_finished_and_resume_runs_only_the_rest(cluster: Cluster, campaign: Path, reference,
                                                                   tmp_path: Path) -> None:
-    sweep = subprocess.Popen(sweep_cmd(campaign, tmp_path, "--scheduler", cluster.address), cwd=REPO,
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        wait_for("three rows", lambda: rows_in(tmp_path) >= 3 or sweep.poll() is not None, timeout=RUN_TIMEOUT_S)
-        sweep.send_signal(signal.SIGINT)
-        out, err = sweep.communicate(timeout=RUN_TIMEOUT_S)
-    finally:
-        if sweep.poll() is None:
-            sweep.kill()
+    sweep, out, err = interrupted_sweep(sweep_cmd(campaign, tmp_path, "--scheduler", cluster.address), tmp_path,
+                                        rows=3, interrupt=lambda p: p.send_signal(signal.SIGINT))
     kept = rows_in(tmp_path)
     assert sweep.returncode == 130, (out, err)
     assert "Traceback" not in err
@@ -222,15 +231,8 @@ def test_ctrl_c_at_a_terminal_stops_a_local_cluster_cleanly(campaign: Path, tmp_
     process of the group outlives it."""
     import os
 
-    sweep = subprocess.Popen(sweep_cmd(campaign, tmp_path, "--workers", "2"), cwd=REPO, stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE, text=True, start_new_session=True)
-    try:
-        wait_for("a row", lambda: rows_in(tmp_path) >= 1 or sweep.poll() is not None, timeout=RUN_TIMEOUT_S)
-        os.killpg(sweep.pid, signal.SIGINT)
-        out, err = sweep.communicate(timeout=RUN_TIMEOUT_S)
-    finally:
-        if sweep.poll() is None:
-            sweep.kill()
+    sweep, out, err = interrupted_sweep(sweep_cmd(campaign, tmp_path, "--workers", "2"), tmp_path, rows=1,
+                                        interrupt=lambda p: os.killpg(p.pid, signal.SIGINT), new_session=True)
     kept = rows_in(tmp_path)
     assert sweep.returncode == 130, (out, err)
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
