@@ -4,6 +4,9 @@ One command measures everything and writes the Markdown; nobody edits BENCHMARKS
 so every number in it can be traced to a run on the machine it names. The timing sections run
 one after another on an otherwise idle process; only the accuracy grid uses a process pool.
 
+Sections 14 to 19 (OWN_COMMAND) are measured by commands of their own; the full run keeps
+their text from the file it replaces.
+
 `--only N` measures section N alone (those in ONLY: 1, 4, 9, 10, 11, 12, 13) and splices it into the --out file:
 the section's text from its `## N.` heading to the next `## ` heading is replaced (or, when
 the file has no such section, inserted after the last section that precedes it in SECTIONS);
@@ -50,7 +53,26 @@ SECTIONS = (
     "11. Foxglove live view, MCAP and the velocity mode",
     "12. The supply voltage measured",
     "13. Commissioning",
+    "14. The ROS 2 bridge under flood",
+    "15. The estimate's uncertainty and pose fixes",
+    "16. Wheel encoders in the estimator",
+    "17. Battery sag and gyro warm-up (issue 23 Done-when)",
+    "18. Sweep throughput",
+    "19. Adaptation on by default? (issue 23 item 5)",
 )
+
+# Sections measured by a command of their own (long, or needing extras and a quiet machine);
+# a full run carries their text over from the file it replaces, and names the command where
+# the file has none.
+OWN_COMMAND: dict[int, str] = {
+    14: "python -m bench.ros2_flood --duration 60",
+    15: "python -m bench.uncertainty",
+    16: "python -m bench.wheel_encoders --robots 5 --workers 1",
+    17: "python -m bench.battery_sag and python -m bench.gyro_warmup",
+    18: "python -m bench.sweep_throughput --runs 1000 --workers 2 --duration 5",
+    19: "ddrt sweep configs/campaigns/adaptation_population.yaml, python -m bench.population "
+        "--variants dynamic,dynamic+adapt [--harsh] and python -m bench.adaptation",
+}
 
 
 @dataclass(frozen=True)
@@ -280,7 +302,26 @@ def _header(n: int) -> str:
     return f"## {SECTIONS[n]}"
 
 
-def render_document(r: Results) -> str:
+def section_body(doc: str, n: int) -> list[str] | None:
+    """Section n's lines of `doc` after its heading and blank line, up to the next `## `
+    heading (trailing blank lines dropped); None when `doc` has no such section."""
+    lines = doc.rstrip("\n").split("\n")
+    try:
+        start = lines.index(_header(n))
+    except ValueError:
+        return None
+    end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")), len(lines))
+    body = lines[start + 1:end]
+    while body and not body[0].strip():
+        body.pop(0)
+    while body and not body[-1].strip():
+        body.pop()
+    return body
+
+
+def render_document(r: Results, previous: str = "") -> str:
+    """The whole report; the sections in OWN_COMMAND are carried over from `previous` (the
+    file this one replaces) as they were."""
     o = r.options
     acc = r.accuracy
     lines: list[str] = [
@@ -324,6 +365,10 @@ def render_document(r: Results) -> str:
     lines += battery.render(r.supply) if r.supply is not None else ["Not measured in this run."]
     lines += ["", _header(13), ""]
     lines += commissioning.render(r.commissioning) if r.commissioning is not None else ["Not measured in this run."]
+    for n, command in OWN_COMMAND.items():
+        kept = section_body(previous, n)
+        lines += ["", _header(n), ""]
+        lines += kept if kept else [f"Not measured: `{command}` measures this section (not part of the full run)."]
     return "\n".join(lines) + "\n"
 
 
@@ -379,6 +424,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.workers < 1:
         ap.error(f"--workers: must be at least 1, got {args.workers}")
+    if args.only in OWN_COMMAND:
+        ap.error(f"--only: section {args.only} is measured by its own command: {OWN_COMMAND[args.only]}")
     if args.only is not None and args.only not in ONLY:
         ap.error(f"--only: sections that can be measured alone: {', '.join(map(str, ONLY))}; got {args.only}")
     opts = QUICK if args.quick else FULL
@@ -396,7 +443,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         _say(f"wrote section {args.only} into {out}")
         return 0
     results = measure_all(opts, command)
-    out.write_text(render_document(results), encoding="utf-8")
+    previous = out.read_text(encoding="utf-8") if out.exists() else ""
+    out.write_text(render_document(results, previous), encoding="utf-8")
     _say(f"wrote {out}")
     for v in results.accuracy.verdict:
         _say("  " + v)

@@ -152,6 +152,10 @@ def test_document_has_every_section(tiny_results: run.Results, tmp_path) -> None
     assert "not evaluated" in doc  # the encoder-radius pair was not in this run
     assert f"Kept: **{tiny_results.accuracy.best.lookahead_m:.2f} m**" in doc
     assert "pytest tiny" in doc
+    n = min(run.OWN_COMMAND)
+    assert run.OWN_COMMAND[n] in doc  # not measured in a full run: the section names its command
+    kept = run.render_document(tiny_results, f"# Benchmarks\n\n{run._header(n)}\n\nmeasured by hand | 1 |\n")
+    assert run.section_body(kept, n) == ["measured by hand | 1 |"]
     adapt = tiny_results.adapt
     assert set(adapt.grid) == {("s_curve", r, on) for r in adaptation.RATES_HZ for on in (False, True)}
     assert "| s_curve | " in doc and "identify on sim-offset-mass.yaml" in doc
@@ -288,3 +292,16 @@ def test_suite_under_load_runs_pytest_beside_hogs_and_stops_at_a_failure(tmp_pat
     sul.stop_hogs(hogs)
     assert all(p.poll() is not None for p in hogs)
     assert sul.closing_line("x\n===== 3 passed, 1 failed in 2.0s =====\n") == "3 passed, 1 failed in 2.0s"
+
+
+def test_a_full_run_keeps_the_sections_measured_by_their_own_commands() -> None:
+    h = run._header
+    own = sorted(run.OWN_COMMAND)
+    old = "\n".join(["# Benchmarks", "", h(13), "", "old thirteen", "", h(own[0]), "", "kept text", "| a | b |", "",
+                     h(own[1]), "", "", "second kept", "", ""])
+    assert run.section_body(old, own[0]) == ["kept text", "| a | b |"]
+    assert run.section_body(old, own[1]) == ["second kept"]
+    assert run.section_body(old, own[2]) is None
+    assert run.section_body("", own[0]) is None
+    with pytest.raises(SystemExit):
+        run.main(["--only", str(own[0]), "--out", "/nonexistent/x.md"])  # measured by its own command
