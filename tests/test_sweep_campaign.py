@@ -386,3 +386,23 @@ def test_the_example_campaign_and_the_documented_keys() -> None:
     doc = (REPO / "docs" / "sweep.md").read_text(encoding="utf-8")
     missing = [k for k in KEYS if f"| `{k}` |" not in doc and f"| `{k}." not in doc]
     assert missing == []
+
+
+def test_leaving_on_ctrl_c_silences_the_loggers_that_print_a_cancelled_callbacks_traceback() -> None:
+    import logging
+
+    from ddrt.sweep.execute import silence_shutdown_logs
+
+    names = ("tornado", "tornado.application", "asyncio", "distributed.client")
+    saved = {n: logging.getLogger(n).level for n in names}
+    try:
+        logging.getLogger("tornado.application").setLevel(logging.ERROR)  # Dask's config does this
+        assert logging.getLogger("tornado.application").isEnabledFor(logging.ERROR)
+        silence_shutdown_logs()
+        for n in names:
+            assert not logging.getLogger(n).isEnabledFor(logging.ERROR), n
+            assert logging.getLogger(n).isEnabledFor(logging.CRITICAL), n
+        assert logging.getLogger("ddrt").isEnabledFor(logging.ERROR)  # ours are untouched
+    finally:
+        for n, level in saved.items():
+            logging.getLogger(n).setLevel(level)

@@ -17,7 +17,7 @@ from typing import Iterator, Sequence
 
 from ddrt.sweep.campaign import CampaignError, load_campaign
 from ddrt.sweep.cases import Plan, expand
-from ddrt.sweep.execute import DaskCluster, InProcess
+from ddrt.sweep.execute import DaskCluster, InProcess, silence_shutdown_logs
 from ddrt.sweep.journal import Journal
 from ddrt.sweep.progress import Progress
 from ddrt.sweep.run import Row
@@ -155,6 +155,7 @@ def _interrupt_flag() -> Iterator[threading.Event]:
 
     def on_sigint(signum: int, frame: object) -> None:
         flag.set()
+        silence_shutdown_logs()  # before the shutdown's first cancelled callback can log
         raise KeyboardInterrupt
 
     previous = signal.signal(signal.SIGINT, on_sigint)

@@ -75,6 +75,19 @@ def _quiet() -> None:
         logging.getLogger(name).setLevel(logging.ERROR)
 
 
+SHUTDOWN_LOGGERS = ("tornado", "asyncio", "distributed")
+
+
+def silence_shutdown_logs() -> None:
+    """Only CRITICAL from tornado, asyncio and distributed, and from each of their loggers that
+    has a level of its own (Dask's logging config gives `tornado.application`, which logs a
+    failed callback's traceback, ERROR): leaving on Ctrl-C or an error, the client's event loop
+    may still run callbacks for futures the shutdown cancels. What finished is in the journal."""
+    names = [n for n in logging.root.manager.loggerDict if n.split(".")[0] in SHUTDOWN_LOGGERS]
+    for name in (*SHUTDOWN_LOGGERS, *names):
+        logging.getLogger(name).setLevel(logging.CRITICAL)
+
+
 class DaskCluster:
     """A Dask client on a LocalCluster of `workers` processes, or on the scheduler at `scheduler`."""
 
@@ -116,11 +129,7 @@ class DaskCluster:
 
     def __exit__(self, *exc: object) -> None:
         if exc and exc[0] is not None:
-            # Leaving on an error or a Ctrl-C: the client's event loop may still run callbacks
-            # for futures the shutdown cancels, and tornado logs each one's traceback (seen
-            # once in ten Ctrl-Cs). What finished is in the journal; the rest is cancelled.
-            for name in ("tornado", "asyncio", "distributed"):
-                logging.getLogger(name).setLevel(logging.CRITICAL)
+            silence_shutdown_logs()  # a cancelled future's callback logged a traceback once in ten Ctrl-Cs
         for thing in (self.client, self.cluster):
             if thing is not None:
                 try:
