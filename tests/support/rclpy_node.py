@@ -2,9 +2,9 @@
 never imported by the suite. Reads one JSON job from argv, prints one JSON result line.
 
 Jobs ("do"):
-- "listen": subscribe to /odom, /imu/data_raw and /battery_state for `seconds`; report the messages' count, their first and
-  last stamps and values, and what the graph says: node names, and per topic the publishers'
-  and subscribers' node names, type names and type hashes.
+- "listen": subscribe to /odom, /imu/data_raw, /battery_state and /diagnostics for `seconds`; report the
+  messages' stamps and values, and what the graph says: node names, and per topic the
+  publishers' and subscribers' node names, type names and type hashes.
 - "cmd_vel": publish Twist or TwistStamped (`stamped`) with `v`, `omega` at `rate_hz` for
   `seconds`, listening to /odom meanwhile and for `after_s` more (the silence).
 - "path": publish one nav_msgs/Path of `points` in `frame` (transient local, reliable, as
@@ -18,6 +18,7 @@ import sys
 import time
 
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, Twist, TwistStamped
 from nav_msgs.msg import Odometry, Path
 from sensor_msgs.msg import BatteryState, Imu
@@ -65,6 +66,9 @@ def main():
          "recv": time.monotonic()}), 50)
     node.create_subscription(BatteryState, "/battery_state", lambda m: battery.append(
         {"v": m.voltage, "present": m.present}), 10)
+    diagnostics = []  # byte fields arrive as bytes of length 1
+    node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: diagnostics.append(
+        {"names": [st.name for st in m.status], "levels": [ord(st.level) for st in m.status]}), 10)
     spin_for(node, job.get("settle_s", 2.0))  # discovery
     odom.clear()
     imu.clear()
@@ -132,7 +136,8 @@ def main():
         m.pose.covariance = cov
         pub.publish(m)
         spin_for(node, job["seconds"])
-    print(json.dumps({"odom": odom, "imu": imu, "battery": battery, "graph": graph(node)}))
+    print(json.dumps({"odom": odom, "imu": imu, "battery": battery, "diagnostics": diagnostics,
+                      "graph": graph(node)}))
     rclpy.shutdown()
 
 
