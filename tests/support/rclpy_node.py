@@ -10,8 +10,11 @@ Jobs ("do"):
 - "path": publish one nav_msgs/Path of `points` in `frame` (transient local, reliable, as
   Nav2's planner does), then listen to /odom for `seconds`.
 - "pose": publish one PoseWithCovarianceStamped on `topic`.
+- "types": for each of `types` ("nav_msgs/msg/Odometry", ...), subscribe to /p/<Type> and publish
+  a default message on /q/<Type> at 10 Hz for `seconds`; report the messages received per type.
 """
 
+import importlib
 import json
 import math
 import sys
@@ -54,9 +57,34 @@ def graph(node):
     return out
 
 
+def echo_types(job):
+    node = rclpy.create_node("ddrt_types")
+    got = {t: 0 for t in job["types"]}
+    pubs = []
+    for t in job["types"]:
+        pkg, sub, name = t.split("/")
+        cls = getattr(importlib.import_module(f"{pkg}.{sub}"), name)
+        node.create_subscription(cls, f"/p/{name}", lambda _m, t=t: got.__setitem__(t, got[t] + 1), 10)
+        pubs.append((node.create_publisher(cls, f"/q/{name}", 10), cls))
+    next_t = [time.monotonic()]
+
+    def publish():
+        if time.monotonic() >= next_t[0]:
+            next_t[0] += 0.1
+            for pub, cls in pubs:
+                pub.publish(cls())
+
+    spin_for(node, job["seconds"], publish)
+    print(json.dumps({"received": got}))
+
+
 def main():
     job = json.loads(sys.argv[1])
     rclpy.init()
+    if job["do"] == "types":
+        echo_types(job)
+        rclpy.shutdown()
+        return
     node = rclpy.create_node("ddrt_test")
     odom = []
     node.create_subscription(Odometry, "/odom", lambda m: odom.append(odom_row(m)), 50)
