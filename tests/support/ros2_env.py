@@ -49,7 +49,6 @@ DISTROS = {
                      Path(os.environ.get("DDRT_ROS2_KILTED_VENV") or CACHE / "ros2-kilted"), "Fast DDS 3.2"),
 }  # tf2_msgs has no wheel on PyPI
 VENV = DISTROS["jazzy"].venv  # the Jazzy venv, whose type descriptions tests/test_ros2_types.py reads
-WHEELS = DISTROS["jazzy"].wheels
 
 _failure: dict[str, str] = {}  # distro -> "" (works) or why not
 
