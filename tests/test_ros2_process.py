@@ -151,3 +151,36 @@ def test_telemetry_format_rosbag2_records_the_topics_and_a_killed_daemon_leaves_
                  .rsplit(b")", 1)[1][:3], 30.0, "the orphaned bridge's exit")
     finally:
         d.close()
+
+
+def test_ddrt_ros2_names_a_cyclone_configuration_it_cannot_use() -> None:
+    """A CYCLONEDDS_URI Cyclone DDS refuses (an unknown element): exit 2, Cyclone's reason and
+    ours, no traceback; the bridge's own settings (ddrt/ros2/node.py) do not hide the user's."""
+    pytest.importorskip("cyclonedds", reason="the ros2 extra")
+    import os
+
+    env = dict(os.environ, CYCLONEDDS_URI="<CycloneDDS><Domain><Bogus>1</Bogus></Domain></CycloneDDS>")
+    out = subprocess.run([sys.executable, "-m", "ddrt.cli", "ros2", "--socket", "/tmp/none.sock", "--domain-id", "7"],
+                         cwd=REPO, capture_output=True, text=True, timeout=120, env=env)
+    assert out.returncode == 2, out.stderr
+    assert "Bogus: unknown element" in out.stderr
+    assert "cannot join domain 7 (CYCLONEDDS_URI=" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_the_bridges_domain_ignores_fast_dds_type_information_and_keeps_the_users_settings(tmp_path: Path) -> None:
+    """The node's domain gets IgnoreTypeInformation for eProsima (1.15), the Kilted fix, and a
+    user's CYCLONEDDS_URI still applies after it (here: Cyclone's configuration trace, which
+    shows both)."""
+    pytest.importorskip("cyclonedds", reason="the ros2 extra")
+    import os
+
+    trace = tmp_path / "cyclone.log"
+    user = f"<CycloneDDS><Domain><Tracing><Category>config</Category><OutputFile>{trace}</OutputFile></Tracing>" \
+           "</Domain></CycloneDDS>"
+    script = "from ddrt.ros2.node import Node; Node('probe', '/', 9)"
+    out = subprocess.run([sys.executable, "-c", script], cwd=REPO, capture_output=True, text=True, timeout=120,
+                         env=dict(os.environ, CYCLONEDDS_URI=user))
+    assert out.returncode == 0, out.stderr
+    text = trace.read_text()
+    assert "Domain/Compatibility/IgnoreTypeInformation/#text: 1.15" in text
+    assert "Domain/Tracing/Category/#text: config" in text

@@ -1,5 +1,5 @@
 """The bridge's message types: RIHS01 hashes against two independent sources (the type
-descriptions that ROS 2 Jazzy's wheels ship, and rosbags' own implementation), the DDS types
+descriptions that ROS 2 Jazzy's and Kilted's wheels ship, and rosbags' own implementation), the DDS types
 on the wire, and the frame arithmetic of ddrt/ros2/convert.py."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import pytest
 
 from ddrt.ros2.interfaces import MESSAGES, dds_type_name, dependencies, fields_of
 from ddrt.ros2.typehash import type_description, type_hash, user_data
-from tests.support.ros2_env import VENV
+from tests.support.ros2_env import DISTROS
 
 
 def test_the_hash_is_sha256_of_the_description_and_changes_with_any_field() -> None:
@@ -53,12 +53,15 @@ def test_hashes_match_rosbags(name: str) -> None:
     assert type_hash(name) == store.hash_rihs01(name)
 
 
-def test_hashes_match_the_type_descriptions_jazzy_ships() -> None:
-    """The JSON files rosidl_generator_type_description wrote into the Jazzy wheels (in the ROS
-    venv the rclpy tests build): every type of ours they include has our hash."""
-    share = VENV / "share"
+@pytest.mark.parametrize("distro", sorted(DISTROS))
+def test_hashes_match_the_type_descriptions_the_wheels_ship(distro: str) -> None:
+    """The JSON files rosidl_generator_type_description wrote into the distribution's wheels (in
+    the ROS venv the rclpy tests build): every type of ours they include has our hash (Kilted
+    changed none of these types)."""
+    venv = DISTROS[distro].venv
+    share = venv / "share"
     if not share.is_dir():
-        pytest.skip(f"no ROS 2 Jazzy venv at {VENV} (tests/test_ros2_rclpy.py builds it)")
+        pytest.skip(f"no ROS 2 {distro} venv at {venv} (tests/test_ros2_rclpy.py builds it)")
     checked = []
     for name in MESSAGES:
         pkg, _, short = name.split("/")

@@ -89,7 +89,16 @@ def run(args: argparse.Namespace) -> int:
         except (OSError, ValueError) as exc:
             log.error("ddrt ros2: --record %s: %s", args.record, exc)
             return 2
-    bridge = Bridge(socket_path, cfg, dds=not args.no_dds, record=record)
+    from cyclonedds.core import DDSException
+
+    try:
+        bridge = Bridge(socket_path, cfg, dds=not args.no_dds, record=record)
+    except DDSException as exc:  # Cyclone logs its reason (a bad CYCLONEDDS_URI, say) to stderr first
+        log.error("ddrt ros2: Cyclone DDS cannot join domain %d (CYCLONEDDS_URI=%r): %s", cfg.domain_id,
+                  os.environ.get("CYCLONEDDS_URI", ""), exc)
+        if record is not None:
+            record.close()
+        return 2
 
     def on_stop(_signum: int, _frame: object) -> None:
         bridge.stop = True

@@ -9,14 +9,24 @@ What ROS 2 expects of a peer on the wire (rmw_dds_common and the rmw implementat
   its GUID and, per node, its name, namespace and the GUIDs of its readers and writers),
   reliable and transient-local, so a late `ros2 node list` still sees it. Without it a
   participant shows as `_CREATED_BY_BARE_DDS_APP_`.
+
+Fast DDS 3 (ROS 2 Kilted's default middleware) sends XTypes type information whose array and
+sequence elements have both "try construct" bits 0; Cyclone DDS 11 rejects those type objects
+as invalid (and, told to accept them, finds them not assignable to its own), so no message type
+with an array or a sequence would match. The bridge's domain therefore ignores the type
+information of eProsima's participants (vendor id 1.15) and matches them on the type name, as
+it does Fast DDS 2 (Jazzy) and rmw_cyclonedds peers, which send none. docs/ros2.md has the
+measurements.
 """
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from typing import Any
 
-from cyclonedds.domain import DomainParticipant
+from cyclonedds.core import DDSException
+from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.pub import DataWriter
 from cyclonedds.qos import Policy, Qos
 from cyclonedds.sub import DataReader
@@ -43,6 +53,29 @@ DEFAULT = QosProfile()  # rclcpp's default, and diff_drive_controller's odometry
 TF = QosProfile(depth=100)  # tf2_ros.TransformBroadcaster
 TF_STATIC = QosProfile(depth=1, transient_local=True)  # tf2_ros.StaticTransformBroadcaster
 DISCOVERY = QosProfile(depth=1, transient_local=True)
+
+EPROSIMA_VENDOR_ID = "1.15"  # Fast DDS
+DOMAIN_XML = ("<CycloneDDS><Domain><Compatibility><IgnoreTypeInformation>" + EPROSIMA_VENDOR_ID
+              + "</IgnoreTypeInformation></Compatibility></Domain></CycloneDDS>")
+_DOMAINS: dict[int, Any] = {}
+
+
+def domain_config(user_uri: str) -> str:
+    """The bridge's Cyclone DDS configuration: DOMAIN_XML, amended by the user's CYCLONEDDS_URI
+    (files and XML fragments, applied after ours, so a user's setting wins)."""
+    return DOMAIN_XML + ("," + user_uri if user_uri.strip() else "")
+
+
+def participant(domain_id: int, qos: Qos) -> DomainParticipant:
+    """A participant in `domain_id`, whose domain is created with domain_config on first use."""
+    if domain_id not in _DOMAINS:
+        try:
+            _DOMAINS[domain_id] = Domain(domain_id, domain_config(os.environ.get("CYCLONEDDS_URI", "")))
+        except DDSException as exc:
+            if exc.code != DDSException.DDS_RETCODE_PRECONDITION_NOT_MET:
+                raise
+            _DOMAINS[domain_id] = None  # created before in this process (not by us): its config stands
+    return DomainParticipant(domain_id, qos=qos)
 
 
 def dds_qos(profile: QosProfile, type_name: str | None) -> Qos:
@@ -77,7 +110,7 @@ class Node:
     def __init__(self, name: str, namespace: str = "/", domain_id: int = 0) -> None:
         self.name = name
         self.namespace = "/" + namespace.strip("/")
-        self.participant = DomainParticipant(domain_id, qos=Qos(Policy.Userdata(b"enclave=/;")))
+        self.participant = participant(domain_id, Qos(Policy.Userdata(b"enclave=/;")))
         self._topics: dict[tuple[str, str], Topic] = {}
         self._readers: list[Any] = []
         self._writers: list[Any] = []

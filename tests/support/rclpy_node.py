@@ -2,22 +2,26 @@
 never imported by the suite. Reads one JSON job from argv, prints one JSON result line.
 
 Jobs ("do"):
-- "listen": subscribe to /odom, /imu/data_raw and /battery_state for `seconds`; report the messages' count, their first and
-  last stamps and values, and what the graph says: node names, and per topic the publishers'
-  and subscribers' node names, type names and type hashes.
+- "listen": subscribe to /odom, /imu/data_raw, /battery_state and /diagnostics for `seconds`; report the
+  messages' stamps and values, and what the graph says: node names, and per topic the
+  publishers' and subscribers' node names, type names and type hashes.
 - "cmd_vel": publish Twist or TwistStamped (`stamped`) with `v`, `omega` at `rate_hz` for
   `seconds`, listening to /odom meanwhile and for `after_s` more (the silence).
 - "path": publish one nav_msgs/Path of `points` in `frame` (transient local, reliable, as
   Nav2's planner does), then listen to /odom for `seconds`.
 - "pose": publish one PoseWithCovarianceStamped on `topic`.
+- "types": for each of `types` ("nav_msgs/msg/Odometry", ...), subscribe to /p/<Type> and publish
+  a default message on /q/<Type> at 10 Hz for `seconds`; report the messages received per type.
 """
 
+import importlib
 import json
 import math
 import sys
 import time
 
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, Twist, TwistStamped
 from nav_msgs.msg import Odometry, Path
 from sensor_msgs.msg import BatteryState, Imu
@@ -53,9 +57,34 @@ def graph(node):
     return out
 
 
+def echo_types(job):
+    node = rclpy.create_node("ddrt_types")
+    got = {t: 0 for t in job["types"]}
+    pubs = []
+    for t in job["types"]:
+        pkg, sub, name = t.split("/")
+        cls = getattr(importlib.import_module(f"{pkg}.{sub}"), name)
+        node.create_subscription(cls, f"/p/{name}", lambda _m, t=t: got.__setitem__(t, got[t] + 1), 10)
+        pubs.append((node.create_publisher(cls, f"/q/{name}", 10), cls))
+    next_t = [time.monotonic()]
+
+    def publish():
+        if time.monotonic() >= next_t[0]:
+            next_t[0] += 0.1
+            for pub, cls in pubs:
+                pub.publish(cls())
+
+    spin_for(node, job["seconds"], publish)
+    print(json.dumps({"received": got}))
+
+
 def main():
     job = json.loads(sys.argv[1])
     rclpy.init()
+    if job["do"] == "types":
+        echo_types(job)
+        rclpy.shutdown()
+        return
     node = rclpy.create_node("ddrt_test")
     odom = []
     node.create_subscription(Odometry, "/odom", lambda m: odom.append(odom_row(m)), 50)
@@ -65,6 +94,9 @@ def main():
          "recv": time.monotonic()}), 50)
     node.create_subscription(BatteryState, "/battery_state", lambda m: battery.append(
         {"v": m.voltage, "present": m.present}), 10)
+    diagnostics = []  # byte fields arrive as bytes of length 1
+    node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: diagnostics.append(
+        {"names": [st.name for st in m.status], "levels": [ord(st.level) for st in m.status]}), 10)
     spin_for(node, job.get("settle_s", 2.0))  # discovery
     odom.clear()
     imu.clear()
@@ -132,7 +164,8 @@ def main():
         m.pose.covariance = cov
         pub.publish(m)
         spin_for(node, job["seconds"])
-    print(json.dumps({"odom": odom, "imu": imu, "battery": battery, "graph": graph(node)}))
+    print(json.dumps({"odom": odom, "imu": imu, "battery": battery, "diagnostics": diagnostics,
+                      "graph": graph(node)}))
     rclpy.shutdown()
 
 
