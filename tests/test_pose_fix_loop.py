@@ -74,7 +74,7 @@ def test_fixes_every_second_hold_a_robot_with_a_2pc_gyro_scale_error_on_its_path
     assert len(ct) > 11000 and len(ct_free) > 11000  # a minute of driving, both
     assert ct_free.max() > 0.030
     # Every fix is taken, the realistic plant's drifting bias included (the error model allows
-    # for it; with estimator.uncertainty_bias_walk 0 a fifth of them were outliers).
+    # for it; with estimator.uncertainty_bias_walk 0 a sixth of them were outliers).
     assert all(r["fused"] for r in fixed.replies) and len(fixed.replies) >= 59
     # From 6 s on the robot stays within 10 mm of the path. The first seconds are the scale
     # being learnt from 5 mm / 1 degree fixes (up to ~20 mm at 3.3 s on these two seeds, as
