@@ -147,8 +147,9 @@ def fix_run(spec: dict[str, Any], duration_s: float, fixes: bool, seed: int, sca
             x, y, th = robot.pose
             if fixes and i % every == every - 1:
                 mx, my, mth = est.map_pose()
+                err = (x - mx, y - my, math.remainder(th - mth, 2 * math.pi))
                 pending.append((i + late, PoseFix(x + rng.normal(0, sx), y + rng.normal(0, sy), th + rng.normal(0, sth),
-                                                  cov, est.t_est), (x - mx, y - my, th - mth)))
+                                                  cov, est.t_est), (*err, _nees(err, est.track.p_map))))
             true_xy.append((x, y))
             duty.append((loop.duty_l, loop.duty_r))
             if loop.state.label != "following":
@@ -172,6 +173,26 @@ def fix_run(spec: dict[str, Any], duration_s: float, fixes: bool, seed: int, sca
             "duty_step_at_fix": max(at) if at else math.nan, "duty_step_steady": float(d[mask].max())}
 
 
+def _nees(err: tuple[float, float, float], p: list[float]) -> float:
+    """e' P^-1 e of the map pose's true error and its covariance: 3 on average if it is honest."""
+    e = np.array(err)
+    return float(e @ np.linalg.solve(np.array(p).reshape(6, 6)[:3, :3], e))
+
+
+def consistency(seeds: int, duration_s: float = 8.0) -> list[tuple[float, float, float]]:
+    """Per fix time: the mean NEES of the map pose just before the fix, over `seeds` runs with
+    the 2 % scale error and with none; is the filter's covariance what its errors are?"""
+    spec = {"shape": "circle", "radius": 1.0, "laps": 4, "speed": 0.4}
+    by: dict[float, list[list[float]]] = {}
+    for k, scale_error in enumerate((0.02, 0.0)):
+        for seed in range(1, seeds + 1):
+            rows: list[dict[str, Any]] = []
+            fix_run(spec, duration_s, True, seed, scale_error=scale_error, trace=rows)
+            for w in rows:
+                by.setdefault(round(w["t"]), [[], []])[k].append(w["error"][3])
+    return [(t, float(np.mean(v[0])), float(np.mean(v[1]))) for t, v in sorted(by.items())]
+
+
 def _trace_row(t: float, err: tuple[float, ...], reply: dict[str, Any], est: Any, ct_max: float) -> dict[str, Any]:
     p = est.track.p_map
     return {"t": t, "fused": reply["fused"], "d2": reply["d2"], "innovation": reply.get("innovation", [math.nan] * 3),
@@ -189,13 +210,13 @@ def print_trace(plant_name: str, seed: int, scale_error: float, est_keys: dict[s
     truth = 1.0 / (1.0 + scale_error) - 1.0
     print(f"### {plant_name} plant, seed {seed}, gyro scale error {scale_error * 100:g} % (learnt should reach {truth:+.4f})"
           f"{', estimator ' + str(est_keys) if est_keys else ''}\n")
-    print("| fix at (s) | map error then: x, y (mm), theta (deg) | innovation: x, y (mm), theta (deg) | d2 | fused | "
-          "learnt gyro scale | its 1 sigma | learnt bias (mrad/s) | its 1 sigma | max cross-track so far (mm) |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("| fix at (s) | map error then: x, y (mm), theta (deg) | its NEES | innovation: x, y (mm), theta (deg) | d2 | "
+          "fused | learnt gyro scale | its 1 sigma | learnt bias (mrad/s) | its 1 sigma | max cross-track so far (mm) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for w in rows:
         e, y = w["error"], w["innovation"]
         d2 = "-" if w["d2"] is None else f"{w['d2']:.2f}"
-        print(f"| {w['t']:.1f} | {e[0] * 1e3:+.1f}, {e[1] * 1e3:+.1f}, {math.degrees(e[2]):+.2f} | "
+        print(f"| {w['t']:.1f} | {e[0] * 1e3:+.1f}, {e[1] * 1e3:+.1f}, {math.degrees(e[2]):+.2f} | {e[3]:.2f} | "
               f"{y[0] * 1e3:+.1f}, {y[1] * 1e3:+.1f}, {math.degrees(y[2]):+.2f} | {d2} | {'yes' if w['fused'] else 'no'} | "
               f"{w['g']:+.4f} | {w['g_std']:.4f} | {w['b'] * 1e3:+.3f} | {w['b_std'] * 1e3:.3f} | {w['ct_max'] * 1e3:.1f} |")
     print(f"\nmax cross-track {r['max_mm']:.1f} mm at {r['t_max_s']:.1f} s, after 6 s {r['max_after_6s_mm']:.1f} mm\n")
@@ -275,6 +296,15 @@ def main(argv: list[str] | None = None) -> int:
               f"{max(late):.1f} mm ({sum(p > 10.0 for p in late)} beyond 10 mm); outliers {sum(r['outliers'] for r in rs)}; "
               f"the duty step at a fix above the run's steady max in {sum(r['duty_step_at_fix'] > r['duty_step_steady'] for r in rs)} "
               f"of {len(rs)} runs.")
+    n = 5 if args.quick else 30
+    print(f"\n### Pose fixes: is the map's covariance honest in the first seconds? ({n} seeds, 8 s)\n")
+    print("Mean NEES (e' P^-1 e of the map pose's true error, x, y, theta) just before each fix: 3 when the "
+          "covariance is what the errors are; the 2 % error is 1.16 sigma of the model's gyro_scale_std, "
+          "so a little above 3 is expected there, and below 3 with no scale error.\n")
+    print("| fix at (s) | 2 % scale error | no scale error |")
+    print("|---|---|---|")
+    for t, a, b in consistency(n):
+        print(f"| {t:.0f} | {a:.2f} | {b:.2f} |")
     print(f"\n({time.time() - t0:.0f} s wall)")
     return 0
 
