@@ -160,9 +160,12 @@ def fix_run(spec: dict[str, Any], duration_s: float, fixes: bool, seed: int, sca
         hal.close()
     ct = cross_track(np.asarray(path.x), np.asarray(path.y), np.array(true_xy))
     d = np.abs(np.diff(np.array(duty), axis=0)).max(axis=1)
-    at = [d[i - 1] for i in fix_ticks if 0 < i <= len(d)]
+    # A fix fused before tick i acts on the step into tick i, or (the realistic plant's
+    # held gyro register and late samples) on the next one: both count as at the fix.
+    near = [j for i in fix_ticks for j in (i - 1, i) if 0 <= j < len(d)]
+    at = [d[j] for j in near]
     mask = np.ones(len(d), bool)
-    mask[[i - 1 for i in fix_ticks if 0 < i <= len(d)]] = False
+    mask[near] = False
     mask[: int(2.0 / loop.period)] = False
     t_settle = int(6.0 / loop.period)
     return {"state": state, "seconds": len(ct) * loop.period, "max_mm": ct.max() * 1e3,

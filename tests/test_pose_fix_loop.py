@@ -10,6 +10,7 @@ import math
 import numpy as np
 import pytest
 
+from ddrt.path.frame import MapReference
 from tests.support.fix_runs import cross_track, run_with_fixes
 
 GYRO_2PC = {"sim": {"gyro": {"scale_error": 0.02}}}
@@ -17,13 +18,14 @@ CIRCLE = {"shape": "circle", "radius": 0.5, "laps": 2, "speed": 0.3}
 
 
 def _steps(run, fix_ticks):  # type: ignore[no-untyped-def]
-    """|duty change| between consecutive ticks: at the fixes (the tick a fix was fused before),
-    and the largest elsewhere once moving (after 2 s)."""
+    """|duty change| between consecutive ticks: at the fixes (into the tick a fix was fused
+    before, and into the next), and the largest elsewhere once moving (after 2 s)."""
     duty = np.array(run.duty)
     d = np.abs(np.diff(duty, axis=0)).max(axis=1)
-    at = np.array([d[i - 1] for i in fix_ticks if 0 < i < len(d) + 1])
+    near = [j for i in fix_ticks for j in (i - 1, i) if 0 <= j < len(d)]
+    at = d[near]
     mask = np.ones(len(d), bool)
-    mask[[i - 1 for i in fix_ticks if 0 < i < len(d) + 1]] = False
+    mask[near] = False
     mask[:400] = False
     return at, d[mask]
 
@@ -41,6 +43,53 @@ def test_a_fix_does_not_step_the_motor_command_of_a_path_in_map() -> None:
                            offset=(0.0, 0.008, 0.0))
     at0, steady0 = _steps(jumpy, jumpy.fix_ticks)
     assert at0.max() > 1.5 * steady0.max(), (at0.max(), steady0.max())
+
+
+class _Frame:
+    """What MapReference asks of the estimator's MapFrame: its correction and jump count."""
+
+    def __init__(self) -> None:
+        self.jumps = 0
+        self.corr = (0.0, 0.0, 0.0)
+
+    def correction(self) -> tuple[float, float, float]:
+        return self.corr
+
+    def fix(self, corr: tuple[float, float, float]) -> None:
+        self.corr = corr
+        self.jumps += 1
+
+
+def _offsets(ref: MapReference, frame: _Frame, ticks: int, dt: float = 0.005,
+             fixes: dict[int, tuple[float, float, float]] | None = None) -> np.ndarray:
+    out = []
+    for k in range(ticks):
+        if fixes and k in fixes:
+            frame.fix(fixes[k])
+        out.append(ref._blend(dt))
+    return np.array(out)
+
+
+def test_the_blend_takes_a_fix_in_without_a_step_in_position_or_in_speed() -> None:
+    """A fix of 10 mm: the reference's offset moves continuously and starts from the speed it
+    had (an exponential blend would move 1/100 of the jump in the first 5 ms tick; this one
+    about 1/5000), takes 59 % of it in map_blend_s and 91 % in twice that; a second fix while
+    blending does not step the speed; without a blend the jump is taken at once."""
+    frame = _Frame()
+    ref = MapReference(None, (0.0, 0.0, 0.0), frame, 0.5, 0.005)  # type: ignore[arg-type]
+    d = _offsets(ref, frame, 401, fixes={1: (0.010, 0.0, 0.0)})[:, 0]
+    assert d[0] == 0.0 and abs(d[1]) < 0.010 / 2000  # continuous, and slow to start
+    assert d[2] - d[1] > d[1]  # then gathering speed
+    assert d[101] / 0.010 == pytest.approx(1.0 - 3.0 * math.exp(-2.0), abs=0.01)  # 59 % in 0.5 s
+    assert d[201] / 0.010 == pytest.approx(1.0 - 5.0 * math.exp(-4.0), abs=0.01)  # 91 % in 1 s
+    frame2 = _Frame()
+    ref2 = MapReference(None, (0.0, 0.0, 0.0), frame2, 0.5, 0.005)  # type: ignore[arg-type]
+    d2 = _offsets(ref2, frame2, 120, fixes={1: (0.010, 0.0, 0.0), 60: (0.0, 0.0, 0.0)})[:, 0]
+    speed = np.diff(d2)
+    assert abs(speed[59] - speed[58]) < 0.1 * abs(speed[58])  # the second fix does not step the speed
+    frame3 = _Frame()
+    ref3 = MapReference(None, (0.0, 0.0, 0.0), frame3, 0.0, 0.005)  # type: ignore[arg-type]
+    assert _offsets(ref3, frame3, 3, fixes={1: (0.010, 0.0, 0.0)})[1, 0] == pytest.approx(0.010)
 
 
 def test_without_fixes_map_is_odom_and_a_path_in_map_is_followed_as_in_odom() -> None:
