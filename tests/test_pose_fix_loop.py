@@ -1,6 +1,7 @@
 """Pose fixes in the closed loop on the simulated robot (ddrt/core/pose_fix.py, ddrt/path/frame.py):
 a path in `map` does not step the motor command at a fix, and with a fix every second a 2 %
-gyro scale error stops moving the robot off its path (issue 21's done-when, on the plain plant)."""
+gyro scale error stops moving the robot off its path (issue 21's done-when, on the plain and
+the realistic plant), once the first fixes have taught the map the scale."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import math
 import numpy as np
 import pytest
 
+from ddrt.path.frame import MapReference
 from tests.support.fix_runs import cross_track, run_with_fixes
 
 GYRO_2PC = {"sim": {"gyro": {"scale_error": 0.02}}}
@@ -16,13 +18,14 @@ CIRCLE = {"shape": "circle", "radius": 0.5, "laps": 2, "speed": 0.3}
 
 
 def _steps(run, fix_ticks):  # type: ignore[no-untyped-def]
-    """|duty change| between consecutive ticks: at the fixes (the tick a fix was fused before),
-    and the largest elsewhere once moving (after 2 s)."""
+    """|duty change| between consecutive ticks: at the fixes (into the tick a fix was fused
+    before, and into the next), and the largest elsewhere once moving (after 2 s)."""
     duty = np.array(run.duty)
     d = np.abs(np.diff(duty, axis=0)).max(axis=1)
-    at = np.array([d[i - 1] for i in fix_ticks if 0 < i < len(d) + 1])
+    near = [j for i in fix_ticks for j in (i - 1, i) if 0 <= j < len(d)]
+    at = d[near]
     mask = np.ones(len(d), bool)
-    mask[[i - 1 for i in fix_ticks if 0 < i < len(d) + 1]] = False
+    mask[near] = False
     mask[:400] = False
     return at, d[mask]
 
@@ -42,6 +45,53 @@ def test_a_fix_does_not_step_the_motor_command_of_a_path_in_map() -> None:
     assert at0.max() > 1.5 * steady0.max(), (at0.max(), steady0.max())
 
 
+class _Frame:
+    """What MapReference asks of the estimator's MapFrame: its correction and jump count."""
+
+    def __init__(self) -> None:
+        self.jumps = 0
+        self.corr = (0.0, 0.0, 0.0)
+
+    def correction(self) -> tuple[float, float, float]:
+        return self.corr
+
+    def fix(self, corr: tuple[float, float, float]) -> None:
+        self.corr = corr
+        self.jumps += 1
+
+
+def _offsets(ref: MapReference, frame: _Frame, ticks: int, dt: float = 0.005,
+             fixes: dict[int, tuple[float, float, float]] | None = None) -> np.ndarray:
+    out = []
+    for k in range(ticks):
+        if fixes and k in fixes:
+            frame.fix(fixes[k])
+        out.append(ref._blend(dt))
+    return np.array(out)
+
+
+def test_the_blend_takes_a_fix_in_without_a_step_in_position_or_in_speed() -> None:
+    """A fix of 10 mm: the reference's offset moves continuously and starts from the speed it
+    had (an exponential blend would move 1/100 of the jump in the first 5 ms tick; this one
+    about 1/5000), takes 59 % of it in map_blend_s and 91 % in twice that; a second fix while
+    blending does not step the speed; without a blend the jump is taken at once."""
+    frame = _Frame()
+    ref = MapReference(None, (0.0, 0.0, 0.0), frame, 0.5, 0.005)  # type: ignore[arg-type]
+    d = _offsets(ref, frame, 401, fixes={1: (0.010, 0.0, 0.0)})[:, 0]
+    assert d[0] == 0.0 and abs(d[1]) < 0.010 / 2000  # continuous, and slow to start
+    assert d[2] - d[1] > d[1]  # then gathering speed
+    assert d[101] / 0.010 == pytest.approx(1.0 - 3.0 * math.exp(-2.0), abs=0.01)  # 59 % in 0.5 s
+    assert d[201] / 0.010 == pytest.approx(1.0 - 5.0 * math.exp(-4.0), abs=0.01)  # 91 % in 1 s
+    frame2 = _Frame()
+    ref2 = MapReference(None, (0.0, 0.0, 0.0), frame2, 0.5, 0.005)  # type: ignore[arg-type]
+    d2 = _offsets(ref2, frame2, 120, fixes={1: (0.010, 0.0, 0.0), 60: (0.0, 0.0, 0.0)})[:, 0]
+    speed = np.diff(d2)
+    assert abs(speed[59] - speed[58]) < 0.1 * abs(speed[58])  # the second fix does not step the speed
+    frame3 = _Frame()
+    ref3 = MapReference(None, (0.0, 0.0, 0.0), frame3, 0.0, 0.005)  # type: ignore[arg-type]
+    assert _offsets(ref3, frame3, 3, fixes={1: (0.010, 0.0, 0.0)})[1, 0] == pytest.approx(0.010)
+
+
 def test_without_fixes_map_is_odom_and_a_path_in_map_is_followed_as_in_odom() -> None:
     run = run_with_fixes(CIRCLE, 3.0, fixes=False)
     assert run.state == "following" and not run.replies
@@ -51,32 +101,62 @@ def test_without_fixes_map_is_odom_and_a_path_in_map_is_followed_as_in_odom() ->
 
 
 # The realistic plant of configs/scenarios/realistic/figure8_cheap_sensors.yaml with the 2 %
-# scale error: a bias drifting 0.01 deg/s per second (which the estimator is told, as
-# gyro_bias_walk), the register held, the MCU's clock off, a slipping omni wheel.
-REALISTIC = {"sim": {"gyro": {"scale_error": 0.02, "drift_dps_per_s": 0.01, "register_hold": True,
-                              "clock_ppm": 5000.0},
-                     "encoder": {"slip": {"mean": -0.003, "sigma": 0.001, "tau_s": 20.0}}},
-             "estimator": {"calibration_s": 0.2, "gyro_bias_walk": 1e-3}}
+# scale error: a bias drifting 0.01 deg/s per second, the register held, the MCU's clock off,
+# a slipping omni wheel. The estimator keeps its defaults: its error model's bias walk
+# (estimator.uncertainty_bias_walk) allows for such a drift.
+REALISTIC_PLANT = {"gyro": {"scale_error": 0.02, "drift_dps_per_s": 0.01, "register_hold": True, "clock_ppm": 5000.0},
+                   "encoder": {"slip": {"mean": -0.003, "sigma": 0.001, "tau_s": 20.0}}}
+REALISTIC = {"sim": REALISTIC_PLANT}
+BIG_CIRCLE = {"shape": "circle", "radius": 1.0, "laps": 4, "speed": 0.4}
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("plant", [GYRO_2PC, REALISTIC], ids=["plain", "realistic"])
-def test_fixes_every_second_hold_a_robot_with_a_2pc_gyro_scale_error_on_its_path(plant: dict) -> None:
+@pytest.mark.parametrize("seed", [1, 2])
+def test_fixes_every_second_hold_a_robot_with_a_2pc_gyro_scale_error_on_its_path(plant: dict, seed: int) -> None:
     """Issue 21's done-when: a fix every second (5 mm, 1 degree, 0.1 s late), 60 s on a 1 m
-    circle at 0.4 m/s with an uncalibrated 2 % gyro scale error."""
-    spec = {"shape": "circle", "radius": 1.0, "laps": 4, "speed": 0.4}
-    free = run_with_fixes(spec, 60.0, plant, fixes=False)
-    fixed = run_with_fixes(spec, 60.0, plant)
+    circle at 0.4 m/s with an uncalibrated 2 % gyro scale error, default estimator settings."""
+    free = run_with_fixes(BIG_CIRCLE, 60.0, plant, fixes=False, seed=seed)
+    fixed = run_with_fixes(BIG_CIRCLE, 60.0, plant, seed=seed)
     ct_free = cross_track(free.path, np.array(free.true_xy))
     ct = cross_track(fixed.path, np.array(fixed.true_xy))
     assert len(ct) > 11000 and len(ct_free) > 11000  # a minute of driving, both
     assert ct_free.max() > 0.030
-    # The filter learns the scale error from the first fixes (a transient up to ~15 mm in the
-    # first 5 s; docs/BENCHMARKS.md); from then on the robot stays within 10 mm of the path.
+    # Every fix is taken, the realistic plant's drifting bias included (the error model allows
+    # for it; with estimator.uncertainty_bias_walk 0 a sixth of them were outliers).
+    assert all(r["fused"] for r in fixed.replies) and len(fixed.replies) >= 59
+    # From 6 s on the robot stays within 10 mm of the path. The first seconds are the scale
+    # being learnt from 5 mm / 1 degree fixes (16 to 23 mm at 3.3 s on these two seeds, as a
+    # gyro with no scale error at all does on some: docs/BENCHMARKS.md section 15); even then
+    # the robot is never as far off as it drifts without fixes.
     assert ct[1200:].max() < 0.010, ct[1200:].max()
-    assert all(r["fused"] for r in fixed.replies)
+    assert ct.max() < 0.030, ct.max()
     learnt = fixed.replies[-1]["learnt"]["gyro_scale"]
     assert learnt == pytest.approx(1.0 / 1.02 - 1.0, abs=0.003)
+
+
+@pytest.mark.slow
+def test_a_bias_drift_the_error_model_does_not_allow_for_turns_fixes_into_outliers() -> None:
+    """The realistic plant's drifting bias with the bias walk of the bias filters alone (1e-5
+    rad/s per sqrt(s), the error model before estimator.uncertainty_bias_walk): the map grows
+    sure of a heading that is drifting away, and fixes are refused."""
+    told_nothing = {"sim": REALISTIC_PLANT, "estimator": {"calibration_s": 0.2, "uncertainty_bias_walk": 0.0}}
+    run = run_with_fixes(BIG_CIRCLE, 30.0, told_nothing)
+    assert sum(1 for r in run.replies if r.get("outlier")) >= 2
+
+
+def test_the_first_seconds_peak_is_fix_noise_read_as_a_scale_error() -> None:
+    """Why the first seconds peak: with a gyro that has no scale error at all, a model that does
+    not know its scale (the default 1.73 %) reads a 3-sigma sideways error of the second fix as
+    one and the robot leaves the path by more than 10 mm; told the scale is known (0.3 %, a
+    calibrated gyro), the same fixes move it by less."""
+    exact = {"sim": {"gyro": {"scale_error": 0.0}}}
+    unknown = run_with_fixes(BIG_CIRCLE, 6.0, exact, seed=2)
+    known = run_with_fixes(BIG_CIRCLE, 6.0, {**exact, "estimator": {"calibration_s": 0.2, "gyro_scale_std": 0.003}},
+                           seed=2)
+    assert unknown.replies[1]["learnt"]["gyro_scale"] > 0.01  # the second fix taught a 1 %+ scale error
+    assert cross_track(unknown.path, np.array(unknown.true_xy)).max() > 0.010
+    assert cross_track(known.path, np.array(known.true_xy)).max() < 0.008
 
 
 def test_a_reload_of_the_uncertainty_figures_rescales_without_a_jump() -> None:

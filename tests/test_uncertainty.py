@@ -312,3 +312,20 @@ def test_after_five_outliers_in_a_row_the_next_fix_reanchors_map() -> None:
     assert r["fused"] and r["anchored"] and frame.counters.reanchors == 1
     assert (frame.x, frame.y, frame.th) == pytest.approx((5.0, 5.0, 1.0))
     assert std_of(track.p_map)[0] == pytest.approx(0.01)
+
+
+def test_the_error_models_bias_walk_is_the_larger_of_the_drift_allowed_for_and_the_filters_walk() -> None:
+    """estimator.uncertainty_bias_walk (what a drifting gyro may do between rests and fixes) is
+    the walk the covariance grows by; a bias filter told of a faster walk raises it, never
+    lowers it. A negative value is refused, naming the key."""
+    from ddrt.config import ConfigError, load_config
+    from tests.support.repo import SIM_YAML
+
+    def walk(**est: float) -> float:
+        return ErrorModel.from_config(load_config(SIM_YAML, {"estimator": est}).estimator, DT).bias_walk
+
+    assert walk() == pytest.approx(3e-4)
+    assert walk(uncertainty_bias_walk=0.0) == pytest.approx(1e-5)  # the bias filters' own walk
+    assert walk(gyro_bias_walk=1e-3) == pytest.approx(1e-3)
+    with pytest.raises(ConfigError, match="estimator.uncertainty_bias_walk"):
+        load_config(SIM_YAML, {"estimator": {"uncertainty_bias_walk": -1e-4}})

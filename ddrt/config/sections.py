@@ -268,13 +268,17 @@ class EstimatorConfig:
     fix_history_s: float = 2.0  # how late a pose fix may arrive (s of odometry kept)
     fix_gate_chi2: float = 16.27  # Mahalanobis^2 beyond which a fix is an outlier (chi-square 3 dof, 0.999)
     map_blend_s: float = 0.5  # a path in `map` follows a fix's correction with this time constant
+    # rad/s per sqrt(s): the bias drift the pose's error model allows for (the reported
+    # uncertainty, the fixes' gate and gain), at least gyro_bias_walk: a warming MPU-6050
+    # drifts ~0.01 deg/s per s, i.e. 3e-4 over the few seconds between fixes (docs/estimation.md)
+    uncertainty_bias_walk: float = 3e-4
     # With drive-wheel encoders (sensors.wheel_counts_per_rev > 0; ddrt/core/wheel_odometry.py).
     wheel_bias_walk: float = 1e-4  # rad/s per sqrt(s): the bias drift the wheels track on the move
     wheel_scale_std: float = 0.02  # 1 sigma relative error of r_L, r_R (tyres under load)
 
     def validate(self, where: str) -> None:
         non_negative(where, encoder_scale_std=self.encoder_scale_std, gyro_scale_std=self.gyro_scale_std,
-                     map_blend_s=self.map_blend_s)
+                     map_blend_s=self.map_blend_s, uncertainty_bias_walk=self.uncertainty_bias_walk)
         positive(where, fix_gate_chi2=self.fix_gate_chi2)
         non_negative(where, wheel_bias_walk=self.wheel_bias_walk, wheel_scale_std=self.wheel_scale_std)
         for key in ("encoder_scale_std", "gyro_scale_std", "wheel_scale_std"):

@@ -9,8 +9,9 @@ Error state e = (ex, ey, eth, es, eg, eb), true = estimate + error:
 
 es and eg are constants the odometry does not know (its configured r_3 and gyro_scale are
 taken as exact; the map frame learns them from pose fixes); eb drifts as a random walk
-(estimator.gyro_bias_walk) and is re-learnt whenever the robot stands still (the
-estimator's at-rest update, which this follows). A step of the dead reckoning (ds along
+(estimator.uncertainty_bias_walk, at least the bias filters' gyro_bias_walk) and is
+re-learnt whenever the robot stands still (the estimator's at-rest update, which this
+follows). A step of the dead reckoning (ds along
 the midpoint heading th_m, dth, dt) moves the error by
 
     ex  += -ds sin(th_m) eth + ds cos(th_m) es
@@ -47,7 +48,7 @@ class ErrorModel:
     encoder_scale_std: float  # relative, 1 sigma (estimator.encoder_scale_std)
     gyro_scale_std: float  # relative, 1 sigma (estimator.gyro_scale_std)
     bias0_std: float  # rad/s after the start-up calibration: gyro noise / sqrt(samples)
-    bias_walk: float  # rad/s per sqrt(s) (estimator.gyro_bias_walk)
+    bias_walk: float  # rad/s per sqrt(s) (estimator.uncertainty_bias_walk, at least gyro_bias_walk)
     heading_walk: float  # rad per sqrt(s): the gyro's white noise integrated (angle random walk)
 
     @classmethod
@@ -57,8 +58,11 @@ class ErrorModel:
         # The calibration averages `samples` readings of independent noise (the MPU's low-pass
         # at 98 Hz keeps readings 5 ms apart nearly independent); a sample's noise summed over
         # one period each gives an angle variance of noise^2 * period per second.
+        # The bias filters' walk (gyro_bias_walk) is a tuning; what the bias error may really do
+        # between two rests or fixes is the gyro's drift, which a warming part makes far larger.
+        walk = max(cfg.gyro_bias_walk, cfg.uncertainty_bias_walk)
         return cls(cfg.encoder_scale_std, cfg.gyro_scale_std, noise / math.sqrt(samples),
-                   cfg.gyro_bias_walk, noise * math.sqrt(period_s))
+                   walk, noise * math.sqrt(period_s))
 
 
 def zero_cov() -> list[float]:
