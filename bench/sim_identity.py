@@ -57,7 +57,13 @@ def diff(a: Any, b: Any, where: str, tol: float = 1e-9) -> list[str]:
 
 def main(argv: list[str]) -> int:
     mode = argv[0] if argv else "check"
+    if mode not in ("save", "check") or len(argv) > 2:
+        print(__doc__.splitlines()[0].split(":")[0].strip("`"), file=sys.stderr)
+        return 0 if mode in ("-h", "--help") else 2
     file = FsPath(argv[1]) if len(argv) > 1 else DEFAULT
+    if mode == "check" and not file.exists():
+        print(f"{file}: no saved runs to check against; run `python -m bench.sim_identity save` first", file=sys.stderr)
+        return 2
     now = collect()
     if mode == "save":
         file.write_text(json.dumps(now, indent=1, sort_keys=True))
