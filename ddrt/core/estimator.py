@@ -39,7 +39,7 @@ import math
 from dataclasses import dataclass
 
 from ddrt.config import EstimatorConfig
-from ddrt.core.gyro_bias import CalibrationError, GyroBias, calibrate_gyro  # noqa: F401 (re-exported)
+from ddrt.core.gyro_bias import CalibrationError, GyroBias, calibrate_gyro
 from ddrt.core.gyro_fifo import GyroFifo, mean_rate
 from ddrt.core.kalman import TravelFilter, YawFilter
 from ddrt.core.model import Dynamics
@@ -49,6 +49,8 @@ from ddrt.core.uncertainty import ErrorModel, Tracker
 from ddrt.core.types import HalInfo, Sample
 from ddrt.core.wheel_odometry import WheelOdometry, error_model
 from ddrt.core.wrap import wrap_i32
+
+__all__ = ["CalibrationError", "Estimator", "EstimatorHealth", "calibrate_gyro"]  # the first and last from gyro_bias.py
 
 NOISE_STEP_S = 0.005  # the step the configured process noises are given for
 _RESYNC_V_VAR = 0.01  # (m/s)^2: speed variance after a re-anchor, so the next samples set it
