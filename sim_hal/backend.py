@@ -185,16 +185,23 @@ class SimHal(Hal):
             s.encoder_count, s.gyro_z_raw = self.wiring.encoder(s.encoder_count), self.wiring.gyro(s.gyro_z_raw)
             s.count_left, s.count_right = self.wiring.wheels(s.count_left, s.count_right)
         if info.gyro_fifo_period_s > 0.0:
-            self._read_fifo(s, last)
+            return self._read_fifo(s, last)
         return s
 
-    def _read_fifo(self, s: Sample, last: Sample | None) -> None:
-        """The gyro through its FIFO: its samples since the last read into `s` (module doc)."""
+    def _read_fifo(self, s: Sample, last: Sample | None) -> Sample:
+        """The gyro through its FIFO: its samples since the last read into `s` (module doc); after
+        an overflow, the last sample again (its own time, not fresh), as a frozen read: the next
+        fresh one then measures the whole gap."""
         samples, lost = self.robot.read_gyro_fifo()
         if self.wiring is not None:
             samples = [self.wiring.gyro(r) for r in samples]
         if lost:  # what is left no longer joins the last read's samples: drop it, say so
             self.fifo_overflows += 1
+            if last is not None:
+                self._last_sample = last
+                return Sample(t=last.t, encoder_count=last.encoder_count, gyro_z_raw=last.gyro_z_raw, fresh=False,
+                              faults="imu_fifo_overflow", battery_v=last.battery_v, hw_estop=s.hw_estop,
+                              count_left=last.count_left, count_right=last.count_right)
             s.fresh, s.faults = False, "imu_fifo_overflow"
             samples = []
         s.gyro_n = len(samples)
@@ -203,6 +210,7 @@ class SimHal(Hal):
             s.gyro_z_raw = samples[-1]
         elif last is not None:
             s.gyro_z_raw = last.gyro_z_raw
+        return s
 
     def write(self, duty_l: float, duty_r: float) -> None:
         """Hal.write, its checks first on the common path: both duties in range go straight to

@@ -102,7 +102,8 @@ def test_mean_rate_of_a_batch_and_of_a_register_reading():
 
 # --- the estimator on the simulated robot ---------------------------------------------------
 
-def spin(fifo: bool, seed: int, seconds: float = 24.0, backend: str = "sim", **gyro: float) -> tuple[float, object]:
+def spin(fifo: bool, seed: int, seconds: float = 24.0, backend: str = "sim", freeze: tuple[float, float] | None = None,
+         **gyro: float) -> tuple[float, object]:
     """The seed robot weaving (yaw-rate reversals of about 2 rad/s every second)
     with its register held at the part's own 0.5 %-fast clock, then at rest: the heading error
     (deg) at the end, and the estimator."""
@@ -115,6 +116,8 @@ def spin(fifo: bool, seed: int, seconds: float = 24.0, backend: str = "sim", **g
     try:
         loop = ControlLoop(cfg, hal)
         loop.calibrate(hal.sleep_until, hal.now)
+        if freeze is not None:  # the sensors stop updating (SimHal's fault injection)
+            hal.freeze(hal.now() + freeze[0], freeze[1])
         est = loop.estimator
         period = loop.period
         bias = cfg.sim.gyro.bias_dps * DEG
@@ -153,3 +156,24 @@ def test_through_the_fifo_the_heading_is_the_samples_integrated(backend):
         errs_reg.append(abs(spin(False, seed, backend=backend, noise_dps_rthz=0.0, bias_dps=0.0)[0]))
     assert max(errs_fifo) < 0.03  # measured 0.006 to 0.013
     assert min(errs_reg) > 3.0 * max(errs_fifo)  # measured 0.24
+
+
+def test_a_short_freeze_is_covered_by_the_samples_that_waited_in_the_fifo():
+    """30 ms without a fresh sample mid-run (below the estimator's max gap): the ticks are
+    dead-reckoned, then the batch after them brings every sample of the freeze and takes back
+    what dead reckoning added: the heading is as good as without the freeze."""
+    err, est = spin(True, 1, 12.0, freeze=(5.0, 0.03), noise_dps_rthz=0.0, bias_dps=0.0)
+    assert est.health.counters()["stale_ticks"] == 0 and est.fifo.losses == 0
+    assert abs(err) < 0.03
+
+
+@pytest.mark.parametrize("dur", [0.2, 3.0])
+def test_a_long_freeze_re_anchors_or_loses_samples_without_a_traceback(dur):
+    """A freeze beyond the max gap (0.2 s) or beyond the FIFO (3 s: it overflowed, that read
+    flagged and repeated like a frozen one) while the robot weaves on blind: the estimate is
+    re-anchored as it is without the FIFO (the gap's heading is dead reckoning either way), and
+    the period learnt before is kept."""
+    err, est = spin(True, 2, 8.0, freeze=(4.0, dur), noise_dps_rthz=0.0, bias_dps=0.0)
+    assert est.fifo.rejects == 0 and est.health.gaps == 1
+    assert est.fifo.period == pytest.approx(0.005 / 1.005, rel=5e-4)
+    assert abs(err) < abs(spin(False, 2, 8.0, freeze=(4.0, dur), noise_dps_rthz=0.0, bias_dps=0.0)[0]) + 1.0

@@ -88,10 +88,12 @@ class GyroFifo:
                 self.rescale = self.period / self.nominal - 1.0
 
     def restart(self, t: float | None) -> None:
-        """The samples count from loop time `t` on (a reset, a re-anchor); None: from the next
-        batch, whose span is then its own count's."""
+        """The samples count from loop time `t` on (a reset, a re-anchor: the batch of the gap
+        was used otherwise, so the line starts again, the period learnt so far kept); None:
+        from the next batch, whose span is then its own count's."""
         self.last_t = t
         self.blind = 0.0
+        self._refit()
 
     def span(self, t: float, n: int) -> float:
         """The time (s) the batch of n > 0 samples read at loop time t covers."""
