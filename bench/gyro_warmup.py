@@ -159,11 +159,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench.gyro_warmup", description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=len(SEEDS), help="seeds 1..N (default: 3)")
     ap.add_argument("--minutes", type=float, default=DRIVE_S / 60.0, help="driving time (default: 10)")
-    ap.add_argument("--only", default="", help="only the settings whose label contains this text")
+    ap.add_argument("--only", default="", help="only the settings whose label starts with this text")
     args = ap.parse_args(argv)
     seeds = tuple(range(1, args.seeds + 1))
     runs = {label: [one_run(hz, slope, s, 60.0 * args.minutes, hold, fifo) for s in seeds]
-            for label, hz, slope, hold, fifo in SETTINGS if args.only in label}
+            for label, hz, slope, hold, fifo in SETTINGS if label.startswith(args.only)}
     print("\n".join(render(runs, seeds)))
     return 0
 
