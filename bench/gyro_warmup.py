@@ -15,8 +15,10 @@ magnitude at the end of any stop, and the position error at the end (mm).
 
 Settings: TEMP_OUT not read (`sensors.gyro_temp_hz: 0`, the estimator as before); read at
 5 Hz with the slope learnt at the stops (`estimator.gyro_bias_per_c_dps: null`); read with the
-slope set by commissioning (the true one); and that again with the register read at the tick
-(`sim.gyro.register_hold: false`), which shows what the hold's tick-to-tick age costs.
+slope set by commissioning (the true one); that again with the register read at the tick
+(`sim.gyro.register_hold: false`), which shows what the hold's tick-to-tick age costs; and the
+two TEMP_OUT settings with the gyro read through its FIFO (`sensors.gyro_fifo: true`: every
+sample once, at the part's own period, learnt).
 """
 
 from __future__ import annotations
@@ -41,11 +43,13 @@ DRIVE_S = 600.0
 STOP_S = 2.0
 LAP_S = 28.0  # a path of about this long, then a stop: a stop every 30 s
 TEMP_HZ = 5.0
-SETTINGS = (  # (label, gyro_temp_hz, estimator.gyro_bias_per_c_dps, register held)
-    ("TEMP_OUT not read (before)", 0.0, None, True),
-    ("TEMP_OUT at 5 Hz, slope learnt at stops", TEMP_HZ, None, True),
-    ("TEMP_OUT at 5 Hz, slope commissioned", TEMP_HZ, SLOPE_DPS_PER_C, True),
-    ("the same, register read at the tick (no hold)", TEMP_HZ, SLOPE_DPS_PER_C, False),
+SETTINGS = (  # (label, gyro_temp_hz, estimator.gyro_bias_per_c_dps, register held, FIFO read)
+    ("TEMP_OUT not read (before)", 0.0, None, True, False),
+    ("TEMP_OUT at 5 Hz, slope learnt at stops", TEMP_HZ, None, True, False),
+    ("TEMP_OUT at 5 Hz, slope commissioned", TEMP_HZ, SLOPE_DPS_PER_C, True, False),
+    ("the same, register read at the tick (no hold)", TEMP_HZ, SLOPE_DPS_PER_C, False, False),
+    ("FIFO, TEMP_OUT at 5 Hz, slope learnt at stops", TEMP_HZ, None, True, True),
+    ("FIFO, TEMP_OUT at 5 Hz, slope commissioned", TEMP_HZ, SLOPE_DPS_PER_C, True, True),
 )
 SEEDS = (1, 2, 3)
 
@@ -61,16 +65,17 @@ class Run:
     fault: str
 
 
-def config(temp_hz: float, slope: float | None, seed: int, hold: bool = True) -> Any:
+def config(temp_hz: float, slope: float | None, seed: int, hold: bool = True, fifo: bool = False) -> Any:
     over = {"sim": {"seed": seed, "gyro": {"warmup_rise_c": RISE_C, "warmup_tau_s": TAU_S,
                                            "bias_per_c_dps": SLOPE_DPS_PER_C, "register_hold": hold,
                                            "clock_ppm": 5000.0}},
-            "sensors": {"gyro_temp_hz": temp_hz}, "estimator": {"gyro_bias_per_c_dps": slope}}
+            "sensors": {"gyro_temp_hz": temp_hz, "gyro_fifo": fifo}, "estimator": {"gyro_bias_per_c_dps": slope}}
     return load_config(SIM_CONFIG, over)
 
 
-def one_run(temp_hz: float, slope: float | None, seed: int, drive_s: float = DRIVE_S, hold: bool = True) -> Run:
-    cfg = config(temp_hz, slope, seed, hold)
+def one_run(temp_hz: float, slope: float | None, seed: int, drive_s: float = DRIVE_S, hold: bool = True,
+            fifo: bool = False) -> Run:
+    cfg = config(temp_hz, slope, seed, hold, fifo)
     probe = load_path({"shape": "figure_eight", "width": 1.6, "height": 0.8, "speed": 0.4, "laps": 2},
                       speed_limits(cfg), paths=cfg.paths)
     speed = 0.4 * probe.duration / LAP_S
@@ -154,10 +159,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench.gyro_warmup", description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=len(SEEDS), help="seeds 1..N (default: 3)")
     ap.add_argument("--minutes", type=float, default=DRIVE_S / 60.0, help="driving time (default: 10)")
+    ap.add_argument("--only", default="", help="only the settings whose label starts with this text")
     args = ap.parse_args(argv)
     seeds = tuple(range(1, args.seeds + 1))
-    runs = {label: [one_run(hz, slope, s, 60.0 * args.minutes, hold) for s in seeds]
-            for label, hz, slope, hold in SETTINGS}
+    runs = {label: [one_run(hz, slope, s, 60.0 * args.minutes, hold, fifo) for s in seeds]
+            for label, hz, slope, hold, fifo in SETTINGS if label.startswith(args.only)}
     print("\n".join(render(runs, seeds)))
     return 0
 

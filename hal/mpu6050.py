@@ -10,6 +10,16 @@ The die temperature (TEMP_OUT, one more 2-byte block read) is read only when ask
 times a second: the estimator compensates the gyro's zero-rate bias for it. A reading's age
 is the low-pass's group delay plus the output register's hold, 0 to one sample period
 (`register_hold_s`), which `sample_age_s` takes at its mean.
+
+With `fifo=True` (`sensors.gyro_fifo`) the part also writes every gyro z sample into its
+1024-byte FIFO (FIFO_EN's ZG_FIFO_EN), and `read_gyro_fifo()` is the per-tick call: FIFO_COUNT
+(one 2-byte read), then that many whole samples from FIFO_R_W (block reads of at most 32
+bytes), so every sample the gyro produced is delivered exactly once, as a count, a sum and the
+newest (`FifoBatch`). Its age is then the low-pass's delay only: which sample is newest is
+known. A FIFO that is full (it may have lost samples), a count that cannot be (odd, beyond
+1024), a short or failed data read: the FIFO is reset and the batch says `lost`, never a
+traceback and never a misaligned sample (a failed FIFO transfer is not retried: it may have
+popped bytes).
 """
 
 from __future__ import annotations
@@ -17,14 +27,15 @@ from __future__ import annotations
 import errno
 import math
 import time
+from dataclasses import dataclass
 from typing import Any, Callable, Protocol
 
 from ddrt.params.gyro_scale import GYRO_RANGES_DPS, gyro_lsb_per_rad_s
 from hal.base import HalInitError, HalIOError, HalTimeoutError, HalValueError
 
 __all__ = [
-    "DEFAULT_ADDRESS", "GYRO_CONFIG", "GYRO_DELAY_S", "GYRO_FS_SEL", "GYRO_ZOUT_H", "PWR_MGMT_1",
-    "SMPLRT_DIV", "CONFIG", "TEMP_OUT_H", "WHO_AM_I", "WHO_AM_I_VALUE", "Mpu6050", "SmbusLike",
+    "DEFAULT_ADDRESS", "FIFO_BYTES", "FIFO_COUNTH", "FIFO_EN", "FIFO_R_W", "FifoBatch", "GYRO_CONFIG", "GYRO_DELAY_S", "GYRO_FS_SEL", "GYRO_ZOUT_H", "PWR_MGMT_1",
+    "SMPLRT_DIV", "CONFIG", "TEMP_OUT_H", "USER_CTRL", "WHO_AM_I", "WHO_AM_I_VALUE", "Mpu6050", "SmbusLike",
     "gyro_scale", "open_i2c_bus",
 ]
 
@@ -38,6 +49,15 @@ TEMP_OUT_H = 0x41  # TEMP_OUT_L follows at 0x42; degC = TEMP_OUT / 340 + 36.53 (
 PWR_MGMT_1 = 0x6B
 WHO_AM_I = 0x75
 WHO_AM_I_VALUE = 0x68
+FIFO_EN = 0x23  # which data go into the FIFO: ZG_FIFO_EN is bit 4
+USER_CTRL = 0x6A  # FIFO_EN bit 6 (the FIFO runs), FIFO_RESET bit 2 (self-clearing)
+FIFO_COUNTH = 0x72  # FIFO_COUNTL follows at 0x73: bytes in the FIFO, big-endian
+FIFO_R_W = 0x74  # each read pops one byte
+ZG_FIFO_EN = 0x10
+USER_FIFO_EN = 0x40
+USER_FIFO_RESET = 0x04
+FIFO_BYTES = 1024  # the FIFO's size; full, its oldest data are overwritten
+_SMBUS_BLOCK = 32  # the most one SMBus block read returns
 
 PWR_SLEEP = 0x40
 PWR_CLKSEL_PLL_XGYRO = 0x01  # steadier than the internal 8 MHz oscillator
@@ -52,6 +72,19 @@ _TEMP_LSB_PER_C = 340.0
 _TEMP_OFFSET_C = 36.53
 _RETRY_ERRNOS = frozenset({errno.EIO, errno.EREMOTEIO, errno.ETIMEDOUT})
 _DEG = math.pi / 180.0
+
+
+@dataclass(slots=True)
+class FifoBatch:
+    """What one FIFO read delivered: `n` samples (0: none since the last read) with raw sum
+    `sum_raw`, the newest `last_raw` (None when n is 0); `lost`: samples were lost since the last
+    read (the FIFO was full, garbled or unreadable, and was reset), so this batch does not join
+    the previous one."""
+
+    n: int
+    sum_raw: int
+    last_raw: int | None
+    lost: bool = False
 
 
 class SmbusLike(Protocol):
@@ -88,7 +121,7 @@ class Mpu6050:
     """Configures the part on construction; `read_gyro_z_raw()` is the per-tick call."""
 
     def __init__(self, bus: SmbusLike, address: int = DEFAULT_ADDRESS, gyro_range_dps: int = 250,
-                 dlpf_cfg: int = 2, sample_rate_div: int = 4) -> None:
+                 dlpf_cfg: int = 2, sample_rate_div: int = 4, fifo: bool = False) -> None:
         self.lsb_per_rad_s, self.full_scale_rad_s = gyro_scale(gyro_range_dps)
         if isinstance(address, bool) or not isinstance(address, int) or not 0x03 <= address <= 0x77:
             raise ValueError(f"address: expected a 7-bit I2C address, got {address!r}")
@@ -102,6 +135,9 @@ class Mpu6050:
         self.gyro_range_dps = gyro_range_dps
         self.dlpf_cfg = dlpf_cfg
         self.sample_rate_div = sample_rate_div
+        self.fifo = bool(fifo)
+        self.fifo_resets = 0  # FIFO resets after a full, garbled or failed read
+        self._fifo_reset_due = False  # a FIFO transfer failed: its contents are suspect
         self._rad_per_lsb = 1.0 / self.lsb_per_rad_s
         self.retries = 0  # transfers that failed once and were retried
         self.errors = 0  # transfers that failed after the retry
@@ -119,8 +155,15 @@ class Mpu6050:
 
     @property
     def sample_age_s(self) -> float:
-        """The mean age of a reading: the low-pass's delay plus half the register's hold."""
-        return self.gyro_delay_s + 0.5 * self.register_hold_s
+        """The mean age of a reading: the low-pass's delay plus half the register's hold (the
+        low-pass's only through the FIFO, whose newest sample is known)."""
+        return self.gyro_delay_s + (0.0 if self.fifo else 0.5 * self.register_hold_s)
+
+    @property
+    def fifo_period_s(self) -> float:
+        """The nominal time between two FIFO samples (the part's clock may be 1 % off); 0
+        without the FIFO."""
+        return 1.0 / self.sample_rate_hz if self.fifo else 0.0
 
     @property
     def sample_rate_hz(self) -> float:
@@ -141,6 +184,9 @@ class Mpu6050:
                                (CONFIG, self.dlpf_cfg),
                                (GYRO_CONFIG, fs_sel << FS_SEL_SHIFT)):
                 self._xfer(self.bus.write_byte_data, self.address, reg, value)
+            if self.fifo:
+                self._xfer(self.bus.write_byte_data, self.address, FIFO_EN, ZG_FIFO_EN)
+                self._fifo_restart()
         except HalInitError:
             raise
         except HalIOError as e:
@@ -162,6 +208,57 @@ class Mpu6050:
             cls = HalTimeoutError if e.errno == errno.ETIMEDOUT else HalIOError
             raise cls(f"MPU-6050 at 0x{self.address:02x}: {fn.__name__} failed twice: "
                       f"{e}") from e
+
+    def _fifo_restart(self) -> None:
+        """Stop, empty and restart the FIFO (FIFO_RESET acts while USER_CTRL's FIFO_EN is 0)."""
+        for value in (0, USER_FIFO_RESET, USER_FIFO_EN):
+            self._xfer(self.bus.write_byte_data, self.address, USER_CTRL, value)
+
+    def _fifo_lost(self) -> FifoBatch:
+        """Reset the FIFO after a full, garbled or failed read; the batch says samples were lost.
+        If even the reset fails, it is due again next read (HalIOError now)."""
+        self.fifo_resets += 1
+        self._fifo_reset_due = True
+        self._fifo_restart()
+        self._fifo_reset_due = False
+        return FifoBatch(0, 0, None, lost=True)
+
+    def read_gyro_fifo(self) -> FifoBatch:
+        """Every z sample the part produced since the last call (module doc). HalIOError when
+        the bus fails; the FIFO is then reset at the next call, whose batch says `lost`."""
+        if not self.fifo:
+            raise HalValueError(f"MPU-6050 at 0x{self.address:02x}: read_gyro_fifo needs fifo=True")
+        if self._fifo_reset_due:
+            return self._fifo_lost()
+        where = f"MPU-6050 at 0x{self.address:02x}"
+        data = self._xfer(self.bus.read_i2c_block_data, self.address, FIFO_COUNTH, 2)
+        if not isinstance(data, (list, tuple, bytes, bytearray)) or len(data) != 2:
+            self.errors += 1
+            return self._fifo_lost()
+        count = ((data[0] & 0xFF) << 8) | (data[1] & 0xFF)
+        if count >= FIFO_BYTES or count % 2:  # full (samples were lost), or no count it can hold
+            return self._fifo_lost()
+        total = n = 0
+        last = None
+        left = count
+        while left:
+            size = min(left, _SMBUS_BLOCK)
+            try:
+                chunk = self.bus.read_i2c_block_data(self.address, FIFO_R_W, size)
+            except OSError as e:  # not retried: the failed transfer may have popped bytes
+                self.errors += 1
+                self._fifo_reset_due = True
+                raise HalIOError(f"{where}: FIFO read failed: {e}") from e
+            if not isinstance(chunk, (list, tuple, bytes, bytearray)) or len(chunk) != size:
+                self.errors += 1
+                return self._fifo_lost()
+            for i in range(0, size, 2):
+                raw = ((chunk[i] & 0xFF) << 8) | (chunk[i + 1] & 0xFF)
+                last = raw - 0x10000 if raw & 0x8000 else raw
+                total += last
+                n += 1
+            left -= size
+        return FifoBatch(n, total, last)
 
     def read_gyro_z_raw(self) -> int:
         """Raw int16 z rate at the configured range (bias not removed)."""

@@ -12,6 +12,12 @@ Fault reactions (the same for the emulated devices, which is how they are tested
   the loop holds the robot (a controlled stop) and resumes when data returns, or latches a
   fault if it does not (docs/design.md). A value is never invented: with no previous value
   the error is raised at once.
+
+The gyro through its FIFO (`sensors.gyro_fifo`, an imu with `read_gyro_fifo`): every read
+drains it; the samples of a read whose Sample is not fresh (the encoder's STATE was late) are
+carried over to the next fresh one, so the estimator sees each sample once (Sample.gyro_n,
+gyro_sum_raw). A batch that lost samples (the driver reset its FIFO) is "imu_fifo_reset":
+held like a failed read, and what was carried is dropped with it.
 """
 
 from __future__ import annotations
@@ -42,8 +48,9 @@ _WATCHED = (("lost_packets", "lost_packets"), ("crc_errors", "crc_error"),
 
 class Imu(Protocol):
     """A gyro: raw z reading and its configured range. An Mpu6050 also has `register_hold_s`
-    (its output register's hold, half of which is added to the reading's age) and
-    `read_temp_c()` (its die temperature, read at `temp_hz`)."""
+    (its output register's hold, half of which is added to the reading's age),
+    `read_temp_c()` (its die temperature, read at `temp_hz`), and with its FIFO on a
+    `fifo_period_s` > 0 and `read_gyro_fifo()` (hal.mpu6050.FifoBatch), read instead."""
 
     gyro_range_dps: int
     gyro_delay_s: float  # group delay of its low-pass
@@ -93,9 +100,11 @@ class RealHal(Hal):
                                "in its HELLO_REPLY) and no drive-wheel encoders: ddrt's estimator needs one "
                                "of them to measure distance")
         lsb, full = gyro_scale(imu.gyro_range_dps)
+        fifo_s = float(getattr(imu, "fifo_period_s", 0.0))  # > 0: read through its FIFO
+        hold_s = 0.0 if fifo_s > 0.0 else 0.5 * float(getattr(imu, "register_hold_s", 0.0))
         self.info = HalInfo(encoder_counts_per_rev=int(bridge.counts_per_rev),
                             gyro_lsb_per_rad_s=lsb, gyro_full_scale_rad_s=full,
-                            gyro_delay_s=float(imu.gyro_delay_s) + 0.5 * float(getattr(imu, "register_hold_s", 0.0)),
+                            gyro_delay_s=float(imu.gyro_delay_s) + hold_s, gyro_fifo_period_s=fifo_s,
                             drive_timeout_s=drive_timeout_s(self.motors),
                             wheel_counts_per_rev=int(bridge.wheel_counts_per_rev),
                             battery_measured=bool(bridge.battery_measured),
@@ -111,6 +120,7 @@ class RealHal(Hal):
         self._count: int | None = None
         self._read_t = 0.0
         self._gyro: int | None = None
+        self._fifo_n = self._fifo_sum = 0  # FIFO samples read but not yet delivered in a fresh Sample
         self._enc_missing = 0
         self._gyro_missing = 0
         self._enc_new_t = self._gyro_new_t = 0.0  # clock time of each device's newest value
@@ -119,7 +129,7 @@ class RealHal(Hal):
         self._counters = {
             "reads": 0, "stale_reads": 0, "encoder_retries": 0, "encoder_holds": 0,
             "imu_retries": 0, "imu_holds": 0, "timeouts": 0, "write_errors": 0,
-            "stop_errors": 0, "close_errors": 0, "temp_errors": 0,
+            "stop_errors": 0, "close_errors": 0, "temp_errors": 0, "imu_fifo_resets": 0,
         }
 
     @property
@@ -147,9 +157,14 @@ class RealHal(Hal):
         self._counters["reads"] += 1
         if not fresh:
             self._counters["stale_reads"] += 1
+        n = total = 0
+        if fresh and self._fifo_n:  # the samples since the last fresh Sample, delivered once
+            n, total = self._fifo_n, self._fifo_sum
+            self._fifo_n = self._fifo_sum = 0
         return Sample(t=t, encoder_count=count, gyro_z_raw=gyro, fresh=fresh,
                       faults=",".join(faults), battery_v=self._battery_v, hw_estop=self._hw_estop,
-                      count_left=self._wheels[0], count_right=self._wheels[1], gyro_temp_c=temp_c)
+                      count_left=self._wheels[0], count_right=self._wheels[1], gyro_temp_c=temp_c,
+                      gyro_n=n, gyro_sum_raw=total)
 
     def _read_temp(self, t: float) -> float:
         """TEMP_OUT, at most `gyro_temp_hz` times a second; NaN (counted) if it fails: a missing
@@ -278,11 +293,15 @@ class RealHal(Hal):
 
     def _read_gyro(self, faults: list[str]) -> tuple[int, bool]:
         self._last_error = None
+        fifo = self.info.gyro_fifo_period_s > 0.0
         try:
-            raw = self._retry_once(self.imu.read_gyro_z_raw, "imu", faults)
+            raw = self._retry_once(self.imu.read_gyro_fifo if fifo else self.imu.read_gyro_z_raw,  # type: ignore[attr-defined]
+                                   "imu", faults)
         except HalTimeoutError as e:
             raw = _MISSING
             self._last_error = e
+        if fifo and raw is not _MISSING:
+            raw = self._take_batch(raw, faults)
         if raw is _MISSING:
             self._gyro_missing += 1
             self._hold("imu", self._gyro_missing, self._gyro_new_t, self._gyro is not None, faults)
@@ -291,6 +310,25 @@ class RealHal(Hal):
         self._gyro_new_t = self.clock.now()
         self._gyro = raw
         return raw, True
+
+    def _take_batch(self, batch: Any, faults: list[str]) -> Any:
+        """A FIFO batch: carried until the next fresh Sample; its newest sample (the last one's
+        when it has none) as the reading, or _MISSING when it lost samples."""
+        if batch.lost:
+            self._counters["imu_fifo_resets"] += 1
+            faults.append("imu_fifo_reset")
+            self._fifo_n = self._fifo_sum = 0
+            return _MISSING
+        if batch.n:
+            self._fifo_n += batch.n
+            self._fifo_sum += batch.sum_raw
+            return batch.last_raw
+        if self._gyro is not None:
+            return self._gyro
+        try:  # nothing yet at the very first read: the register gives a value to start from
+            return self.imu.read_gyro_z_raw()
+        except HalError:
+            return _MISSING
 
     def _note_bridge_faults(self, faults: list[str]) -> None:
         now = self._bridge_stats()
@@ -323,7 +361,7 @@ class RealHal(Hal):
             if i2c_bus is None:
                 opened.append(bus)
             imu = Mpu6050(bus, imu_cfg.address, cfg.sensors.gyro_range_dps, imu_cfg.dlpf_cfg,
-                          imu_cfg.sample_rate_div)
+                          imu_cfg.sample_rate_div, fifo=cfg.sensors.gyro_fifo)
             bridge = Bridge(link.url, link.baudrate, link.drive_timeout_ms, link.state_stale_s, clock=clock)
             opened.append(bridge)
             motors = None

@@ -18,6 +18,12 @@ Like the real driver, it reads the gyro's die temperature (TEMP_OUT's 1/340 degC
 `gyro_temp_hz` (`sensors.gyro_temp_hz`; 0: never), and reports the reading's age as the
 low-pass's lag plus half the output register's hold (`sim.gyro.register_hold`).
 
+With `sensors.gyro_fifo` the gyro is read as through the MPU's FIFO (`SimRobot.read_gyro_fifo`):
+every sample it produced since the last read, their count and sum in the sample (`gyro_n`,
+`gyro_sum_raw`), the newest as `gyro_z_raw`; a FIFO that overflowed is dropped, the sample
+flagged not fresh ("imu_fifo_overflow"), as the real driver does. The reading's age is then
+the low-pass's lag only (`HalInfo.gyro_fifo_period_s` the nominal sample period).
+
 With `sensors.wheel_counts_per_rev` > 0 every sample carries the drive wheels' counts
 (`count_left`/`count_right`, `SimRobot.read_wheel_counts`), as a v2 MCU counting them does.
 
@@ -58,13 +64,16 @@ class SimHal(Hal):
             encoder_counts_per_rev=robot.encoder_counts_per_rev,
             gyro_lsb_per_rad_s=robot.gyro_lsb_per_rad_s,
             gyro_full_scale_rad_s=robot.gyro_full_scale_rad_s,
-            gyro_delay_s=robot.gyro_delay_s + 0.5 * robot.gyro_hold_s,
+            gyro_delay_s=robot.gyro_delay_s + (0.0 if robot.gyro_fifo else 0.5 * robot.gyro_hold_s),
             drive_timeout_s=drive_timeout_s,
             battery_measured=battery_measured,
             hw_estop_wired=True,
             gyro_temp_hz=gyro_temp_hz,
             wheel_counts_per_rev=robot.wheel_counts_per_rev,
+            # nominal: the host does not know the part's clock error (the estimator learns it)
+            gyro_fifo_period_s=1.0 / robot.cfg.realism.gyro_odr_hz if robot.gyro_fifo else 0.0,
         )
+        self.fifo_overflows = 0
         self._temp_next_t = -math.inf  # sim time of the next TEMP_OUT read
         self.estop_input_open = False  # the robot's emergency-stop button, pressed (tests)
         self._freezes: list[tuple[float, float]] = []  # fault injection: [start, end) in sim time
@@ -110,7 +119,7 @@ class SimHal(Hal):
     @property
     def fault_counters(self) -> dict[str, int]:
         """For status: how often the simulated driver's watchdog zeroed the motors."""
-        return {"watchdog_trips": self.watchdog_trips}
+        return {"watchdog_trips": self.watchdog_trips, "imu_fifo_overflows": self.fifo_overflows}
 
     # --- clock (sim_hal.simtime) ------------------------------------------------------------
 
@@ -175,6 +184,32 @@ class SimHal(Hal):
         if self.wiring is not None:
             s.encoder_count, s.gyro_z_raw = self.wiring.encoder(s.encoder_count), self.wiring.gyro(s.gyro_z_raw)
             s.count_left, s.count_right = self.wiring.wheels(s.count_left, s.count_right)
+        if info.gyro_fifo_period_s > 0.0:
+            return self._read_fifo(s, last)
+        return s
+
+    def _read_fifo(self, s: Sample, last: Sample | None) -> Sample:
+        """The gyro through its FIFO: its samples since the last read into `s` (module doc); after
+        an overflow, the last sample again (its own time, not fresh), as a frozen read: the next
+        fresh one then measures the whole gap."""
+        samples, lost = self.robot.read_gyro_fifo()
+        if self.wiring is not None:
+            samples = [self.wiring.gyro(r) for r in samples]
+        if lost:  # what is left no longer joins the last read's samples: drop it, say so
+            self.fifo_overflows += 1
+            if last is not None:
+                self._last_sample = last
+                return Sample(t=last.t, encoder_count=last.encoder_count, gyro_z_raw=last.gyro_z_raw, fresh=False,
+                              faults="imu_fifo_overflow", battery_v=last.battery_v, hw_estop=s.hw_estop,
+                              count_left=last.count_left, count_right=last.count_right)
+            s.fresh, s.faults = False, "imu_fifo_overflow"
+            samples = []
+        s.gyro_n = len(samples)
+        s.gyro_sum_raw = sum(samples)
+        if samples:
+            s.gyro_z_raw = samples[-1]
+        elif last is not None:
+            s.gyro_z_raw = last.gyro_z_raw
         return s
 
     def write(self, duty_l: float, duty_r: float) -> None:

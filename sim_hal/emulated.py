@@ -45,6 +45,8 @@ class _PlantGyro:
 
     def __init__(self, robot: SimRobot) -> None:
         self.robot = robot
+        if robot.gyro_fifo:  # the plant's own FIFO (sensors.gyro_fifo): the emulator's FIFO takes every sample once
+            self.gyro_fifo_samples = robot.read_gyro_fifo
 
     def gyro_z_rad_s(self) -> float:
         return self.robot.read_gyro_raw() / self.robot.gyro_lsb_per_rad_s

@@ -28,7 +28,7 @@ def plant_config(cfg: Config, seed: int | None = None) -> PlantConfig:
         gyro_scale_error=s.gyro.scale_error,
         gyro_dlpf_hz=s.gyro.dlpf_hz,
         wheel_counts_per_rev=cfg.sensors.wheel_counts_per_rev,
-        realism=Realism.from_sim(s, cfg.hal.imu.sample_rate_div),
+        realism=Realism.from_sim(s, cfg.hal.imu.sample_rate_div, cfg.sensors.gyro_fifo),
     )
 
 

@@ -11,6 +11,14 @@ DLPF_CFG 0 or 7) / (1 + SMPLRT_DIV), on its own oscillator (`clock_ppm` off), an
 refreshes; without one, every read samples anew (as before). TEMP_OUT reports the die
 temperature from `temperature_c` (36.53 degC, a register of 0, without it) by the datasheet's
 T = TEMP_OUT / 340 + 36.53.
+
+The FIFO (USER_CTRL's FIFO_EN, FIFO_EN's ZG_FIFO_EN, FIFO_COUNT, FIFO_R_W): 1024 bytes, each
+gyro z sample 2 bytes big-endian; full, the oldest sample is overwritten and INT_STATUS's
+FIFO_OFLOW_INT set (cleared when INT_STATUS is read). Where the samples come from: a source
+with its own FIFO (`gyro_fifo_samples()`, the simulated robot's every sample, exactly once);
+else with a clock, the source's rate at each sample instant passed (the rate now, for every
+instant since the last access: exact for a constant rate); else one sample per FIFO_COUNT read.
+`fifo_garbage(count)` (fault injection) makes the next FIFO_COUNT read report `count`.
 """
 
 from __future__ import annotations
@@ -22,7 +30,8 @@ from typing import Callable, Protocol
 
 from ddrt.params.gyro_scale import GYRO_LSB_PER_DPS
 from hal.mpu6050 import (
-    CONFIG, GYRO_CONFIG, GYRO_FS_SEL, GYRO_ZOUT_H, PWR_MGMT_1, PWR_SLEEP, SMPLRT_DIV, WHO_AM_I, WHO_AM_I_VALUE,
+    CONFIG, FIFO_BYTES, FIFO_COUNTH, FIFO_EN, FIFO_R_W, GYRO_CONFIG, GYRO_FS_SEL, GYRO_ZOUT_H, PWR_MGMT_1, PWR_SLEEP,
+    SMPLRT_DIV, USER_CTRL, USER_FIFO_EN, USER_FIFO_RESET, WHO_AM_I, WHO_AM_I_VALUE, ZG_FIFO_EN,
 )
 
 __all__ = ["ConstantGyro", "GyroSource", "MpuEmulator", "SineGyro", "temp_out_c", "temp_out_raw"]
@@ -42,6 +51,8 @@ def temp_out_c(raw: int) -> float:
     return raw / TEMP_LSB_PER_C + TEMP_OFFSET_C
 
 _DEVICE_RESET = 0x80
+INT_STATUS = 0x3A
+FIFO_OFLOW_INT = 0x10
 _DPS_PER_RAD_S = 180.0 / math.pi
 _FS_LSB = {GYRO_FS_SEL[rng]: lsb for rng, lsb in GYRO_LSB_PER_DPS.items()}  # FS_SEL -> LSB per deg/s
 
@@ -92,11 +103,15 @@ class MpuEmulator:
         self.calls: Counter[str] = Counter()
         self.regs = bytearray(128)
         self.refreshes = 0  # sample instants at which the output registers were written
+        self.fifo_pushed = 0  # samples written into the FIFO (tests)
+        self._garbage: int | None = None
         self._power_on()
 
     def _power_on(self) -> None:
         self.regs[:] = bytes(128)
         self._latched = -1  # index of the sample period the output registers hold
+        self.fifo = bytearray()
+        self._fifo_instant: int | None = None  # with a clock: the last sample instant pushed
         self.regs[PWR_MGMT_1] = PWR_SLEEP
         self.regs[WHO_AM_I] = self._who_am_i
 
@@ -141,9 +156,80 @@ class MpuEmulator:
         self.regs[GYRO_ZOUT_H] = raw >> 8
         self.regs[GYRO_ZOUT_H + 1] = raw & 0xFF
 
+    # --- the FIFO -----------------------------------------------------------------------------
+
+    @property
+    def fifo_running(self) -> bool:
+        return (not self.asleep and bool(self.regs[USER_CTRL] & USER_FIFO_EN)
+                and bool(self.regs[FIFO_EN] & ZG_FIFO_EN))
+
+    def fifo_garbage(self, count: int) -> None:
+        """Fault injection: the next FIFO_COUNT read reports `count` (0..0xFFFF)."""
+        self._garbage = count & 0xFFFF
+
+    def _push(self, raw: int) -> None:
+        raw = max(-32768, min(32767, raw)) & 0xFFFF
+        self.fifo += bytes((raw >> 8, raw & 0xFF))
+        self.fifo_pushed += 1
+        if len(self.fifo) > FIFO_BYTES:
+            del self.fifo[:len(self.fifo) - FIFO_BYTES]
+            self.regs[INT_STATUS] |= FIFO_OFLOW_INT
+
+    def _fill_fifo(self, on_count_read: bool) -> None:
+        """Bring the FIFO up to now (module doc); samples are dropped while it does not run."""
+        drain = getattr(self.source, "gyro_fifo_samples", None)
+        if drain is not None:
+            samples, lost = drain()
+            if self.fifo_running:
+                if lost:
+                    self.regs[INT_STATUS] |= FIFO_OFLOW_INT
+                for r in samples:
+                    self._push(r)
+            return
+        if not self.fifo_running:
+            self._fifo_instant = None
+            return
+        if self._clock is None:
+            if on_count_read:
+                self._push(self._raw_now())
+            return
+        n = math.floor(self._clock() / self.sample_period_s + 1e-9)
+        if self._fifo_instant is None:
+            self._fifo_instant = n  # starts filling from the next instant
+            return
+        if n > self._fifo_instant:
+            raw = self._raw_now()
+            for _ in range(min(n - self._fifo_instant, FIFO_BYTES // 2 + 1)):
+                self._push(raw)
+            self._fifo_instant = n
+
+    def _raw_now(self) -> int:
+        return round(self.source.gyro_z_rad_s() * _DPS_PER_RAD_S * self.lsb_per_dps)
+
+    def _fifo_read(self, register: int, length: int) -> list[int]:
+        """Registers with side effects: FIFO_COUNT (filled first), FIFO_R_W (pops), INT_STATUS
+        (clears); None for the plain ones."""
+        if register in (FIFO_COUNTH, FIFO_COUNTH + 1):
+            self._fill_fifo(True)
+            count = len(self.fifo) if self._garbage is None else self._garbage
+            self._garbage = None
+            pair = [count >> 8 & 0xFF, count & 0xFF]
+            return (pair if register == FIFO_COUNTH else pair[1:]) + [0] * max(0, length - 2)
+        if register == FIFO_R_W:
+            self._fill_fifo(False)
+            out = list(self.fifo[:length])
+            del self.fifo[:length]
+            return out + [0xFF] * (length - len(out))  # an empty FIFO reads junk
+        self._fill_fifo(False)
+        value = self.regs[INT_STATUS]
+        self.regs[INT_STATUS] = 0
+        return [value] + [0] * (length - 1)
+
     def read_byte_data(self, i2c_addr: int, register: int, force: bool | None = None) -> int:
         self.calls["read_byte_data"] += 1
         self._check(i2c_addr, register)
+        if register in (FIFO_COUNTH, FIFO_COUNTH + 1, FIFO_R_W, INT_STATUS):
+            return self._fifo_read(register, 1)[0]
         if register in (GYRO_ZOUT_H, GYRO_ZOUT_H + 1, TEMP_OUT_H, TEMP_OUT_H + 1):
             self._sample()
         return self.regs[register]
@@ -157,12 +243,19 @@ class MpuEmulator:
         if register == PWR_MGMT_1 and value & _DEVICE_RESET:
             self._power_on()
             return
+        if register == USER_CTRL and value & USER_FIFO_RESET:
+            self._fill_fifo(False)  # what was produced until now goes with the reset
+            self.fifo.clear()
+            self._fifo_instant = None if self._clock is None else math.floor(self._clock() / self.sample_period_s + 1e-9)
+            value &= ~USER_FIFO_RESET  # self-clearing
         self.regs[register] = value & 0xFF
 
     def read_i2c_block_data(self, i2c_addr: int, register: int, length: int,
                             force: bool | None = None) -> list[int]:
         self.calls["read_i2c_block_data"] += 1
         self._check(i2c_addr, register)
+        if 1 <= length <= 32 and register in (FIFO_COUNTH, FIFO_R_W, INT_STATUS):
+            return self._fifo_read(register, length)  # FIFO_R_W does not advance: any length
         if not 1 <= length <= 32 or register + length > len(self.regs):
             raise OSError(errno.EINVAL, f"bad block length {length}")
         if register <= GYRO_ZOUT_H + 1 and register + length > TEMP_OUT_H:

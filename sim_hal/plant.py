@@ -193,6 +193,19 @@ class SimRobot:
             return raw_readings.gyro_raw(self._real.gyro_dps(), self._gyro_lsb_per_dps)
         return raw_readings.gyro_raw(self._ring_gyro[self._ring_index()], self._gyro_lsb_per_dps)
 
+    @property
+    def gyro_fifo(self) -> bool:
+        """The gyro's FIFO is filled (`Realism.gyro_fifo`, from `sensors.gyro_fifo`)."""
+        return self._real is not None and self._real.fifo_on
+
+    def read_gyro_fifo(self) -> tuple[list[int], bool]:
+        """Drain the gyro's FIFO: every raw sample (int16) produced since the last drain, oldest
+        first, as old as `read_gyro_raw`'s reading; and True when some were lost to a full FIFO
+        (512 samples). ValueError without a FIFO."""
+        if not self.gyro_fifo:
+            raise ValueError("read_gyro_fifo: this plant has no gyro FIFO (sensors.gyro_fifo is off)")
+        return self._real.read_fifo()
+
     def read_wheel_counts(self) -> tuple[int, int]:
         """The drive wheels' encoder counters (left, right; signed 32-bit, wrapping), as old as
         the front encoder's reading; (0, 0) when `wheel_counts_per_rev` is 0 (not counted)."""

@@ -30,6 +30,9 @@ class Realism:
     its zero-rate bias adds bias_per_c_dps (T - temp_start_c) + drift_dps_per_s t to
     PlantConfig.gyro_bias_dps. `gyro_odr_hz` > 0: the output register holds the low-passed rate
     sampled at that rate (the MPU's own clock, off by `gyro_clock_ppm`); 0: read at the tick.
+    `gyro_fifo` (`sensors.gyro_fifo`): each sample also goes into the MPU's FIFO (512 samples of
+    gyro z, the oldest lost when full), which `SimRobot.read_gyro_fifo` drains; it needs the
+    sample clock, so `from_sim` sets `gyro_odr_hz` for it even without the register's hold.
     """
 
     battery: BatteryTruth | None = None
@@ -42,6 +45,7 @@ class Realism:
     gyro_clock_ppm: float = 0.0
     gyro_bias_step_dps: float = 0.0  # added to the bias from gyro_bias_step_at_s on
     gyro_bias_step_at_s: float = 0.0
+    gyro_fifo: bool = False
     encoder_slip: WanderingScale = field(default_factory=WanderingScale)
     wheels: WheelsTruth = field(default_factory=WheelsTruth)
     actuators: ActuatorTruth = field(default_factory=ActuatorTruth)
@@ -57,6 +61,8 @@ class Realism:
             object.__setattr__(self, name, float(value))
         if self.gyro_warmup_tau_s <= 0 or self.gyro_odr_hz < 0 or abs(self.gyro_clock_ppm) >= 1e6:
             raise ValueError("Realism: gyro_warmup_tau_s must be > 0, gyro_odr_hz >= 0, |gyro_clock_ppm| < 1e6")
+        if self.gyro_fifo and self.gyro_odr_hz == 0.0:
+            raise ValueError("Realism.gyro_fifo: the FIFO needs the gyro's sample clock (gyro_odr_hz > 0)")
         # The config's sections validate themselves when read from YAML; built here directly
         # (tests, benches) they are checked the same way.
         for name, value in (("battery", self.battery), ("encoder_slip", self.encoder_slip),
@@ -75,16 +81,18 @@ class Realism:
         return self != Realism()
 
     @classmethod
-    def from_sim(cls, sim: Any, sample_rate_div: int = 4) -> "Realism":
-        """From the config's `sim:` section (SimConfig) and the MPU's configured divider."""
+    def from_sim(cls, sim: Any, sample_rate_div: int = 4, gyro_fifo: bool = False) -> "Realism":
+        """From the config's `sim:` section (SimConfig), the MPU's configured divider and whether
+        its FIFO is read (`sensors.gyro_fifo`)."""
         g = sim.gyro
         enc: EncoderTruth = sim.encoder
         return cls(
             battery=sim.battery, gyro_temp_start_c=g.temp_start_c, gyro_warmup_rise_c=g.warmup_rise_c,
             gyro_warmup_tau_s=g.warmup_tau_s, gyro_bias_per_c_dps=g.bias_per_c_dps,
             gyro_drift_dps_per_s=g.drift_dps_per_s,
-            gyro_odr_hz=1000.0 / (1 + sample_rate_div) if g.register_hold else 0.0, gyro_clock_ppm=g.clock_ppm,
-            gyro_bias_step_dps=g.bias_step_dps, gyro_bias_step_at_s=g.bias_step_at_s,
+            gyro_odr_hz=1000.0 / (1 + sample_rate_div) if g.register_hold or gyro_fifo else 0.0,
+            gyro_clock_ppm=g.clock_ppm, gyro_bias_step_dps=g.bias_step_dps, gyro_bias_step_at_s=g.bias_step_at_s,
+            gyro_fifo=bool(gyro_fifo),
             encoder_slip=enc.slip, wheels=sim.wheels, actuators=sim.actuators, events=sim.events,
         )
 

@@ -18,7 +18,9 @@ The same RK4 model as plant.py (docs/model.md), with:
   platform's mass, centre and inertia at their time.
 - gyro: zero-rate bias with die warm-up and drift, scale error, noise, the DLPF, and (with
   `gyro_odr_hz`) the output register holding the filtered rate of the last sample instant
-  of the MPU's own clock, so a read is 0 to one sample period old.
+  of the MPU's own clock, so a read is 0 to one sample period old. With `gyro_fifo` every
+  sample instant's reading (quantised) also goes into a FIFO of FIFO_SAMPLES, the oldest lost
+  when it is full (flagged), which `read_fifo` drains: each sample is read exactly once.
 - encoders: the omni wheel's count follows the ground with a wandering scale (roller slip);
   the drive wheels' counts turn more than the ground under traction (slip ratio
   slip_per_nm x torque) and with their own wandering scale. The dynamics keep rolling
@@ -38,6 +40,7 @@ from sim_hal import raw_readings
 
 _DEG_PER_RAD = 180.0 / math.pi
 _EPS_T = 1e-12
+FIFO_SAMPLES = 512  # the MPU-6050's 1024-byte FIFO holds this many 2-byte gyro z samples
 
 
 def _with_payload(p: RobotParams, mass: float, inertia: float, x: float, y: float) -> RobotParams:
@@ -112,6 +115,12 @@ class RealisticPlant:
         self.delay = robot._sensor_delay
         self.n = self.delay + 3 + math.ceil(self.odr_period / h)
         self.hist = [(0.0, 0.0, 0.0, self.gf)] * self.n  # (c3, cl, cr, gf) at the end of step k
+        # The FIFO (r.gyro_fifo): raw samples not yet read, whether one was lost, the next instant's index.
+        self.fifo_on = r.gyro_fifo and self.odr_period > 0.0
+        self.fifo: list[int] = []
+        self.fifo_overflow = False
+        self.fifo_next = 1
+        self.fifo_pushed = 0  # samples that went into the FIFO since the start (tests)
 
     # --- truth the tests and the emulators read ------------------------------------------
 
@@ -150,7 +159,33 @@ class RealisticPlant:
         if self.odr_period == 0.0:
             return self._at(k_read)[3]
         t_read = max(k_read, 0) * self.h
-        t_s = math.floor(t_read / self.odr_period + 1e-9) * self.odr_period
+        return self._sampled(math.floor(t_read / self.odr_period + 1e-9) * self.odr_period, k_read)
+
+    def read_fifo(self) -> tuple[list[int], bool]:
+        """Drain the FIFO: the raw samples since the last read, oldest first, and whether any
+        were lost to a full FIFO meanwhile."""
+        out, lost = self.fifo, self.fifo_overflow
+        self.fifo = []
+        self.fifo_overflow = False
+        return out, lost
+
+    def _fill_fifo(self, k: int) -> None:
+        """Push every sample instant up to the sensors' read time at step k (as old as a register
+        read then)."""
+        k_read = k - self.delay
+        t_read = max(k_read, 0) * self.h
+        period = self.odr_period
+        lsb = self.robot._gyro_lsb_per_dps
+        while self.fifo_next * period <= t_read + 1e-9:
+            self.fifo.append(raw_readings.gyro_raw(self._sampled(self.fifo_next * period, k_read), lsb))
+            self.fifo_next += 1
+            self.fifo_pushed += 1
+            if len(self.fifo) > FIFO_SAMPLES:
+                del self.fifo[0]
+                self.fifo_overflow = True
+
+    def _sampled(self, t_s: float, k_read: int) -> float:
+        """The filtered rate at sample instant t_s (deg/s), between the plant's steps linearly."""
         j = math.floor(t_s / self.h + 1e-9)
         frac = t_s / self.h - j
         g0 = self._at(j)[3]
@@ -357,6 +392,8 @@ class RealisticPlant:
             z = rb._gyro_rng.gauss(0.0, 1.0)
             self.gf += self.g_a * (self.g_scale * w_new + self.bias_dps(t) + z * self.g_sig - self.gf)
             self.hist[k % self.n] = (self.c3, self.cl, self.cr, self.gf)
+            if self.fifo_on:
+                self._fill_fifo(k)
             # The pack's state now, for battery_v.
             wm = tuple(ww + (0.0 if self.side[i] else self.gap_rate[i])
                        for i, ww in enumerate(((v_new - p.L * w_new) / p.r_L, (v_new + p.R * w_new) / p.r_R)))

@@ -33,6 +33,7 @@ class SensorsConfig:
     wheel_counts_per_rev: int = 0  # drive-wheel encoders (protocol v2); 0: not counted
     battery_scale: float = 1.0  # true / reported supply voltage (divider calibration)
     gyro_temp_hz: float = 0.0  # Hz: how often the gyro's TEMP_OUT is read (temperature-compensated bias); 0: never
+    gyro_fifo: bool = False  # read every gyro sample once through the MPU's FIFO (their mean and count); False: the register at the tick
 
     def validate(self, where: str) -> None:
         non_negative(where, encoder_counts_per_rev=self.encoder_counts_per_rev,

@@ -24,6 +24,10 @@ Temperature: with TEMP_OUT read (HalInfo.gyro_temp_hz > 0) the bias follows the 
 temperature between stops and is re-learnt at every stop, which also corrects the heading
 turned since the last one (ddrt/core/gyro_bias.py); without it, as before.
 
+FIFO (HalInfo.gyro_fifo_period_s > 0): each fresh sample's batch is fused at its mean rate and
+the heading turns over the batch's span, so every gyro sample is integrated once
+(ddrt/core/gyro_fifo.py, `self.fifo`; None without it).
+
 Drive-wheel encoders (HalInfo.wheel_counts_per_rev > 0): ddrt/core/wheel_odometry.py gives the
 distance when there is no front encoder (encoder_counts_per_rev 0), tracks the gyro's bias on
 the move and flags wheel slip; the hooks here are `self.wheels` (None without them).
@@ -35,7 +39,8 @@ import math
 from dataclasses import dataclass
 
 from ddrt.config import EstimatorConfig
-from ddrt.core.gyro_bias import GyroBias
+from ddrt.core.gyro_bias import CalibrationError, GyroBias, calibrate_gyro
+from ddrt.core.gyro_fifo import GyroFifo, mean_rate
 from ddrt.core.kalman import TravelFilter, YawFilter
 from ddrt.core.model import Dynamics
 from ddrt.core.motor import Motor
@@ -45,15 +50,13 @@ from ddrt.core.types import HalInfo, Sample
 from ddrt.core.wheel_odometry import WheelOdometry, error_model
 from ddrt.core.wrap import wrap_i32
 
+__all__ = ["CalibrationError", "Estimator", "EstimatorHealth", "calibrate_gyro"]  # the first and last from gyro_bias.py
+
 NOISE_STEP_S = 0.005  # the step the configured process noises are given for
 _RESYNC_V_VAR = 0.01  # (m/s)^2: speed variance after a re-anchor, so the next samples set it
 _RESYNC_W_VAR = 0.01  # (rad/s)^2: likewise for the yaw rate
 DEG = math.pi / 180.0
 UNCERTAINTY_EVERY_S = 0.02  # the map covariance is propagated this often (the odometry's every 0.1 s)
-
-
-class CalibrationError(ValueError):
-    """The gyro could not be calibrated: too few samples, or the robot was moving."""
 
 
 @dataclass(slots=True)
@@ -73,20 +76,6 @@ class EstimatorHealth:
         return {"gyro_rejects": self.gyro_rejects, "encoder_rejects": self.encoder_rejects,
                 "resyncs": self.resyncs, "stale_ticks": self.stale_ticks, "gaps": self.gaps,
                 "longest_gap_ms": self.longest_gap_s * 1000.0, "wheel_slips": self.wheel_slips}
-
-
-def calibrate_gyro(raw: list[int], lsb_per_rad_s: float, scale: float, max_std_dps: float) -> tuple[float, float]:
-    """Mean and std (rad/s) of gyro readings taken at rest; refuse if the robot moved."""
-    if len(raw) < 10:
-        raise CalibrationError(f"gyro calibration needs at least 10 samples, got {len(raw)}")
-    values = [r / (lsb_per_rad_s * scale) for r in raw]
-    mean = sum(values) / len(values)
-    std = math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1))
-    if std > max_std_dps * DEG:
-        raise CalibrationError(
-            f"gyro calibration refused: noise {std / DEG:.3f} deg/s exceeds "
-            f"estimator.calibration_max_std_dps={max_std_dps} (is the robot moving?)")
-    return mean, std
 
 
 class Estimator:
@@ -111,6 +100,8 @@ class Estimator:
         self.heading = YawFilter(0.0, 0.0, 0.0)
         self.gyro_bias: GyroBias | None = None  # the temperature's bias model (TEMP_OUT read)
         self._rest, self._rest_z = False, math.nan  # at rest at the last fresh gyro reading, and its rate
+        self.fifo = GyroFifo(info.gyro_fifo_period_s) if info.gyro_fifo_period_s > 0.0 else None
+        self._gz, self._gspan = math.nan, 0.0  # this tick's FIFO batch: mean rate (rad/s), span (s)
         self.wheels: WheelOdometry | None = None
         self.wheel_slip = False  # the drive wheels slip this tick (telemetry)
         self._configure(cfg, r_3)
@@ -266,6 +257,8 @@ class Estimator:
         if self.wheels is not None:
             self.wheels.reset(sample)
         self._last_fresh_t = sample.t
+        if self.fifo is not None:
+            self.fifo.restart(sample.t)
         self._blind_ticks = 0
         self._blind_travel = 0.0
         self._blind_moving = False
@@ -371,7 +364,12 @@ class Estimator:
         self.yaw.predict(dt, alpha)
         self.heading.predict(dt, alpha)
 
+        fifo = self.fifo
         if fresh:
+            if fifo is not None:  # the batch _fuse_gyro and _lead take (nothing new: span 0)
+                n = sample.gyro_n
+                self._gspan = fifo.span(sample.t, n) if n > 0 else 0.0
+                self._gz = sample.gyro_sum_raw / n * self.rad_s_per_lsb if n > 0 and not fifo.bad else math.nan
             if self.wheels is None:
                 self._fuse_encoder(sample.encoder_count, dt)
                 self._fuse_gyro(sample.gyro_z_raw, sample.t, commanded_still)
@@ -385,17 +383,22 @@ class Estimator:
         w = self.heading.w
         if dth:
             self.theta += dth
-        half = self.theta + 0.5 * w * dt
+        if fifo is None:
+            turn = w * dt
+            half = self.theta + 0.5 * w * dt
+        else:
+            turn = fifo.turn(w, dt, fresh, self._gspan if fresh else 0.0)
+            half = self.theta + 0.5 * turn
         ds = v * dt
         dx = ds * math.cos(half)
         dy = ds * math.sin(half)
         self.x += dx
         self.y += dy
-        self.theta += w * dt
+        self.theta += turn
         t_est = sample.t if fresh else self._last_t + self._ahead_of_anchor
         if t_est > self.t_est:  # the history's times never go back
             self.t_est = t_est
-        self.frame.step(self.track, self.t_est, dt, ds, w * dt + dth if dth else w * dt, self.x, self.y, self.theta)
+        self.frame.step(self.track, self.t_est, dt, ds, turn + dth if dth else turn, self.x, self.y, self.theta)
         if fresh:
             self._last_fresh_t = sample.t
             if self._blind_ticks:
@@ -437,7 +440,9 @@ class Estimator:
         if self.wheels is not None:  # their windows restart; without a front encoder, their distance
             ds = self.wheels.catch_up(sample)
             measured = ds if self.wheels.gives_distance else measured
-        w_now = sample.gyro_z_raw * self.rad_s_per_lsb - self.heading.b
+        w_now = mean_rate(sample, self.rad_s_per_lsb) - self.heading.b
+        if self.fifo is not None:  # this batch's samples are the gap's: counted from here on
+            self.fifo.restart(sample.t)
         stalled = self._blind_ticks == 0  # nothing was dead-reckoned through this gap
         # The heading turns through the time dead reckoning did not cover (all of a stall,
         # the last interval otherwise) at the mean of the rates either side of it.
@@ -517,6 +522,11 @@ class Estimator:
         self._enc_rejects_row = row
 
     def _fuse_gyro(self, raw: int, t: float, commanded_still: bool) -> None:
+        """Fuse the gyro: `raw` the newest reading, or with a FIFO its batch (self._gz, self._gspan)."""
+        fifo = self.fifo is not None
+        if fifo and self._gz != self._gz:
+            self._rest_z = math.nan  # no new sample this tick (or junk)
+            return
         health = self.health
         if raw == self._last_raw_gyro:
             self._same_gyro += 1
@@ -525,8 +535,8 @@ class Estimator:
         else:
             self._same_gyro = 0
         self._last_raw_gyro = raw
-        z = raw * self.rad_s_per_lsb
-        if abs(z) >= self.gyro_full_scale * 0.999:
+        z = self._gz if fifo else raw * self.rad_s_per_lsb
+        if abs(raw * self.rad_s_per_lsb) >= self.gyro_full_scale * 0.999:
             health.fault = "gyro saturated"
         self._rest, self._rest_z = commanded_still and self._still_ticks >= 20, z
         if self._rest:  # ~0.1 s without a count: at rest
@@ -544,7 +554,7 @@ class Estimator:
     def _lead(self, z: float, t: float) -> float:
         """Undo the gyro's lag: z + tau (z - z_prev) / dt, with the variance that implies."""
         prev = self._last_gyro_z
-        dt = t - self._last_gyro_t
+        dt = t - self._last_gyro_t if self.fifo is None else self._gspan  # the lead telescopes over spans
         self._last_gyro_z = z
         self._last_gyro_t = t
         if prev is None or dt <= 0.0 or self.gyro_lead <= 0.0:

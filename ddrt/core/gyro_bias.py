@@ -33,6 +33,24 @@ MIN_WINDOW_S = 0.3  # a shorter rest gives no pair
 NOISE_FLOOR = 1e-4 * DEG  # rad/s: the least a pair's 1 sigma is taken to be (quantisation, vibration)
 
 
+class CalibrationError(ValueError):
+    """The gyro could not be calibrated: too few samples, or the robot was moving."""
+
+
+def calibrate_gyro(raw: list[int], lsb_per_rad_s: float, scale: float, max_std_dps: float) -> tuple[float, float]:
+    """Mean and std (rad/s) of gyro readings taken at rest; refuse if the robot moved."""
+    if len(raw) < 10:
+        raise CalibrationError(f"gyro calibration needs at least 10 samples, got {len(raw)}")
+    values = [r / (lsb_per_rad_s * scale) for r in raw]
+    mean = sum(values) / len(values)
+    std = math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1))
+    if std > max_std_dps * DEG:
+        raise CalibrationError(
+            f"gyro calibration refused: noise {std / DEG:.3f} deg/s exceeds "
+            f"estimator.calibration_max_std_dps={max_std_dps} (is the robot moving?)")
+    return mean, std
+
+
 class GyroBias:
     """The (b0, k) line and the sums of the stretch since the last pair (module doc)."""
 

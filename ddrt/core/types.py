@@ -43,6 +43,11 @@ class HalInfo:
     battery_measured: bool = False  # Sample.battery_v is the driver's measured supply voltage
     hw_estop_wired: bool = False  # Sample.hw_estop reports a hardware emergency-stop input
     gyro_temp_hz: float = 0.0  # how often Sample.gyro_temp_c is read (TEMP_OUT); 0: never
+    # The gyro's nominal sample period (s) when it is read through its FIFO (sensors.gyro_fifo):
+    # every sample arrives once, Sample.gyro_n of them with the sum Sample.gyro_sum_raw; the
+    # estimator learns the true period (the part's own clock) from their count. 0: no FIFO, the
+    # output register is read at the tick.
+    gyro_fifo_period_s: float = 0.0
 
 
 @dataclass(slots=True)
@@ -59,7 +64,11 @@ class Sample:
     hardware emergency-stop input is open, `count_left`/`count_right` the raw drive-wheel
     counters (signed 32-bit, wrapping; meaningful only when HalInfo.wheel_counts_per_rev > 0).
     `gyro_temp_c` is the gyro's die temperature (degC, its TEMP_OUT), read now and then
-    (HalInfo.gyro_temp_hz): NaN on the ticks it was not read.
+    (HalInfo.gyro_temp_hz): NaN on the ticks it was not read. Read through the gyro's FIFO
+    (HalInfo.gyro_fifo_period_s > 0), `gyro_n` is how many samples the gyro produced since the
+    last fresh sample (0: none yet, possible on any tick) and `gyro_sum_raw` their raw sum, so
+    their mean rate is gyro_sum_raw / gyro_n; `gyro_z_raw` is then the newest of them (or the
+    last one's again when gyro_n is 0). Without a FIFO both stay 0.
     """
 
     t: float
@@ -72,6 +81,8 @@ class Sample:
     count_left: int = 0
     count_right: int = 0
     gyro_temp_c: float = math.nan
+    gyro_n: int = 0
+    gyro_sum_raw: int = 0
 
 
 @dataclass(slots=True)
