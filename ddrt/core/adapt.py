@@ -162,8 +162,7 @@ class DynamicsAdapter:
         wl = (v - L * w) / rl
         wr = (v + R * w) / rr
         motor = self.motor
-        tau_l = motor.electromagnetic_torque(duty_l, wl) - motor.friction(wl)
-        tau_r = motor.electromagnetic_torque(duty_r, wr) - motor.friction(wr)
+        tau_l, tau_r = motor.net_torques(duty_l, wl, duty_r, wr)
         ul = tau_l / rl
         ur = tau_r / rr
         raw = (v, w, w * w, v * w, math.tanh(wl / FRICTION_SIGN_SPEED), math.tanh(wr / FRICTION_SIGN_SPEED),

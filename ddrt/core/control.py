@@ -254,18 +254,17 @@ class DynamicController(_Controller):
         if sat_t:
             k = lim.torque_max_nm / m
             tau_l, tau_r = tau_l * k, tau_r * k
-        wl = (v - dyn.L * w) / dyn.r_L
-        wr = (v + dyn.R * w) / dyn.r_R
         motor = self.motor
         if self.seed_method:
+            wl = (v - dyn.L * w) / dyn.r_L
+            wr = (v + dyn.R * w) / dyn.r_R
             duty_l, _ = motor.duty_for_torque(tau_l, wl, friction_speed=0.0)
             duty_r, _ = motor.duty_for_torque(tau_r, wr, friction_speed=0.0)
         else:
             wl_c = (v_c - dyn.L * w_c) / dyn.r_L
             wr_c = (v_c + dyn.R * w_c) / dyn.r_R
             # Positional: emf_speed and friction_speed both the commanded wheel speed.
-            duty_l, _ = motor.duty_for_torque(tau_l, wl, wl_c, wl_c)
-            duty_r, _ = motor.duty_for_torque(tau_r, wr, wr_c, wr_c)
+            duty_l, duty_r = motor.duties_at(tau_l, wl_c, tau_r, wr_c)
         m = abs(duty_l)  # _scale_to_limit(duty_l, duty_r, duty_max), written out
         mb = abs(duty_r)
         if mb > m:
@@ -341,8 +340,7 @@ class KinematicController(_Controller):
         duty_l, duty_r, sat = _scale_to_limit(duty_l, duty_r, lim.duty_max)
         cmd.duty_l = duty_l
         cmd.duty_r = duty_r
-        cmd.tau_l = motor.electromagnetic_torque(duty_l, wl) - motor.friction(wl)
-        cmd.tau_r = motor.electromagnetic_torque(duty_r, wr) - motor.friction(wr)
+        cmd.tau_l, cmd.tau_r = motor.net_torques(duty_l, wl, duty_r, wr)
         cmd.v_c = v_c
         cmd.omega_c = w_c
         cmd.saturated = sat

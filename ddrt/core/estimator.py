@@ -356,8 +356,7 @@ class Estimator:
         w = self.yaw.w
         wl = (v - dyn.L * w) / dyn.r_L
         wr = (v + dyn.R * w) / dyn.r_R
-        tau_l = self.motor.electromagnetic_torque(duty_l, wl) - self.motor.friction(wl)
-        tau_r = self.motor.electromagnetic_torque(duty_r, wr) - self.motor.friction(wr)
+        tau_l, tau_r = self.motor.net_torques(duty_l, wl, duty_r, wr)
         a, alpha = dyn.forward(v, w, tau_l, tau_r)
         self.travel.predict(dt, a)
         self.speed.predict(dt, a)

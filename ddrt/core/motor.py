@@ -77,3 +77,21 @@ class Motor:
         drive = torque + self.friction(fs)
         duty = (self._r * drive / self._k + self._k * ws) / self._v
         return duty, not (-1.0 <= duty <= 1.0)
+
+    # The pairs below are the methods above for both wheels in one call, written out (the same
+    # arithmetic, bit for bit): the estimator and the controller call them every tick.
+
+    def net_torques(self, duty_l: float, wl: float, duty_r: float, wr: float) -> tuple[float, float]:
+        """(electromagnetic_torque(duty_l, wl) - friction(wl), the same for the right wheel)."""
+        k, v, r, b, tc, ws = self._k, self._v, self._r, self._b, self._tc, self._ws
+        tanh = math.tanh
+        return (k * (duty_l * v - k * wl) / r - (b * wl + tc * tanh(wl / ws)),
+                k * (duty_r * v - k * wr) / r - (b * wr + tc * tanh(wr / ws)))
+
+    def duties_at(self, tau_l: float, wl: float, tau_r: float, wr: float) -> tuple[float, float]:
+        """The duties of duty_for_torque(tau_l, _, wl, wl) and duty_for_torque(tau_r, _, wr, wr):
+        back-EMF and friction both at the given wheel speeds; not clipped."""
+        k, v, r, b, tc, ws = self._k, self._v, self._r, self._b, self._tc, self._ws
+        tanh = math.tanh
+        return ((r * (tau_l + (b * wl + tc * tanh(wl / ws))) / k + k * wl) / v,
+                (r * (tau_r + (b * wr + tc * tanh(wr / ws))) / k + k * wr) / v)
