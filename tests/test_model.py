@@ -310,6 +310,26 @@ def test_motor_torque_and_duty_round_trip():
         assert not saturated
 
 
+def test_motor_pair_methods_are_the_single_ones_bit_for_bit():
+    """net_torques and duties_at (the hot path's two-wheel calls) give exactly, not just nearly,
+    what the one-wheel methods give: the simulator's telemetry must not change."""
+    rng = random.Random(5)
+    for _ in range(500):
+        motor = Motor(MotorParams(resistance_ohm=rng.uniform(1, 10), k_nm_per_a=rng.uniform(0.1, 1.0),
+                                  viscous_nms=rng.uniform(0, 0.01), coulomb_nm=rng.uniform(0, 0.1),
+                                  supply_v=rng.uniform(6, 14)))
+        dl, dr = rng.uniform(-1, 1), rng.uniform(-1, 1)
+        wl, wr = rng.uniform(-30, 30), rng.choice([0.0, rng.uniform(-0.05, 0.05), rng.uniform(-30, 30)])
+        tl, tr = motor.net_torques(dl, wl, dr, wr)
+        assert tl == motor.electromagnetic_torque(dl, wl) - motor.friction(wl)
+        assert tr == motor.electromagnetic_torque(dr, wr) - motor.friction(wr)
+        assert tl != tr or (dl, wl) == (dr, wr)  # the wheels are not mixed up
+        ul, ur = motor.duties_at(tl, wl, tr, wr)
+        assert ul == motor.duty_for_torque(tl, 0.0, wl, wl)[0]
+        assert ur == motor.duty_for_torque(tr, 0.0, wr, wr)[0]
+        assert ul == pytest.approx(dl, abs=1e-9) and ur == pytest.approx(dr, abs=1e-9)  # the inverse
+
+
 def test_motor_friction_opposes_motion():
     m = Motor(MotorParams())
     for w in (-20.0, -0.5, 0.5, 20.0):
