@@ -565,28 +565,24 @@ class Estimator:
 
     def _fuse_pair(self, sharp: TravelFilter | YawFilter, smooth: TravelFilter | YawFilter, z: float,
                    row: int) -> int:
-        """Fuse `z` into the odometry filter (which decides on outliers) and, if it was
-        accepted, into the feedback filter on the same sensor."""
-        resyncs = self.health.resyncs
-        row = self._gated_update(sharp, z, row)
-        if row == 0:
-            if self.health.resyncs > resyncs:
-                y, _ = smooth.innovation(z)
-                smooth.p00 += y * y
-            smooth.update(z)
-        return row
+        """Fuse `z` into the odometry filter unless it is an outlier (the odometry filter decides)
+        and, if it was fused, into the feedback filter on the same sensor; returns how many
+        outliers came in a row.
 
-    def _gated_update(self, filt: TravelFilter | YawFilter, z: float, row: int) -> int:
-        """Fuse `z` unless it is an outlier; returns how many outliers came in a row.
-
-        After `max_rejects` outliers in a row the sensor is trusted again: the filter's
-        variance is widened by the innovation (a re-sync) and the measurement is fused.
+        After `max_rejects` outliers in a row the sensor is trusted again: each filter's
+        variance is widened by its innovation (a re-sync) and the measurement is fused.
         """
-        y, s = filt.innovation(z)
-        if y * y / s > self.gate2 and row < self.cfg.max_rejects:
+        y, s = sharp.innovation(z)
+        max_rejects = self.cfg.max_rejects
+        if y * y / s > self.gate2 and row < max_rejects:
             return row + 1
-        if row >= self.cfg.max_rejects:
+        if row >= max_rejects:
             self.health.resyncs += 1
-            filt.p00 += y * y
-        filt.update(z)
+            sharp.p00 += y * y
+            sharp.update(z)
+            y, _ = smooth.innovation(z)
+            smooth.p00 += y * y
+        else:
+            sharp.update(z)
+        smooth.update(z)
         return 0
