@@ -10,6 +10,7 @@ If the probe, which has no helper threads and no GIL to wait for, misses as many
 daemon, the daemon's misses are the machine's, not a priority inversion inside it.
 
     python -m bench.machine_stalls [--duration 30] [--runs 3] [--hogs 1] [--json FILE]
+    python -m bench.machine_stalls --spin CPU    # how long the CPU itself goes missing
 """
 
 from __future__ import annotations
@@ -65,6 +66,28 @@ def probe(duration: float, priority: int = PRIORITY) -> dict[str, Any]:
             "late_p99_us": late[int(0.99 * (len(late) - 1))] * 1e6, "late_max_us": late[-1] * 1e6}
 
 
+def spin(cpu: int, rounds: int = 10, spin_s: float = 0.4) -> dict[str, Any]:
+    """Spin at SCHED_FIFO 99 on `cpu` reading the clock, `rounds` times `spin_s` (resting the
+    rest of each second, under the kernel's 95% real-time limit): nothing in the machine can
+    preempt it but interrupts and the hypervisor, so every gap is time the CPU was taken away."""
+    os.sched_setaffinity(0, {cpu})
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(99))
+    gaps, spun = [], 0.0
+    for _ in range(rounds):
+        prev = time.perf_counter_ns()
+        first, end = prev, prev + int(spin_s * 1e9)
+        while prev < end:
+            now = time.perf_counter_ns()
+            if now - prev > 200_000:
+                gaps.append((now - prev) / 1e6)
+            prev = now
+        spun += (prev - first) / 1e9
+        time.sleep(1.0 - spin_s)
+    gaps.sort()
+    return {"cpu": cpu, "spun_s": spun, "lost_ms": sum(gaps), "gaps_over_1ms": sum(g > 1.0 for g in gaps),
+            "gaps_over_5ms": sum(g > 5.0 for g in gaps), "max_gap_ms": gaps[-1] if gaps else 0.0}
+
+
 def steal_s() -> float:
     """Seconds of steal time summed over all CPUs so far (/proc/stat, USER_HZ ticks)."""
     with open("/proc/stat") as f:
@@ -108,8 +131,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--runs", type=int, default=3, help="runs (default 3)")
     ap.add_argument("--hogs", type=int, default=1, help="busy loops at nice 0 beside them (default 1)")
     ap.add_argument("--json", help="also write the rows to this file")
+    ap.add_argument("--spin", type=int, metavar="CPU",
+                    help="instead: spin at SCHED_FIFO 99 on CPU 10 x 0.4 s and print the gaps (needs root)")
     ap.add_argument("--probe", type=float, help=argparse.SUPPRESS)  # the bare loop's own process
     a = ap.parse_args(argv)
+    if a.spin is not None:
+        try:
+            print(json.dumps(spin(a.spin)))
+        except OSError as exc:
+            print(f"bench.machine_stalls: --spin {a.spin}: {exc}", file=sys.stderr)
+            return 1
+        return 0
     if a.probe is not None:
         print(json.dumps(probe(a.probe)), flush=True)
         return 0
