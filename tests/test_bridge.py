@@ -26,6 +26,7 @@ from hal.real import RealHal
 from sim_hal.faults import FaultyI2cBus, SerialFaults, reset_mcu
 from sim_hal.mcu_emulator import DutyIntegratingEncoder, McuEmulator, PtyLink, TcpLink
 from sim_hal.mpu_emulator import ConstantGyro, MpuEmulator
+from tests.support.fake_bridge import FakeClock, FakeEncoder, FakeImu
 from tests.support.repo import SIM_YAML
 
 HELLO_REPLY = HelloReply(2, 8192, 200)
@@ -46,20 +47,6 @@ def wait_until(cond, timeout_s: float = 2.0, step_s: float = 0.001) -> bool:
             return True
         time.sleep(step_s)
     return cond()
-
-
-class FakeClock:
-    """Manually advanced clock for deterministic staleness tests."""
-
-    def __init__(self) -> None:
-        self.t = 100.0
-
-    def now(self) -> float:
-        return self.t
-
-    def sleep_until(self, deadline: float) -> float:
-        self.t = max(self.t, deadline)
-        return self.t
 
 
 # --------------------------------------------------------------------------------- loop://
@@ -510,50 +497,6 @@ def test_i2c_bursts_retry_then_hold_then_timeout(rig) -> None:
 
 
 # ------------------------------------------------------- RealHal with fakes (deterministic)
-
-class FakeState:
-    def __init__(self, count: int, new: bool, resets: int = 0) -> None:
-        self.count, self.new, self.resets = count, new, resets
-        self.battery_mv, self.hw_estop, self.count_left, self.count_right = 0, False, 0, 0
-
-
-class FakeEncoder:
-    counts_per_rev = 8192
-    wheel_counts_per_rev = 0
-    battery_measured = False
-    hw_estop_wired = False
-
-    def __init__(self) -> None:
-        self.script: list = []
-        self.count = 0
-        self.drives: list = []
-        self.closed = 0
-
-    def state(self) -> FakeState:
-        item = self.script.pop(0) if self.script else "new"
-        if isinstance(item, Exception):
-            raise item
-        if item == "new":
-            self.count += 10
-        return FakeState(self.count, item == "new")
-
-    def drive(self, l: float, r: float) -> None:
-        self.drives.append((l, r))
-
-    def stop(self) -> None:
-        raise HalIOError("gone")
-
-    def close(self) -> None:
-        self.closed += 1
-
-
-class FakeImu:
-    gyro_range_dps = 500
-    gyro_delay_s = 0.0019
-
-    def read_gyro_z_raw(self) -> int:
-        return 42
-
 
 def test_realhal_encoder_retry_hold_and_timeout_exactly() -> None:
     enc = FakeEncoder()

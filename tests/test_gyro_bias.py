@@ -146,7 +146,7 @@ def test_real_hal_reads_the_temperature_at_its_rate_and_ages_the_gyro():
     counted, not a fault; the gyro's age is the low-pass's plus half the hold."""
     from hal.base import HalIOError
     from hal.real import RealHal
-    from tests.test_bridge import FakeClock, FakeEncoder
+    from tests.support.fake_bridge import FakeClock, FakeEncoder
 
     bus = MpuEmulator(ConstantGyro(), temperature_c=lambda: 30.0)
     imu = Mpu6050(bus, dlpf_cfg=2, sample_rate_div=4)

@@ -18,6 +18,7 @@ from hal.mpu6050 import (
 from sim_hal import SimHal, SimRobot
 from sim_hal.faults import FaultyI2cBus
 from sim_hal.mpu_emulator import FIFO_OFLOW_INT, INT_STATUS, ConstantGyro, MpuEmulator
+from tests.support.fake_bridge import FakeEncoder
 from sim_hal.plant import PlantConfig
 from sim_hal.plant_config import Realism
 from sim_hal.plant_real import FIFO_SAMPLES
@@ -264,35 +265,6 @@ def test_the_default_sim_has_no_fifo():
     assert s.gyro_n == 0 and s.gyro_sum_raw == 0
 
 
-class _State:
-    def __init__(self, count: int, new: bool) -> None:
-        self.count, self.new = count, new
-        self.battery_mv, self.hw_estop, self.count_left, self.count_right = 0, False, 0, 0
-
-
-class _Encoder:
-    """A bridge whose STATEs are new or not by a script."""
-
-    counts_per_rev = 8192
-    wheel_counts_per_rev = 0
-    battery_measured = False
-    hw_estop_wired = False
-    state_stale_s = 0.05
-
-    def __init__(self) -> None:
-        self.script: list[bool] = []
-        self.count = 0
-
-    def state(self) -> _State:
-        new = self.script.pop(0) if self.script else True
-        self.count += 10 if new else 0
-        return _State(self.count, new)
-
-    def drive(self, l: float, r: float) -> None: ...
-    def stop(self) -> None: ...
-    def close(self) -> None: ...
-
-
 class _TickClock:
     def __init__(self, clock: Clock) -> None:
         self.clock = clock
@@ -305,13 +277,13 @@ def test_realhal_carries_a_stale_ticks_samples_to_the_next_fresh_one_and_holds_o
     from hal.real import RealHal
 
     clock, bus, imu = part(2.0)
-    enc = _Encoder()
+    enc = FakeEncoder(state_stale_s=0.05)
     hal = RealHal(imu, enc, _TickClock(clock))
     assert hal.info.gyro_fifo_period_s == pytest.approx(0.005)
     assert hal.info.gyro_delay_s == pytest.approx(imu.gyro_delay_s)
     hal.read()
     clock.t += 0.0101
-    enc.script = [False]  # the STATE is late: the gyro's two samples wait
+    enc.script = ["late"]  # the STATE is late: the gyro's two samples wait
     s = hal.read()
     assert not s.fresh and s.gyro_n == 0
     clock.t += 0.0101
