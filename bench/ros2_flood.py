@@ -15,6 +15,10 @@ Missed ticks, lateness and compute are the daemon's own (`--stats-json`). The da
 the config's path in every phase but the flood (where /cmd_vel drives it).
 
     python -m bench.ros2_flood [--duration 60] [--json FILE]
+
+Beside each phase, for the same seconds, bench/machine_stalls.py's bare probe (one SCHED_FIFO
+thread on the same 200 Hz grid, no work, no GIL to share) counts the ticks the machine itself
+misses: where the daemon misses no more than the probe, the misses are the machine's.
 """
 
 from __future__ import annotations
@@ -124,10 +128,13 @@ def run_phase(phase: str, duration: float, domain: int) -> dict[str, Any]:
             args.append("--follow")
         with open(work / "stderr.log", "wb") as err:
             daemon = spawn_daemon(cfg, *args, stderr=err)
-        peer = None
+        peer = bare = None
         extra: dict[str, Any] = {}
         try:
             bpid = wait_bridge(daemon) if phase != "no bridge" else 0
+            # The machine's own misses in the same seconds: bench/machine_stalls.py's bare loop.
+            bare = subprocess.Popen([sys.executable, "-m", "bench.machine_stalls", "--probe", str(duration)],
+                                    cwd=REPO, env=child_env(), stdout=subprocess.PIPE, text=True)
             if phase == "flood":
                 peer = subprocess.Popen([sys.executable, "-m", "bench.ros2_flood", "--child", "flood",
                                          "--domain", str(domain), "--duration", str(duration)],
@@ -146,13 +153,17 @@ def run_phase(phase: str, duration: float, domain: int) -> dict[str, Any]:
                 os.kill(bpid, signal.SIGKILL)
                 extra["restarted"] = wait_bridge(daemon, 30.0) != bpid
             daemon.wait(duration + 120.0)
+            out, _ = bare.communicate(timeout=120.0)
+            probe = json.loads(out.strip().splitlines()[-1])
+            extra["probe_missed"], extra["probe_late_max_us"] = probe["missed"], probe["late_max_us"]
             if phase == "flood" and peer is not None:
                 out, _ = peer.communicate(timeout=60.0)
                 extra.update(json.loads(out.strip().splitlines()[-1]))
         finally:
-            if peer is not None and peer.poll() is None:
-                peer.kill()
-                peer.wait()
+            for p in (peer, bare):
+                if p is not None and p.poll() is None:
+                    p.kill()
+                    p.wait()
             if daemon.poll() is None:
                 daemon.kill()
                 daemon.wait()
@@ -166,10 +177,11 @@ def run_phase(phase: str, duration: float, domain: int) -> dict[str, Any]:
 
 def render(rows: list[dict[str, Any]], duration: float) -> list[str]:
     lines = ["| phase | ticks | missed ticks | lateness p99 (us) | lateness max (us) | tick compute p99 (us) | "
-             "end state |", "|---|---|---|---|---|---|---|"]
+             "end state | bare probe: missed, lateness max (us) |", "|---|---|---|---|---|---|---|---|"]
     for r in rows:
+        probe = f"{r['probe_missed']}, {r['probe_late_max_us']:.0f}" if "probe_missed" in r else "-"
         lines.append(f"| {r['phase']} | {r['ticks']} | {r['missed']} | {r['late_p99_us']:.0f} | "
-                     f"{r['late_max_us']:.0f} | {r['compute_p99_us']:.0f} | {r['final_state']} |")
+                     f"{r['late_max_us']:.0f} | {r['compute_p99_us']:.0f} | {r['final_state']} | {probe} |")
     flood = next((r for r in rows if r["phase"] == "flood"), None)
     if flood and "sent" in flood:
         lines += ["", f"The flood published {flood['sent']} Twist messages in {flood['seconds']:.1f} s "
