@@ -57,6 +57,18 @@ def _feed(track: Tracker, ds: np.ndarray, dth: np.ndarray, th0: float = 0.3, t0:
         track.step(t0 + (k + 1) * DT, x[k], y[k], th[k], DT, x[k] - xp, y[k] - yp, dth[k])
 
 
+def _fed_map(history: int, steps: int, gate_chi2: float) -> tuple[Tracker, MapFrame]:
+    """A tracker with `history` ticks of history and a map frame, both fed `steps` of the S-bend
+    odometry from the origin."""
+    track = Tracker(_model(), history, every=4, odom_every=20)
+    track.reset(0.0, (0.0, 0.0, 0.0))
+    frame = MapFrame(gate_chi2=gate_chi2)
+    frame.reset((0.0, 0.0, 0.0))
+    ds, dth = _increments(steps)
+    _feed(track, ds, dth, th0=0.0, frame=frame)
+    return track, frame
+
+
 def _monte_carlo(model: ErrorModel, ds: np.ndarray, dth: np.ndarray, samples: int, seed: int) -> np.ndarray:
     """(samples, n, 3) true minus estimated pose."""
     rng = np.random.default_rng(seed)
@@ -199,13 +211,7 @@ def test_a_late_fix_leaves_an_error_its_covariance_describes(latency_ticks: int)
 
 
 def test_a_fix_far_outside_its_covariance_is_an_outlier_counted_and_ignored() -> None:
-    model = _model()
-    track = Tracker(model, 400, every=4, odom_every=20)
-    track.reset(0.0, (0.0, 0.0, 0.0))
-    ds, dth = _increments(400)
-    frame = MapFrame(gate_chi2=16.27)
-    frame.reset((0.0, 0.0, 0.0))
-    _feed(track, ds, dth, th0=0.0, frame=frame)
+    track, frame = _fed_map(400, 400, 16.27)
     before = (list(track.p_map), frame.correction(), list(track.hist.x))
     r = frame.fuse(track, PoseFix(5.0, 5.0, 0.0, (1e-4, 0, 0, 0, 1e-4, 0, 0, 0, 1e-3), 1.0))
     assert not r["fused"] and r["outlier"] and r["d2"] > 16.27
@@ -240,13 +246,7 @@ def test_fix_input_is_checked_field_by_field() -> None:
 
 
 def test_stamps_outside_the_history_or_out_of_order_change_nothing() -> None:
-    model = _model()
-    track = Tracker(model, 200, every=4, odom_every=20)  # 1 s of history at 5 ms
-    track.reset(0.0, (0.0, 0.0, 0.0))
-    ds, dth = _increments(600)
-    frame = MapFrame(gate_chi2=1e9)
-    frame.reset((0.0, 0.0, 0.0))
-    _feed(track, ds, dth, th0=0.0, frame=frame)
+    track, frame = _fed_map(200, 600, 1e9)  # 1 s of history at 5 ms
     cov = (1e-4, 0, 0, 0, 1e-4, 0, 0, 0, 1e-3)
     now = 600 * DT
 
@@ -271,13 +271,7 @@ def test_stamps_outside_the_history_or_out_of_order_change_nothing() -> None:
 
 def test_fuzzed_fix_requests_never_raise_anything_but_a_named_field_error() -> None:
     rng = np.random.default_rng(11)
-    model = _model()
-    track = Tracker(model, 200, every=4, odom_every=20)
-    track.reset(0.0, (0.0, 0.0, 0.0))
-    ds, dth = _increments(300)
-    frame = MapFrame(gate_chi2=16.27)
-    frame.reset((0.0, 0.0, 0.0))
-    _feed(track, ds, dth, th0=0.0, frame=frame)
+    track, frame = _fed_map(200, 300, 16.27)
     junk = [None, True, "x", [], {}, [1], [[1, 2, 3]] * 3, math.nan, -math.inf, 1e308, -1e-300, 10 ** 400, 0, -1.0,
             [[1e-4, 0, 0], [0, 1e-4, 0], [0, 0, 1e-3]], [[-1, 0, 0], [0, 1, 0], [0, 0, 1]], 1.4, 1.0]
     fields = ("x", "y", "theta", "cov", "stamp")
@@ -298,13 +292,7 @@ def test_after_five_outliers_in_a_row_the_next_fix_reanchors_map() -> None:
     """A map that is wrong (the robot was carried away) must not refuse every fix from then on."""
     from ddrt.core.pose_fix import MAX_OUTLIERS_IN_A_ROW
 
-    model = _model()
-    track = Tracker(model, 400, every=4, odom_every=20)
-    track.reset(0.0, (0.0, 0.0, 0.0))
-    frame = MapFrame(gate_chi2=16.27)
-    frame.reset((0.0, 0.0, 0.0))
-    ds, dth = _increments(400)
-    _feed(track, ds, dth, th0=0.0, frame=frame)
+    track, frame = _fed_map(400, 400, 16.27)
     cov = (1e-4, 0, 0, 0, 1e-4, 0, 0, 0, 1e-3)
     for i in range(MAX_OUTLIERS_IN_A_ROW):
         assert frame.fuse(track, PoseFix(5.0, 5.0, 1.0, cov, 2.0))["outlier"]
