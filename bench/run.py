@@ -302,6 +302,11 @@ def _header(n: int) -> str:
     return f"## {SECTIONS[n]}"
 
 
+def _section_end(lines: list[str], start: int) -> int:
+    """Index of the next `## ` heading after line `start` (len(lines): none)."""
+    return next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")), len(lines))
+
+
 def section_body(doc: str, n: int) -> list[str] | None:
     """Section n's lines of `doc` after its heading and blank line, up to the next `## `
     heading (trailing blank lines dropped); None when `doc` has no such section."""
@@ -310,8 +315,7 @@ def section_body(doc: str, n: int) -> list[str] | None:
         start = lines.index(_header(n))
     except ValueError:
         return None
-    end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")), len(lines))
-    body = lines[start + 1:end]
+    body = lines[start + 1:_section_end(lines, start)]
     while body and not body[0].strip():
         body.pop(0)
     while body and not body[-1].strip():
@@ -392,7 +396,7 @@ def splice_section(doc: str, n: int, body: list[str]) -> str:
     new = [_header(n), ""] + body
     if _header(n) in heads:
         start = heads[_header(n)]
-        end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")), len(lines))
+        end = _section_end(lines, start)
         lines[start:end] = new + ([""] if end < len(lines) else [])
     else:
         later = [heads[_header(k)] for k in range(n + 1, len(SECTIONS)) if _header(k) in heads]
