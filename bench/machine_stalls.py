@@ -29,7 +29,7 @@ from typing import Any
 
 import yaml
 
-from bench.common import REPO, spawn_daemon
+from bench.common import REPO, child_env, spawn_daemon
 
 PERIOD_S = 0.005
 PRIORITY = 10
@@ -95,6 +95,18 @@ def steal_s() -> float:
     return int(fields[8]) / os.sysconf("SC_CLK_TCK") if len(fields) > 8 else 0.0
 
 
+def start_probe(duration: float) -> subprocess.Popen:
+    """`probe` for `duration` s in a process of its own (started now); read it with probe_result."""
+    return subprocess.Popen([sys.executable, "-m", "bench.machine_stalls", "--probe", str(duration)],
+                            cwd=REPO, env=child_env(), stdout=subprocess.PIPE, text=True)
+
+
+def probe_result(bare: subprocess.Popen, timeout: float) -> dict[str, Any]:
+    """What a started probe measured (its last line of output)."""
+    out, _ = bare.communicate(timeout=timeout)
+    return json.loads(out.strip().splitlines()[-1])
+
+
 def one_run(duration: float, hogs: int) -> dict[str, Any]:
     with tempfile.TemporaryDirectory(prefix="ddrt-stalls-", dir="/tmp") as tmp:
         work = Path(tmp)
@@ -110,9 +122,7 @@ def one_run(duration: float, hogs: int) -> dict[str, Any]:
             with open(work / "stderr.log", "wb") as err:
                 daemon = spawn_daemon(work / "cfg.yaml", "--socket", str(work / "ctl.sock"), "--duration",
                                       str(duration), "--follow", "--stats-json", str(stats), stderr=err)
-                bare = subprocess.Popen([sys.executable, "-m", "bench.machine_stalls", "--probe", str(duration)],
-                                        cwd=REPO, stdout=subprocess.PIPE, text=True)
-                out, _ = bare.communicate(timeout=duration + 60.0)
+                probe_out = probe_result(start_probe(duration), duration + 60.0)
                 daemon.wait(duration + 60.0)
         finally:
             for p in busy:
@@ -122,7 +132,7 @@ def one_run(duration: float, hogs: int) -> dict[str, Any]:
         s = json.loads(stats.read_text())
         return {"daemon_missed": s["missed"], "daemon_late_max_us": s["lateness_us"]["max"],
                 "daemon_late_p99_us": s["lateness_us"]["p99"], "steal_s": steal,
-                **{f"probe_{k}": v for k, v in json.loads(out.strip().splitlines()[-1]).items()}}
+                **{f"probe_{k}": v for k, v in probe_out.items()}}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -37,6 +37,7 @@ from typing import Any
 import yaml
 
 from bench.common import REPO, child_env, spawn_daemon
+from bench.machine_stalls import probe_result, start_probe
 
 PHASES = ("no bridge", "baseline", "flood", "slow subscriber", "stalled, then vanished bridge")
 FLOOD_HZ = 10_000.0
@@ -133,8 +134,7 @@ def run_phase(phase: str, duration: float, domain: int) -> dict[str, Any]:
         try:
             bpid = wait_bridge(daemon) if phase != "no bridge" else 0
             # The machine's own misses in the same seconds: bench/machine_stalls.py's bare loop.
-            bare = subprocess.Popen([sys.executable, "-m", "bench.machine_stalls", "--probe", str(duration)],
-                                    cwd=REPO, env=child_env(), stdout=subprocess.PIPE, text=True)
+            bare = start_probe(duration)
             if phase == "flood":
                 peer = subprocess.Popen([sys.executable, "-m", "bench.ros2_flood", "--child", "flood",
                                          "--domain", str(domain), "--duration", str(duration)],
@@ -153,8 +153,7 @@ def run_phase(phase: str, duration: float, domain: int) -> dict[str, Any]:
                 os.kill(bpid, signal.SIGKILL)
                 extra["restarted"] = wait_bridge(daemon, 30.0) != bpid
             daemon.wait(duration + 120.0)
-            out, _ = bare.communicate(timeout=120.0)
-            probe = json.loads(out.strip().splitlines()[-1])
+            probe = probe_result(bare, 120.0)
             extra["probe_missed"], extra["probe_late_max_us"] = probe["missed"], probe["late_max_us"]
             if phase == "flood" and peer is not None:
                 out, _ = peer.communicate(timeout=60.0)
