@@ -160,8 +160,8 @@ def population_case(job: tuple[str, dict[str, Any], float]) -> tuple[Any, ...]:
         runs[f"after/{p}"] = _drive(dict(written, path=dict(spec, speed=speed)), f"{name} commissioned")
     o = state["steps"]["odometry"]
     truth = {"r_3": data["plant"]["r_3"], "scale": 1.0 + data["sim"]["gyro"]["scale_error"]}
-    errs = {"r_3_err": o["r_3"] / truth["r_3"] - 1.0, "scale_err": o["gyro_scale"] / truth["scale"] - 1.0,
-            "r_3_before": o["r_3_before"] / truth["r_3"] - 1.0, "scale_before": o["gyro_scale_before"] / truth["scale"] - 1.0}
+    errs = {"r_3_err": o["radii"]["r_3"] / truth["r_3"] - 1.0, "scale_err": o["gyro_scale"] / truth["scale"] - 1.0,
+            "r_3_before": o["radii_before"]["r_3"] / truth["r_3"] - 1.0, "scale_before": o["gyro_scale_before"] / truth["scale"] - 1.0}
     return (name, "", runs, wall, errs)
 
 

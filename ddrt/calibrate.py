@@ -347,20 +347,32 @@ def settle(loop: ControlLoop, clock: Any, seconds: float = 0.5) -> None:
         loop.tick()
 
 
+def distance_radii(cfg: Config) -> tuple[str, ...]:
+    """The `robot:` radii that scale the estimator's distance: the front encoder's r_3, or on a
+    robot without one the drive wheels' r_L and r_R (their ratio, learnt on the move, is kept)."""
+    return ("r_3",) if cfg.sensors.encoder_counts_per_rev > 0 else ("r_L", "r_R")
+
+
 @dataclass(frozen=True)
 class OdometryCorrection:
-    r_3: float
+    radii: dict[str, float]  # distance_radii(cfg), scaled by distance_ratio
     gyro_scale: float
     distance_ratio: float
     turn_ratio: float
+
+    @property
+    def r_3(self) -> float | None:
+        """The front encoder's radius, when it is the distance sensor."""
+        return self.radii.get("r_3")
 
 
 def odometry_correction(cfg: Config, run: OdometryRun, measured_distance: float,
                         measured_turn_rad: float) -> OdometryCorrection:
     """Encoder radius and gyro scale that make the estimates match what was measured.
 
-    The estimated distance is counts x r_3 (scale with the measured distance); the estimated
-    turn is the gyro's integral / gyro_scale (so the scale goes with estimated / measured).
+    The estimated distance is counts x radius (r_3, or the drive wheels' without a front
+    encoder: scale with the measured distance); the estimated turn is the gyro's integral /
+    gyro_scale (so the scale goes with estimated / measured).
     """
     if not measured_distance > 0.0:
         raise ValueError(f"--measured-distance: must be > 0 m, got {measured_distance}")
@@ -371,7 +383,8 @@ def odometry_correction(cfg: Config, run: OdometryRun, measured_distance: float,
     if not (0.8 < d_ratio < 1.25 and 0.8 < t_ratio < 1.25):
         raise CalibrationRunError(f"measurements are {d_ratio:.3f} x the encoder distance and "
                                   f"{1 / t_ratio:.3f} x the gyro's turn: more than 20% off, check them")
-    return OdometryCorrection(cfg.robot.r_3 * d_ratio, cfg.estimator.gyro_scale * t_ratio, d_ratio, t_ratio)
+    radii = {k: getattr(cfg.robot, k) * d_ratio for k in distance_radii(cfg)}
+    return OdometryCorrection(radii, cfg.estimator.gyro_scale * t_ratio, d_ratio, t_ratio)
 
 
 def odometry_fragment(cfg: Config, run: OdometryRun, corr: OdometryCorrection, measured_distance: float,
@@ -379,9 +392,10 @@ def odometry_fragment(cfg: Config, run: OdometryRun, corr: OdometryCorrection, m
     head = (f"# ddrt calibrate odometry ({source}): drove {run.distance_cmd_m:g} m, encoder said "
             f"{run.est_distance_m:.4f} m, measured {measured_distance:.4f} m; turned, gyro said "
             f"{run.est_turn_rad / DEG:.2f} deg, measured {measured_turn_rad / DEG:.2f} deg.\n"
-            f"# r_3 {cfg.robot.r_3:.5f} -> {corr.r_3:.5f} m, gyro_scale {cfg.estimator.gyro_scale:.5f} -> "
-            f"{corr.gyro_scale:.5f}\n")
-    body = {"robot": {"r_3": float(f"{corr.r_3:.6g}")}, "estimator": {"gyro_scale": float(f"{corr.gyro_scale:.6g}")}}
+            f"# {', '.join(f'{k} {getattr(cfg.robot, k):.5f} -> {v:.5f} m' for k, v in corr.radii.items())}, "
+            f"gyro_scale {cfg.estimator.gyro_scale:.5f} -> {corr.gyro_scale:.5f}\n")
+    body = {"robot": {k: float(f"{v:.6g}") for k, v in corr.radii.items()},
+            "estimator": {"gyro_scale": float(f"{corr.gyro_scale:.6g}")}}
     return head + yaml.safe_dump(body, sort_keys=False)
 
 

@@ -120,6 +120,13 @@ def test_odometry_from_sim_truth_recovers_radius_and_gyro_scale() -> None:
     assert corr.gyro_scale == pytest.approx(1.02, rel=0.003)
 
 
+def test_odometry_correction_scales_the_drive_wheels_without_a_front_encoder() -> None:
+    cfg = load_config(UNCAL, {"sensors": {"encoder_counts_per_rev": 0, "wheel_counts_per_rev": 1440}})
+    corr = cal.odometry_correction(cfg, cal.OdometryRun(1.0, 1.0, 2 * math.pi), 1.02, 2 * math.pi)
+    assert corr.radii == pytest.approx({"r_L": cfg.robot.r_L * 1.02, "r_R": cfg.robot.r_R * 1.02})
+    assert corr.r_3 is None
+
+
 def test_odometry_correction_refuses_implausible_measurements() -> None:
     cfg = load_config(UNCAL)
     run = cal.OdometryRun(1.0, 1.0, 2 * math.pi)

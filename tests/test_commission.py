@@ -209,7 +209,7 @@ def test_a_measurement_more_than_20_percent_off_is_refused(tmp_path: Path) -> No
                     truth=False)
     commission(good, step="odometry")
     o = good.state.get("odometry")
-    assert o["r_3"] == pytest.approx(0.052 * 1.0 / o["est_distance_m"])
+    assert o["radii"] == {"r_3": pytest.approx(0.052 * 1.0 / o["est_distance_m"])}
     assert o["gyro_scale"] == pytest.approx(o["est_turn_deg"] / (1800.3))
 
 
@@ -229,6 +229,35 @@ def test_the_supply_reading_is_held_against_a_multimeter(tmp_path: Path) -> None
     commission(s, step="link")
     commission(s, step="rest")
     assert "skipped" in s.state.get("rest")["battery"]
+
+
+WHEELS_ONLY = {"encoder_counts_per_rev": 0, "wheel_counts_per_rev": 1440}
+
+
+@pytest.mark.parametrize("bits", list(itertools.product((False, True), repeat=4)))
+def test_a_robot_without_front_encoder_has_its_wiring_found_by_its_wheels(tmp_path: Path,
+                                                                        bits: tuple[bool, ...]) -> None:
+    """No front encoder: the drive wheels' counts measure the pulses (they follow their motors,
+    so the gyro and the observation decide) and every motor and gyro fault is still found."""
+    faults = dict(zip([f for f in FIX if f != "encoder_reversed"], bits))
+    src = _config(tmp_path, sim={"wiring": faults}, sensors=WHEELS_ONLY)
+    session = _session(src, tmp_path / "out.yaml")
+    commission(session, step="wiring")
+    assert session.state.get("wiring")["config"]["hal"]["wiring"] == _expected_fix(faults)
+
+
+def test_a_robot_without_front_encoder_is_commissioned_by_its_drive_wheels(tmp_path: Path) -> None:
+    """Drive wheels 2 % larger than the config says and no front encoder: the odometry step
+    scales r_L and r_R (the estimator's distance) and leaves r_3 alone."""
+    src = _config(tmp_path, plant={"r_L": 0.049 * 1.02, "r_R": 0.051 * 1.02}, sensors=WHEELS_ONLY)
+    out = tmp_path / "robot.yaml"
+    outcome = commission(_session(src, out))
+    cfg, before = load_config(out), load_config(src)
+    assert cfg.robot.r_3 == before.robot.r_3
+    assert cfg.robot.r_L / before.robot.r_L == pytest.approx(cfg.robot.r_R / before.robot.r_R, rel=1e-5)
+    assert 0.5 * (cfg.robot.r_L + cfg.robot.r_R) == pytest.approx(0.050 * 1.02, rel=0.006)  # 2 mm over 1 m
+    assert outcome.check["true_rms_mm"] < 5.0
+    assert "robot.r_L" in (paths_for(out)[1] / "report.md").read_text() and "robot.r_L" in out.read_text()
 
 
 # --------------------------------------------------------------------------- resume, --step, result
@@ -251,7 +280,7 @@ def test_resume_skips_finished_steps_and_step_reruns_one(tmp_path: Path) -> None
     assert done.skipped == ["link", "wiring", "rest", "dynamics"] and done.ran == ["odometry", "result"]
     assert stored["dynamics"]["finished"] == second.state.get("dynamics")["finished"]
     cfg = load_config(out)
-    assert cfg.robot.r_3 == pytest.approx(second.state.get("odometry")["r_3"], rel=1e-5)
+    assert cfg.robot.r_3 == pytest.approx(second.state.get("odometry")["radii"]["r_3"], rel=1e-5)
     assert cfg.robot.m_p == pytest.approx(second.state.get("dynamics")["config"]["robot"]["m_p"])
     assert cfg.plant == load_config(src).plant  # the truth is never touched
     assert "Commissioned by" in out.read_text() and (paths_for(out)[1] / "report.md").exists()

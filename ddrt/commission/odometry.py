@@ -1,11 +1,11 @@
-"""Step 5, odometry: the front encoder's radius and the gyro's scale, from a tape and a protractor.
+"""Step 5, odometry: the distance sensor's radius and the gyro's scale, from a tape and a protractor.
 
 The robot drives `--distance` m straight ahead, stops, and turns `--turns` full turns in place
 counter-clockwise about the middle of its rear axle (point A). Measured: how far A went (a
 tape, from the mark under A at the start to A at the end) and how far past the whole turns
 the robot's heading ended (a protractor, on the line drawn along its side at the start).
-The encoder's distance is counts x r_3, so r_3 scales with measured / estimated distance; the
-estimated turn is the gyro's integral / gyro_scale, so the scale goes with estimated /
+The encoder's distance is counts x r_3, so r_3 scales with measured / estimated distance (on a
+robot without a front encoder the drive wheels' r_L and r_R, together); the estimated turn is the gyro's integral / gyro_scale, so the scale goes with estimated /
 measured turn. A tape read to +-2 mm over 1 m gives r_3 to 0.2 %; a protractor read to
 +-0.5 deg over 5 turns gives the scale to 0.03 %.
 
@@ -102,7 +102,10 @@ def run(session: Session) -> dict[str, Any]:
                 f"{MAX_OFF:.0%}: refused. Measure again (from the mark under the rear axle's middle; a turn offset is "
                 "the angle past the whole turns, not the total) and run `ddrt commission --step odometry`")
     tape_m, prot_deg = session.opts.noise_mm_deg[0] * 1e-3, session.opts.noise_mm_deg[1]
-    r_3 = cfg.robot.r_3 * d_ratio
+    from ddrt.calibrate import distance_radii
+
+    radii_before = {k: getattr(cfg.robot, k) for k in distance_radii(cfg)}
+    radii = {k: v * d_ratio for k, v in radii_before.items()}
     scale = cfg.estimator.gyro_scale * t_ratio
     scale_rel = math.radians(prot_deg) / turn
     umb = None
@@ -118,18 +121,38 @@ def run(session: Session) -> dict[str, Any]:
         scale = (w_turn * scale + w_umb * scale_umb) / (w_turn + w_umb)
         scale_rel = (w_turn + w_umb) ** -0.5
     out = {
-        "config": {"robot": {"r_3": float(f"{r_3:.6g}")}, "estimator": {"gyro_scale": float(f"{scale:.6g}")}},
+        "config": {"robot": {k: float(f"{v:.6g}") for k, v in radii.items()},
+                   "estimator": {"gyro_scale": float(f"{scale:.6g}")}},
         "source": source, "distance_cmd_m": d, "turns": n,
         "est_distance_m": run_["est_distance_m"], "measured_distance_m": dist,
         "est_turn_deg": math.degrees(run_["est_turn_rad"]), "measured_turn_deg": math.degrees(turn),
         "true_distance_m": run_["true_distance_m"],
         "true_turn_deg": None if run_["true_turn_rad"] is None else math.degrees(run_["true_turn_rad"]),
-        "r_3_before": cfg.robot.r_3, "r_3": r_3, "gyro_scale_before": cfg.estimator.gyro_scale, "gyro_scale": scale,
+        "radii_before": radii_before, "radii": radii,
+        "gyro_scale_before": cfg.estimator.gyro_scale, "gyro_scale": scale,
         # What one reading's uncertainty implies (one sigma, relative).
-        "r_3_rel_uncertainty": tape_m / dist, "gyro_scale_rel_uncertainty": scale_rel,
+        "radius_rel_uncertainty": tape_m / dist, "gyro_scale_rel_uncertainty": scale_rel,
         "umbmark": umb,
     }
-    session.say(f"odometry: r_3 {cfg.robot.r_3:.5f} -> {r_3:.5f} m (+-{100 * out['r_3_rel_uncertainty']:.2f}%), "
+    session.say(f"odometry: {radius_changes(out)} (+-{100 * out['radius_rel_uncertainty']:.2f}%), "
                 f"gyro_scale {cfg.estimator.gyro_scale:.5f} -> {scale:.5f} "
                 f"(+-{100 * out['gyro_scale_rel_uncertainty']:.3f}%)")
     return out
+
+
+def radius_rows(o: dict[str, Any]) -> list[tuple[str, float, float]]:
+    """(key, before, after) for each radius the step scaled; a result from before the drive
+    wheels were handled carries r_3 alone."""
+    before = o.get("radii_before") or {"r_3": o["r_3_before"]}
+    after = o.get("radii") or {"r_3": o["r_3"]}
+    return [(k, before[k], after[k]) for k in after]
+
+
+def radius_changes(o: dict[str, Any]) -> str:
+    """"r_3 0.05000 -> 0.05100 m", or the drive wheels' pair."""
+    return ", ".join(f"{k} {b:.5f} -> {a:.5f} m" for k, b, a in radius_rows(o))
+
+
+def radius_uncertainty(o: dict[str, Any]) -> float:
+    """One tape reading's relative uncertainty, which each scaled radius carries."""
+    return o.get("radius_rel_uncertainty", o.get("r_3_rel_uncertainty", math.nan))

@@ -8,6 +8,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+from ddrt.commission.odometry import radius_rows, radius_uncertainty
 from ddrt.commission.session import Session
 
 
@@ -115,7 +116,8 @@ def write_report(session: Session, folder: Path, config_file: Path, check: dict[
                   f"| turn (deg) | {o['est_turn_deg']:.2f} | {o['measured_turn_deg']:.2f} | "
                   f"{'' if o['true_turn_deg'] is None else format(o['true_turn_deg'], '.2f')} |", "",
                   "| key | before | after | one reading's uncertainty |", "|---|---|---|---|",
-                  f"| robot.r_3 (m) | {o['r_3_before']:.5f} | {o['r_3']:.5f} | {100 * o['r_3_rel_uncertainty']:.2f} % |",
+                  *(f"| robot.{k} (m) | {b:.5f} | {a:.5f} | {100 * radius_uncertainty(o):.2f} % |"
+                    for k, b, a in radius_rows(o)),
                   f"| estimator.gyro_scale | {o['gyro_scale_before']:.5f} | {o['gyro_scale']:.5f} | "
                   f"{100 * o['gyro_scale_rel_uncertainty']:.3f} % |"]
         u = o.get("umbmark")

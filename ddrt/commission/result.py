@@ -11,6 +11,7 @@ from typing import Any
 
 import yaml
 
+from ddrt.commission.odometry import radius_changes, radius_uncertainty
 from ddrt.commission.session import STEPS, CommissionError, Session
 from ddrt.config import load_config
 from ddrt.config.load import merge_mappings
@@ -36,7 +37,7 @@ def _comment_lines(session: Session) -> list[str]:
                      f"{d['duration_s']:.0f} s figure-eight in {d['area'][0]:g} x {d['area'][1]:g} m, R^2 {d['r2']:.4f}")
     o = st.get("odometry")
     if o:
-        lines.append(f"#   robot.r_3 {o['r_3_before']:.5f} -> {o['r_3']:.5f} m (+-{100 * o['r_3_rel_uncertainty']:.2f}%), "
+        lines.append(f"#   robot.{radius_changes(o)} (+-{100 * radius_uncertainty(o):.2f}%), "
                      f"estimator.gyro_scale {o['gyro_scale_before']:.5f} -> {o['gyro_scale']:.5f} "
                      f"(+-{100 * o['gyro_scale_rel_uncertainty']:.3f}%) ({o['finished']}): {o['distance_cmd_m']:g} m "
                      f"straight and {o['turns']} turns, {o['source']}")

@@ -4,7 +4,10 @@ Each motor output is pulsed alone at low duty (ramped up from below the deadband
 something moves), through the backend as it is wired (`hal.wiring` left out). The front
 encoder and the gyro say how the robot moved; one observation says which wheel turned and
 which way, because the sensors alone cannot tell "motors swapped" from "gyro upside down"
-(both mirror the robot). From those the fix is derived and written as `hal.wiring`
+(both mirror the robot). A robot without a front encoder measures the pulse's travel with its
+drive wheels' encoders; they share their motors' harnesses (hal/wiring.py), so they count the
+way each motor turns whatever its wiring and say nothing of the robot's direction: the gyro and
+the observation decide alone, and the check through the fix confirms it. From those the fix is derived and written as `hal.wiring`
 (hal/wiring.py applies it); nobody is asked to rewire. The fix is then checked by pulsing
 both outputs again through it.
 
@@ -40,7 +43,7 @@ BIAS_S = 0.5
 class Pulse:
     output: str  # "left" or "right": which driver output was pulsed
     duty: float  # the duty at which it moved (0: nothing moved)
-    distance_m: float  # the front encoder's travel (signed, forward > 0 when wired right)
+    distance_m: float  # the front encoder's travel, else the drive wheels' mean (signed, forward > 0 when wired right)
     angle_rad: float  # the gyro's yaw change, bias removed (counter-clockwise > 0 when right)
     true_forward_m: float | None = None  # simulation: the truth
     true_angle_rad: float | None = None
@@ -60,7 +63,7 @@ def pulse(hal: Hal, clock: Any, cfg: Config, output: str, duty_max: float) -> Pu
     module doc for the bounds. The motors are at zero when this returns or raises."""
     info = hal.info
     period = 1.0 / cfg.controller.rate_hz
-    per_count = 2.0 * math.pi * cfg.robot.r_3 / info.encoder_counts_per_rev
+    travel = _travel_meter(cfg, info)
     lsb = info.gyro_lsb_per_rad_s
     truth = hal.robot
     t = clock.now()
@@ -84,7 +87,7 @@ def pulse(hal: Hal, clock: Any, cfg: Config, output: str, duty_max: float) -> Pu
     raws = [tick(0.0).gyro_z_raw for _ in range(max(5, int(BIAS_S / period)))]
     bias = sum(raws) / len(raws)
     s = tick(0.0)
-    c0, dist, ang = s.encoder_count, 0.0, 0.0
+    c0, dist, ang = travel.counts(s), 0.0, 0.0
     p0 = truth.pose if truth is not None else None
     res = Pulse(output, 0.0, 0.0, 0.0)
     duty, ramp_t, moved_at, settle_from = DUTY_START, 0.0, 0.0, math.inf
@@ -94,7 +97,7 @@ def pulse(hal: Hal, clock: Any, cfg: Config, output: str, duty_max: float) -> Pu
         s = tick(0.0 if phase == "settle" else duty)
         res.trace.append((elapsed, 0.0 if phase == "settle" else duty, dist, ang))
         elapsed += period
-        dist = _wrap32(s.encoder_count - c0) * per_count
+        dist = travel.metres(c0, travel.counts(s))
         ang += (s.gyro_z_raw - bias) / lsb * period
         if phase == "ramp" and (abs(dist) >= MOVED_M or abs(ang) >= MOVED_RAD):
             phase, moved_at, res.duty = "hold", elapsed, duty
@@ -119,6 +122,32 @@ def pulse(hal: Hal, clock: Any, cfg: Config, output: str, duty_max: float) -> Pu
     return res
 
 
+@dataclass(frozen=True)
+class _TravelMeter:
+    """The pulse's travel from the front encoder (`per_wheel` None) or the drive wheels' mean."""
+
+    per_count: float  # front encoder: metres a count
+    per_wheel: tuple[float, float] | None  # drive wheels: metres a count, left and right
+
+    def counts(self, s: Any) -> tuple[int, int]:
+        return (s.count_left, s.count_right) if self.per_wheel is not None else (s.encoder_count, 0)
+
+    def metres(self, c0: tuple[int, int], c: tuple[int, int]) -> float:
+        if self.per_wheel is None:
+            return _wrap32(c[0] - c0[0]) * self.per_count
+        return 0.5 * (_wrap32(c[0] - c0[0]) * self.per_wheel[0] + _wrap32(c[1] - c0[1]) * self.per_wheel[1])
+
+
+def _travel_meter(cfg: Config, info: Any) -> _TravelMeter:
+    if info.encoder_counts_per_rev > 0:
+        return _TravelMeter(2.0 * math.pi * cfg.robot.r_3 / info.encoder_counts_per_rev, None)
+    if info.wheel_counts_per_rev <= 0:
+        raise CommissionError("wiring: the robot reports neither a front encoder nor drive-wheel encoders "
+                              "(HELLO's counts per revolution are 0): nothing can measure the pulses")
+    cpr = info.wheel_counts_per_rev
+    return _TravelMeter(0.0, (2.0 * math.pi * cfg.robot.r_L / cpr, 2.0 * math.pi * cfg.robot.r_R / cpr))
+
+
 def _sign(x: float) -> int:
     return 1 if x > 0 else -1
 
@@ -130,16 +159,25 @@ def observed_from_truth(p: Pulse) -> str:
     return f"{wheel} {'forward' if fwd > 0 else 'backward'}"
 
 
-def derive(a: Pulse, b: Pulse, seen_a: str) -> dict[str, Any]:
+def derive(a: Pulse, b: Pulse, seen_a: str, front_encoder: bool = True) -> dict[str, Any]:
     """hal.wiring from the two pulses (a: the left output's, b: the right's) and what was seen
-    on the first. Raises when the readings contradict each other."""
+    on the first. Raises when the readings contradict each other. Without a front encoder the
+    second wheel's direction comes from the gyro alone (nothing to cross-check; the caller's
+    check through the fix does) and `encoder_sign` stays 1."""
     wheel_a, way_a = seen_a.split()
     sigma_a = 1 if way_a == "forward" else -1
     # A wheel rolling forward rolls the robot forward; the left one turns it clockwise.
     w_a = -sigma_a if wheel_a == "left" else sigma_a
-    e = _sign(a.distance_m) * sigma_a  # encoder sign
     g = _sign(a.angle_rad) * w_a  # gyro sign
     wheel_b = "right" if wheel_a == "left" else "left"
+    if not front_encoder:
+        w_b = _sign(b.angle_rad) * g
+        sigma_b = -w_b if wheel_b == "left" else w_b
+        swapped = wheel_a == "right"
+        left_sigma, right_sigma = (sigma_b, sigma_a) if swapped else (sigma_a, sigma_b)
+        return {"motor_left_inverted": left_sigma < 0, "motor_right_inverted": right_sigma < 0,
+                "motors_swapped": swapped, "encoder_sign": 1, "gyro_sign": g}
+    e = _sign(a.distance_m) * sigma_a  # encoder sign
     sigma_b = _sign(b.distance_m) * e
     w_b_expected = -sigma_b if wheel_b == "left" else sigma_b
     if _sign(b.angle_rad) * g != w_b_expected:
@@ -186,11 +224,12 @@ def run(session: Session) -> dict[str, Any]:
         else:
             seen = session.answers.value("wiring.left_output_pulse", PROMPT)
         b = pulse(hal, clock, raw_cfg, "right", duty_max)
+        front = hal.info.encoder_counts_per_rev > 0
         if not b.moved:
             raise CommissionError(
                 f"wiring: the left output moved the robot but the right output did not, up to duty {duty_max:.2f}: "
                 "check the right motor's leads and the driver's second channel")
-    fix = derive(a, b, seen)
+    fix = derive(a, b, seen, front)
     fixed_cfg = session.config("wiring", extra={"hal": {"wiring": fix}})
     with session.robot(fixed_cfg) as hal:  # the check: through the fix, each wheel as documented
         clock = clock_for(hal)
