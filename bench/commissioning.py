@@ -1,8 +1,8 @@
 """`ddrt commission` measured (issue 20): wiring faults found and fixed, and a harsh population
 commissioned from ruler-and-datasheet configs.
 
-`python -m bench.commissioning [--robots 20] [--workers 2] [--only wiring|population]` prints
-Markdown for docs/BENCHMARKS.md.
+`python -m bench.commissioning [--robots 20] [--workers 2] [--only wiring|population]
+[--sensors front|wheels]` prints Markdown for docs/BENCHMARKS.md.
 
 Wiring: configs/sim.yaml with each `sim.wiring` fault; the figure-eight (configs/sim.yaml's
 path) driven with the uncommissioned config, then `ddrt commission --from-sim-truth --yes`, the
@@ -18,6 +18,10 @@ percent off, the motor's datasheet values) and nothing calibrated (gyro_scale 1)
 driven on section 10's two paths at its speed, uncommissioned; then commissioned with
 `--from-sim-truth` and the default measurement noise (2 mm, 0.5 deg) and driven again.
 pass = completed, estimate RMS <= 1 mm, true RMS <= 5 mm (section 10's criterion).
+
+`--sensors wheels`: the same robots built the common way, without a front encoder: the drive
+wheels counted at 1440 a turn and each wheel's radius U(-2, +2) % off the nominal one (which
+the odometry step then scales, ddrt/calibrate.py's distance_radii).
 """
 
 from __future__ import annotations
@@ -115,10 +119,14 @@ def render_wiring(rows: list[tuple[Any, ...]]) -> list[str]:
 # --------------------------------------------------------------------------- population
 
 
-def harsh_robots(n: int) -> list[tuple[str, dict[str, Any], float]]:
+WHEEL_CPR = 1440
+
+
+def harsh_robots(n: int, sensors: str = "front") -> list[tuple[str, dict[str, Any], float]]:
     """(name, config mapping without a path, path speed) of the first `n` harsh robots: section
     10's `--harsh` cheap parts (bench/population.py's harsh_sections) and an encoder wheel whose
-    radius is U(-2, +2) % off the nominal one the config believes."""
+    radius is U(-2, +2) % off the nominal one the config believes; with `sensors` "wheels" no
+    front encoder and each drive wheel's radius U(-2, +2) % off instead."""
     from bench.population import harsh_sections
     from ddrt.sweep.population import population
 
@@ -129,8 +137,13 @@ def harsh_robots(n: int) -> list[tuple[str, dict[str, Any], float]]:
         cheap = harsh_sections(robot.name)
         plant = dict(sec["plant"])
         plant["r_3"] = sec["robot"]["r_3"] * (1.0 + rng.uniform(-0.02, 0.02))
+        sensed = dict(cheap["sensors"])
+        if sensors == "wheels":
+            plant["r_3"] = sec["plant"]["r_3"]
+            plant["r_L"], plant["r_R"] = (sec["robot"][k] * (1.0 + rng.uniform(-0.02, 0.02)) for k in ("r_L", "r_R"))
+            sensed.update(encoder_counts_per_rev=0, wheel_counts_per_rev=WHEEL_CPR)
         data = {"name": f"harsh {robot.name}", "robot": sec["robot"], "plant": plant,
-                "sim": merge_mappings(sec["sim"], cheap["sim"]), "sensors": cheap["sensors"],
+                "sim": merge_mappings(sec["sim"], cheap["sim"]), "sensors": sensed,
                 "daemon": {"socket": None}}
         out.append((robot.name, data, robot.path_speed))
     return out
@@ -159,9 +172,11 @@ def population_case(job: tuple[str, dict[str, Any], float]) -> tuple[Any, ...]:
     for p, spec in _paths().items():
         runs[f"after/{p}"] = _drive(dict(written, path=dict(spec, speed=speed)), f"{name} commissioned")
     o = state["steps"]["odometry"]
-    truth = {"r_3": data["plant"]["r_3"], "scale": 1.0 + data["sim"]["gyro"]["scale_error"]}
-    errs = {"r_3_err": o["radii"]["r_3"] / truth["r_3"] - 1.0, "scale_err": o["gyro_scale"] / truth["scale"] - 1.0,
-            "r_3_before": o["radii_before"]["r_3"] / truth["r_3"] - 1.0, "scale_before": o["gyro_scale_before"] / truth["scale"] - 1.0}
+    true_radius = sum(data["plant"][k] for k in o["radii"])  # r_3, or the drive wheels' sum
+    scale = 1.0 + data["sim"]["gyro"]["scale_error"]
+    errs = {"r_err": sum(o["radii"].values()) / true_radius - 1.0, "scale_err": o["gyro_scale"] / scale - 1.0,
+            "r_before": sum(o["radii_before"].values()) / true_radius - 1.0,
+            "scale_before": o["gyro_scale_before"] / scale - 1.0, "radii": "/".join(o["radii"])}
     return (name, "", runs, wall, errs)
 
 
@@ -194,11 +209,12 @@ def render_population(rows: list[tuple[Any, ...]], wall_s: float) -> list[str]:
         lines += ["", f"Targets: true RMS median {med * 1e3:.3f} mm (target <= {MEDIAN_TARGET_M * 1e3:g} mm): "
                   f"**{'MET' if med <= MEDIAN_TARGET_M else 'NOT MET'}**; {n_pass} of {total} pass (target all): "
                   f"**{'MET' if n_pass == total else 'NOT MET'}**."]
-        r3 = [abs(r[4]["r_3_err"]) * 100 for r in ok]
+        r3 = [abs(r[4]["r_err"]) * 100 for r in ok]
         sc = [abs(r[4]["scale_err"]) * 100 for r in ok]
-        r3b = [abs(r[4]["r_3_before"]) * 100 for r in ok]
+        r3b = [abs(r[4]["r_before"]) * 100 for r in ok]
         scb = [abs(r[4]["scale_before"]) * 100 for r in ok]
-        lines += ["", f"Odometry against the truth, |error| median / worst: r_3 {statistics.median(r3b):.2f} / "
+        radii = " and ".join(sorted({r[4]["radii"] for r in ok}))
+        lines += ["", f"Odometry against the truth, |error| median / worst: {radii} {statistics.median(r3b):.2f} / "
                   f"{max(r3b):.2f} % before, {statistics.median(r3):.3f} / {max(r3):.3f} % after; gyro scale "
                   f"{statistics.median(scb):.2f} / {max(scb):.2f} % before, {statistics.median(sc):.3f} / "
                   f"{max(sc):.3f} % after. Commissioning one robot took {statistics.median(r[3] for r in ok):.1f} s "
@@ -219,10 +235,12 @@ class CommissioningResult:
     wiring_wall_s: float
     population: list[tuple[Any, ...]] | None
     population_wall_s: float
+    sensors: str = "front"
 
 
-def measure(robots: int = ROBOTS, workers: int = 2, only: str | None = None) -> CommissioningResult:
-    res = CommissioningResult(None, 0.0, None, 0.0)
+def measure(robots: int = ROBOTS, workers: int = 2, only: str | None = None,
+            sensors: str = "front") -> CommissioningResult:
+    res = CommissioningResult(None, 0.0, None, 0.0, sensors)
     if only in (None, "wiring"):
         t0 = time.perf_counter()
         acc = pooled_by_key(wiring_case, list(FAULTS), workers)
@@ -230,7 +248,7 @@ def measure(robots: int = ROBOTS, workers: int = 2, only: str | None = None) -> 
         res.wiring_wall_s = time.perf_counter() - t0
     if only in (None, "population"):
         t0 = time.perf_counter()
-        jobs = harsh_robots(robots)
+        jobs = harsh_robots(robots, sensors)
         acc = pooled_by_key(population_case, jobs, workers)
         res.population = [(name, *acc[name][0]) for name, _, _ in jobs]
         res.population_wall_s = time.perf_counter() - t0
@@ -246,7 +264,14 @@ def render(res: CommissioningResult) -> list[str]:
                 "configs/sim.yaml with one `sim.wiring` fault each: its figure-eight (the config's path) driven as is, "
                 "then commissioned, then driven with the config written.", ""]
         out += render_wiring(res.wiring) + ["", f"({res.wiring_wall_s:.0f} s wall.)", ""]
-    if res.population is not None:
+    if res.population is not None and res.sensors == "wheels":
+        out += ["### Harsh population without a front encoder, commissioned", "",
+                "The robots below built the common way: no front encoder, the drive wheels counted at "
+                f"{WHEEL_CPR} a turn, each drive wheel's radius U(-2, +2) % off nominal (seed {HARSH_SEED}); "
+                "otherwise section 10's `--harsh` cheap parts as below. The odometry step scales r_L and r_R "
+                "together.", ""]
+        out += render_population(res.population, res.population_wall_s)
+    elif res.population is not None:
         out += ["### Harsh population, commissioned", "",
                 "The first robots of section 10's generator, made harsh: section 10's `--harsh` cheap parts on the "
                 "realistic plant (gyro scale 2-3 % off either way, bias up to 5 deg/s, a 400-1024 count front "
@@ -264,8 +289,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--robots", type=int, default=ROBOTS)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--only", choices=("wiring", "population"))
+    ap.add_argument("--sensors", choices=("front", "wheels"), default="front",
+                    help="the population's distance sensor: the front encoder, or the drive wheels' only")
     args = ap.parse_args(argv)
-    text = "\n".join(render(measure(args.robots, args.workers, args.only)))
+    text = "\n".join(render(measure(args.robots, args.workers, args.only, args.sensors)))
     with contextlib.suppress(BrokenPipeError):
         print(text)
     return 0
