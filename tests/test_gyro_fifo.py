@@ -158,6 +158,16 @@ def test_through_the_fifo_the_heading_is_the_samples_integrated(backend):
     assert min(errs_reg) > 3.0 * max(errs_fifo)
 
 
+def test_status_reports_the_learnt_period_and_the_lost_batches():
+    from ddrt.service.status import estimate_report
+
+    _, est = spin(True, 1, 4.0, noise_dps_rthz=0.0, bias_dps=0.0)
+    fifo = estimate_report(est)["gyro_fifo"]
+    assert fifo["gyro_period_ms"] == pytest.approx(5.0 / 1.005, rel=5e-4)
+    assert fifo["gyro_fifo_losses"] == 0 and fifo["gyro_fifo_rejects"] == 0
+    assert estimate_report(spin(False, 1, 1.0)[1])["gyro_fifo"] is None
+
+
 def test_a_short_freeze_is_covered_by_the_samples_that_waited_in_the_fifo():
     """30 ms without a fresh sample mid-run (below the estimator's max gap): the ticks are
     dead-reckoned, then the batch after them brings every sample of the freeze and takes back

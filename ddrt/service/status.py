@@ -121,7 +121,8 @@ def daemon_status(d: Daemon) -> dict[str, Any]:
 
 
 def estimate_report(est: Any) -> dict[str, Any]:
-    """The pose in `map`, the uncertainty of both frames and the pose fixes (docs/estimation.md);
+    """The pose in `map`, the uncertainty of both frames, the pose fixes (docs/estimation.md) and
+    the gyro FIFO's counters;
     `clock_s` is the loop's clock now, what a fix's stamp is on."""
     xm, ym, thm = est.map_pose()
     cx, cy, cth = est.frame.correction()
@@ -139,6 +140,9 @@ def estimate_report(est: Any) -> dict[str, Any]:
                        "reanchors": fc.reanchors,
                        "last_d2": fc.last_d2 if math.isfinite(fc.last_d2) else None,
                        "last_stamp_s": fc.last_stamp if math.isfinite(fc.last_stamp) else None},
+        # Through the MPU's FIFO (sensors.gyro_fifo): the learnt sample period and the batches
+        # that lost samples or were junk (ddrt/core/gyro_fifo.py); None when read at the tick.
+        "gyro_fifo": est.fifo.counters() if est.fifo is not None else None,
     }
 
 
