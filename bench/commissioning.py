@@ -268,8 +268,10 @@ def render(res: CommissioningResult) -> list[str]:
         out += ["### Harsh population without a front encoder, commissioned", "",
                 "The robots below built the common way: no front encoder, the drive wheels counted at "
                 f"{WHEEL_CPR} a turn, each drive wheel's radius U(-2, +2) % off nominal (seed {HARSH_SEED}); "
-                "otherwise section 10's `--harsh` cheap parts as below. The odometry step scales r_L and r_R "
-                "together.", ""]
+                "otherwise the harsh population's cheap parts (gyro scale 2-3 % off either way, bias up to 5 deg/s, "
+                "2-5 % deadband, 0.5-2 degrees of backlash) and beliefs. The odometry step scales r_L and r_R "
+                "together by the tape and writes the difference between them the estimator learnt on the "
+                "straight.", ""]
         out += render_population(res.population, res.population_wall_s)
     elif res.population is not None:
         out += ["### Harsh population, commissioned", "",

@@ -302,6 +302,7 @@ class OdometryRun:
     est_turn_rad: float
     true_distance_m: float | None = None
     true_turn_rad: float | None = None
+    wheel_delta: float | None = None  # the drive wheels' radius difference learnt (None: not counted)
 
 
 def _truth(hal: Hal) -> tuple[float, float, float] | None:
@@ -324,6 +325,7 @@ def odometry_run(cfg: Config, hal: Hal, distance: float = 1.0, turns: float = 1.
     settle(loop, clock)
     x1, y1, th1 = loop.estimator_pose()
     true1 = _truth(hal)
+    wheels = loop.estimator.wheels
     angle = 2.0 * math.pi * turns
     spin = SpinReference((x1, y1, th1), angle, min(1.5, cfg.limits.omega_max), min(3.0, cfg.limits.alpha_max),
                          loop.period)
@@ -336,7 +338,8 @@ def odometry_run(cfg: Config, hal: Hal, distance: float = 1.0, turns: float = 1.
     if true0 is not None and true1 is not None and true2 is not None:
         true_d = math.hypot(true1[0] - true0[0], true1[1] - true0[1])
         true_t = angle + wrap_angle((true2[2] - true1[2]) - angle)
-    return OdometryRun(distance, math.hypot(x1, y1), th2 - th1, true_d, true_t)
+    return OdometryRun(distance, math.hypot(x1, y1), th2 - th1, true_d, true_t,
+                       wheels.delta if wheels is not None else None)
 
 
 def settle(loop: ControlLoop, clock: Any, seconds: float = 0.5) -> None:
@@ -347,15 +350,23 @@ def settle(loop: ControlLoop, clock: Any, seconds: float = 0.5) -> None:
         loop.tick()
 
 
-def distance_radii(cfg: Config) -> tuple[str, ...]:
-    """The `robot:` radii that scale the estimator's distance: the front encoder's r_3, or on a
-    robot without one the drive wheels' r_L and r_R (their ratio, learnt on the move, is kept)."""
-    return ("r_3",) if cfg.sensors.encoder_counts_per_rev > 0 else ("r_L", "r_R")
+def corrected_radii(cfg: Config, d_ratio: float, wheel_delta: float | None) -> dict[str, float]:
+    """The `robot:` radii an odometry run corrects. The distance sensor's scale with the measured
+    over the estimated distance: the front encoder's r_3, or on a robot without one the drive
+    wheels' r_L and r_R together. And on a robot that counts its drive wheels, their radius
+    difference the estimator learnt on the straight (`wheel_delta`, the right's relative error
+    less the left's, ddrt/core/wheel_odometry.py), split evenly so their mean is kept."""
+    front = cfg.sensors.encoder_counts_per_rev > 0
+    out = {"r_3": cfg.robot.r_3 * d_ratio} if front else {}
+    if wheel_delta is not None:
+        scale, h = (1.0 if front else d_ratio), 0.5 * wheel_delta
+        out["r_L"], out["r_R"] = cfg.robot.r_L * scale * (1.0 - h), cfg.robot.r_R * scale * (1.0 + h)
+    return out
 
 
 @dataclass(frozen=True)
 class OdometryCorrection:
-    radii: dict[str, float]  # distance_radii(cfg), scaled by distance_ratio
+    radii: dict[str, float]  # corrected_radii
     gyro_scale: float
     distance_ratio: float
     turn_ratio: float
@@ -383,7 +394,7 @@ def odometry_correction(cfg: Config, run: OdometryRun, measured_distance: float,
     if not (0.8 < d_ratio < 1.25 and 0.8 < t_ratio < 1.25):
         raise CalibrationRunError(f"measurements are {d_ratio:.3f} x the encoder distance and "
                                   f"{1 / t_ratio:.3f} x the gyro's turn: more than 20% off, check them")
-    radii = {k: getattr(cfg.robot, k) * d_ratio for k in distance_radii(cfg)}
+    radii = corrected_radii(cfg, d_ratio, run.wheel_delta)
     return OdometryCorrection(radii, cfg.estimator.gyro_scale * t_ratio, d_ratio, t_ratio)
 
 

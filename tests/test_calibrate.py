@@ -122,9 +122,19 @@ def test_odometry_from_sim_truth_recovers_radius_and_gyro_scale() -> None:
 
 def test_odometry_correction_scales_the_drive_wheels_without_a_front_encoder() -> None:
     cfg = load_config(UNCAL, {"sensors": {"encoder_counts_per_rev": 0, "wheel_counts_per_rev": 1440}})
-    corr = cal.odometry_correction(cfg, cal.OdometryRun(1.0, 1.0, 2 * math.pi), 1.02, 2 * math.pi)
-    assert corr.radii == pytest.approx({"r_L": cfg.robot.r_L * 1.02, "r_R": cfg.robot.r_R * 1.02})
+    corr = cal.odometry_correction(cfg, cal.OdometryRun(1.0, 1.0, 2 * math.pi, wheel_delta=0.04), 1.02, 2 * math.pi)
+    assert corr.radii == pytest.approx({"r_L": cfg.robot.r_L * 1.02 * 0.98, "r_R": cfg.robot.r_R * 1.02 * 1.02})
     assert corr.r_3 is None
+    both = load_config(UNCAL, {"sensors": {"wheel_counts_per_rev": 1440}})  # the front encoder gives distance
+    corr = cal.odometry_correction(both, cal.OdometryRun(1.0, 1.0, 2 * math.pi, wheel_delta=-0.02), 1.02, 2 * math.pi)
+    assert corr.radii == pytest.approx({"r_3": both.robot.r_3 * 1.02, "r_L": both.robot.r_L * 1.01,
+                                        "r_R": both.robot.r_R * 0.99})
+
+
+def test_odometry_run_learns_the_drive_wheels_radius_difference() -> None:
+    cfg = load_config(UNCAL, {"sensors": {"wheel_counts_per_rev": 1440}, "plant": {"r_L": 0.0495, "r_R": 0.0505}})
+    run = cal.odometry_run(cfg, open_hal(cfg, start=(0.0, 0.0, 0.0)))
+    assert run.wheel_delta == pytest.approx(0.0505 / cfg.robot.r_R - 0.0495 / cfg.robot.r_L, abs=0.002)
 
 
 def test_odometry_correction_refuses_implausible_measurements() -> None:

@@ -5,7 +5,9 @@ counter-clockwise about the middle of its rear axle (point A). Measured: how far
 tape, from the mark under A at the start to A at the end) and how far past the whole turns
 the robot's heading ended (a protractor, on the line drawn along its side at the start).
 The encoder's distance is counts x r_3, so r_3 scales with measured / estimated distance (on a
-robot without a front encoder the drive wheels' r_L and r_R, together); the estimated turn is the gyro's integral / gyro_scale, so the scale goes with estimated /
+robot without a front encoder the drive wheels' r_L and r_R, together); a robot that counts its
+drive wheels also has their radius difference, learnt on the straight, written into r_L and r_R
+(ddrt/calibrate.py corrected_radii). The estimated turn is the gyro's integral / gyro_scale, so the scale goes with estimated /
 measured turn. A tape read to +-2 mm over 1 m gives r_3 to 0.2 %; a protractor read to
 +-0.5 deg over 5 turns gives the scale to 0.03 %.
 
@@ -49,8 +51,11 @@ def drive(cfg: Config, hal: Hal, distance: float, turns: int) -> dict[str, float
     cal.run_until_stopped(loop, clock, spin.turn.t_end + 15.0)
     cal.settle(loop, clock)
     x2, y2, th2 = loop.estimator_pose()
+    wheels = loop.estimator.wheels  # their radius difference: learnt on the straight, not in the turns
     out: dict[str, float | None] = {"est_distance_m": math.hypot(x2, y2), "est_turn_rad": th2,
-                                    "true_distance_m": None, "true_turn_rad": None}
+                                    "true_distance_m": None, "true_turn_rad": None,
+                                    "wheel_delta": wheels.delta if wheels is not None else None,
+                                    "wheel_delta_std": math.sqrt(wheels.delta_var) if wheels is not None else None}
     if true0 is not None and truth is not None:
         p2 = truth.pose
         out["true_distance_m"] = math.hypot(p2[0] - true0[0], p2[1] - true0[1])
@@ -102,10 +107,10 @@ def run(session: Session) -> dict[str, Any]:
                 f"{MAX_OFF:.0%}: refused. Measure again (from the mark under the rear axle's middle; a turn offset is "
                 "the angle past the whole turns, not the total) and run `ddrt commission --step odometry`")
     tape_m, prot_deg = session.opts.noise_mm_deg[0] * 1e-3, session.opts.noise_mm_deg[1]
-    from ddrt.calibrate import distance_radii
+    from ddrt.calibrate import corrected_radii
 
-    radii_before = {k: getattr(cfg.robot, k) for k in distance_radii(cfg)}
-    radii = {k: v * d_ratio for k, v in radii_before.items()}
+    radii = corrected_radii(cfg, d_ratio, run_["wheel_delta"])
+    radii_before = {k: getattr(cfg.robot, k) for k in radii}
     scale = cfg.estimator.gyro_scale * t_ratio
     scale_rel = math.radians(prot_deg) / turn
     umb = None
