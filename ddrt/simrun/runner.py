@@ -27,6 +27,7 @@ import numpy as np
 
 from ddrt.config import Config
 from ddrt.loop import COLUMNS, ControlLoop, LoopState
+from ddrt.simrun import row_native
 from ddrt.simrun.metrics import TrackingAccumulator, wrap_angles
 from ddrt.path import Path
 from hal.registry import open_hal
@@ -40,8 +41,18 @@ _COL = {name: i for i, name in enumerate(SIM_COLUMNS)}
 def format_rows(arr: np.ndarray) -> str:
     """CSV lines of a (n, ncols) array: each value as f"{v:.9g}", comma-separated, CRLF-ended.
 
-    The same text csv.writer wrote row by row, in one formatting call per chunk; a column
-    that holds one value (bit for bit) over the chunk is formatted once."""
+    The same text csv.writer wrote row by row. Formatted in C when row_format.c is built
+    (row_native.py; DDRT_ROWFMT=python forces this Python path, the reference); here in one
+    formatting call per chunk; a column that holds one value (bit for bit) over the chunk is
+    formatted once."""
+    text = row_native.format_rows(arr)
+    if text is not None:
+        return text
+    return format_rows_python(arr)
+
+
+def format_rows_python(arr: np.ndarray) -> str:
+    """format_rows in Python: the reference the C must match, and the fallback."""
     if len(arr) == 0:
         return ""
     bits = arr.view(np.int64)
