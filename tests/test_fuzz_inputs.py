@@ -1,7 +1,11 @@
 """Fuzz: seeded mutations of every file in configs/ (configs, path YAMLs, the CSV) through
 `ddrt sim` in this process (tests/support/fuzz_inputs.py). Every case must end on the clean path:
-exit 0, 1 or 2, no traceback on stderr, no exception out of main(), within 5 s of CPU time
-(the case's own work: another job on the machine does not count against it).
+exit 0, 1 or 2, no traceback on stderr, no exception out of main(), within 15 s of CPU time
+(the case's own work: another job on the machine does not count against it). The bound is for
+inputs nothing bounds (they would take minutes or never end), not a speed test: the costliest
+legit case here, a figure-eight 1000 m wide (case 785), took 5.3 s of CPU (3.3 s building the
+dense path) on a day this virtual machine ran the same code at half the speed it had hours
+before, and failed the old 5 s bound.
 
 Deterministic (fixed seed): a failure names its case, which `Mutator(1).case(i)` rebuilds.
 Many more cases locally: `python -m tests.support.fuzz_inputs --cases 20000`.
@@ -18,7 +22,7 @@ from tests.support.fuzz_inputs import Mutator, copy_configs, run_case, seed_file
 
 SEED = 1
 N_CASES = 1200
-TIME_LIMIT_S = 5.0
+TIME_LIMIT_S = 15.0
 
 
 @pytest.mark.slow
