@@ -6,20 +6,18 @@ in pure Python those steps alone cost about 20 us a tick: more than the whole 25
 no fast-math, CPython's libm, MT19937 and gauss), so runs are bit-identical to the Python
 integrator, which stays the reference and the fallback: without a C compiler, or with
 DDRT_PLANT=python, SimRobot integrates in Python. The library is built once per source
-version into the user's cache (~/.cache/ddrt, or $XDG_CACHE_HOME/ddrt).
+version into the user's cache (~/.cache/ddrt, or $XDG_CACHE_HOME/ddrt; ddrt/runtime/cbuild.py).
 """
 
 from __future__ import annotations
 
 import ctypes
-import hashlib
 import os
 import random
-import shutil
-import subprocess
-import tempfile
 from pathlib import Path
 from typing import Any, Callable
+
+from ddrt.runtime.cbuild import built_library
 
 SOURCE = Path(__file__).with_name("plant_kernel.c")
 CFLAGS = ("-O2", "-shared", "-fPIC", "-ffp-contract=off", "-fno-fast-math", "-fno-builtin")
@@ -56,35 +54,6 @@ class Plant(ctypes.Structure):
                 ("ring_phr", ctypes.c_void_p)]
 
 
-def _cache_dir() -> Path:
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "ddrt"
-
-
-def _build() -> Path | None:
-    """The compiled library (built now if needed), or None when it cannot be built."""
-    src = SOURCE.read_bytes()
-    tag = hashlib.sha256(src + " ".join(CFLAGS).encode()).hexdigest()[:16]
-    lib = _cache_dir() / f"plant_kernel-{tag}.so"
-    if lib.exists():
-        return lib
-    cc = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
-    if cc is None:
-        return None
-    try:
-        lib.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(suffix=".so", dir=lib.parent)
-        os.close(fd)
-        proc = subprocess.run([cc, *CFLAGS, "-o", tmp, str(SOURCE), "-lm"], capture_output=True, timeout=120)
-        if proc.returncode != 0:
-            os.unlink(tmp)
-            return None
-        os.replace(tmp, lib)  # atomic: concurrent builders (sweep workers) never see half a file
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return lib
-
-
 def kernel() -> Callable[..., Any] | None:
     """plant_run(n_steps, address of a Plant), or None (pure Python then)."""
     global _loaded, _tried
@@ -92,7 +61,7 @@ def kernel() -> Callable[..., Any] | None:
         return None
     if not _tried:
         _tried = True
-        lib = _build()
+        lib = built_library(SOURCE, CFLAGS, "plant_kernel")
         if lib is not None:
             try:
                 fn = ctypes.CDLL(str(lib)).plant_run

@@ -6,23 +6,21 @@ is exact and falls back to snprintf near rounding ties and outside 1e-14..1e31; 
 row_format.c), so telemetry.csv is byte-identical to runner.format_rows' Python path, which
 stays the reference and the fallback: without a C compiler, or with DDRT_ROWFMT=python, the
 rows are formatted in Python. Built once per source version into the user's cache
-(~/.cache/ddrt, or $XDG_CACHE_HOME/ddrt), like sim_hal/plant_native.py's plant; the build is
-repeated here rather than shared because ddrt/ must not import sim_hal/.
+(~/.cache/ddrt, or $XDG_CACHE_HOME/ddrt) by ddrt/runtime/cbuild.py, like sim_hal/plant_native.py's
+plant.
 """
 
 from __future__ import annotations
 
 import ctypes
-import hashlib
 import os
-import shutil
-import subprocess
-import tempfile
 import threading
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from ddrt.runtime.cbuild import built_library
 
 SOURCE = Path(__file__).with_name("row_format.c")
 CFLAGS = ("-O2", "-shared", "-fPIC", "-ffp-contract=off", "-fno-fast-math")
@@ -34,35 +32,6 @@ _tried = False
 _local = threading.local()  # each thread's output buffer (the C runs without the GIL), grown and reused
 
 
-def _cache_dir() -> Path:
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "ddrt"
-
-
-def _build() -> Path | None:
-    """The compiled library (built now if needed), or None when it cannot be built."""
-    src = SOURCE.read_bytes()
-    tag = hashlib.sha256(src + " ".join(CFLAGS).encode()).hexdigest()[:16]
-    lib = _cache_dir() / f"row_format-{tag}.so"
-    if lib.exists():
-        return lib
-    cc = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
-    if cc is None:
-        return None
-    try:
-        lib.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(suffix=".so", dir=lib.parent)
-        os.close(fd)
-        proc = subprocess.run([cc, *CFLAGS, "-o", tmp, str(SOURCE), "-lm"], capture_output=True, timeout=120)
-        if proc.returncode != 0:
-            os.unlink(tmp)
-            return None
-        os.replace(tmp, lib)  # atomic: concurrent builders (sweep workers) never see half a file
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return lib
-
-
 def library() -> Any:
     """The loaded library (format_rows, g9, g9_fast), or None (Python formatting then)."""
     global _lib, _tried
@@ -70,7 +39,7 @@ def library() -> Any:
         return None
     if not _tried:
         _tried = True
-        path = _build()
+        path = built_library(SOURCE, CFLAGS, "row_format")
         if path is not None:
             try:
                 lib = ctypes.CDLL(str(path))
