@@ -1,10 +1,12 @@
 """`python -m bench.sim_identity save|check [FILE]`: do speed-ups change what `ddrt sim` computes?
 
 Runs configs/sim.yaml and every configs/scenarios/*.yaml in-process (run_sim, rows kept)
-and records each run's metrics (all but wall_s and realtime_factor) and a SHA-256 of its
-telemetry rows' bytes. `save` writes them (run it on the commit before a change); `check`
-reruns and compares: metrics to 1e-9 (relative or absolute), and reports whether the
-telemetry is bit-identical. Exit status 1 on a metric mismatch.
+and records each run's metrics (all but wall_s and realtime_factor), a SHA-256 of its
+telemetry rows' bytes and one of their text as telemetry.csv holds it (format_rows: the C
+formatter when built, so a change to it shows). `save` writes them (run it on the commit
+before a change); `check` reruns and compares: metrics to 1e-9 (relative or absolute), and
+reports whether the telemetry is bit-identical and its text the same. Exit status 1 on a
+metric mismatch.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from typing import Any
 
 from ddrt.config import load_config
 from ddrt.path.spec import resolve_path
-from ddrt.simrun.runner import json_ready, run_sim
+from ddrt.simrun.runner import format_rows, json_ready, run_sim
 
 REPO = FsPath(__file__).resolve().parent.parent
 DEFAULT = FsPath("/tmp/ddrt_sim_identity.json")
@@ -34,8 +36,9 @@ def run_one(config: FsPath) -> dict[str, Any]:
     cfg = load_config(str(config))
     result = run_sim(cfg, resolve_path(cfg), keep_rows=True)
     metrics = {k: v for k, v in json_ready(result.metrics).items() if k not in VOLATILE}
-    digest = hashlib.sha256(result.rows_array().tobytes()).hexdigest()
-    return {"metrics": metrics, "rows_sha256": digest}
+    rows = result.rows_array()
+    return {"metrics": metrics, "rows_sha256": hashlib.sha256(rows.tobytes()).hexdigest(),
+            "csv_sha256": hashlib.sha256(format_rows(rows).encode()).hexdigest()}
 
 
 def collect() -> dict[str, Any]:
@@ -70,15 +73,19 @@ def main(argv: list[str]) -> int:
         print(f"saved {len(now)} runs to {file}")
         return 0
     ref = json.loads(file.read_text())
-    problems, bitwise = [], 0
+    problems, bitwise, text, texts = [], 0, 0, 0
     for name in sorted(set(ref) | set(now)):
         if name not in ref or name not in now:
             problems.append(f"{name}: only on one side")
             continue
         problems += diff(ref[name]["metrics"], now[name]["metrics"], name)
         bitwise += ref[name]["rows_sha256"] == now[name]["rows_sha256"]
+        if "csv_sha256" in ref[name]:  # files saved before the text was recorded lack it
+            texts += 1
+            text += ref[name]["csv_sha256"] == now[name]["csv_sha256"]
     print(f"{len(now)} runs: metrics {'identical to 1e-9' if not problems else 'DIFFER'}; "
-          f"telemetry bit-identical in {bitwise}/{len(now)}")
+          f"telemetry bit-identical in {bitwise}/{len(now)}; its CSV text the same in "
+          + (f"{text}/{texts}" if texts else "- (not in the saved file)"))
     for p in problems:
         print("  " + p)
     return 1 if problems else 0
