@@ -7,8 +7,8 @@ the robot's heading ended (a protractor, on the line drawn along its side at the
 The encoder's distance is counts x r_3, so r_3 scales with measured / estimated distance (on a
 robot without a front encoder the drive wheels' r_L and r_R, together); a robot that counts its
 drive wheels also has their radius difference, learnt on the straight, written into r_L and r_R
-(ddrt/calibrate.py corrected_radii). The estimated turn is the gyro's integral / gyro_scale, so the scale goes with estimated /
-measured turn. A tape read to +-2 mm over 1 m gives r_3 to 0.2 %; a protractor read to
+(ddrt/calibrate.py corrected_radii). The estimated turn is the gyro's integral / gyro_scale,
+so the scale goes with estimated / measured turn. A tape read to +-2 mm over 1 m gives r_3 to 0.2 %; a protractor read to
 +-0.5 deg over 5 turns gives the scale to 0.03 %.
 
 `--umbmark SIDE` also drives a square both ways (umbmark.py) and weighs its gyro scale with the
@@ -54,8 +54,7 @@ def drive(cfg: Config, hal: Hal, distance: float, turns: int) -> dict[str, float
     wheels = loop.estimator.wheels  # their radius difference: learnt on the straight, not in the turns
     out: dict[str, float | None] = {"est_distance_m": math.hypot(x2, y2), "est_turn_rad": th2,
                                     "true_distance_m": None, "true_turn_rad": None,
-                                    "wheel_delta": wheels.delta if wheels is not None else None,
-                                    "wheel_delta_std": math.sqrt(wheels.delta_var) if wheels is not None else None}
+                                    "wheel_delta": wheels.delta if wheels is not None else None}
     if true0 is not None and truth is not None:
         p2 = truth.pose
         out["true_distance_m"] = math.hypot(p2[0] - true0[0], p2[1] - true0[1])

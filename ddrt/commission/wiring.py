@@ -4,12 +4,14 @@ Each motor output is pulsed alone at low duty (ramped up from below the deadband
 something moves), through the backend as it is wired (`hal.wiring` left out). The front
 encoder and the gyro say how the robot moved; one observation says which wheel turned and
 which way, because the sensors alone cannot tell "motors swapped" from "gyro upside down"
-(both mirror the robot). A robot without a front encoder measures the pulse's travel with its
-drive wheels' encoders; they share their motors' harnesses (hal/wiring.py), so they count the
-way each motor turns whatever its wiring and say nothing of the robot's direction: the gyro and
-the observation decide alone, and the check through the fix confirms it. From those the fix is derived and written as `hal.wiring`
+(both mirror the robot). From those the fix is derived and written as `hal.wiring`
 (hal/wiring.py applies it); nobody is asked to rewire. The fix is then checked by pulsing
 both outputs again through it.
+
+A robot without a front encoder measures the pulse's travel with its drive wheels' encoders.
+They share their motors' harnesses (hal/wiring.py), so they count the way each motor turns
+whatever its wiring and say nothing of the robot's direction: the gyro and the observation
+decide alone, and the check through the fix confirms it.
 
 A wheel driven forward alone pivots the robot about the other wheel: the left wheel turns
 it clockwise (yaw rate < 0) and the right one counter-clockwise, both roll it forward.
@@ -170,22 +172,20 @@ def derive(a: Pulse, b: Pulse, seen_a: str, front_encoder: bool = True) -> dict[
     w_a = -sigma_a if wheel_a == "left" else sigma_a
     g = _sign(a.angle_rad) * w_a  # gyro sign
     wheel_b = "right" if wheel_a == "left" else "left"
-    if not front_encoder:
-        w_b = _sign(b.angle_rad) * g
+    if front_encoder:
+        e = _sign(a.distance_m) * sigma_a  # encoder sign
+        sigma_b = _sign(b.distance_m) * e
+        w_b_expected = -sigma_b if wheel_b == "left" else sigma_b
+        if _sign(b.angle_rad) * g != w_b_expected:
+            raise CommissionError(
+                "wiring: the readings contradict each other: with the first pulse as you saw it, the second "
+                f"({b.output} output) rolled the robot {'forward' if sigma_b > 0 else 'backward'} but turned it the "
+                "way the same wheel would have. Both outputs may drive one motor, or a wheel slipped: check the "
+                "motor leads by hand and run `ddrt commission --step wiring` again")
+    else:
+        e = 1
+        w_b = _sign(b.angle_rad) * g  # the second wheel's direction from the gyro alone
         sigma_b = -w_b if wheel_b == "left" else w_b
-        swapped = wheel_a == "right"
-        left_sigma, right_sigma = (sigma_b, sigma_a) if swapped else (sigma_a, sigma_b)
-        return {"motor_left_inverted": left_sigma < 0, "motor_right_inverted": right_sigma < 0,
-                "motors_swapped": swapped, "encoder_sign": 1, "gyro_sign": g}
-    e = _sign(a.distance_m) * sigma_a  # encoder sign
-    sigma_b = _sign(b.distance_m) * e
-    w_b_expected = -sigma_b if wheel_b == "left" else sigma_b
-    if _sign(b.angle_rad) * g != w_b_expected:
-        raise CommissionError(
-            "wiring: the readings contradict each other: with the first pulse as you saw it, the second "
-            f"({b.output} output) rolled the robot {'forward' if sigma_b > 0 else 'backward'} but turned it the way "
-            "the same wheel would have. Both outputs may drive one motor, or a wheel slipped: check the motor "
-            "leads by hand and run `ddrt commission --step wiring` again")
     swapped = wheel_a == "right"
     left_sigma, right_sigma = (sigma_b, sigma_a) if swapped else (sigma_a, sigma_b)
     return {"motor_left_inverted": left_sigma < 0, "motor_right_inverted": right_sigma < 0,
