@@ -4,7 +4,7 @@ One command measures everything and writes the Markdown; nobody edits BENCHMARKS
 so every number in it can be traced to a run on the machine it names. The timing sections run
 one after another on an otherwise idle process; only the accuracy grid uses a process pool.
 
-Sections 14 to 19 (OWN_COMMAND) are measured by commands of their own; the full run keeps
+Sections 14 to 20 (OWN_COMMAND) are measured by commands of their own; the full run keeps
 their text from the file it replaces.
 
 `--only N` measures section N alone (those in ONLY: 1, 4, 9, 10, 11, 12, 13) and splices it into the --out file:
@@ -59,6 +59,7 @@ SECTIONS = (
     "17. Battery sag and gyro warm-up (issue 23 Done-when)",
     "18. Sweep throughput",
     "19. Adaptation on by default? (issue 23 item 5)",
+    "20. A reload beside the loop",
 )
 
 # Sections measured by a command of their own (long, or needing extras and a quiet machine);
@@ -72,6 +73,7 @@ OWN_COMMAND: dict[int, str] = {
     18: "python -m bench.sweep_throughput --runs 1000 --workers 2 --duration 5",
     19: "ddrt sweep configs/campaigns/adaptation_population.yaml, python -m bench.population "
         "--variants dynamic,dynamic+adapt [--harsh] and python -m bench.adaptation",
+    20: "python -m bench.reload_stall --reloads 40 --repo OLDER_CHECKOUT --repo .",
 }
 
 

@@ -35,7 +35,7 @@ from ddrt.service.daemon import request_line_limit
 from ddrt.loop import LoopState
 from tests.support.cpu_queue import Stopwatch, process_waited_for_cpu_s, waited_for_cpu_s
 from tests.support.daemon import (CALIBRATION_S, PATHS, RATE_HZ, REPLY_TIMEOUT_S, START_TIMEOUT_S, STATE_TIMEOUT_S,
-                                  DaemonProc, ctl, raw_exchange, read_reply, start_daemon, wait_for, write_config)
+                                  DaemonProc, ctl, raw_exchange, ready_daemon, read_reply, start_daemon, wait_for, write_config)
 from tests.support.repo import REPO
 
 NOOP_RELOADS = 10  # enough reloads that at least one shows the cost of parsing in the loop
@@ -728,6 +728,20 @@ def test_follow_at_start_on_a_long_path_starts() -> None:
         assert s["state"] == "following" and s["progress"]["length_m"] > 100
     finally:
         d.close()
+
+
+def test_watch_config_reloads_an_edited_file_and_rejects_a_bad_one() -> None:
+    """daemon.watch_config: an edit is read (off the loop thread) within the second's check
+    and put in force; a bad edit is rejected and the running gains stay."""
+    with ready_daemon(daemon={"watch_config": True}) as d:
+        write_config(d.config, d.telemetry_dir, daemon={"watch_config": True}, controller={"inner": {"kp": 55.0}})
+        wait_for(lambda: d.request({"cmd": "gains"})["inner"]["kp"] == 55.0, REPLY_TIMEOUT_S, "kp 55 from the edit")
+        write_config(d.config, d.telemetry_dir, daemon={"watch_config": True}, controller={"inner": {"kp": "abc"}})
+        wait_for(lambda: d.status()["reloads"]["rejected"] == 1, REPLY_TIMEOUT_S, "the bad edit rejected")
+        assert d.request({"cmd": "gains"})["inner"]["kp"] == 55.0
+        s = d.status()
+        assert s["reloads"]["applied"] == 1 and s["state"] == "idle"
+        assert "changed on disk" in d.stderr() and "controller.inner.kp" in d.stderr()
 
 
 def test_bad_config_at_start_exits_2_naming_the_key() -> None:

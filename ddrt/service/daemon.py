@@ -155,7 +155,7 @@ class Daemon:
         return daemon_status(self)
 
     def reload(self) -> dict[str, Any]:
-        """Re-read the config file (SIGHUP, the reload command, daemon.watch_config)."""
+        """Re-read the config here (in-process rigs; the loop reads it off-thread: Reloader.request)."""
         return self.reloader.reload()
 
     def apply_overrides(self, overrides: Mapping[str, Any], who: str,
@@ -376,7 +376,8 @@ class Daemon:
                 viz.between_ticks()
             if self.reload_requested:
                 self.reload_requested = False
-                self.reload()
+                self.reloader.request()
+            self.reloader.poll()  # a finished read put in force (one comparison when there is none)
             audit.check(loop)  # a command's change of state, with who asked
             now = woke
             if now >= next_watchdog and skipped == 0:
@@ -385,15 +386,16 @@ class Daemon:
             if now >= next_status:
                 notifier.status(status_line(self))
                 next_status = now + 1.0
-                if self.cfg.daemon.watch_config and self.reloader.changed_on_disk():
+                if self.cfg.daemon.watch_config and not self.reloader.busy and self.reloader.changed_on_disk():
                     log.info("%s changed on disk (daemon.watch_config)", self.config_path)
-                    self.reload()
+                    self.reloader.request()
             if woke >= end:
                 break
 
     def _shutdown(self) -> None:
         self.notifier.stopping()
         cancel_follow(self, "the daemon is stopping")
+        self.reloader.cancel("the daemon is stopping")
         if self.loop is not None:
             before = self.loop.state
             self.loop.shutdown()

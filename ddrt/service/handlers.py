@@ -145,8 +145,11 @@ def _stream(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
     return d.viz.stream.subscribe(req)
 
 
-def _reload(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
-    return d.reload()
+def _reload(d: Daemon, req: dict[str, Any]) -> Deferred:
+    """The file is read off the loop thread (Reloader.request); the reply waits for that."""
+    reply = Deferred()
+    d.reloader.request(reply.complete)
+    return reply
 
 
 def _drive(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:

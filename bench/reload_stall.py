@@ -1,0 +1,146 @@
+"""Reload stall: how long the loop goes without a tick while a running daemon reloads its config.
+
+A fresh `ddrt run --follow` on the simulated robot (200 Hz, a circle) is reloaded over its
+control socket `--reloads` times, 0.2 s apart, each time with a changed inner kp (alternating
+two values, so every reload puts something in force), waiting for each reply; after each, a
+`gains` request (answered between two ticks, nothing read) is the control: what any request
+costs the loop. The window of each is from a `status` count before it to one after its reply.
+Afterwards the telemetry (one row per tick, the paced robot's time, 1 ms steps) gives every
+tick-to-tick gap: the largest in each window, against the gaps away from all of them. A
+reload that stalls the loop shows as a gap of periods.
+
+    python -m bench.reload_stall [--reloads 40] [--repo DIR ...] [--json FILE]
+
+`--repo` runs the same against other checkouts of ddrt (e.g. a worktree of an older commit),
+one daemon each, one after the other, in this process's Python.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from bench.common import REPO, SIM_CONFIG, child_env, percentile
+from ddrt.service.ctlclient import ControlClientError, request
+
+RATE_HZ = 200.0
+KP = (40.0, 41.0)
+
+
+def _start(repo: Path, tmp: Path, kp: float) -> tuple[subprocess.Popen, Path, Path]:
+    cfg = tmp / "ddrt.yaml"
+    _write(cfg, tmp, kp)
+    sock = tmp / "ddrt.sock"
+    err = open(tmp / "stderr.log", "wb")
+    proc = subprocess.Popen([sys.executable, "-m", "ddrt.cli", "run", str(cfg), "--follow", "--socket", str(sock)],
+                            cwd=repo, env=child_env(repo), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                            stderr=err)
+    err.close()
+    return proc, cfg, sock
+
+
+def _write(cfg: Path, tmp: Path, kp: float) -> None:
+    cfg.write_text(yaml.safe_dump({
+        "extends": str(SIM_CONFIG),
+        "daemon": {"telemetry_dir": str(tmp / "telemetry"), "telemetry_format": "csv"},
+        "estimator": {"calibration_s": 0.5},
+        "controller": {"inner": {"kp": kp}},
+        "path": {"shape": "circle", "radius": 0.5, "speed": 0.2, "laps": 20},
+    }, sort_keys=False), encoding="utf-8")
+
+
+def _count(sock: Path) -> int:
+    return int(request(str(sock), {"cmd": "status"}, timeout=10.0)["status"]["timing"]["count"])
+
+
+def measure(repo: Path, reloads: int) -> dict[str, Any]:
+    """One daemon from `repo`: the worst gap around each reload and the gaps elsewhere (ms)."""
+    with tempfile.TemporaryDirectory(prefix="ddrt-reload-") as tmp_s:
+        tmp = Path(tmp_s)
+        proc, cfg, sock = _start(repo, tmp, KP[0])
+        try:
+            deadline = time.monotonic() + 60.0
+            while True:
+                if proc.poll() is not None:
+                    raise RuntimeError(f"the daemon exited: {(tmp / 'stderr.log').read_text()[-500:]}")
+                try:
+                    if request(str(sock), {"cmd": "status"}, timeout=1.0).get("status", {}).get("state") == "following":
+                        break
+                except (ControlClientError, TimeoutError, OSError):
+                    pass
+                if time.monotonic() > deadline:
+                    raise RuntimeError("the daemon did not follow within 60 s")
+                time.sleep(0.1)
+            time.sleep(1.0)
+            windows: dict[str, list[tuple[int, int]]] = {"reload": [], "gains": []}
+            replies_ms = []
+            for i in range(reloads):
+                _write(cfg, tmp, KP[(i + 1) % 2])
+                for cmd in ("reload", "gains"):
+                    time.sleep(0.2)
+                    before = _count(sock)
+                    t0 = time.perf_counter()
+                    reply = request(str(sock), {"cmd": cmd}, timeout=10.0)
+                    if cmd == "reload":
+                        replies_ms.append((time.perf_counter() - t0) * 1e3)
+                    if not reply.get("ok"):
+                        raise RuntimeError(f"{cmd} refused: {reply}")
+                    windows[cmd].append((before, _count(sock)))
+            time.sleep(0.5)
+        finally:
+            proc.terminate()
+            proc.wait(timeout=30)
+        with open(tmp / "telemetry" / "telemetry.csv", newline="") as fh:
+            rows = list(csv.DictReader(fh))
+    t = [float(r["t"]) for r in rows]
+    gap = [0.0] + [(b - a) * 1e3 for a, b in zip(t, t[1:])]
+    near: set[int] = set()
+    worst: dict[str, list[float]] = {}
+    for cmd, spans in windows.items():
+        for lo, hi in spans:
+            idx = range(max(lo - 1, 1), min(hi + 2, len(gap)))
+            near.update(idx)
+            worst.setdefault(cmd, []).append(max(gap[i] for i in idx))
+    steady = [gap[i] for i in range(int(RATE_HZ) * 2, len(gap) - 2) if i not in near]
+    period_ms = 1e3 / RATE_HZ
+    out: dict[str, Any] = {"repo": str(repo), "reloads": len(worst["reload"])}
+    for cmd, gaps in worst.items():
+        out[cmd] = {"median_ms": percentile(gaps, 50), "max_ms": max(gaps),
+                    "missed_a_period": sum(g > 1.5 * period_ms for g in gaps)}
+    out.update(steady_gap_ms={"p99": percentile(steady, 99), "max": max(steady), "n": len(steady)},
+               steady_gaps_over_1_5_periods=sum(g > 1.5 * period_ms for g in steady),
+               reply_ms_median=percentile(replies_ms, 50))
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--reloads", type=int, default=40)
+    ap.add_argument("--repo", action="append", type=Path, help="a checkout to measure (default: this one)")
+    ap.add_argument("--json", type=Path)
+    args = ap.parse_args(argv)
+    out = [measure(r.resolve(), args.reloads) for r in (args.repo or [REPO])]
+    print("| checkout | reloads | worst gap around a reload: median / max (ms), how many > 1.5 periods "
+          "| the same around a `gains` request | gaps elsewhere: p99 / max (ms), > 1.5 periods | reload reply median (ms) |")
+    print("|---|---|---|---|---|---|")
+    for r in out:
+        cells = [f"{r[c]['median_ms']:.0f} / {r[c]['max_ms']:.0f}, {r[c]['missed_a_period']}" for c in ("reload", "gains")]
+        print(f"| {r['repo']} | {r['reloads']} | {cells[0]} | {cells[1]} | {r['steady_gap_ms']['p99']:.0f} / "
+              f"{r['steady_gap_ms']['max']:.0f}, {r['steady_gaps_over_1_5_periods']} of {r['steady_gap_ms']['n']} "
+              f"| {r['reply_ms_median']:.1f} |")
+    if args.json:
+        args.json.write_text(json.dumps(out, indent=1), encoding="utf-8")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,172 @@
+"""The daemon's reloads read the config file off the loop thread (ddrt/service/reloading.py):
+`request` returns at once while a helper thread reads, `poll` puts the result in force between
+two ticks and answers who asked, requests during a read get the next read, and a stop answers
+everyone still waiting. Driven with a read that is held open, so nothing here depends on how
+long a read takes."""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+import ddrt.service.reloading as reloading
+from ddrt.config import Config, load_config
+from ddrt.config.policy import ReloadPlan
+from ddrt.service.reloading import Reloader
+from tests.support.reload_rig import write_config
+
+
+class Brackets:
+    """A Notifier that records the reload brackets it sends."""
+
+    def __init__(self) -> None:
+        self.sent: list[str] = []
+
+    def reloading(self) -> bool:
+        self.sent.append("RELOADING")
+        return True
+
+    def ready(self) -> bool:
+        self.sent.append("READY")
+        return True
+
+
+class Held:
+    """load_config that waits for `go` before reading: a read under way for as long as a test needs."""
+
+    def __init__(self) -> None:
+        self.go = threading.Event()
+        self.started = threading.Semaphore(0)
+        self.reads = 0
+
+    def __call__(self, path: Any) -> Config:
+        self.reads += 1
+        self.started.release()
+        assert self.go.wait(30.0), "the test never let the read go on"
+        return load_config(path)
+
+
+class Host:
+    """What a daemon gives its Reloader: the config in force and a way to put a plan in force."""
+
+    def __init__(self, file: Path) -> None:
+        self.cfg = load_config(file)
+        self.applied: list[ReloadPlan] = []
+        self.notifier = Brackets()
+        self.reloader = Reloader(str(file), self.notifier, lambda: self.cfg, self.put)  # type: ignore[arg-type]
+
+    def put(self, plan: ReloadPlan) -> None:
+        self.applied.append(plan)
+        self.cfg = plan.in_force
+
+
+def _finish(host: Host, held: Held) -> None:
+    """Let the read under way end, and poll: it is put in force (a read that poll starts next
+    is held again)."""
+    held.go.set()
+    reading = host.reloader._reading
+    assert reading is not None and reading.thread is not None
+    reading.thread.join(30.0)
+    held.go.clear()
+    host.reloader.poll()
+
+
+@pytest.fixture()
+def held(monkeypatch: pytest.MonkeyPatch) -> Held:
+    h = Held()
+    monkeypatch.setattr(reloading, "load_config", h)
+    return h
+
+
+def test_request_returns_while_the_file_is_read_and_poll_puts_it_in_force(tmp_path: Path, held: Held) -> None:
+    file = tmp_path / "ddrt.yaml"
+    write_config(file, tmp_path, {})
+    host = Host(file)
+    write_config(file, tmp_path, {"controller": {"inner": {"kp": 61.0}}})
+    replies: list[dict[str, Any]] = []
+    host.reloader.request(replies.append)
+    assert held.started.acquire(timeout=30.0)  # the read has begun, and is held open
+    assert host.reloader.busy and host.notifier.sent == ["RELOADING"]
+    host.reloader.poll()  # between two ticks: nothing to do yet, nothing blocks
+    assert replies == [] and host.applied == [] and host.cfg.controller.inner.kp != 61.0
+    _finish(host, held)
+    assert host.cfg.controller.inner.kp == 61.0
+    assert len(replies) == 1 and replies[0]["ok"] is True and "controller.inner.kp" in replies[0]["applied"]
+    assert host.notifier.sent == ["RELOADING", "READY"]
+    assert not host.reloader.busy and host.reloader.counts == {"applied": 1, "unchanged": 0, "rejected": 0}
+    assert not host.reloader.changed_on_disk()  # the version read is the one on disk
+
+
+def test_requests_during_a_read_get_the_next_read(tmp_path: Path, held: Held) -> None:
+    """The file may change after a read opened it: who asks during a read is answered by a
+    read that starts after that one, and several such requests share it."""
+    file = tmp_path / "ddrt.yaml"
+    write_config(file, tmp_path, {})
+    host = Host(file)
+    first: list[dict[str, Any]] = []
+    later: list[dict[str, Any]] = []
+    write_config(file, tmp_path, {"controller": {"inner": {"kp": 61.0}}})
+    host.reloader.request(first.append)
+    assert held.started.acquire(timeout=30.0)
+    host.reloader.request(later.append)
+    host.reloader.request()  # SIGHUP: nobody waits for the reply
+    host.reloader.request(later.append)
+    assert held.reads == 1
+    _finish(host, held)
+    assert [r["ok"] for r in first] == [True] and later == []
+    assert host.reloader.busy and held.started.acquire(timeout=30.0)  # the next read began at once
+    write_config(file, tmp_path, {"controller": {"inner": {"kp": 62.0}}})  # while it is held open
+    _finish(host, held)
+    assert held.reads == 2 and host.cfg.controller.inner.kp == 62.0
+    assert len(later) == 2 and all(r["ok"] and "controller.inner.kp" in r["applied"] for r in later)
+    assert not host.reloader.busy and host.notifier.sent == ["RELOADING", "READY"] * 2
+
+
+def test_a_bad_file_read_off_the_loop_is_rejected_by_name(tmp_path: Path, held: Held) -> None:
+    file = tmp_path / "ddrt.yaml"
+    write_config(file, tmp_path, {})
+    host = Host(file)
+    before = host.cfg
+    write_config(file, tmp_path, {"controller": {"inner": {"kp": "abc"}}})
+    replies: list[dict[str, Any]] = []
+    host.reloader.request(replies.append)
+    _finish(host, held)
+    assert replies[0]["ok"] is False and "controller.inner.kp" in replies[0]["error"]
+    assert host.cfg is before and host.applied == []
+    assert host.reloader.counts["rejected"] == 1 and host.notifier.sent == ["RELOADING", "READY"]
+
+
+def test_a_read_that_raises_anything_is_a_rejection(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    file = tmp_path / "ddrt.yaml"
+    write_config(file, tmp_path, {})
+    host = Host(file)
+
+    def broken(path: Any) -> Config:
+        raise MemoryError("no room")
+
+    monkeypatch.setattr(reloading, "load_config", broken)
+    replies: list[dict[str, Any]] = []
+    host.reloader.request(replies.append)
+    reading = host.reloader._reading
+    assert reading is not None and reading.thread is not None
+    reading.thread.join(30.0)
+    host.reloader.poll()
+    assert replies[0]["ok"] is False and "MemoryError" in replies[0]["error"] and str(file) in replies[0]["error"]
+
+
+def test_a_stop_answers_everyone_still_waiting(tmp_path: Path, held: Held) -> None:
+    file = tmp_path / "ddrt.yaml"
+    write_config(file, tmp_path, {})
+    host = Host(file)
+    replies: list[dict[str, Any]] = []
+    host.reloader.request(replies.append)
+    assert held.started.acquire(timeout=30.0)
+    host.reloader.request(replies.append)
+    host.reloader.cancel("the daemon is stopping")
+    assert [r["ok"] for r in replies] == [False, False] and "stopping" in replies[0]["error"]
+    held.go.set()
+    host.reloader.poll()  # the abandoned read ends unseen
+    assert len(replies) == 2 and host.applied == [] and not host.reloader.busy
