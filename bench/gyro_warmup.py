@@ -18,7 +18,10 @@ Settings: TEMP_OUT not read (`sensors.gyro_temp_hz: 0`, the estimator as before)
 slope set by commissioning (the true one); that again with the register read at the tick
 (`sim.gyro.register_hold: false`), which shows what the hold's tick-to-tick age costs; and the
 two TEMP_OUT settings with the gyro read through its FIFO (`sensors.gyro_fifo: true`: every
-sample once, at the part's own period, learnt).
+sample once, at the part's own period, learnt). "wheels too": the same robot with its drive
+wheels' encoders counted (`sensors.wheel_counts_per_rev`), with and without the front encoder:
+the wheels' difference observes the yaw rate, so the bias is tracked on the move as well as
+at the stops (ddrt/core/wheel_odometry.py).
 """
 
 from __future__ import annotations
@@ -43,13 +46,19 @@ DRIVE_S = 600.0
 STOP_S = 2.0
 LAP_S = 28.0  # a path of about this long, then a stop: a stop every 30 s
 TEMP_HZ = 5.0
-SETTINGS = (  # (label, gyro_temp_hz, estimator.gyro_bias_per_c_dps, register held, FIFO read)
-    ("TEMP_OUT not read (before)", 0.0, None, True, False),
-    ("TEMP_OUT at 5 Hz, slope learnt at stops", TEMP_HZ, None, True, False),
-    ("TEMP_OUT at 5 Hz, slope commissioned", TEMP_HZ, SLOPE_DPS_PER_C, True, False),
-    ("the same, register read at the tick (no hold)", TEMP_HZ, SLOPE_DPS_PER_C, False, False),
-    ("FIFO, TEMP_OUT at 5 Hz, slope learnt at stops", TEMP_HZ, None, True, True),
-    ("FIFO, TEMP_OUT at 5 Hz, slope commissioned", TEMP_HZ, SLOPE_DPS_PER_C, True, True),
+WHEEL_CPR = 1440  # the drive wheels' encoders where they are counted (bench/wheel_encoders.py's)
+FRONT_CPR = None  # the front encoder as configs/sim.yaml has it
+SETTINGS = (  # (label, gyro_temp_hz, estimator.gyro_bias_per_c_dps, register held, FIFO read, (front, wheels) counts)
+    ("TEMP_OUT not read (before)", 0.0, None, True, False, (FRONT_CPR, 0)),
+    ("TEMP_OUT at 5 Hz, slope learnt at stops", TEMP_HZ, None, True, False, (FRONT_CPR, 0)),
+    ("TEMP_OUT at 5 Hz, slope commissioned", TEMP_HZ, SLOPE_DPS_PER_C, True, False, (FRONT_CPR, 0)),
+    ("the same, register read at the tick (no hold)", TEMP_HZ, SLOPE_DPS_PER_C, False, False, (FRONT_CPR, 0)),
+    ("FIFO, TEMP_OUT at 5 Hz, slope learnt at stops", TEMP_HZ, None, True, True, (FRONT_CPR, 0)),
+    ("FIFO, TEMP_OUT at 5 Hz, slope commissioned", TEMP_HZ, SLOPE_DPS_PER_C, True, True, (FRONT_CPR, 0)),
+    ("wheels too: FIFO, slope learnt, drive wheels counted as well as the front encoder", TEMP_HZ, None, True, True,
+     (FRONT_CPR, WHEEL_CPR)),
+    ("wheels too: FIFO, slope learnt, drive wheels and gyro, no front encoder", TEMP_HZ, None, True, True,
+     (0, WHEEL_CPR)),
 )
 SEEDS = (1, 2, 3)
 
@@ -65,17 +74,22 @@ class Run:
     fault: str
 
 
-def config(temp_hz: float, slope: float | None, seed: int, hold: bool = True, fifo: bool = False) -> Any:
+def config(temp_hz: float, slope: float | None, seed: int, hold: bool = True, fifo: bool = False,
+           counts: tuple[int | None, int] = (FRONT_CPR, 0)) -> Any:
+    front, wheels = counts
+    sensors: dict[str, Any] = {"gyro_temp_hz": temp_hz, "gyro_fifo": fifo, "wheel_counts_per_rev": wheels}
+    if front is not None:
+        sensors["encoder_counts_per_rev"] = front
     over = {"sim": {"seed": seed, "gyro": {"warmup_rise_c": RISE_C, "warmup_tau_s": TAU_S,
                                            "bias_per_c_dps": SLOPE_DPS_PER_C, "register_hold": hold,
                                            "clock_ppm": 5000.0}},
-            "sensors": {"gyro_temp_hz": temp_hz, "gyro_fifo": fifo}, "estimator": {"gyro_bias_per_c_dps": slope}}
+            "sensors": sensors, "estimator": {"gyro_bias_per_c_dps": slope}}
     return load_config(SIM_CONFIG, over)
 
 
 def one_run(temp_hz: float, slope: float | None, seed: int, drive_s: float = DRIVE_S, hold: bool = True,
-            fifo: bool = False) -> Run:
-    cfg = config(temp_hz, slope, seed, hold, fifo)
+            fifo: bool = False, counts: tuple[int | None, int] = (FRONT_CPR, 0)) -> Run:
+    cfg = config(temp_hz, slope, seed, hold, fifo, counts)
     probe = load_path({"shape": "figure_eight", "width": 1.6, "height": 0.8, "speed": 0.4, "laps": 2},
                       speed_limits(cfg), paths=cfg.paths)
     speed = 0.4 * probe.duration / LAP_S
@@ -162,8 +176,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--only", default="", help="only the settings whose label starts with this text")
     args = ap.parse_args(argv)
     seeds = tuple(range(1, args.seeds + 1))
-    runs = {label: [one_run(hz, slope, s, 60.0 * args.minutes, hold, fifo) for s in seeds]
-            for label, hz, slope, hold, fifo in SETTINGS if label.startswith(args.only)}
+    runs = {label: [one_run(hz, slope, s, 60.0 * args.minutes, hold, fifo, counts) for s in seeds]
+            for label, hz, slope, hold, fifo, counts in SETTINGS if label.startswith(args.only)}
     print("\n".join(render(runs, seeds)))
     return 0
 
