@@ -13,6 +13,7 @@ from ddrt.service.commands import COMMANDS, STREAMS, ctl_number
 
 
 FOLLOW_TIMEOUT_S = 120.0
+RELOAD_TIMEOUT_S = 60.0
 DEFAULT_SOCKET = "/run/ddrt/ddrt.sock"  # the shipped unit's (configs/robot.yaml's daemon.socket)
 SOCKET_ENV = "DDRT_SOCKET"
 
@@ -225,8 +226,9 @@ def _cmd_ctl(args: argparse.Namespace) -> int:
     timeout = args.timeout
     if timeout is None:
         # A follow is answered once its path is built and followed (within the daemon's
-        # paths.build_timeout_s); everything else between two ticks.
-        timeout = FOLLOW_TIMEOUT_S if args.command_name == "follow" else 2.0
+        # paths.build_timeout_s), a reload once the file is read beside the loop (seconds for
+        # a config of hundreds of KB); everything else between two ticks.
+        timeout = {"follow": FOLLOW_TIMEOUT_S, "reload": RELOAD_TIMEOUT_S}.get(args.command_name, 2.0)
     socket, source = control_socket(args)
     try:
         reply = request(socket, payload, timeout=timeout)
@@ -471,7 +473,8 @@ def build_parser() -> argparse.ArgumentParser:
                           f"else {DEFAULT_SOCKET})")
     ctl.add_argument("--config", default=None, help="the daemon's YAML config: its daemon.socket is the socket")
     ctl.add_argument("--timeout", type=float, default=None,
-                     help=f"seconds to wait for the reply (default 2; {FOLLOW_TIMEOUT_S:g} for follow)")
+                     help=f"seconds to wait for the reply (default 2; {FOLLOW_TIMEOUT_S:g} for follow, "
+                          f"{RELOAD_TIMEOUT_S:g} for reload)")
     ctl.add_argument("command_name", metavar="COMMAND",
                      choices=[c for c in COMMANDS if c not in STREAMS and c != "pose_fix"])  # pose --cov sends a fix
     ctl.add_argument("args", nargs="*", help="follow: the path file (its content is sent); drive: V (m/s) and "

@@ -3,11 +3,14 @@ daemon.watch_config) or a few keys (Foxglove parameters), planned by ddrt.config
 put in force by the daemon between two ticks, bumplessly.
 
 The file is read off the loop thread: reading and validating it (YAML, `extends:`, every
-section) costs 5-15 ms of CPU here, one to three periods at 200 Hz, and on the loop thread
-that was a stall of the motor command (4.2 periods once, CI). A helper thread reads it
-(`request`) while the loop runs on (the GIL's 0.5 ms switch interval bounds what it can
-delay a tick); between two ticks `poll` plans the loaded file over the config then in force
-(~0.3 ms) and puts it in force. Requests that come while a read is under way are answered by
+section) costs 5-15 ms of CPU here, one to three periods at 200 Hz (0.4 s for a 250 KB file
+with a recorded path pasted in), and on the loop thread that was a stall of the motor command
+(4.2 periods once, CI). A helper thread reads it (`request`) while the loop runs on: the GIL's
+0.5 ms switch interval bounds what its Python can delay a tick; what it cannot bound are the
+single calls that hold the GIL throughout (libyaml composing the document, freeing its node
+tree), under a millisecond for a config of a few KB, 15-30 ms for 250 KB (bench/reload_stall.py; a
+pure-Python parse was measured and is worse: more objects to free in one go). Between two
+ticks `poll` plans the loaded file over the config then in force (~0.3 ms) and puts it in force. Requests that come while a read is under way are answered by
 the next read, which starts when that one is done: the file may have changed after the first
 read opened it.
 
