@@ -52,11 +52,12 @@ class Held:
 class Host:
     """What a daemon gives its Reloader: the config in force and a way to put a plan in force."""
 
-    def __init__(self, file: Path) -> None:
+    def __init__(self, file: Path, loop_priority: int = 0) -> None:
         self.cfg = load_config(file)
         self.applied: list[ReloadPlan] = []
         self.notifier = Brackets()
-        self.reloader = Reloader(str(file), self.notifier, lambda: self.cfg, self.put)  # type: ignore[arg-type]
+        self.reloader = Reloader(str(file), self.notifier, lambda: self.cfg, self.put,  # type: ignore[arg-type]
+                                 lambda: loop_priority)
 
     def put(self, plan: ReloadPlan) -> None:
         self.applied.append(plan)
@@ -170,3 +171,40 @@ def test_a_stop_answers_everyone_still_waiting(tmp_path: Path, held: Held) -> No
     held.go.set()
     host.reloader.poll()  # the abandoned read ends unseen
     assert len(replies) == 2 and host.applied == [] and not host.reloader.busy
+
+
+def test_the_reader_thread_goes_below_a_real_time_loop(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A thread inherits its creator's SCHED_FIFO priority: at the loop's own, the loop could not
+    preempt it on a shared CPU. The reader asks to go below the loop's priority, on its own
+    thread, before it reads; a synchronous reload leaves the calling thread's alone."""
+    file = tmp_path / "ddrt.yaml"
+    write_config(file, tmp_path, {})
+    host = Host(file, loop_priority=40)
+    asked: list[tuple[int, str]] = []
+    monkeypatch.setattr(reloading, "raise_gil_helper",
+                        lambda p: asked.append((p, threading.current_thread().name)) or None)
+    replies: list[dict[str, Any]] = []
+    host.reloader.request(replies.append)
+    reading = host.reloader._reading
+    assert reading is not None and reading.thread is not None
+    reading.thread.join(30.0)
+    host.reloader.poll()
+    assert asked == [(40, "ddrt-reload")] and replies[0]["ok"] is True
+    host.reloader.reload()
+    assert len(asked) == 1
+
+
+def test_no_thread_to_be_had_is_a_rejection_not_a_crash(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    file = tmp_path / "ddrt.yaml"
+    write_config(file, tmp_path, {})
+    host = Host(file)
+
+    def refuse(self: threading.Thread) -> None:
+        raise RuntimeError("can't start new thread")
+
+    monkeypatch.setattr(threading.Thread, "start", refuse)
+    replies: list[dict[str, Any]] = []
+    host.reloader.request(replies.append)  # on the loop thread: must not raise
+    assert replies and replies[0]["ok"] is False and "cannot start a thread" in replies[0]["error"]
+    assert not host.reloader.busy and host.notifier.sent == ["RELOADING", "READY"]
+    assert host.reloader.counts["rejected"] == 1

@@ -93,7 +93,8 @@ class Daemon:
         self.hal: Any = None
         self.clock: Any = None
         # Reloads are planned there and put in force by _apply, between two ticks.
-        self.reloader = Reloader(config_path, self.notifier, lambda: self.cfg, self._apply)
+        self.reloader = Reloader(config_path, self.notifier, lambda: self.cfg, self._apply,
+                                 lambda: self.cfg.daemon.rt_priority or 0)
         self.reloads = self.reloader.counts
         # Paths are read and built in a worker process (ddrt/service/pathworker.py), never on
         # the loop thread; at most one follow waits for its path at a time

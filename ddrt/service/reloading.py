@@ -32,6 +32,7 @@ from typing import Any, Callable, Mapping
 from ddrt.config import Config, load_config, with_overrides
 from ddrt.config.policy import ReloadPlan, plan_reload
 from ddrt.config.schema import ConfigError
+from ddrt.runtime.rt import raise_gil_helper
 from ddrt.service.sdnotify import Notifier
 
 log = logging.getLogger("ddrt.service.daemon")
@@ -67,8 +68,9 @@ class Reloader:
     part of the process that holds a copy."""
 
     def __init__(self, config_path: str, notifier: Notifier, running: Callable[[], Config],
-                 put_in_force: Callable[[ReloadPlan], None]) -> None:
+                 put_in_force: Callable[[ReloadPlan], None], loop_priority: Callable[[], int] = lambda: 0) -> None:
         self.config_path = config_path
+        self._loop_priority = loop_priority  # the loop's SCHED_FIFO priority (0: not real-time)
         self.notifier = notifier
         self._running = running
         self._put_in_force = put_in_force
@@ -134,9 +136,23 @@ class Reloader:
     def _start(self, waiters: list[Waiter]) -> None:
         self.notifier.reloading()
         read = _Read(waiters)
-        read.thread = threading.Thread(target=self._read, args=(read,), name="ddrt-reload", daemon=True)
+        read.thread = threading.Thread(target=self._read_beside, args=(read, self._loop_priority()),
+                                       name="ddrt-reload", daemon=True)
         self._reading = read
-        read.thread.start()
+        try:
+            read.thread.start()
+        except RuntimeError as exc:  # no thread to be had (a process at its limit): say so, go on
+            read.error = f"{self.config_path}: not read: cannot start a thread: {exc}"
+            read.done = True
+            self.poll()
+
+    def _read_beside(self, read: _Read, loop_priority: int) -> None:
+        """The helper thread: below a real-time loop (it inherited the loop's SCHED_FIFO
+        priority, at which the loop could not preempt it: rt.raise_gil_helper), then the read."""
+        warning = raise_gil_helper(loop_priority)
+        if warning:
+            log.debug("reload thread: %s", warning)
+        self._read(read)
 
     def _read(self, read: _Read) -> None:
         """Load the file (any thread): what the loop thread needs to plan it, or why not."""
