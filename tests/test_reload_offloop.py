@@ -75,6 +75,23 @@ def _finish(host: Host, held: Held) -> None:
     host.reloader.poll()
 
 
+def _host(tmp: Path, loop_priority: int = 0) -> Host:
+    file = tmp / "ddrt.yaml"
+    write_config(file, tmp, {})
+    return Host(file, loop_priority)
+
+
+def _reload_to_the_end(host: Host) -> list[dict[str, Any]]:
+    """Request a reload, wait for its read, poll: the replies."""
+    replies: list[dict[str, Any]] = []
+    host.reloader.request(replies.append)
+    reading = host.reloader._reading
+    assert reading is not None and reading.thread is not None
+    reading.thread.join(30.0)
+    host.reloader.poll()
+    return replies
+
+
 @pytest.fixture()
 def held(monkeypatch: pytest.MonkeyPatch) -> Held:
     h = Held()
@@ -141,27 +158,19 @@ def test_a_bad_file_read_off_the_loop_is_rejected_by_name(tmp_path: Path, held: 
 
 
 def test_a_read_that_raises_anything_is_a_rejection(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    file = tmp_path / "ddrt.yaml"
-    write_config(file, tmp_path, {})
-    host = Host(file)
+    host = _host(tmp_path)
 
     def broken(path: Any) -> Config:
         raise MemoryError("no room")
 
     monkeypatch.setattr(reloading, "load_config", broken)
-    replies: list[dict[str, Any]] = []
-    host.reloader.request(replies.append)
-    reading = host.reloader._reading
-    assert reading is not None and reading.thread is not None
-    reading.thread.join(30.0)
-    host.reloader.poll()
-    assert replies[0]["ok"] is False and "MemoryError" in replies[0]["error"] and str(file) in replies[0]["error"]
+    replies = _reload_to_the_end(host)
+    assert replies[0]["ok"] is False and "MemoryError" in replies[0]["error"]
+    assert host.reloader.config_path in replies[0]["error"]
 
 
 def test_a_stop_answers_everyone_still_waiting(tmp_path: Path, held: Held) -> None:
-    file = tmp_path / "ddrt.yaml"
-    write_config(file, tmp_path, {})
-    host = Host(file)
+    host = _host(tmp_path)
     replies: list[dict[str, Any]] = []
     host.reloader.request(replies.append)
     assert held.started.acquire(timeout=30.0)
@@ -177,27 +186,18 @@ def test_the_reader_thread_goes_below_a_real_time_loop(tmp_path: Path, monkeypat
     """A thread inherits its creator's SCHED_FIFO priority: at the loop's own, the loop could not
     preempt it on a shared CPU. The reader asks to go below the loop's priority, on its own
     thread, before it reads; a synchronous reload leaves the calling thread's alone."""
-    file = tmp_path / "ddrt.yaml"
-    write_config(file, tmp_path, {})
-    host = Host(file, loop_priority=40)
+    host = _host(tmp_path, loop_priority=40)
     asked: list[tuple[int, str]] = []
     monkeypatch.setattr(reloading, "raise_gil_helper",
                         lambda p: asked.append((p, threading.current_thread().name)) or None)
-    replies: list[dict[str, Any]] = []
-    host.reloader.request(replies.append)
-    reading = host.reloader._reading
-    assert reading is not None and reading.thread is not None
-    reading.thread.join(30.0)
-    host.reloader.poll()
+    replies = _reload_to_the_end(host)
     assert asked == [(40, "ddrt-reload")] and replies[0]["ok"] is True
     host.reloader.reload()
     assert len(asked) == 1
 
 
 def test_no_thread_to_be_had_is_a_rejection_not_a_crash(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    file = tmp_path / "ddrt.yaml"
-    write_config(file, tmp_path, {})
-    host = Host(file)
+    host = _host(tmp_path)
 
     def refuse(self: threading.Thread) -> None:
         raise RuntimeError("can't start new thread")
