@@ -12,19 +12,16 @@ version into the user's cache (~/.cache/ddrt, or $XDG_CACHE_HOME/ddrt; ddrt/runt
 from __future__ import annotations
 
 import ctypes
-import os
 import random
 from pathlib import Path
 from typing import Any, Callable
 
-from ddrt.runtime.cbuild import built_library
+from ddrt.runtime.cbuild import load_library
 
 SOURCE = Path(__file__).with_name("plant_kernel.c")
 CFLAGS = ("-O2", "-shared", "-fPIC", "-ffp-contract=off", "-fno-fast-math", "-fno-builtin")
 NSTATE = 16  # plant_kernel.c: X .. TR
 
-_loaded: Callable[..., Any] | None = None
-_tried = False
 
 
 class Rng(ctypes.Structure):
@@ -54,21 +51,12 @@ class Plant(ctypes.Structure):
                 ("ring_phr", ctypes.c_void_p)]
 
 
+def _declare(lib: ctypes.CDLL) -> None:
+    lib.plant_run.restype = None
+    lib.plant_run.argtypes = [ctypes.c_int64, ctypes.c_void_p]
+
+
 def kernel() -> Callable[..., Any] | None:
     """plant_run(n_steps, address of a Plant), or None (pure Python then)."""
-    global _loaded, _tried
-    if os.environ.get("DDRT_PLANT", "").lower() == "python":
-        return None
-    if not _tried:
-        _tried = True
-        lib = built_library(SOURCE, CFLAGS, "plant_kernel")
-        if lib is not None:
-            try:
-                fn = ctypes.CDLL(str(lib)).plant_run
-            except OSError:
-                fn = None
-            if fn is not None:
-                fn.restype = None
-                fn.argtypes = [ctypes.c_int64, ctypes.c_void_p]
-                _loaded = fn
-    return _loaded
+    lib = load_library(SOURCE, CFLAGS, "plant_kernel", "DDRT_PLANT", _declare)
+    return lib.plant_run if lib is not None else None

@@ -13,45 +13,33 @@ plant.
 from __future__ import annotations
 
 import ctypes
-import os
 import threading
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ddrt.runtime.cbuild import built_library
+from ddrt.runtime.cbuild import load_library
 
 SOURCE = Path(__file__).with_name("row_format.c")
 CFLAGS = ("-O2", "-shared", "-fPIC", "-ffp-contract=off", "-fno-fast-math")
 MAX_LEN = 24  # row_format.c: bytes reserved per value
 ENV = "DDRT_ROWFMT"  # DDRT_ROWFMT=python: the Python formatter
 
-_lib: Any = None
-_tried = False
 _local = threading.local()  # each thread's output buffer (the C runs without the GIL), grown and reused
+
+
+def _declare(lib: ctypes.CDLL) -> None:
+    lib.format_rows.restype = ctypes.c_int64
+    lib.format_rows.argtypes = [ctypes.c_void_p, ctypes.c_int64, ctypes.c_int64, ctypes.c_void_p]
+    for name in ("g9", "g9_fast"):  # one value; g9_fast: -1 where snprintf is needed (tests)
+        getattr(lib, name).restype = ctypes.c_int
+        getattr(lib, name).argtypes = [ctypes.c_double, ctypes.c_char_p]
 
 
 def library() -> Any:
     """The loaded library (format_rows, g9, g9_fast), or None (Python formatting then)."""
-    global _lib, _tried
-    if os.environ.get(ENV, "").lower() == "python":
-        return None
-    if not _tried:
-        _tried = True
-        path = built_library(SOURCE, CFLAGS, "row_format")
-        if path is not None:
-            try:
-                lib = ctypes.CDLL(str(path))
-                lib.format_rows.restype = ctypes.c_int64
-                lib.format_rows.argtypes = [ctypes.c_void_p, ctypes.c_int64, ctypes.c_int64, ctypes.c_void_p]
-                for name in ("g9", "g9_fast"):  # one value; g9_fast: -1 where snprintf is needed (tests)
-                    getattr(lib, name).restype = ctypes.c_int
-                    getattr(lib, name).argtypes = [ctypes.c_double, ctypes.c_char_p]
-                _lib = lib
-            except (OSError, AttributeError):
-                _lib = None
-    return _lib
+    return load_library(SOURCE, CFLAGS, "row_format", ENV, _declare)
 
 
 def format_rows(arr: np.ndarray) -> str | None:
