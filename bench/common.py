@@ -8,6 +8,7 @@ import multiprocessing
 import os
 import subprocess
 import sys
+import time
 from collections.abc import Callable, Hashable, Sequence
 from pathlib import Path
 from typing import IO, Any
@@ -40,10 +41,31 @@ def percentile(values: Sequence[float] | np.ndarray, q: float) -> float:
 
 
 def spawn_daemon(config: Path, *args: str, stdout: IO[Any] | int | None = subprocess.DEVNULL,
-                 stderr: IO[Any] | int | None = subprocess.DEVNULL, text: bool = False) -> subprocess.Popen:
-    """`ddrt run CONFIG ARGS...` as a child python in the repository (child_env, no stdin)."""
-    return subprocess.Popen([sys.executable, "-m", "ddrt.cli", "run", str(config), *args], cwd=REPO,
-                            env=child_env(), stdin=subprocess.DEVNULL, stdout=stdout, stderr=stderr, text=text)
+                 stderr: IO[Any] | int | None = subprocess.DEVNULL, text: bool = False,
+                 repo: Path = REPO) -> subprocess.Popen:
+    """`ddrt run CONFIG ARGS...` as a child python in `repo` (child_env, no stdin)."""
+    return subprocess.Popen([sys.executable, "-m", "ddrt.cli", "run", str(config), *args], cwd=repo,
+                            env=child_env(repo), stdin=subprocess.DEVNULL, stdout=stdout, stderr=stderr, text=text)
+
+
+def await_daemon(proc: subprocess.Popen, sock: str, ready: Callable[[dict[str, Any]], bool], what: str,
+                 stderr_file: Path, timeout: float = 60.0) -> None:
+    """Poll the daemon's `status` every 0.1 s until `ready(reply)`; RuntimeError (with the end
+    of its stderr) if it exits first, or after `timeout` seconds ("did not WHAT")."""
+    from ddrt.service.ctlclient import ControlClientError, request
+
+    deadline = time.monotonic() + timeout
+    while True:
+        if proc.poll() is not None:
+            raise RuntimeError(f"the daemon exited: {stderr_file.read_text()[-500:]}")
+        try:
+            if ready(request(sock, {"cmd": "status"}, timeout=1.0)):
+                return
+        except (ControlClientError, TimeoutError, OSError):
+            pass
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"the daemon did not {what} within {timeout:g} s")
+        time.sleep(0.1)
 
 
 def pooled_by_key(fn: Callable[[Any], tuple[Any, ...]], jobs: list[Any],

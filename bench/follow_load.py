@@ -33,7 +33,7 @@ from typing import Any, Sequence
 
 import yaml
 
-from bench.common import SIM_CONFIG, percentile, spawn_daemon
+from bench.common import SIM_CONFIG, await_daemon, percentile, spawn_daemon
 from ddrt.service.ctlclient import ControlClientError, request
 
 TARGET_LATE_P99_US = 1000.0
@@ -60,18 +60,7 @@ class Daemon:
         self.err = open(directory / "stderr.log", "wb")
         self.proc = spawn_daemon(cfg, "--socket", self.sock, "--stats-json", str(directory / "stats.json"),
                                  stderr=self.err)
-        deadline = time.monotonic() + 60.0
-        while True:
-            if self.proc.poll() is not None:
-                raise RuntimeError(f"the daemon exited: {(directory / 'stderr.log').read_text()[-500:]}")
-            try:
-                if request(self.sock, {"cmd": "status"}, timeout=1.0).get("ok"):
-                    break
-            except (ControlClientError, TimeoutError):
-                pass
-            if time.monotonic() > deadline:
-                raise RuntimeError("the daemon did not answer within 60 s")
-            time.sleep(0.1)
+        await_daemon(self.proc, self.sock, lambda reply: bool(reply.get("ok")), "answer", directory / "stderr.log")
 
     def ask(self, payload: dict[str, Any], timeout: float = 5.0) -> tuple[float, dict[str, Any]]:
         t0 = time.perf_counter()

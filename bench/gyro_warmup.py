@@ -34,6 +34,7 @@ from dataclasses import dataclass
 from typing import Any, Sequence
 
 from bench.common import SIM_CONFIG
+from bench.wheel_encoders import WHEEL_CPR  # the drive wheels' encoders where they are counted
 from ddrt.config import load_config
 from ddrt.loop import ControlLoop, LoopState
 from ddrt.path.spec import load_path, speed_limits
@@ -46,7 +47,6 @@ DRIVE_S = 600.0
 STOP_S = 2.0
 LAP_S = 28.0  # a path of about this long, then a stop: a stop every 30 s
 TEMP_HZ = 5.0
-WHEEL_CPR = 1440  # the drive wheels' encoders where they are counted (bench/wheel_encoders.py's)
 FRONT_CPR = None  # the front encoder as configs/sim.yaml has it
 SETTINGS = (  # (label, gyro_temp_hz, estimator.gyro_bias_per_c_dps, register held, FIFO read, (front, wheels) counts)
     ("TEMP_OUT not read (before)", 0.0, None, True, False, (FRONT_CPR, 0)),

@@ -26,7 +26,6 @@ import csv
 import json
 import math
 import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -34,8 +33,8 @@ from typing import Any
 
 import yaml
 
-from bench.common import REPO, SIM_CONFIG, child_env, percentile
-from ddrt.service.ctlclient import ControlClientError, request
+from bench.common import REPO, SIM_CONFIG, await_daemon, percentile, spawn_daemon
+from ddrt.service.ctlclient import request
 
 RATE_HZ = 200.0
 KP = (40.0, 41.0)
@@ -45,11 +44,8 @@ def _start(repo: Path, tmp: Path, kp: float, points: int) -> tuple[subprocess.Po
     cfg = tmp / "ddrt.yaml"
     _write(cfg, tmp, kp, points)
     sock = tmp / "ddrt.sock"
-    err = open(tmp / "stderr.log", "wb")
-    proc = subprocess.Popen([sys.executable, "-m", "ddrt.cli", "run", str(cfg), "--follow", "--socket", str(sock)],
-                            cwd=repo, env=child_env(repo), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                            stderr=err)
-    err.close()
+    with open(tmp / "stderr.log", "wb") as err:
+        proc = spawn_daemon(cfg, "--follow", "--socket", str(sock), stderr=err, repo=repo)
     return proc, cfg, sock
 
 
@@ -85,18 +81,8 @@ def measure(repo: Path, reloads: int, points: int = 0) -> dict[str, Any]:
         proc, cfg, sock = _start(repo, tmp, KP[0], points)
         size_kb = cfg.stat().st_size / 1024
         try:
-            deadline = time.monotonic() + 60.0
-            while True:
-                if proc.poll() is not None:
-                    raise RuntimeError(f"the daemon exited: {(tmp / 'stderr.log').read_text()[-500:]}")
-                try:
-                    if request(str(sock), {"cmd": "status"}, timeout=1.0).get("status", {}).get("state") == "following":
-                        break
-                except (ControlClientError, TimeoutError, OSError):
-                    pass
-                if time.monotonic() > deadline:
-                    raise RuntimeError("the daemon did not follow within 60 s")
-                time.sleep(0.1)
+            await_daemon(proc, str(sock), lambda reply: reply.get("status", {}).get("state") == "following",
+                         "follow", tmp / "stderr.log")
             time.sleep(1.0)
             windows: dict[str, list[tuple[int, int]]] = {"reload": [], "gains": []}
             replies_ms = []
