@@ -6,6 +6,7 @@ long a read takes."""
 
 from __future__ import annotations
 
+import os
 import threading
 from pathlib import Path
 from typing import Any
@@ -56,8 +57,9 @@ class Host:
         self.cfg = load_config(file)
         self.applied: list[ReloadPlan] = []
         self.notifier = Brackets()
+        self.now = 1000.0  # the reloader's clock (s), moved by the tests that need its deadline
         self.reloader = Reloader(str(file), self.notifier, lambda: self.cfg, self.put,  # type: ignore[arg-type]
-                                 lambda: loop_priority)
+                                 lambda: loop_priority, clock=lambda: self.now)
 
     def put(self, plan: ReloadPlan) -> None:
         self.applied.append(plan)
@@ -208,3 +210,63 @@ def test_no_thread_to_be_had_is_a_rejection_not_a_crash(tmp_path: Path, monkeypa
     assert replies and replies[0]["ok"] is False and "cannot start a thread" in replies[0]["error"]
     assert not host.reloader.busy and host.notifier.sent == ["RELOADING", "READY"]
     assert host.reloader.counts["rejected"] == 1
+
+
+def test_a_read_that_never_returns_is_given_up_and_reloads_go_on(tmp_path: Path, held: Held) -> None:
+    """A read that does not return (a FIFO, a file system that stopped answering) must not lock
+    reloads out: at its deadline its waiters and those queued behind it are answered; while
+    its thread is still stuck a request is refused at once, naming the file; once it returns,
+    reads work again. At most one reader is ever stuck."""
+    host = _host(tmp_path)
+    first: list[dict[str, Any]] = []
+    queued: list[dict[str, Any]] = []
+    host.reloader.request(first.append)
+    assert held.started.acquire(timeout=30.0)
+    host.reloader.request(queued.append)
+    host.now += reloading.READ_DEADLINE_S - 1.0
+    host.reloader.poll()
+    assert first == [] and host.reloader.busy  # slow, but not yet given up
+    host.now += 2.0
+    host.reloader.poll()
+    assert len(first) == 1 and first[0]["ok"] is False and "no answer within 30 s" in first[0]["error"]
+    assert host.reloader.config_path in first[0]["error"]
+    assert len(queued) == 1 and queued[0]["ok"] is False and "has not returned" in queued[0]["error"]
+    assert not host.reloader.busy and held.reads == 1  # no second reader started behind the stuck one
+    later: list[dict[str, Any]] = []
+    host.reloader.request(later.append)  # answered at once, on the calling thread
+    assert len(later) == 1 and later[0]["ok"] is False and host.reloader.config_path in later[0]["error"]
+    assert host.reloader.counts["rejected"] == 3 and host.applied == []
+    assert host.notifier.sent == ["RELOADING", "READY"] * 3
+    stuck = host.reloader._stuck
+    assert stuck is not None and stuck.thread is not None
+    held.go.set()  # the stuck read returns at last; its outcome is not used
+    stuck.thread.join(30.0)
+    write_config(Path(host.reloader.config_path), tmp_path,
+                 {"controller": {"inner": {"kp": 63.0}}})
+    replies = _reload_to_the_end(host)
+    assert replies[0]["ok"] is True and host.cfg.controller.inner.kp == 63.0 and held.reads == 2
+
+
+def test_a_config_path_turned_into_a_fifo_does_not_lock_reloads_out(tmp_path: Path) -> None:
+    """The real thing: opening a FIFO nobody writes blocks the reader; the loop's side goes on."""
+    host = _host(tmp_path)
+    path = Path(host.reloader.config_path)
+    saved = path.read_text()
+    path.unlink()
+    os.mkfifo(path)
+    replies: list[dict[str, Any]] = []
+    host.reloader.request(replies.append)
+    reading = host.reloader._reading
+    assert reading is not None and reading.thread is not None
+    reading.thread.join(0.2)
+    assert reading.thread.is_alive()  # blocked in open()
+    host.now += reloading.READ_DEADLINE_S + 1.0
+    host.reloader.poll()
+    assert replies[0]["ok"] is False and str(path) in replies[0]["error"] and "FIFO" in replies[0]["error"]
+    fd = os.open(path, os.O_WRONLY | os.O_NONBLOCK)  # a writer that closes at once: the reader sees an empty file
+    os.close(fd)
+    reading.thread.join(30.0)
+    assert not reading.thread.is_alive()
+    path.unlink()
+    path.write_text(saved)
+    assert _reload_to_the_end(host)[0]["ok"] is True

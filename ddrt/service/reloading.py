@@ -14,6 +14,12 @@ ticks `poll` plans the loaded file over the config then in force (~0.3 ms) and p
 the next read, which starts when that one is done: the file may have changed after the first
 read opened it.
 
+A read that has not returned after READ_DEADLINE_S (the path is now a FIFO nobody writes, a
+network file system stopped answering) is given up: its waiters get an error that says so, the
+requests queued behind it are answered, and while that thread is still stuck each new request
+is refused at once, naming it. Reloads are never locked out by one read, and at most one
+reader thread is ever stuck.
+
 A file that does not load, or whose mix with the running restart-only values breaks a rule,
 changes nothing; the reply lists exactly what was applied (live, or from the next path) and
 what waits for a restart. The tally of reloads goes to status and --stats-json: `applied`
@@ -26,6 +32,7 @@ from __future__ import annotations
 import logging
 import os
 import threading
+import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
 
@@ -38,6 +45,9 @@ from ddrt.service.sdnotify import Notifier
 log = logging.getLogger("ddrt.service.daemon")
 
 Waiter = Callable[[dict[str, Any]], None]  # takes a reload's reply (a socket request's Deferred.complete)
+# A config is read in milliseconds (0.4 s for a 250 KB file); this is for reads that never end,
+# and under `ddrt ctl reload`'s 60 s wait, so its caller hears why.
+READ_DEADLINE_S = 30.0
 
 
 @dataclass(eq=False)
@@ -46,6 +56,7 @@ class _Read:
     thread sets `version` and `loaded` or `error`, then `done` last."""
 
     waiters: list[Waiter]
+    started: float = 0.0  # time.monotonic() when the thread was started
     version: tuple[int, int, int] | None = None
     loaded: Config | None = None
     error: str = ""
@@ -68,8 +79,10 @@ class Reloader:
     part of the process that holds a copy."""
 
     def __init__(self, config_path: str, notifier: Notifier, running: Callable[[], Config],
-                 put_in_force: Callable[[ReloadPlan], None], loop_priority: Callable[[], int] = lambda: 0) -> None:
+                 put_in_force: Callable[[ReloadPlan], None], loop_priority: Callable[[], int] = lambda: 0,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self.config_path = config_path
+        self._clock = clock
         self._loop_priority = loop_priority  # the loop's SCHED_FIFO priority (0: not real-time)
         self.notifier = notifier
         self._running = running
@@ -80,6 +93,7 @@ class Reloader:
         self._version = file_version(config_path)
         self._reading: _Read | None = None  # the read under way
         self._queued: list[Waiter] | None = None  # requests for the read after it
+        self._stuck: _Read | None = None  # a read given up at its deadline, until its thread returns
 
     @property
     def busy(self) -> bool:
@@ -91,7 +105,7 @@ class Reloader:
         in force and hands the reply to `waiter`. Never blocks."""
         waiters = [waiter] if waiter is not None else []
         if self._reading is None:
-            self._start(waiters)
+            self._begin(waiters)
         elif self._queued is None:
             self._queued = waiters
         else:
@@ -100,8 +114,15 @@ class Reloader:
     def poll(self) -> None:
         """Between two ticks: put a finished read in force, answer its waiters, start the next."""
         read = self._reading
-        if read is None or not read.done:
+        if read is None:
             return
+        if not read.done:
+            if self._clock() - read.started < READ_DEADLINE_S:
+                return
+            self._stuck = read  # given up: its thread may return one day, its outcome is not used
+            read = _Read(read.waiters, version=self._version, done=True,
+                         error=f"{self.config_path}: not read: no answer within {READ_DEADLINE_S:.0f} s "
+                               "(is the file a FIFO, or on a file system that does not answer?)")
         self._reading = None
         self._version = read.version
         try:
@@ -112,7 +133,34 @@ class Reloader:
             waiter(reply)
         queued, self._queued = self._queued, None
         if queued is not None:
-            self._start(queued)
+            self._begin(queued)
+
+    def _begin(self, waiters: list[Waiter]) -> None:
+        """Start a read for `waiters`, or refuse it at once while a given-up read is still stuck
+        (another would most likely be stuck the same way)."""
+        if not self._still_stuck():
+            self._start(waiters)
+            return
+        stuck = self._stuck
+        assert stuck is not None
+        self.notifier.reloading()
+        try:
+            reply = self._reject(f"{self.config_path}: not read: the read started {self._clock() - stuck.started:.0f} s "
+                                 "ago has not returned (is the file a FIFO, or on a file system that does not answer?)")
+        finally:
+            self.notifier.ready()
+        for waiter in waiters:
+            waiter(reply)
+
+    def _still_stuck(self) -> bool:
+        """A read given up at its deadline whose thread has not returned yet."""
+        stuck = self._stuck
+        if stuck is None:
+            return False
+        if stuck.done or stuck.thread is None or not stuck.thread.is_alive():
+            self._stuck = None
+            return False
+        return True
 
     def cancel(self, why: str) -> None:
         """The daemon is stopping: answer everyone still waiting (the read itself is let be)."""
@@ -135,7 +183,7 @@ class Reloader:
 
     def _start(self, waiters: list[Waiter]) -> None:
         self.notifier.reloading()
-        read = _Read(waiters)
+        read = _Read(waiters, started=self._clock())
         read.thread = threading.Thread(target=self._read_beside, args=(read, self._loop_priority()),
                                        name="ddrt-reload", daemon=True)
         self._reading = read
