@@ -14,6 +14,11 @@ Without `--no-cpu` the same pair also runs without valgrind, for CPU time, which
 hour's instructions per CPU second and so the tick cost the simulator's 200x target (at most
 25 us of CPU a tick at 200 Hz) allows in instructions at that rate.
 
+The simulated robot's own share is counted the same way, by a loop that does only what the
+simulator adds around the robot's tick (SimHal's sleep_until, read and write, the truth and a
+row appended, as run_sim does) with a fixed command: what is left of a tick is the code that
+also runs on the robot (the tick) and telemetry.csv.
+
 Needs valgrind (apt-get install valgrind); not part of CI.
 """
 
@@ -51,6 +56,33 @@ with tempfile.TemporaryDirectory() as d:
 print(json.dumps({"ticks": r.metrics["ticks"], "cpu_s": c}))
 """
 
+# The simulator's part of a tick alone: run_sim's loop without ControlLoop.tick (a fixed duty).
+_ROBOT_ONLY = r"""
+import json, sys
+from array import array
+from ddrt.config import load_config
+from ddrt.path.spec import resolve_path
+from hal.registry import open_hal
+config, path_file, duration = sys.argv[1], sys.argv[2], float(sys.argv[3])
+cfg = load_config(config)
+path = resolve_path(cfg, path_file)
+hal = open_hal(cfg, start=path.start_pose, seed=1)
+period = 1.0 / cfg.controller.rate_hz
+n = int(round(duration / period))
+rows = array("d")
+extend, truth, row = rows.extend, hal.robot.truth, array("d", [0.0] * 47)
+sleep_until, read, write = hal.sleep_until, hal.read, hal.write
+for i in range(n):
+    sleep_until((i + 1) * period)
+    read()
+    write(0.30, 0.31)
+    extend(truth())
+    extend(row)
+    if len(rows) > 400000:
+        del rows[:]
+print(json.dumps({"ticks": n, "cpu_s": 0.0}))
+"""
+
 _IREFS = re.compile(r"I\s+refs:\s+([\d,]+)")
 
 
@@ -85,10 +117,11 @@ def valgrind_command() -> list[str]:
     return ([setarch, os.uname().machine, "-R"] + cmd) if setarch else cmd
 
 
-def run_child(repo: FsPath, path_file: FsPath, duration: float, counted: bool) -> Count:
-    """One run_sim of `repo`'s ddrt in a child python, under valgrind when `counted`."""
+def run_child(repo: FsPath, path_file: FsPath, duration: float, counted: bool, robot_only: bool = False) -> Count:
+    """One run_sim of `repo`'s ddrt in a child python (`robot_only`: the simulated robot's part
+    alone), under valgrind when `counted`."""
     config = repo / "configs/scenarios/figure8_fast.yaml"
-    argv = [sys.executable, "-c", _CHILD, str(config), str(path_file), f"{duration:g}"]
+    argv = [sys.executable, "-c", _ROBOT_ONLY if robot_only else _CHILD, str(config), str(path_file), f"{duration:g}"]
     if counted:
         argv = valgrind_command() + argv
     env = child_env(repo, OPENBLAS_NUM_THREADS="1", PYTHONHASHSEED="0")
@@ -133,6 +166,10 @@ def main(argv: list[str] | None = None) -> int:
                     rate = ins / cpu if cpu > 0.0 else float("nan")
                     line += (f"; {cpu * 1e6:.1f} us of CPU a tick now, {rate / 1e9:.2f} G instructions per CPU s, "
                              f"so 200x ({TARGET_US:.0f} us) is {rate * TARGET_US * 1e-6:,.0f} instructions a tick")
+                sim = per_tick(run_child(repo, path_file, args.short, True, robot_only=True),
+                               run_child(repo, path_file, args.long, True, robot_only=True), "instructions")
+                line += (f"\n  of which the simulated robot (SimHal, plant, truth, row gathering) {sim:,.0f}, "
+                         f"the rest (the robot's tick, telemetry.csv) {ins - sim:,.0f}")
                 results.append(ins)
                 print(line, flush=True)
     except InstructionCountError as exc:

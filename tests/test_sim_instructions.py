@@ -47,3 +47,10 @@ def test_two_counts_of_the_same_code_agree(tmp_path) -> None:
     a, b = (si.run_child(si.REPO, path_file, 0.5, counted=True) for _ in range(2))
     assert a.ticks == b.ticks > 0
     assert abs(a.instructions - b.instructions) < 0.005 * a.instructions
+
+
+def test_the_simulated_robots_own_loop_runs_and_counts_its_ticks(tmp_path) -> None:
+    """The loop that stands for the simulator's part of a tick (no valgrind here: its output)."""
+    path_file = si.figure8_path(1, tmp_path / "figure8.yaml")
+    c = si.run_child(si.REPO, path_file, 0.5, counted=False, robot_only=True)
+    assert c.ticks == 100 and c.instructions == 0
