@@ -36,25 +36,11 @@ from dataclasses import dataclass
 from pathlib import Path as FsPath
 
 from bench.common import child_env
+from bench.sim_paired import RUN_SIM_CHILD
 from bench.sim_scaling import figure8_path
 
 REPO = FsPath(__file__).resolve().parent.parent
 TARGET_US = 1e6 / (200.0 * 200.0)  # issue 24: 200x real time at 200 Hz is 25 us of CPU a tick
-
-_CHILD = r"""
-import json, sys, tempfile, time
-from ddrt.config import load_config
-from ddrt.path.spec import resolve_path
-from ddrt.simrun.runner import run_sim
-config, path_file, duration = sys.argv[1], sys.argv[2], float(sys.argv[3])
-cfg = load_config(config)
-path = resolve_path(cfg, path_file)
-with tempfile.TemporaryDirectory() as d:
-    c = time.process_time()
-    r = run_sim(cfg, path, duration=duration, telemetry=d + "/telemetry.csv")
-    c = time.process_time() - c
-print(json.dumps({"ticks": r.metrics["ticks"], "cpu_s": c}))
-"""
 
 # The simulator's part of a tick alone: run_sim's loop without ControlLoop.tick (a fixed duty).
 _ROBOT_ONLY = r"""
@@ -121,7 +107,7 @@ def run_child(repo: FsPath, path_file: FsPath, duration: float, counted: bool, r
     """One run_sim of `repo`'s ddrt in a child python (`robot_only`: the simulated robot's part
     alone), under valgrind when `counted`."""
     config = repo / "configs/scenarios/figure8_fast.yaml"
-    argv = [sys.executable, "-c", _ROBOT_ONLY if robot_only else _CHILD, str(config), str(path_file), f"{duration:g}"]
+    argv = [sys.executable, "-c", _ROBOT_ONLY if robot_only else RUN_SIM_CHILD, str(config), str(path_file), f"{duration:g}"]
     if counted:
         argv = valgrind_command() + argv
     env = child_env(repo, OPENBLAS_NUM_THREADS="1", PYTHONHASHSEED="0")

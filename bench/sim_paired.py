@@ -21,7 +21,8 @@ from pathlib import Path as FsPath
 from bench.common import child_env
 from bench.sim_scaling import figure8_path
 
-_CHILD = r"""
+# run_sim on CONFIG PATH_FILE DURATION, its CPU time printed as JSON (bench.sim_instructions uses it too).
+RUN_SIM_CHILD = r"""
 import json, sys, tempfile, time
 from ddrt.config import load_config
 from ddrt.path.spec import resolve_path
@@ -33,14 +34,14 @@ with tempfile.TemporaryDirectory() as d:
     c = time.process_time()
     r = run_sim(cfg, path, duration=duration, telemetry=d + "/telemetry.csv")
     c = time.process_time() - c
-print(json.dumps({"us_per_tick": c / r.metrics["ticks"] * 1e6, "ticks": r.metrics["ticks"]}))
+print(json.dumps({"us_per_tick": c / r.metrics["ticks"] * 1e6, "ticks": r.metrics["ticks"], "cpu_s": c}))
 """
 
 
 def run_once(repo: FsPath, path_file: FsPath, duration: float) -> float:
     """CPU us per tick of one run_sim with `repo`'s ddrt, in a child python."""
     config = repo / "configs/scenarios/figure8_fast.yaml"
-    p = subprocess.run([sys.executable, "-c", _CHILD, str(config), str(path_file), f"{duration:g}"], cwd=repo,
+    p = subprocess.run([sys.executable, "-c", RUN_SIM_CHILD, str(config), str(path_file), f"{duration:g}"], cwd=repo,
                        env=child_env(repo, OPENBLAS_NUM_THREADS="1"), capture_output=True, text=True, timeout=900)
     if p.returncode != 0:
         raise RuntimeError(f"run_sim in {repo} failed (exit {p.returncode}): {p.stderr[-400:]}")
