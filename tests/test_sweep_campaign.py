@@ -151,6 +151,17 @@ BAD = [
     ("base: BASE\noverrides: {hal: {backend: real, imu: {bus: 1}, bridge: {url: /dev/ttyACM0}}}\n",
      ["case 0: hal.backend: real"]),
     ("base: BASE\naxes: {path: [a.yaml]}\n", ["axes.path: not a config key to sweep"]),
+    # Numbers beyond what a float or the table holds: refused by key, never an OverflowError
+    # or a MemoryError (seeds: 10**10 used to build the tuple first).
+    ("base: BASE\naxes: {controller.outer.k_y: {start: -1e308, stop: 1e308, step: 1}}\n",
+     ["axes.controller.outer.k_y: more than 100000 values"]),
+    ("base: BASE\naxes: {controller.outer.k_y: {start: 0, stop: 1, step: 1e-300}}\n",
+     ["axes.controller.outer.k_y: more than 100000 values (from 0 to 1 by 1e-300)"]),
+    ("base: BASE\naxes: {controller.outer.k_y: {start: 1" + "0" * 330 + ", stop: 1, step: -1}}\n",
+     ["axes.controller.outer.k_y.start: expected a finite number, got a 331-digit integer"]),
+    ("base: BASE\nrun: {duration_s: 1" + "0" * 330 + "}\n", ["run.duration_s: expected seconds > 0"]),
+    ("base: BASE\nseeds: 10000000000\n", ["campaign.yaml: seeds: 10000000000 seeds, more cases than"]),
+    ("base: BASE\nseeds: [1, 18446744073709551616]\n", ["campaign.yaml: seeds[1]: out of range"]),
 ]
 
 
@@ -406,3 +417,13 @@ def test_leaving_on_ctrl_c_silences_the_loggers_that_print_a_cancelled_callbacks
     finally:
         for n, level in saved.items():
             logging.getLogger(n).setLevel(level)
+
+
+def test_a_whole_number_beyond_int64_in_a_parameter_column_is_kept_as_text() -> None:
+    """description: takes any value, so an axis over it may hold 2**64: the table is written
+    (the value as its text), instead of failing after every run has finished."""
+    plan = expand(campaign_from_mapping(mapping(axes={"description": [2**64, 1]})))
+    rows = [sweep_run.blank_row(c, plan.campaign.run, "failed", "not run") for c in plan.cases]
+    table = arrow_table(plan, rows)
+    assert str(table.schema.field("description").type) == "string"
+    assert table.column("description").to_pylist() == [str(2**64), "1"]

@@ -20,15 +20,15 @@ built. The keys (docs/sweep.md has them all):
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path as FsPath
 from typing import Any, Mapping
 
+from ddrt.config.schema import INT_LIMIT
 from ddrt.config.yamlio import read_yaml, shorten
 from ddrt.sweep.columns import KNOWN_METRICS, NUMERIC_METRICS, TEXT_METRICS
 from ddrt.sweep.criteria import Criterion, parse_criterion
-from ddrt.sweep.ranges import axis_values
+from ddrt.sweep.ranges import axis_values, finite
 
 KEYS = ("name", "description", "base", "overrides", "variants", "population", "paths", "axes", "seeds", "run",
         "metrics", "pass", "summary")
@@ -243,12 +243,16 @@ class _Reader:
         if isinstance(value, int) and not isinstance(value, bool):
             if value < 1:
                 raise self.fail("seeds", f"expected a count >= 1 (seeds 1..N) or a list of seeds, got {value}")
+            if value > MAX_CASES:  # before the tuple is built: seeds: 10000000000 would exhaust the memory
+                raise self.fail("seeds", f"{shorten(value)} seeds, more cases than {MAX_CASES}: split the campaign")
             return tuple(range(1, value + 1))
         if not isinstance(value, list) or not value:
             raise self.fail("seeds", f"expected a count (seeds 1..N) or a non-empty list of seeds, got {shorten(value)}")
         for i, s in enumerate(value):
             if isinstance(s, bool) or not isinstance(s, int):
                 raise self.fail(f"seeds[{i}]", f"expected a whole number, got {shorten(s)}")
+            if abs(s) > INT_LIMIT:  # the range of a config's sim.seed, and of the table's int64 column
+                raise self.fail(f"seeds[{i}]", f"out of range (at most {INT_LIMIT} either way), got {shorten(s)}")
         if len(set(value)) != len(value):
             raise self.fail("seeds", "a seed is listed twice")
         return tuple(value)
@@ -267,7 +271,7 @@ class _Reader:
     def seconds(self, value: Any, key: str) -> float | None:
         if value is None:
             return None
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+        if not finite(value) or value <= 0:
             raise self.fail(key, f"expected seconds > 0, got {shorten(value)}")
         return float(value)
 

@@ -40,7 +40,7 @@ def axis_values(spec: Any, where: str, fail: Fail) -> tuple[Any, ...]:
             raise fail(f"{where}.{key}", f"unknown range key (known: {', '.join(RANGE_KEYS)})")
     for key in ("start", "stop"):
         v = spec.get(key)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        if not finite(v):
             raise fail(f"{where}.{key}", f"expected a finite number, got {shorten(v)}")
     start, stop = spec["start"], spec["stop"]
     if ("step" in spec) == ("num" in spec):
@@ -68,18 +68,34 @@ def axis_values(spec: Any, where: str, fail: Fail) -> tuple[Any, ...]:
 
 
 def _stepped(start: float, stop: float, step: Any, scale: str, where: str, fail: Fail) -> tuple[Any, ...]:
-    if isinstance(step, bool) or not isinstance(step, (int, float)) or not math.isfinite(step) or step == 0:
+    if not finite(step) or step == 0:
         raise fail(f"{where}.step", f"expected a finite nonzero number, got {shorten(step)}")
     if scale == "log":
         raise fail(where, "a log range takes num, not step")
     span = stop - start
     if span != 0 and (span > 0) != (step > 0):
         raise fail(where, f"the range has no values (from {start} the step {step} moves away from {stop})")
-    count = int(math.floor(span / step + 1e-9)) + 1
-    if count > MAX_AXIS_VALUES:
-        raise fail(where, f"{count} values, more than {MAX_AXIS_VALUES}")
+    try:
+        steps = span / step
+    except OverflowError:  # two whole numbers whose quotient is beyond a float
+        steps = math.inf
+    if not steps < MAX_AXIS_VALUES:  # also a span beyond the float range (inf)
+        raise fail(where, f"more than {MAX_AXIS_VALUES} values "
+                          f"(from {shorten(start)} to {shorten(stop)} by {shorten(step)})")
+    count = int(math.floor(steps + 1e-9)) + 1
     whole = all(isinstance(v, int) for v in (start, stop, step))
     return tuple(start + i * step if whole else _tidy(start + i * step) for i in range(count))
+
+
+def finite(v: Any) -> bool:
+    """A finite int or float that a range can compute with: an integer beyond the float range
+    is not one (math.isfinite would raise OverflowError on it)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return False
+    try:
+        return math.isfinite(v)
+    except OverflowError:
+        return False
 
 
 def _tidy(v: float) -> float:

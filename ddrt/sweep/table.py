@@ -35,7 +35,9 @@ def _param_type(values: Sequence[Any]) -> str:
     if seen and all(isinstance(v, bool) for v in seen):
         return "bool"
     if seen and all(isinstance(v, int) and not isinstance(v, bool) for v in seen):
-        return "int"
+        # A whole number beyond int64 (a config's name: or description: takes any value) is
+        # kept as its text rather than failing the table after every run has finished.
+        return "int" if all(-2**63 <= v < 2**63 for v in seen) else "text"
     if seen and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in seen):
         return "float"
     return "text"
