@@ -7,6 +7,8 @@ from __future__ import annotations
 import io
 import json
 import math
+import os
+import threading
 from pathlib import Path
 
 import pytest
@@ -427,3 +429,57 @@ def test_a_whole_number_beyond_int64_in_a_parameter_column_is_kept_as_text() -> 
     table = arrow_table(plan, rows)
     assert str(table.schema.field("description").type) == "string"
     assert table.column("description").to_pylist() == [str(2**64), "1"]
+
+
+def _refused_in_time(tmp_path: Path, text: str, capsys: pytest.CaptureFixture[str], camp: Path | None = None) -> str:
+    """The one-line error of `ddrt sweep` on a campaign, which must come within 10 s (a FIFO
+    that is opened blocks until someone writes it)."""
+    camp = camp or write_campaign(tmp_path, text)
+    out = tmp_path / "out"
+    status: list[int] = []
+    t = threading.Thread(target=lambda: status.append(cli.main(["sweep", str(camp), "--out", str(out),
+                                                                "--workers", "1"])), daemon=True)
+    t.start()
+    t.join(10.0)
+    assert status == [2], "ddrt sweep blocked on a FIFO" if t.is_alive() else status
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("ddrt: error: ") and "Traceback" not in err
+    assert not out.exists()
+    return err
+
+
+def test_fifos_directories_and_devices_are_refused_by_their_type(tmp_path: Path,
+                                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    """Never opened: a campaign, a base config, a path file (named by paths:, by the base's path:,
+    or as a CSV by an inline file:) that is a FIFO; a directory or a device is named as one,
+    not as a missing file."""
+    for name in ("fifo.yaml", "fifo.csv", "camp.yaml"):
+        os.mkfifo(tmp_path / name)
+    err = _refused_in_time(tmp_path, "", capsys, camp=tmp_path / "camp.yaml")
+    assert "camp.yaml: a FIFO, not a campaign file" in err
+    assert "campaign.yaml: base: 'fifo.yaml' is a FIFO, not a file" in _refused_in_time(
+        tmp_path, "base: fifo.yaml\n", capsys)
+    assert "campaign.yaml: paths.p: 'fifo.yaml' is a FIFO, not a file" in _refused_in_time(
+        tmp_path, "base: BASE\npaths: {p: fifo.yaml}\n", capsys)
+    assert "case 0 (path=p): path: key 'file': " in _refused_in_time(
+        tmp_path, "base: BASE\npaths: {p: {file: fifo.csv, speed: 0.2}}\n", capsys)
+    base = tmp_path / "base.yaml"
+    base.write_text(f"extends: {S_CURVE}\npath: fifo.yaml\n")
+    err = _refused_in_time(tmp_path, f"base: {base}\n", capsys)
+    assert "case 0: path: " in err and "fifo.yaml: is a FIFO" in err
+    err = _refused_in_time(tmp_path, f"base: {base}\naxes: {{path.speed: [0.2]}}\n", capsys)  # read to set a key
+    assert "case 0 (path.speed=0.2): path: " in err and "fifo.yaml: is a FIFO" in err
+    assert "base: '/tmp' is a directory, not a file" in _refused_in_time(tmp_path, "base: /tmp\n", capsys)
+    assert "base: '/dev/null' is a device, not a file" in _refused_in_time(tmp_path, "base: /dev/null\n", capsys)
+    assert "base: 'a\\x00b' is unreadable" in _refused_in_time(tmp_path, 'base: "a\\0b"\n', capsys)
+
+
+def test_what_a_path_lacks_is_said_of_the_campaign(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A population with no path anywhere is "path: missing" (not a complaint about a shape
+    nobody wrote, from the speed set on nothing); a path file that is not a mapping says so
+    when an axis sets one of its keys (not that the mapping {speed} lacks a shape)."""
+    err = _refused_in_time(tmp_path, "population: {robots: 1}\n", capsys)
+    assert "case 0 (robot=r00): path: missing: give the campaign paths:, or the base config a path:" in err
+    (tmp_path / "list.yaml").write_text("- 1\n")
+    err = _refused_in_time(tmp_path, "base: BASE\npaths: [list.yaml]\naxes: {path.speed: [0.2]}\n", capsys)
+    assert "list.yaml: expected a mapping at the top level, got list" in err

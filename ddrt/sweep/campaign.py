@@ -20,6 +20,8 @@ built. The keys (docs/sweep.md has them all):
 
 from __future__ import annotations
 
+import os
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path as FsPath
 from typing import Any, Mapping
@@ -94,6 +96,9 @@ class Campaign:
 def load_campaign(path: str | FsPath) -> Campaign:
     """Read and check a campaign file."""
     p = FsPath(path)
+    kind = file_kind(p)
+    if kind not in ("a file", "missing"):  # a missing file: read_yaml's "cannot read" says so
+        raise CampaignError(f"{p}: {kind}, not a campaign file")
     data = read_yaml(p, CampaignError)
     return campaign_from_mapping(data, source=str(p), folder=p.resolve().parent)
 
@@ -101,6 +106,22 @@ def load_campaign(path: str | FsPath) -> Campaign:
 def campaign_from_mapping(data: Any, source: str = "<campaign>", folder: str | FsPath = ".") -> Campaign:
     """Check a campaign given as a mapping (a parsed file, or built in code by a benchmark)."""
     return _Reader(source, FsPath(folder).resolve()).campaign(data)
+
+
+def file_kind(p: FsPath) -> str:
+    """"a file" for a regular file, else what `p` is ("missing", "a directory", "a FIFO", ...),
+    found by stat alone: opening a FIFO that nobody writes would block for ever."""
+    try:
+        mode = os.stat(p).st_mode
+    except FileNotFoundError:
+        return "missing"
+    except (OSError, ValueError) as exc:  # ValueError: a name with a NUL byte
+        return f"unreadable ({' '.join(str(getattr(exc, 'strerror', None) or exc).split())})"
+    if stat.S_ISREG(mode):
+        return "a file"
+    return ("a directory" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode)
+            else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
+            else "a socket" if stat.S_ISSOCK(mode) else "not a regular file")
 
 
 class _Reader:
@@ -165,10 +186,13 @@ class _Reader:
     def file(self, value: Any, key: str) -> FsPath:
         if not isinstance(value, str) or not value:
             raise self.fail(key, f"expected a file name, got {shorten(value)}")
-        p = (self.folder / value).resolve()
-        if not p.is_file():
-            raise self.fail(key, f"no such file {value!r} (looked for {p})")
-        return p
+        p = self.folder / value
+        kind = file_kind(p)
+        if kind == "missing":
+            raise self.fail(key, f"no such file {shorten(value)} (looked for {os.path.normpath(p)})")
+        if kind != "a file":
+            raise self.fail(key, f"{shorten(value)} is {kind}, not a file")
+        return p.resolve()
 
     def bases(self, value: Any) -> tuple[tuple[FsPath, ...], tuple[str, ...]]:
         if value is None:

@@ -19,9 +19,10 @@ from pathlib import Path as FsPath
 from typing import Any, Iterable, Mapping
 
 from ddrt.config import Config, ConfigError, config_from_mapping, load_config
-from ddrt.config.yamlio import read_yaml
+from ddrt.config.yamlio import MAX_BYTES, read_yaml
 from ddrt.path import Path
-from ddrt.path.spec import PathError, resolve_path, speed_limits
+from ddrt.path.spec import PathError, config_path_error, path_source, speed_limits
+from ddrt.service.pathjob import BuildJob, build_path, check_path_file
 from ddrt.sweep.campaign import Campaign, CampaignError
 from ddrt.sweep.population import Robot, population
 from ddrt.config.load import merge_mappings
@@ -91,8 +92,11 @@ def inline_path(source: Any) -> Any:
     p = FsPath(source)
     if p.suffix.lower() == ".csv":
         return {"file": str(p)}
+    check_path_file(str(p), MAX_BYTES, PathError)  # a FIFO is refused, not read (that would block)
     data = read_yaml(p, PathError)
-    if isinstance(data, Mapping) and isinstance(data.get("file"), str):
+    if not isinstance(data, Mapping):  # else the keys set on it would replace it and hide this
+        raise PathError(f"{p}: expected a mapping at the top level, got {type(data).__name__}")
+    if isinstance(data.get("file"), str):
         data = dict(data, file=str(p.parent / data["file"]))
     return data
 
@@ -161,7 +165,7 @@ class _Builder:
         if path is not None:
             data = dict(data, path=copy.deepcopy(path))
         population = self.camp.population
-        if robot is not None and population is not None and population.path_speed:
+        if robot is not None and population is not None and population.path_speed and data.get("path") is not None:
             data = _apply(data, {"path": {"speed": robot.path_speed}})
         data = _apply(data, self.camp.overrides)
         for c in rest:
@@ -184,11 +188,18 @@ class _Builder:
         return cfg
 
     def path(self, cfg: Config) -> str:
+        """The case's path, built as the daemon builds one: its files checked first (a FIFO,
+        a device or a directory is refused instead of blocking the read), then loaded."""
+        if cfg.path is None:
+            raise CampaignError(f"{cfg.source}: path: missing: give the campaign paths:, or the base config a path:")
         key = _digest([cfg.path, cfg.base_dir, repr(speed_limits(cfg)), repr(cfg.paths)], 12)
         if key not in self.paths:
             try:
-                self.paths[key] = resolve_path(cfg)
-            except (ConfigError, PathError, OSError) as exc:
+                source, kwargs = path_source(cfg)
+                self.paths[key] = build_path(BuildJob(source, speed_limits(cfg), **kwargs))
+            except PathError as exc:
+                raise CampaignError(" ".join(config_path_error(cfg, str(exc)).split())) from None
+            except (ConfigError, OSError) as exc:
                 raise CampaignError(" ".join(str(exc).split())) from None
         return key
 
