@@ -121,6 +121,8 @@ def _cmd_sim(args: argparse.Namespace) -> int:
 def _cmd_sweep(args: argparse.Namespace) -> int:
     from ddrt.sweep.driver import SweepRequest, sweep
 
+    if not args.out:  # Path("") is the current folder: the table would land wherever the command ran
+        raise ValueError("--out: expected a folder, got ''")
     report = sweep(SweepRequest(args.campaign, Path(args.out), workers=args.workers, scheduler=args.scheduler,
                                 resume=args.resume, limit=args.limit, quiet=args.quiet))
     print(report.text())

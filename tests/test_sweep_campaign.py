@@ -483,3 +483,44 @@ def test_what_a_path_lacks_is_said_of_the_campaign(tmp_path: Path, capsys: pytes
     (tmp_path / "list.yaml").write_text("- 1\n")
     err = _refused_in_time(tmp_path, "base: BASE\npaths: [list.yaml]\naxes: {path.speed: [0.2]}\n", capsys)
     assert "list.yaml: expected a mapping at the top level, got list" in err
+
+
+def test_a_journal_line_that_is_not_a_row_of_the_campaign_is_run_again(tmp_path: Path, small_plan,
+                                                                        small_rows) -> None:
+    """A line edited by hand (JSON but not a row, a row without its case, with a value of the
+    wrong type, with another case's parameters) is not kept: its case runs again, and the table
+    is written, where these failed with a traceback (before anything ran, or after everything had)."""
+    j = Journal(tmp_path, small_plan, resume=False)
+    j.append(small_rows[0])
+    j.close()
+    r1, r2, r3 = small_rows[1], small_rows[2], small_rows[3]
+    junk = ["[1]", "17", json.dumps({k: v for k, v in r1.items() if k != "case"}),
+            json.dumps(dict(r2, ticks="many")), json.dumps(dict(r3, case=0)),
+            json.dumps(dict(r3, **{"controller.outer.k_y": 100}))]
+    with open(tmp_path / ROWS, "a") as fh:
+        fh.write("\n".join(junk) + "\n")
+    j = Journal(tmp_path, small_plan, resume=True)
+    assert j.resumed == 1 and list(j.rows) == [small_rows[0]["case_id"]]
+    for r in small_rows[1:]:
+        j.append(r)
+    j.close()
+    again = Journal(tmp_path, small_plan, resume=True)  # the rows appended after the junk are the ones kept
+    again.close()
+    assert sorted(r["case"] for r in again.rows.values()) == [0, 1, 2, 3]
+    table = arrow_table(small_plan, list(again.rows.values()))
+    assert table.column("ticks").to_pylist() == [r["ticks"] for r in small_rows]
+
+
+def test_an_out_that_is_not_a_folder_is_refused_by_name(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    camp = write_campaign(tmp_path, "base: BASE\nrun: {duration_s: 0.3}\n")
+    a_file = tmp_path / "table.csv"
+    a_file.write_text("keep me\n")
+    fifo_out = tmp_path / "fifo_out"
+    fifo_out.mkdir()
+    os.mkfifo(fifo_out / ROWS)
+    for out, expected in ((a_file, f"--out {a_file}: a file, not a folder"), ("", "--out: expected a folder, got ''"),
+                          (fifo_out, f"--out {fifo_out}: rows.jsonl is a FIFO, not the file a campaign writes")):
+        assert cli.main(["sweep", str(camp), "--out", str(out), "--workers", "1", "--resume"]) == 2
+        err = capsys.readouterr().err
+        assert err == f"ddrt: error: {expected}\n"
+    assert a_file.read_text() == "keep me\n" and not (Path.cwd() / ROWS).exists()

@@ -14,8 +14,10 @@ import os
 from pathlib import Path as FsPath
 from typing import Any, TextIO
 
-from ddrt.sweep.campaign import CampaignError
-from ddrt.sweep.cases import Plan
+from ddrt.sweep.campaign import CampaignError, file_kind
+from ddrt.sweep.cases import Case, Plan
+from ddrt.sweep.columns import STATUSES
+from ddrt.sweep.table import fits, value_kinds
 
 ROWS = "rows.jsonl"
 STATE = "campaign.json"
@@ -46,8 +48,13 @@ class Journal:
 
     def __init__(self, out: FsPath, plan: Plan, resume: bool) -> None:
         self.out = out
+        if out.exists() and not out.is_dir():
+            raise CampaignError(f"--out {out}: {file_kind(out)}, not a folder")
         out.mkdir(parents=True, exist_ok=True)
         state_path, rows_path = out / STATE, out / ROWS
+        for p in (state_path, rows_path):
+            if file_kind(p) not in ("a file", "missing"):  # a FIFO would block the read
+                raise CampaignError(f"--out {out}: {p.name} is {file_kind(p)}, not the file a campaign writes")
         rows, good = read_rows(rows_path)
         if rows and not resume:
             raise CampaignError(f"{out}: already holds {len(rows)} rows of a campaign; --resume continues it, "
@@ -59,8 +66,9 @@ class Journal:
                                     f"{state.get('cases', '?')} cases); --resume needs the same campaign and cases")
         else:
             good = 0
-        ids = {c.case_id for c in plan.cases}
-        self.rows: dict[str, Row] = {r["case_id"]: r for r in rows if r.get("case_id") in ids}
+        cases = {c.case_id: c for c in plan.cases}
+        kinds = value_kinds(plan)
+        self.rows: dict[str, Row] = {r["case_id"]: r for r in rows if _is_row_of(r, cases, kinds)}
         self.resumed = len(self.rows)
         tmp = state_path.with_suffix(".tmp")
         tmp.write_text(json.dumps({"campaign": plan.campaign.source, "name": plan.campaign.name,
@@ -81,6 +89,19 @@ class Journal:
         if self._fh is not None:
             self._fh.close()
             self._fh = None
+
+
+def _is_row_of(row: Any, cases: dict[str, Case], kinds: dict[str, str]) -> bool:
+    """Whether a journal line is a row of one of `cases`: a mapping with its case's id, index
+    and parameters, a known status and values of its columns' types. Anything else (a line
+    edited by hand, a row of another campaign) is not kept, so its case runs again, rather
+    than failing the table after the runs."""
+    if not isinstance(row, dict) or not isinstance(row.get("case_id"), str):
+        return False
+    case = cases.get(row["case_id"])
+    return (case is not None and row.get("case") == case.index and row.get("status") in STATUSES
+            and all(row.get(k) == v for k, v in case.params.items())
+            and all(fits(row.get(name), kind) for name, kind in kinds.items()))
 
 
 def _state(path: FsPath) -> dict[str, Any]:

@@ -55,6 +55,25 @@ def _column_type(name: str, plan: Plan, values: Sequence[Any]) -> str:
     return "float"
 
 
+def value_kinds(plan: Plan) -> dict[str, str]:
+    """The type of every column that is not a parameter (those depend on the campaign's values)."""
+    return {name: _column_type(name, plan, []) for name in columns(plan)
+            if name not in plan.columns and name not in CASE_COLUMNS}
+
+
+def fits(value: Any, kind: str) -> bool:
+    """Whether `value` can be a cell of a column of `kind` (None always can)."""
+    if value is None:
+        return True
+    if kind == "bool":
+        return isinstance(value, bool)
+    if kind == "text":
+        return isinstance(value, str)
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    return kind == "float" or (isinstance(value, int) and -2**63 <= value < 2**63)
+
+
 def _cell(value: Any, kind: str) -> Any:
     if value is None:
         return None
