@@ -524,3 +524,50 @@ def test_an_out_that_is_not_a_folder_is_refused_by_name(tmp_path: Path, capsys: 
         err = capsys.readouterr().err
         assert err == f"ddrt: error: {expected}\n"
     assert a_file.read_text() == "keep me\n" and not (Path.cwd() / ROWS).exists()
+
+
+def test_an_address_that_is_not_a_dask_scheduler_fails_in_bounded_time(tmp_path: Path,
+                                                                        capsys: pytest.CaptureFixture[str],
+                                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A server that accepts and says nothing (Client(timeout=) bounds the connect, not the
+    handshake: this hung for ever), one that answers with other bytes (a MemoryError from a
+    frame length read from text), and tls:// without a context (a TypeError): each is one line
+    naming the address, exit 1, within the connect timeout and its margin."""
+    import socket
+
+    import ddrt.sweep.execute as execute
+
+    monkeypatch.setattr(execute, "CONNECT_TIMEOUT_S", 1.0)
+    camp = write_campaign(tmp_path, "base: BASE\nrun: {duration_s: 0.3}\n")
+    servers = []
+    for reply in (b"", b"HTTP/1.0 400 Bad Request\r\n\r\n" + b"\xff" * 64):
+        srv = socket.socket()
+        srv.bind(("127.0.0.1", 0))
+        srv.listen(4)
+        servers.append(srv)
+
+        def serve(srv: socket.socket = srv, reply: bytes = reply) -> None:
+            held = []
+            while True:
+                try:
+                    conn, _ = srv.accept()
+                except OSError:
+                    return
+                conn.sendall(reply)
+                held.append(conn)  # kept open, saying nothing more
+
+        threading.Thread(target=serve, daemon=True).start()
+    try:
+        for address in [f"tcp://127.0.0.1:{s.getsockname()[1]}" for s in servers] + ["tls://127.0.0.1:1"]:
+            status: list[int] = []
+            t = threading.Thread(target=lambda: status.append(cli.main(
+                ["sweep", str(camp), "--out", str(tmp_path / "out"), "--scheduler", address, "--quiet"])), daemon=True)
+            t.start()
+            t.join(20.0)
+            assert status == [1], f"--scheduler {address} still waiting after 20 s" if t.is_alive() else status
+            err = capsys.readouterr().err
+            assert err.startswith(f"ddrt: error: cannot reach the Dask scheduler at {address}: ")
+            assert err.count("\n") == 1 and "Traceback" not in err, err
+    finally:
+        for s in servers:
+            s.close()

@@ -88,6 +88,36 @@ def silence_shutdown_logs() -> None:
         logging.getLogger(name).setLevel(logging.CRITICAL)
 
 
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return text if isinstance(exc, (OSError, ValueError)) and text else f"{type(exc).__name__}: {text}"
+
+
+def probe_scheduler(address: str, timeout_s: float | None = None) -> None:
+    """Connect to `address` and exchange Dask's handshake within `timeout_s` in all, else an
+    OSError naming the address. Client(timeout=) bounds the TCP connect but not the handshake,
+    so a server that accepts and stays silent (a web server, an SSH port) held `ddrt sweep`
+    for ever; one that answers with other bytes raised whatever Dask made of them (a
+    MemoryError for a frame length read from text, a TypeError for tls:// without a context)."""
+    import asyncio
+
+    from distributed.comm import connect
+
+    limit = CONNECT_TIMEOUT_S if timeout_s is None else timeout_s
+
+    async def handshake() -> None:
+        comm = await connect(address, timeout=limit)
+        await comm.close()
+
+    try:  # with a margin, so a connect that times out by itself says so
+        asyncio.run(asyncio.wait_for(handshake(), 1.5 * limit))
+    except asyncio.TimeoutError:
+        raise OSError(f"cannot reach the Dask scheduler at {address}: no Dask handshake within {1.5 * limit:g} s "
+                      "(is a Dask scheduler listening there?)") from None
+    except Exception as exc:  # noqa: BLE001 - whatever the address did, one line naming it
+        raise OSError(f"cannot reach the Dask scheduler at {address}: {_one_line(exc)}") from None
+
+
 class DaskCluster:
     """A Dask client on a LocalCluster of `workers` processes, or on the scheduler at `scheduler`."""
 
@@ -110,10 +140,11 @@ class DaskCluster:
             raise ValueError("ddrt sweep runs on Dask, which is not installed: pip install 'ddrt[sweep]'") from None
         _quiet()
         if self.scheduler is not None:
+            probe_scheduler(self.scheduler)
             try:
                 self.client = Client(self.scheduler, timeout=f"{CONNECT_TIMEOUT_S}s")
-            except (OSError, ValueError) as exc:
-                raise OSError(f"cannot reach the Dask scheduler at {self.scheduler}: {exc}") from None
+            except Exception as exc:  # noqa: BLE001 - whatever the address did, one line naming it
+                raise OSError(f"cannot reach the Dask scheduler at {self.scheduler}: {_one_line(exc)}") from None
         else:
             with _sigint_ignored():
                 # No dashboard, and the scheduler's plain HTTP endpoint on a free loopback port (with
