@@ -197,3 +197,14 @@ def test_calibrate_odometry_asks_again_after_a_typo_and_refuses_a_wild_measureme
     assert cli.main(["calibrate", "odometry", str(SIM), "--out", str(tmp_path / "d.yaml")]) == 2
     err = capsys.readouterr().err
     assert "20%" in err and "Traceback" not in err and not (tmp_path / "d.yaml").exists()
+
+
+def test_python_dash_m_ddrt_is_the_ddrt_command(tmp_path) -> None:
+    """`python -m ddrt` runs the same command as the `ddrt` script, exit status and errors included."""
+    ok = subprocess.run([sys.executable, "-m", "ddrt", "--help"], cwd=tmp_path, capture_output=True, text=True,
+                        timeout=120)
+    assert ok.returncode == 0 and ok.stdout.startswith("usage: ddrt ") and "sweep" in ok.stdout, ok.stderr
+    bad = subprocess.run([sys.executable, "-m", "ddrt", "sim", str(tmp_path / "missing.yaml"), "--out", str(tmp_path / "o")],
+                         cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and bad.stderr.startswith("ddrt: error:") and "missing.yaml" in bad.stderr
+    assert "Traceback" not in bad.stderr
