@@ -164,6 +164,9 @@ BAD = [
     ("base: BASE\nrun: {duration_s: 1" + "0" * 330 + "}\n", ["run.duration_s: expected seconds > 0"]),
     ("base: BASE\nseeds: 10000000000\n", ["campaign.yaml: seeds: 10000000000 seeds, more cases than"]),
     ("base: BASE\nseeds: [1, 18446744073709551616]\n", ["campaign.yaml: seeds[1]: out of range"]),
+    # extends: names the file a config is read over; laid over a case it would silently do nothing.
+    ("base: BASE\noverrides: {extends: BASE}\n", ["campaign.yaml: overrides.extends: a case's config is read from base:"]),
+    ("base: BASE\nvariants: {a: {}, b: {extends: BASE}}\n", ["campaign.yaml: variants.b.extends:"]),
 ]
 
 
@@ -282,6 +285,18 @@ def test_outputs_summary_and_figures(tmp_path: Path, small_plan, small_rows) -> 
     assert figures == 3 and "pass_rate_controller.outer.k_y_x_controller.outer.k_theta.png" in names
 
 
+def test_a_value_with_a_bar_or_a_newline_stays_one_table_cell() -> None:
+    """A variant may be named anything: its `|` and line breaks must not split summary.md's rows."""
+    plan = expand(campaign_from_mapping(mapping(variants={"fast|light\nv2": {}, "kin": {"controller": {"mode": "kinematic"}}})))
+    rows = [{"case": c.index, "case_id": c.case_id, "status": "ok", "pass": True, "rms_cross_track_m": 0.001,
+             **c.params} for c in plan.cases]
+    table = [line for line in summary_text(plan, rows).splitlines() if line.startswith("| fast")]
+    assert len(table) == 1 and table[0].startswith("| fast\\|light v2 | 1 | 1 |")
+    head = [line for line in summary_text(plan, rows).splitlines() if line.startswith("| variant")][0]
+    cells = lambda line: len(line.replace("\\|", "").split("|"))  # noqa: E731
+    assert cells(table[0]) == cells(head)
+
+
 def test_summary_lists_runs_that_did_not_end(small_plan, small_rows) -> None:
     rows = [dict(small_rows[0], status="failed", error="KilledWorker: gone", rms_cross_track_m=None, **{"pass": False})]
     text = summary_text(small_plan, rows + small_rows[1:])
@@ -317,16 +332,19 @@ def test_resume_and_limit_through_the_command(tmp_path: Path, capsys: pytest.Cap
     """--limit runs some, --resume the rest (the cases run in this process: see run_in_process)."""
     import ddrt.sweep.driver as driver
 
-    monkeypatch.setattr(driver, "DaskCluster", lambda workers, scheduler: driver.InProcess())
+    asked: list[int | None] = []  # the local cluster's size each run asked for
+    monkeypatch.setattr(driver, "DaskCluster", lambda workers, scheduler: asked.append(workers) or driver.InProcess())
     camp = write_campaign(tmp_path, "base: BASE\noverrides: {sim: {start_delay_s: 0}}\nrun: {duration_s: 0.3}\n"
                                     "axes: {controller.outer.k_y: [100, 200, 400]}\n")
     out = tmp_path / "out"
-    assert cli.main(["sweep", str(camp), "--out", str(out), "--limit", "1", "--quiet"]) == 0
+    assert cli.main(["sweep", str(camp), "--out", str(out), "--limit", "1", "--workers", "8", "--quiet"]) == 0
+    assert asked == [1]  # never more worker processes than runs to do
     assert "1 of 3 cases have rows (1 run now, 0 kept" in capsys.readouterr().out
     assert cli.main(["sweep", str(camp), "--out", str(out), "--quiet"]) == 2
     assert "--resume continues it" in capsys.readouterr().err
     assert cli.main(["sweep", str(camp), "--out", str(out), "--resume", "--quiet"]) == 0
     assert "3 of 3 cases have rows (2 run now, 1 kept from before)" in capsys.readouterr().out
+    assert asked == [1, min(2, driver.machine_workers())]  # the default: a worker per core, at most the runs
     assert read_table(out / "results.parquet").column("controller.outer.k_y").to_pylist() == [100, 200, 400]
     assert len((out / ROWS).read_text().splitlines()) == 3
 

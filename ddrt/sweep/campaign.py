@@ -154,7 +154,7 @@ class _Reader:
             source=self.source, folder=self.folder,
             name=self.text(data.get("name"), "name"),
             bases=bases, base_labels=labels, base_axis=isinstance(data.get("base"), list),
-            overrides=self.mapping(data.get("overrides"), "overrides"),
+            overrides=self.config_keys(data.get("overrides"), "overrides"),
             variants=self.variants(data.get("variants")),
             population=population,
             paths=self.paths(data.get("paths")),
@@ -182,6 +182,15 @@ class _Reader:
         if not isinstance(value, Mapping):
             raise self.fail(key, f"expected a mapping, got {shorten(value)}")
         return dict(value)
+
+    def config_keys(self, value: Any, key: str) -> dict[str, Any]:
+        """A mapping laid over a case's config. `extends:` names the file a config is read over,
+        which is resolved before any of this is laid on: here it would do nothing, silently."""
+        m = self.mapping(value, key)
+        if "extends" in m:
+            raise self.fail(f"{key}.extends", "a case's config is read from base: (a list of files makes "
+                                              "them an axis); extends: here would be ignored")
+        return m
 
     def file(self, value: Any, key: str) -> FsPath:
         if not isinstance(value, str) or not value:
@@ -231,7 +240,7 @@ class _Reader:
         for name, over in m.items():
             if not isinstance(over, Mapping):
                 raise self.fail(f"variants.{name}", f"expected a mapping of config keys, got {shorten(over)}")
-            out[str(name)] = dict(over)
+            out[str(name)] = self.config_keys(over, f"variants.{name}")
         return out
 
     def paths(self, value: Any) -> dict[str, str | dict[str, Any]]:

@@ -17,7 +17,7 @@ from typing import Iterator, Sequence
 
 from ddrt.sweep.campaign import CampaignError, load_campaign
 from ddrt.sweep.cases import Plan, expand
-from ddrt.sweep.execute import DaskCluster, InProcess, silence_shutdown_logs
+from ddrt.sweep.execute import DaskCluster, InProcess, machine_workers, silence_shutdown_logs
 from ddrt.sweep.journal import Journal
 from ddrt.sweep.progress import Progress
 from ddrt.sweep.run import Row
@@ -125,7 +125,9 @@ def sweep(req: SweepRequest) -> SweepReport:
     try:
         with _interrupt_flag() as interrupted:
             if todo:
-                with DaskCluster(req.workers, req.scheduler) as cluster:
+                # No more local workers than runs: each is a process that costs a start-up.
+                workers = None if req.scheduler is not None else min(req.workers or machine_workers(), len(todo))
+                with DaskCluster(workers, req.scheduler) as cluster:
                     progress.start()
                     for row in cluster.run(todo, plan.paths, plan.campaign.run):
                         journal.append(row)

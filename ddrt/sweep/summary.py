@@ -77,13 +77,18 @@ def _num(x: float) -> str:
     return f"{x:.4g}"
 
 
+def _cell_text(value: Any) -> str:
+    """A value as a Markdown table cell: on one line, its `|` escaped (a variant may be named anything)."""
+    return " ".join(str(value).split()).replace("|", "\\|")
+
+
 def _table(title: str, groups: Iterable[Group], metrics: Sequence[str]) -> list[str]:
     head = [title, "runs", "ok", "pass"]
     for m in metrics:
         head += [f"{m} p{p}" for p in PERCENTILES] + [f"{m} max"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for g in groups:
-        cells = [str(g.value), str(g.runs), str(g.ok), f"{g.passed} ({g.pass_rate:.0%})" if g.runs else "0"]
+        cells = [_cell_text(g.value), str(g.runs), str(g.ok), f"{g.passed} ({g.pass_rate:.0%})" if g.runs else "0"]
         for m in metrics:
             s = g.spread[m]
             cells += [_num(v) for v in s] if s is not None else ["-"] * (len(PERCENTILES) + 1)
