@@ -99,6 +99,16 @@ def test_population_paths_variants_and_path_speed() -> None:
         assert case.config.raw == bench_population.config_of(r, case.params["path"], case.params["variant"]).raw
 
 
+def test_what_the_criteria_and_the_summary_read_is_kept_whatever_metrics_lists() -> None:
+    """metrics: [ticks] with the default summary metric gave a summary of dashes: it was not kept."""
+    camp = campaign_from_mapping(mapping(metrics=["ticks"], **{"pass": ["max_cross_track_m < 0.05",
+                                                                         "max_cross_track_m < 0.06"]}))
+    assert camp.run.metrics == ("ticks", "max_cross_track_m") and camp.summary_metrics == ("max_cross_track_m",)
+    camp = campaign_from_mapping(mapping(metrics=["ticks"], summary={"metrics": ["rms_cross_track_m"]}))
+    assert camp.run.metrics == ("ticks", "rms_cross_track_m")
+    assert campaign_from_mapping(mapping(metrics=["ticks"])).run.metrics == ("ticks", "rms_cross_track_m")
+
+
 def test_axes_on_a_path_file_set_keys_of_the_path() -> None:
     plan = expand(campaign_from_mapping(mapping(axes={"path.speed": [0.2, 0.4]})))
     speeds = [max(plan.paths[c.path_key].v) for c in plan.cases]

@@ -149,7 +149,10 @@ class _Reader:
         axes = self.axes(data.get("axes"))
         metrics = self.metrics(data.get("metrics"))
         criteria = self.criteria(data.get("pass"))
-        kept = metrics + tuple(c.metric for c in criteria if c.metric not in metrics + TEXT_METRICS)
+        summary_metrics = self.summary(data.get("summary"), criteria)
+        # What the criteria and the summary read is kept even when metrics: leaves it out.
+        wanted = [c.metric for c in criteria] + list(summary_metrics)
+        kept = metrics + tuple(dict.fromkeys(m for m in wanted if m not in metrics + TEXT_METRICS))
         camp = Campaign(
             source=self.source, folder=self.folder,
             name=self.text(data.get("name"), "name"),
@@ -161,7 +164,7 @@ class _Reader:
             axes=axes,
             seeds=self.seeds(data.get("seeds")),
             run=self.run(data.get("run"), kept, criteria),
-            summary_metrics=self.summary(data.get("summary"), criteria),
+            summary_metrics=summary_metrics,
         )
         self.text(data.get("description"), "description")
         self.count(camp)
