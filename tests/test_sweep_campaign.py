@@ -177,6 +177,7 @@ BAD = [
     # extends: names the file a config is read over; laid over a case it would silently do nothing.
     ("base: BASE\noverrides: {extends: BASE}\n", ["campaign.yaml: overrides.extends: a case's config is read from base:"]),
     ("base: BASE\nvariants: {a: {}, b: {extends: BASE}}\n", ["campaign.yaml: variants.b.extends:"]),
+    ("base: BASE\nseeds: 2\naxes: {sim.seed: [5, 6]}\n", ["campaign.yaml: axes.sim.seed: seeds: sets every case's"]),
 ]
 
 

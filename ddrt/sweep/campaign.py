@@ -167,6 +167,8 @@ class _Reader:
             summary_metrics=summary_metrics,
         )
         self.text(data.get("description"), "description")
+        if camp.seeds and any(axis.key == "sim.seed" for axis in camp.axes):
+            raise self.fail("axes.sim.seed", "seeds: sets every case's sim.seed: sweep the seed with one or the other")
         self.count(camp)
         return camp
 
