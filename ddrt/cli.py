@@ -101,10 +101,20 @@ def _cmd_sim(args: argparse.Namespace) -> int:
         print(f"ddrt: {note}", file=sys.stderr)
     for warning in path.warnings:
         print(f"ddrt: warning: {warning}", file=sys.stderr)
-    # The rows go to telemetry.csv as the run makes them (the figures read them back from it).
-    result = run_sim(cfg, path, duration=args.duration, seed=args.seed, start=args.start,
-                     progress=None if args.quiet else stderr_progress,
-                     telemetry=Path(args.out) / "telemetry.csv", mcap=args.mcap)
+    # The rows go to telemetry.csv as the run makes them (the figures read them back from it),
+    # so an earlier run's metrics.json no longer describes it: gone before the run, not left
+    # beside a telemetry.csv that Ctrl-C cut short.
+    (Path(args.out) / "metrics.json").unlink(missing_ok=True)
+    try:
+        result = run_sim(cfg, path, duration=args.duration, seed=args.seed, start=args.start,
+                         progress=None if args.quiet else stderr_progress,
+                         telemetry=Path(args.out) / "telemetry.csv", mcap=args.mcap)
+    except KeyboardInterrupt:
+        if not args.quiet:
+            sys.stderr.write("\n")
+        print(f"ddrt: interrupted: {args.out}/telemetry.csv holds the rows up to now; no metrics.json",
+              file=sys.stderr)
+        return 130
     if not args.quiet:
         sys.stderr.write("\n")
     write_outputs(result, args.out)

@@ -103,6 +103,21 @@ def test_sim_with_a_duration_exits_zero_when_it_ran_that_long_without_a_fault(tm
     assert metrics["completed"] is False and metrics["ticks"] > 0
 
 
+def test_sim_interrupted_says_so_and_leaves_no_earlier_metrics_beside_its_rows(tmp_path, monkeypatch, capsys) -> None:
+    import ddrt.simrun.runner as runner
+
+    (tmp_path / "metrics.json").write_text("{}\n")  # an earlier run's, in the same --out
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(runner, "run_sim", interrupted)
+    assert cli.main(["sim", str(SIM), "--quiet", "--out", str(tmp_path)]) == 130
+    assert not (tmp_path / "metrics.json").exists()
+    err = capsys.readouterr().err
+    assert err == f"ddrt: interrupted: {tmp_path}/telemetry.csv holds the rows up to now; no metrics.json\n"
+
+
 @pytest.mark.parametrize("metrics, duration_given, status", [
     ({"completed": True, "fault": "", "state": "stopped"}, False, 0),
     ({"completed": False, "fault": "", "state": "following"}, False, 1),
