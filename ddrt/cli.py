@@ -104,7 +104,14 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     # The rows go to telemetry.csv as the run makes them (the figures read them back from it),
     # so an earlier run's metrics.json no longer describes it: gone before the run, not left
     # beside a telemetry.csv that Ctrl-C cut short.
-    (Path(args.out) / "metrics.json").unlink(missing_ok=True)
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise OSError(f"--out {args.out}: is a file, not a directory; give a directory for the run's files")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OSError(f"--out {args.out}: cannot make the directory: {exc.strerror or exc}") from None
+    (out / "metrics.json").unlink(missing_ok=True)
     try:
         result = run_sim(cfg, path, duration=args.duration, seed=args.seed, start=args.start,
                          progress=None if args.quiet else stderr_progress,

@@ -118,6 +118,16 @@ def test_sim_interrupted_says_so_and_leaves_no_earlier_metrics_beside_its_rows(t
     assert err == f"ddrt: interrupted: {tmp_path}/telemetry.csv holds the rows up to now; no metrics.json\n"
 
 
+def test_sim_names_an_out_that_cannot_be_a_directory(tmp_path, capsys) -> None:
+    a_file = tmp_path / "afile"
+    a_file.write_text("")
+    assert cli.main(["sim", str(SIM), "--quiet", "--out", str(a_file)]) == 1
+    assert capsys.readouterr().err == (f"ddrt: error: --out {a_file}: is a file, not a directory; "
+                                       "give a directory for the run's files\n")
+    assert cli.main(["sim", str(SIM), "--quiet", "--out", str(a_file / "sub")]) == 1
+    assert capsys.readouterr().err.startswith(f"ddrt: error: --out {a_file / 'sub'}: cannot make the directory: ")
+
+
 @pytest.mark.parametrize("metrics, duration_given, status", [
     ({"completed": True, "fault": "", "state": "stopped"}, False, 0),
     ({"completed": False, "fault": "", "state": "following"}, False, 1),
