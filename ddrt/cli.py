@@ -104,9 +104,7 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     # The rows go to telemetry.csv as the run makes them (the figures read them back from it),
     # so an earlier run's metrics.json no longer describes it: gone before the run, not left
     # beside a telemetry.csv that Ctrl-C cut short.
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise OSError(f"--out {args.out}: is a file, not a directory; give a directory for the run's files")
+    out = _out_dir(args.out)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -140,7 +138,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
     if not args.out:  # Path("") is the current folder: the table would land wherever the command ran
         raise ValueError("--out: expected a folder, got ''")
-    report = sweep(SweepRequest(args.campaign, Path(args.out), workers=args.workers, scheduler=args.scheduler,
+    report = sweep(SweepRequest(args.campaign, _out_dir(args.out), workers=args.workers, scheduler=args.scheduler,
                                 resume=args.resume, limit=args.limit, quiet=args.quiet))
     print(report.text())
     return report.exit_status
@@ -172,7 +170,7 @@ def _cmd_path(args: argparse.Namespace) -> int:
     report = path_report(path, args.file)
     print(report_text(report))
     if args.plot:
-        out = write_plot(path, report, Path(args.out) / "path_report.png")
+        out = write_plot(path, report, _out_dir(args.out) / "path_report.png")
         print(f"wrote {out}")
     return 0
 
@@ -600,6 +598,15 @@ def _silence_stdout() -> None:
     devnull = os.open(os.devnull, os.O_WRONLY)
     os.dup2(devnull, sys.stdout.fileno())
     os.close(devnull)
+
+
+def _out_dir(arg: str) -> Path:
+    """--out DIR as a Path, refused in one line when it names something that is not a directory
+    (mkdir's own error would be "[Errno 17] File exists", naming neither --out nor the cause)."""
+    out = Path(arg)
+    if out.exists() and not out.is_dir():
+        raise OSError(f"--out {arg}: is a file, not a directory; give a directory for the output")
+    return out
 
 
 def _one_line(exc: BaseException) -> str:
