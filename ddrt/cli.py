@@ -9,34 +9,16 @@ from importlib import import_module
 from pathlib import Path
 from typing import Sequence
 
+from ddrt.service import ctlclient
 from ddrt.service.commands import COMMANDS, STREAMS, ctl_number
+from ddrt.service.ctlclient import DEFAULT_SOCKET, SOCKET_ENV
 
 
 FOLLOW_TIMEOUT_S = 120.0
 RELOAD_TIMEOUT_S = 60.0
-DEFAULT_SOCKET = "/run/ddrt/ddrt.sock"  # the shipped unit's (configs/robot.yaml's daemon.socket)
-SOCKET_ENV = "DDRT_SOCKET"
-
-
 def control_socket(args: argparse.Namespace) -> tuple[str, str]:
-    """The daemon's socket for `ddrt ctl`, and where it came from (for an error that names what
-    was tried): --socket, else the daemon.socket of --config, else $DDRT_SOCKET, else the
-    system service's."""
-    import os
-
-    if args.socket:
-        return args.socket, "--socket"
-    if args.config:
-        from ddrt.config import load_config
-
-        socket = load_config(args.config).daemon.socket
-        if not socket:
-            raise ValueError(f"{args.config}: daemon.socket is empty: that daemon listens on no control socket")
-        return socket, f"daemon.socket of {args.config}"
-    if os.environ.get(SOCKET_ENV):
-        return os.environ[SOCKET_ENV], f"${SOCKET_ENV}"
-    return DEFAULT_SOCKET, (f"the default; for another daemon give --config CONFIG, --socket PATH or "
-                            f"set {SOCKET_ENV}")
+    """`ddrt ctl`'s socket and where it came from (ddrt/service/ctlclient.py)."""
+    return ctlclient.control_socket(args.socket, args.config)
 
 
 def _pose(text: str) -> tuple[float, float, float]:
@@ -102,23 +84,15 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     for warning in path.warnings:
         print(f"ddrt: warning: {warning}", file=sys.stderr)
     # The rows go to telemetry.csv as the run makes them (the figures read them back from it),
-    # so an earlier run's metrics.json no longer describes it: gone before the run, not left
-    # beside a telemetry.csv that Ctrl-C cut short.
-    out = _out_dir(args.out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OSError(f"--out {args.out}: cannot make the directory: {exc.strerror or exc}") from None
-    (out / "metrics.json").unlink(missing_ok=True)
+    # so an earlier run's metrics.json, which no longer describes them, goes first.
+    (_out_dir(args.out, make=True) / "metrics.json").unlink(missing_ok=True)
     try:
         result = run_sim(cfg, path, duration=args.duration, seed=args.seed, start=args.start,
                          progress=None if args.quiet else stderr_progress,
                          telemetry=Path(args.out) / "telemetry.csv", mcap=args.mcap)
     except KeyboardInterrupt:
-        if not args.quiet:
-            sys.stderr.write("\n")
-        print(f"ddrt: interrupted: {args.out}/telemetry.csv holds the rows up to now; no metrics.json",
-              file=sys.stderr)
+        sys.stderr.write("" if args.quiet else "\n")  # past the progress line
+        print(f"ddrt: interrupted: {args.out}/telemetry.csv holds the rows up to now; no metrics.json", file=sys.stderr)
         return 130
     if not args.quiet:
         sys.stderr.write("\n")
@@ -600,12 +574,17 @@ def _silence_stdout() -> None:
     os.close(devnull)
 
 
-def _out_dir(arg: str) -> Path:
-    """--out DIR as a Path, refused in one line when it names something that is not a directory
-    (mkdir's own error would be "[Errno 17] File exists", naming neither --out nor the cause)."""
+def _out_dir(arg: str, make: bool = False) -> Path:
+    """--out DIR, refused in one line naming --out when it cannot be a directory (mkdir's own
+    error is "[Errno 17] File exists"); made at once with `make`."""
     out = Path(arg)
     if out.exists() and not out.is_dir():
         raise OSError(f"--out {arg}: is a file, not a directory; give a directory for the output")
+    try:
+        if make:
+            out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OSError(f"--out {arg}: cannot make the directory: {exc.strerror or exc}") from None
     return out
 
 

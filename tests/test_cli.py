@@ -54,6 +54,30 @@ def test_ctl_finds_the_socket_in_the_config(tmp_path, monkeypatch, capsys) -> No
     assert json.loads(capsys.readouterr().out)["state"] == "idle"
 
 
+def test_ctl_reaches_the_daemon_of_a_config_with_a_typo_and_says_what_is_wrong(tmp_path, capsys) -> None:
+    # Live tuning: the file is being edited; estop (and the reload that reports the typo) must
+    # still find the socket the file names.
+    sock = tmp_path / "d.sock"
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text(f"extends: {SIM}\ncontroller: {{outer: {{k_yy: 300}}}}\ndaemon: {{socket: {sock}}}\n")
+    t = _answer_once(str(sock), {"ok": True, "state": "estop"})
+    assert cli.main(["ctl", "--config", str(cfg), "estop"]) == 0
+    t.join(5)
+    assert t.seen == [{"cmd": "estop"}]  # type: ignore[attr-defined]
+    err = capsys.readouterr().err
+    assert err == (f"ddrt ctl: warning: {cfg}: controller.outer.k_yy: unknown key (known: k_theta, k_x, k_y); "
+                   "its daemon.socket is used all the same\n")
+
+
+@pytest.mark.parametrize("text", ["daemon: {socket: [1]}\n", "daemon: {socket: 1}\n", "robot: {H: 1\n"])
+def test_ctl_with_a_config_whose_socket_cannot_be_read_names_the_file(tmp_path, capsys, text) -> None:
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text(text)
+    assert cli.main(["ctl", "--config", str(cfg), "estop"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"ddrt: error: {cfg}: ") and err.count("\n") == 1
+
+
 def test_ctl_takes_the_socket_from_the_environment(tmp_path, monkeypatch, capsys) -> None:
     sock = tmp_path / "e.sock"
     monkeypatch.setenv("DDRT_SOCKET", str(sock))

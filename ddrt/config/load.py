@@ -183,6 +183,21 @@ def _config_from_mapping(data: Mapping[str, Any], source: str, base_dir: str) ->
     return cfg
 
 
+def daemon_socket_of(path: str | FsPath, error: Exception) -> str | None:
+    """`daemon.socket` as the file (with its `extends:`) gives it, the rest not validated, for
+    `ddrt ctl --config` while the file is being edited: a typo elsewhere must not keep the
+    operator from the daemon's socket (estop, stop, the reload that reports the typo).
+    Raises `error`, the file's own load error, when the YAML or that key is wrong too."""
+    try:
+        daemon = _read_yaml(FsPath(path).resolve()).get("daemon", {})
+    except ConfigError:
+        raise error from None
+    socket = daemon.get("socket", DaemonConfig().socket) if isinstance(daemon, Mapping) else 0
+    if socket is not None and not isinstance(socket, str):
+        raise error from None
+    return socket
+
+
 def load_config(path: str | FsPath, overrides: Mapping[str, Any] | None = None) -> Config:
     """Read, merge and validate a YAML config file (plus optional in-memory overrides)."""
     p = FsPath(path)

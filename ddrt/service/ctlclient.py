@@ -1,5 +1,6 @@
-"""The control socket's client: `request` (behind `ddrt ctl`), and `connect`, the one way to
-open a connection to a control socket (tests and benchmarks use it too).
+"""The control socket's client: `control_socket` (which socket `ddrt ctl` talks to, and why),
+`request` (behind `ddrt ctl`), and `connect`, the one way to open a connection to a control
+socket (tests and benchmarks use it too).
 
 A full listen backlog (a flood of connections) makes an AF_UNIX connect() fail with EAGAIN
 at once rather than wait, so `connect` retries until its deadline. Requests and replies are
@@ -11,12 +12,41 @@ from __future__ import annotations
 import errno
 import os
 import socket
+import sys
 import time
 from typing import Any
 
 from ddrt.service.jsonlines import decode_strict, encode_line
 
 CONNECT_RETRY_S = 0.005  # between two connect() attempts while the listen backlog is full
+DEFAULT_SOCKET = "/run/ddrt/ddrt.sock"  # the shipped unit's (configs/robot.yaml's daemon.socket)
+SOCKET_ENV = "DDRT_SOCKET"
+
+
+def control_socket(socket_arg: str | None, config: str | None) -> tuple[str, str]:
+    """The daemon's socket for `ddrt ctl`, and where it came from (for an error that names what
+    was tried): --socket, else the daemon.socket of --config, else $DDRT_SOCKET, else the
+    system service's. A --config being edited still gives its daemon.socket (estop, the reload
+    that reports the typo), with a warning that names what is wrong."""
+    if socket_arg:
+        return socket_arg, "--socket"
+    if config:
+        from ddrt.config import load_config
+        from ddrt.config.load import daemon_socket_of
+
+        try:
+            path = load_config(config).daemon.socket
+        except ValueError as exc:
+            path = daemon_socket_of(config, exc)
+            print(f"ddrt ctl: warning: {' '.join(str(exc).split())}; its daemon.socket is used all the same",
+                  file=sys.stderr)
+        if not path:
+            raise ValueError(f"{config}: daemon.socket is empty: that daemon listens on no control socket")
+        return path, f"daemon.socket of {config}"
+    if os.environ.get(SOCKET_ENV):
+        return os.environ[SOCKET_ENV], f"${SOCKET_ENV}"
+    return DEFAULT_SOCKET, (f"the default; for another daemon give --config CONFIG, --socket PATH or "
+                            f"set {SOCKET_ENV}")
 
 
 class ControlClientError(OSError):
