@@ -416,7 +416,11 @@ def _cmd_commission(args: argparse.Namespace) -> int:
                    noise_mm_deg=noise, turns=args.turns, distance_m=args.distance, check=not args.no_check,
                    umbmark_side_m=args.umbmark)
     session = session_for(args.config, opts, given, yes=args.yes)
-    outcome = commission(session, args.step)
+    try:
+        outcome = commission(session, args.step)
+    except KeyboardInterrupt:  # at a prompt: a driven step's own Ctrl-C is a Stopped (a ValueError)
+        print("\nddrt: stopped by Ctrl-C: the motors are off; run the command again to resume", file=sys.stderr)
+        return 130
     if outcome.config_file is not None:
         print(f"wrote {outcome.config_file} and {outcome.report}")
     else:

@@ -259,3 +259,17 @@ def test_python_dash_m_ddrt_is_the_ddrt_command(tmp_path) -> None:
                          cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and bad.stderr.startswith("ddrt: error:") and "missing.yaml" in bad.stderr
     assert "Traceback" not in bad.stderr
+
+
+def test_ctrl_c_at_a_commissioning_prompt_says_the_motors_are_off(tmp_path, monkeypatch, capsys) -> None:
+    """A driven step's Ctrl-C says so itself (ddrt/commission/session.py); one at a prompt, between
+    steps, used to exit 130 without a word."""
+    import ddrt.commission
+
+    def interrupted(session, step):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(ddrt.commission, "commission", interrupted)
+    code = cli.main(["commission", str(SIM), "--out", str(tmp_path / "c.yaml"), "--yes"])
+    err = capsys.readouterr().err
+    assert code == 130 and "stopped by Ctrl-C: the motors are off" in err and "Traceback" not in err
