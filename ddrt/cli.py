@@ -112,7 +112,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
     if not args.out:  # Path("") is the current folder: the table would land wherever the command ran
         raise ValueError("--out: expected a folder, got ''")
-    report = sweep(SweepRequest(args.campaign, _out_dir(args.out), workers=args.workers, scheduler=args.scheduler,
+    report = sweep(SweepRequest(args.campaign, Path(args.out), workers=args.workers, scheduler=args.scheduler,
                                 resume=args.resume, limit=args.limit, quiet=args.quiet))
     print(report.text())
     return report.exit_status
@@ -579,11 +579,11 @@ def _silence_stdout() -> None:
 
 
 def _out_dir(arg: str, make: bool = False) -> Path:
-    """--out DIR, refused in one line naming --out when it cannot be a directory (mkdir's own
-    error is "[Errno 17] File exists"); made at once with `make`."""
+    """--out DIR, or one line naming --out: a file is bad input (exit 2), a directory that cannot
+    be made the machine's (exit 1); made at once with `make`. (ddrt sweep's journal checks its own.)"""
     out = Path(arg)
     if out.exists() and not out.is_dir():
-        raise OSError(f"--out {arg}: is a file, not a directory; give a directory for the output")
+        raise ValueError(f"--out {arg}: is a file, not a directory; give a directory for the output")
     try:
         if make:
             out.mkdir(parents=True, exist_ok=True)

@@ -146,9 +146,9 @@ def test_sim_names_an_out_that_cannot_be_a_directory(tmp_path, capsys) -> None:
     a_file = tmp_path / "afile"
     a_file.write_text("")
     said = f"ddrt: error: --out {a_file}: is a file, not a directory; give a directory for the output\n"
-    assert cli.main(["sim", str(SIM), "--quiet", "--out", str(a_file)]) == 1
+    assert cli.main(["sim", str(SIM), "--quiet", "--out", str(a_file)]) == 2  # bad input
     assert capsys.readouterr().err == said
-    assert cli.main(["path", str(REPO / "configs/paths/s_curve.yaml"), "--plot", "--out", str(a_file)]) == 1
+    assert cli.main(["path", str(REPO / "configs/paths/s_curve.yaml"), "--plot", "--out", str(a_file)]) == 2
     assert capsys.readouterr().err == said
     assert cli.main(["sim", str(SIM), "--quiet", "--out", str(a_file / "sub")]) == 1
     assert capsys.readouterr().err.startswith(f"ddrt: error: --out {a_file / 'sub'}: cannot make the directory: ")
