@@ -135,12 +135,18 @@ def check_path_file(fname: str, max_bytes: int, error: type[Exception]) -> None:
         os.close(fd)
 
 
+def mode_kind(mode: int) -> str:
+    """What a stat mode is, for a message: "a file" (regular), "a directory", "a FIFO", ..."""
+    if stat.S_ISREG(mode):
+        return "a file"
+    return ("a directory" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode)
+            else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
+            else "a socket" if stat.S_ISSOCK(mode) else "not a regular file")
+
+
 def _check_stat(fname: str, st: os.stat_result, max_bytes: int, error: type[Exception]) -> None:
-    mode = st.st_mode
-    if not stat.S_ISREG(mode):
-        kind = ("a directory" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode)
-                else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
-                else "a socket" if stat.S_ISSOCK(mode) else "not a regular file")
+    kind = mode_kind(st.st_mode)
+    if kind != "a file":
         raise error(f"{fname}: is {kind}: a path is read from a regular file only")
     if st.st_size > max_bytes:
         raise error(f"{fname}: {st.st_size} bytes, more than paths.max_file_bytes = {max_bytes}")

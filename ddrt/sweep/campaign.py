@@ -21,13 +21,13 @@ built. The keys (docs/sweep.md has them all):
 from __future__ import annotations
 
 import os
-import stat
 from dataclasses import dataclass, field
 from pathlib import Path as FsPath
 from typing import Any, Mapping
 
 from ddrt.config.schema import INT_LIMIT
 from ddrt.config.yamlio import read_yaml, shorten
+from ddrt.service.pathjob import mode_kind
 from ddrt.sweep.columns import KNOWN_METRICS, NUMERIC_METRICS, TEXT_METRICS
 from ddrt.sweep.criteria import Criterion, parse_criterion
 from ddrt.sweep.ranges import axis_values, finite
@@ -117,11 +117,7 @@ def file_kind(p: FsPath) -> str:
         return "missing"
     except (OSError, ValueError) as exc:  # ValueError: a name with a NUL byte
         return f"unreadable ({' '.join(str(getattr(exc, 'strerror', None) or exc).split())})"
-    if stat.S_ISREG(mode):
-        return "a file"
-    return ("a directory" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode)
-            else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
-            else "a socket" if stat.S_ISSOCK(mode) else "not a regular file")
+    return mode_kind(mode)
 
 
 class _Reader:
