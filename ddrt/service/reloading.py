@@ -48,6 +48,7 @@ Waiter = Callable[[dict[str, Any]], None]  # takes a reload's reply (a socket re
 # A config is read in milliseconds (0.4 s for a 250 KB file); this is for reads that never end,
 # and under `ddrt ctl reload`'s 60 s wait, so its caller hears why.
 READ_DEADLINE_S = 30.0
+_STUCK_WHY = "(is the file a FIFO, or on a file system that does not answer?)"
 
 
 @dataclass(eq=False)
@@ -121,8 +122,7 @@ class Reloader:
                 return
             self._stuck = read  # given up: its thread may return one day, its outcome is not used
             read = _Read(read.waiters, version=self._version, done=True,
-                         error=f"{self.config_path}: not read: no answer within {READ_DEADLINE_S:.0f} s "
-                               "(is the file a FIFO, or on a file system that does not answer?)")
+                         error=f"{self.config_path}: not read: no answer within {READ_DEADLINE_S:.0f} s {_STUCK_WHY}")
         self._reading = None
         self._version = read.version
         try:
@@ -146,7 +146,7 @@ class Reloader:
         self.notifier.reloading()
         try:
             reply = self._reject(f"{self.config_path}: not read: the read started {self._clock() - stuck.started:.0f} s "
-                                 "ago has not returned (is the file a FIFO, or on a file system that does not answer?)")
+                                 f"ago has not returned {_STUCK_WHY}")
         finally:
             self.notifier.ready()
         for waiter in waiters:

@@ -30,6 +30,11 @@ def columns(plan: Plan) -> list[str]:
         + ["path_warnings", "wall_s"]
 
 
+def _int64(v: int) -> bool:
+    """Whether a whole number fits the table's int64 columns."""
+    return -2**63 <= v < 2**63
+
+
 def _param_type(values: Sequence[Any]) -> str:
     seen = [v for v in values if v is not None]
     if seen and all(isinstance(v, bool) for v in seen):
@@ -37,7 +42,7 @@ def _param_type(values: Sequence[Any]) -> str:
     if seen and all(isinstance(v, int) and not isinstance(v, bool) for v in seen):
         # A whole number beyond int64 (a config's name: or description: takes any value) is
         # kept as its text rather than failing the table after every run has finished.
-        return "int" if all(-2**63 <= v < 2**63 for v in seen) else "text"
+        return "int" if all(_int64(v) for v in seen) else "text"
     if seen and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in seen):
         return "float"
     return "text"
@@ -71,7 +76,7 @@ def fits(value: Any, kind: str) -> bool:
         return isinstance(value, str)
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return False
-    return kind == "float" or (isinstance(value, int) and -2**63 <= value < 2**63)
+    return kind == "float" or (isinstance(value, int) and _int64(value))
 
 
 def _cell(value: Any, kind: str) -> Any:
