@@ -126,6 +126,13 @@ def per_tick(short: Count, long: Count, field: str) -> float:
     return (getattr(long, field) - getattr(short, field)) / dt
 
 
+def pair(repo: FsPath, path_file: FsPath, short_s: float, long_s: float, counted: bool,
+         robot_only: bool = False) -> tuple[Count, Count]:
+    """The short and the long run of one kind (see run_child)."""
+    return (run_child(repo, path_file, short_s, counted, robot_only),
+            run_child(repo, path_file, long_s, counted, robot_only))
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench.sim_instructions", description=__doc__.split("\n")[0])
     ap.add_argument("--repo", action="append", type=FsPath, help="a checkout (default: this one); repeat to compare")
@@ -142,18 +149,16 @@ def main(argv: list[str] | None = None) -> int:
             path_file = figure8_path(args.laps, FsPath(tmp) / "figure8.yaml")
             results = []
             for repo in repos:
-                short = run_child(repo, path_file, args.short, counted=True)
-                long = run_child(repo, path_file, args.long, counted=True)
+                short, long = pair(repo, path_file, args.short, args.long, counted=True)
                 ins = per_tick(short, long, "instructions")
                 line = f"{repo}: {ins:,.0f} instructions a tick ({short.ticks} and {long.ticks} ticks)"
                 if not args.no_cpu:
-                    cpu = per_tick(run_child(repo, path_file, args.short, False),
-                                   run_child(repo, path_file, args.long, False), "cpu_s")
+                    cpu = per_tick(*pair(repo, path_file, args.short, args.long, counted=False), "cpu_s")
                     rate = ins / cpu if cpu > 0.0 else float("nan")
                     line += (f"; {cpu * 1e6:.1f} us of CPU a tick now, {rate / 1e9:.2f} G instructions per CPU s, "
                              f"so 200x ({TARGET_US:.0f} us) is {rate * TARGET_US * 1e-6:,.0f} instructions a tick")
-                sim = per_tick(run_child(repo, path_file, args.short, True, robot_only=True),
-                               run_child(repo, path_file, args.long, True, robot_only=True), "instructions")
+                sim = per_tick(*pair(repo, path_file, args.short, args.long, counted=True, robot_only=True),
+                               "instructions")
                 line += (f"\n  of which the simulated robot (SimHal, plant, truth, row gathering) {sim:,.0f}, "
                          f"the rest (the robot's tick, telemetry.csv) {ins - sim:,.0f}")
                 results.append(ins)
