@@ -7,7 +7,7 @@ Fault reactions (the same for the emulated devices, which is how they are tested
   the bridge's stale bound (`hal.bridge.state_stale_s`, 50 ms): the loop holds for as many
   ticks as fit in that bound at its rate (10 at 200 Hz, 50 at 1 kHz), so a STATE pause the
   bridge accepts is one the HAL accepts too. `hal.hold_ticks`, if set, overrides this with a
-  fixed number of ticks (the old behaviour);
+  fixed number of ticks;
 - beyond that, or when the STATE stream is older than the bridge's bound, HalTimeoutError:
   the loop holds the robot (a controlled stop) and resumes when data returns, or latches a
   fault if it does not (docs/design.md). A value is never invented: with no previous value

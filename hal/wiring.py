@@ -5,7 +5,7 @@ forward or a gyro mounted upside down are facts about one robot, measured by `dd
 and written to `hal.wiring` (ddrt.config.sections.WiringConfig). `open_hal` (hal/registry.py)
 puts `WiredHal` around whichever backend the config chooses when, and only when, the wiring is
 not the documented one, so the controller, the estimator and the daemon never know and a robot
-wired as documented runs exactly as before (no wrapper at all).
+wired as documented runs with no wrapper at all.
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ recorded in `calls` so tests can count bus transactions.
 Given a `clock` (seconds), the part samples as the real one does: its output registers are
 refreshed at the sample rate, the gyro output rate (1 kHz with the DLPF on, 8 kHz with
 DLPF_CFG 0 or 7) / (1 + SMPLRT_DIV), on its own oscillator (`clock_ppm` off), and hold between
-refreshes; without one, every read samples anew (as before). TEMP_OUT reports the die
+refreshes; without one, every read samples anew. TEMP_OUT reports the die
 temperature from `temperature_c` (36.53 degC, a register of 0, without it) by the datasheet's
 T = TEMP_OUT / 340 + 36.53.
 

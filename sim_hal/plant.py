@@ -13,7 +13,7 @@ constants taken from `Motor`'s parameters and `Dynamics`; tests check the inline
 against `Motor.torque` and the motion against an independent derivation of the model.
 
 A plant with anything but the default `PlantConfig.realism` (a battery, gyro warm-up and
-register timing, encoder slip, deadband, backlash, events: issue 23) integrates in Python,
+register timing, encoder slip, deadband, backlash, events) integrates in Python,
 in sim_hal/plant_real.py, never in the compiled kernel: the default plant keeps its fast,
 bit-identical path and the realistic one is written once.
 """

@@ -1,6 +1,6 @@
 """The simulated robot's settings beyond its geometry and motors, and its energy ledger.
 
-`PlantConfig` holds what the seed's plant had (flat, as before); `Realism` bundles issue 23's
+`PlantConfig` holds what the seed's plant had (flat); `Realism` bundles the
 imperfections (battery, gyro warm-up and register timing, encoder slip, deadband, backlash,
 events), whose defaults leave the plant exactly as it was. A plant whose `Realism` is not the
 default integrates in Python (sim_hal/plant_real.py), the default one in the compiled kernel.
@@ -118,7 +118,7 @@ class PlantConfig:
     gyro_noise_dps_rthz: float = 0.005  # white noise density before the low-pass
     gyro_dlpf_hz: float = 98.0  # MPU-6050 digital low-pass (DLPF_CFG=2)
     wheel_counts_per_rev: int = 0  # drive-wheel encoders, lines x 4 (0: not counted)
-    realism: Realism = field(default_factory=lambda: Realism())  # issue 23's imperfections
+    realism: Realism = field(default_factory=lambda: Realism())  # a real robot's imperfections
 
     def __post_init__(self) -> None:
         for f in fields(self):

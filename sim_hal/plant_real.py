@@ -1,4 +1,4 @@
-"""The simulated robot with what real robots have (issue 23): SimRobot's integrator when its
+"""The simulated robot with what real robots have: SimRobot's integrator when its
 `PlantConfig.realism` is not the default. Plain Python, written for clarity over speed: the
 default plant keeps the compiled kernel, and a realistic run is a few times slower.
 
@@ -71,7 +71,7 @@ class _Wanderer:
 
 
 class RealisticPlant:
-    """Integrates a SimRobot (its state attributes) with issue 23's realism; see the module doc."""
+    """Integrates a SimRobot (its state attributes) with its realism; see the module doc."""
 
     def __init__(self, robot: Any) -> None:
         self.robot = robot

@@ -1,7 +1,7 @@
-"""The `sim:` keys that make the simulated robot imperfect the way real robots are (issue 23).
+"""The `sim:` keys that make the simulated robot imperfect the way real robots are.
 
-Each default leaves the plant exactly as it was before these keys existed, so the seed
-scenarios keep their history; docs/config.md documents every key with its unit. The plant
+Each default leaves the plant ideal (the seed's model), so the seed scenarios stay
+reproducible; docs/config.md documents every key with its unit. The plant
 (sim_hal/plant_real.py) is what uses them.
 """
 

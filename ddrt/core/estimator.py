@@ -22,7 +22,7 @@ to the map frame (ddrt/core/pose_fix.py), whose history and covariances
 
 Temperature: with TEMP_OUT read (HalInfo.gyro_temp_hz > 0) the bias follows the die's
 temperature between stops and is re-learnt at every stop, which also corrects the heading
-turned since the last one (ddrt/core/gyro_bias.py); without it, as before.
+turned since the last one (ddrt/core/gyro_bias.py); without it, the bias is re-learnt at stops only.
 
 FIFO (HalInfo.gyro_fifo_period_s > 0): each fresh sample's batch is fused at its mean rate and
 the heading turns over the batch's span, so every gyro sample is integrated once

@@ -19,7 +19,7 @@ and the line starts again (the period learnt so far is kept). A batch with more 
 allows (a garbled FIFO_COUNT read past the FIFO's end: junk) is not fused (`bad`): its time is
 dead-reckoned like a loss's.
 
-Ticks whose sample is not fresh dead-reckon the heading as before (`turn`); the batch that
+Ticks whose sample is not fresh dead-reckon the heading from the last rate (`turn`); the batch that
 follows brings their samples too (the HAL carries them over), so what they added is taken
 back then (`blind`). A fresh tick with no new sample turns nothing: the next batch covers it.
 """

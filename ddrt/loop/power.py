@@ -23,7 +23,7 @@ reading, follow it:
   followed keeps its profile (re-profiling holds up the loop), its clamps follow.
 
 Without a measurement (a protocol-v1 MCU, sysfs PWM) the config's `robot.motor.supply_v` is
-used throughout, as before.
+used throughout.
 
 `limits.battery_min_v` (null: off; only with a measured voltage): when `v_slow` is within
 WARN_MARGIN (5 %) above it, a warning, once; below it, the controlled stop along the path

@@ -11,7 +11,7 @@ reference is wherever the profile is at time t, whatever the robot does.
 After a hold (the loop stopped the robot on a sensor gap), `resume` restarts the schedule
 from rest where the robot is: the nearest point is found again from the robot's pose, and
 the schedule's speed ramps up from zero at the profile's own acceleration limits until it
-meets the profile, which it then follows as before.
+meets the profile, which it then follows.
 """
 
 from __future__ import annotations

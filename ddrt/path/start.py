@@ -60,7 +60,7 @@ JOIN_DONE_M = 0.005
 RELEASE_ACCEL_FRACTION = 0.25
 JOIN_DONE_RAD = math.radians(3.0)
 # A start farther than this from the path's first point, or turned more than this from its
-# heading, is joined (phase 2); a closer one is the path's reference alone, as before.
+# heading, is joined (phase 2); a closer one is the path's reference alone.
 JOIN_NEEDED_M = 0.005
 JOIN_NEEDED_RAD = math.radians(3.0)
 

@@ -22,7 +22,7 @@ Typical loop::
 
 Lateness and missed slots are measured when the tick really starts (takes its sample), not
 when the sleep returned: a thread that loses the CPU (or the GIL) between the two is as late
-as one that woke late, and a stall there used to go uncounted (a 159 ms stall at 200 Hz read
+as one that woke late, and measuring before the sleep would leave a stall there uncounted (a 159 ms stall at 200 Hz read
 as 6 ms late and 3 missed slots, when it is ~159 ms and 31). The daemon does this in
 `Daemon._fixed_rate_loop`.
 """
