@@ -462,14 +462,17 @@ class PathsConfig:
     max_samples: int = 2_000_000
     max_points: int = 10_000
     max_extent_m: float = 10_000.0
-    max_duration_s: float = 86_400.0
+    # A polyline that states no unit and reaches farther than this is refused as likely in
+    # mm, cm or inches (path/units.py); beyond half of it, a warning.
+    workspace_m: float = 50.0
+    max_duration_s: float = 3_600.0
     # The daemon reads and builds a path in a worker process, within these bounds.
     max_file_bytes: int = 4_000_000  # a path file (and a CSV it names) larger than this is refused unread
     build_timeout_s: float = 30.0  # the worker is stopped if the path is not ready by then
 
     def validate(self, where: str) -> None:
         positive(where, sample_step_m=self.sample_step_m, max_extent_m=self.max_extent_m,
-                 max_duration_s=self.max_duration_s)
+                 workspace_m=self.workspace_m, max_duration_s=self.max_duration_s)
         _in_range(where, "max_file_bytes", self.max_file_bytes, 1, 1_000_000_000)
         if not 0.1 <= self.build_timeout_s <= 3600.0:
             raise ConfigError(f"{where}.build_timeout_s: must be in [0.1, 3600] s, got {self.build_timeout_s}")

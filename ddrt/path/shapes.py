@@ -293,6 +293,7 @@ def _check_tolerance(where: str, tolerance: float | str | None) -> None:
 class PointsSpec(PathCommon):
     points: tuple[tuple[float, ...], ...]  # [x, y] or [x, y, v] (v: speed cap, m/s)
     tolerance: float | Literal["auto"] | None = None  # m or auto; default paths.tolerance_m (0: waypoints)
+    units: Literal["m", "cm", "mm", "in", "ft"] | None = None  # of the points' x, y; unstated: metres, checked
 
     SIZE_KEY: ClassVar[str] = "points"
 
@@ -311,6 +312,7 @@ class PointsSpec(PathCommon):
 class FileSpec(PathCommon):
     file: str  # a .csv of waypoints, relative to the spec's folder
     tolerance: float | Literal["auto"] | None = None  # m or auto; default paths.tolerance_m (0: waypoints)
+    units: Literal["m", "cm", "mm", "in", "ft"] | None = None  # of the file's x, y unless its header says
 
     SIZE_KEY: ClassVar[str] = "file"
 

@@ -14,7 +14,7 @@ import csv
 import io
 import math
 import os
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path as FsPath
 from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
@@ -32,6 +32,7 @@ from ddrt.path.shapes import (
     KINDS, LIMIT_KEYS, SHAPES, FileSpec, PathCommon, PointsSpec, RectangleSpec, polyline_samples,
 )
 from ddrt.path.smoothing import EndPin
+from ddrt.path.units import UNITS, CsvColumns, UnitError, check_plausible, check_speeds, csv_columns
 
 if TYPE_CHECKING:
     from ddrt.config import Config
@@ -95,10 +96,20 @@ CSV_BYTES_PER_POINT = 128  # a CSV line "x,y,v" with full-precision floats and r
 CSV_HEADER_BYTES = 65536  # the header, comments and blank lines
 
 
-def read_points_csv(filename: str,
-                    paths: PathsConfig) -> tuple[list[tuple[float, float, float]], bool, list[str]]:
-    """Waypoints (x, y, v cap or inf) from a CSV with header x,y or x,y,v; second item: has v;
-    third: each waypoint's line ("line 7")."""
+@dataclass
+class CsvPoints:
+    """A CSV's waypoints (x, y in metres, v cap in m/s or inf), whether it has a v column,
+    each waypoint's line ("line 7"), and whether its header stated the unit (x_mm, x_m, ...)."""
+
+    rows: list[tuple[float, float, float]]
+    has_v: bool
+    lines: list[str]
+    unit_stated: bool  # by the header or the spec's units:
+
+
+def read_points_csv(filename: str, paths: PathsConfig, units: str | None = None) -> CsvPoints:
+    """The waypoints of a CSV whose header names x, y and optionally v (see units.csv_columns),
+    in the header's unit, else in `units` (a YAML spec's `units:`), else in metres."""
     # At most ~128 bytes a waypoint: the file cannot be larger than its waypoints need.
     by_points = CSV_BYTES_PER_POINT * paths.max_points + CSV_HEADER_BYTES
     if by_points < paths.max_file_bytes:
@@ -110,6 +121,8 @@ def read_points_csv(filename: str,
     rows: list[tuple[float, float, float]] = []
     lines: list[str] = []
     header: list[str] | None = None
+    columns = CsvColumns(("x", "y"), None)
+    scale = 1.0
     lineno = 0
     reader = csv.reader(io.StringIO(text))
     try:
@@ -119,34 +132,50 @@ def read_points_csv(filename: str,
                 continue
             if header is None:
                 header = [c.lower() for c in cells]
-                if header not in (["x", "y"], ["x", "y", "v"]):
-                    raise PathError(f"{filename}: line {lineno}: header must be 'x,y' or 'x,y,v', "
-                                    f"got {shorten(','.join(cells))}")
+                parsed = csv_columns(header)
+                if isinstance(parsed, str):
+                    raise PathError(f"{filename}: line {lineno}: header must name the columns x,y or x,y,v "
+                                    f"(in metres and m/s; x_mm,y_mm, x_cm,y_cm or x_in,y_in for other units), "
+                                    f"got {shorten(','.join(cells))}: {parsed}")
+                columns = parsed
+                if units is not None and columns.scale not in (None, UNITS[units]):
+                    raise PathError(f"{filename}: line {lineno}: the header's unit ({shorten(','.join(cells))}) "
+                                    f"is not the spec's units: {units}")
+                scale = columns.scale if columns.scale is not None else UNITS[units or "m"]
                 continue
             if len(cells) != len(header):
                 raise PathError(f"{filename}: line {lineno}: expected {len(header)} columns, got {len(cells)}")
             if len(rows) >= paths.max_points:
                 raise PathError(f"{filename}: line {lineno}: more than paths.max_points = "
                                 f"{paths.max_points} waypoints")
-            vals = []
-            for name, cell in zip(header, cells):
-                vals.append(_number(cell, lambda p, n=name: PathError(f"{filename}: line {lineno}: column '{n}': {p}")))
-            v = math.inf
-            if len(vals) == 3:
-                v = vals[2]
-                if v == 0.0:
-                    raise PathError(f"{filename}: line {lineno}: column 'v': speed must be nonzero (> 0 forward, "
-                                    f"< 0 reaching this point in reverse), got {shorten(cells[2])}")
-            if max(abs(vals[0]), abs(vals[1])) > paths.max_extent_m:
-                raise PathError(f"{filename}: line {lineno}: ({vals[0]:.6g}, {vals[1]:.6g}) is beyond "
+            vals = {role: _number(cell, lambda p, n=name: PathError(f"{filename}: line {lineno}: column '{n}': {p}"))
+                    for role, name, cell in zip(columns.roles, header, cells)}
+            x, y, v = vals["x"] * scale, vals["y"] * scale, vals.get("v", math.inf)
+            if v == 0.0:
+                raise PathError(f"{filename}: line {lineno}: column 'v': speed must be nonzero (> 0 forward, "
+                                f"< 0 reaching this point in reverse), got {shorten(cells[columns.roles.index('v')])}")
+            if max(abs(x), abs(y)) > paths.max_extent_m:
+                raise PathError(f"{filename}: line {lineno}: ({x:.6g}, {y:.6g}) is beyond "
                                 f"paths.max_extent_m = {paths.max_extent_m:g} m from the origin")
-            rows.append((vals[0], vals[1], v))
+            rows.append((x, y, v))
             lines.append(f"line {lineno}")
     except csv.Error as exc:  # a NUL byte, an unterminated quote, a field over the size limit
         raise PathError(f"{filename}: line {reader.line_num or lineno}: not CSV: {exc}") from None
     if header is None:
         raise PathError(f"{filename}: line 1: missing header 'x,y' or 'x,y,v' (file is empty)")
-    return rows, len(header) == 3, lines
+    return CsvPoints(rows, columns.has_v, lines, columns.scale is not None or units is not None)
+
+
+def _check_units(rows: list[tuple[float, float, float]], stated: bool, has_v: bool, v_max: float, where: str,
+                 paths: PathsConfig, notes: list[str]) -> None:
+    """A polyline that states no unit must look like metres; a v column must hold speeds."""
+    try:
+        if has_v:
+            check_speeds([r[2] for r in rows], v_max, where)
+        if not stated:
+            check_plausible([(r[0], r[1]) for r in rows], where, paths.workspace_m, notes)
+    except UnitError as exc:
+        raise PathError(str(exc)) from None
 
 
 def _condition_options(paths: PathsConfig, tolerance: float | str | None) -> ConditionOptions:
@@ -297,10 +326,12 @@ def _from_mapping(m: Any, limits: SpeedLimits, where: str, base_dir: str | None,
                 paths.check_pose(item, f"points[{j}]")
             except ConfigError as exc:
                 raise _path_error(exc, where) from None
-            rows.append((item[0], item[1], item[2] if len(item) == 3 else math.inf))
+            scale = UNITS[spec.units or "m"]
+            rows.append((item[0] * scale, item[1] * scale, item[2] if len(item) == 3 else math.inf))
+        has_v = any(len(item) == 3 for item in spec.points)
+        _check_units(rows, spec.units is not None, has_v, limits.v_max, f"{where}: key 'points'", paths, notes)
         if spec.reverse:
             rows = [(x, y, -v) for x, y, v in rows]
-        has_v = any(len(item) == 3 for item in spec.points)
         _note_point_caps([r[2] for r in rows], limits.v_max, f"{where}: key 'points'", notes)
         names = [f"key 'points[{j}]'" for j in range(len(rows))]
         geo, cond = _waypoint_geometry(rows, has_v, where, opt, paths, names, spec.tolerance,
@@ -312,7 +343,9 @@ def _from_mapping(m: Any, limits: SpeedLimits, where: str, base_dir: str | None,
         if base_dir is not None and not os.path.isabs(fname):
             fname = os.path.join(base_dir, fname)
         try:
-            rows, has_v, lines = read_points_csv(fname, paths)
+            csvp = read_points_csv(fname, paths, spec.units)
+            rows, has_v, lines = csvp.rows, csvp.has_v, csvp.lines
+            _check_units(rows, csvp.unit_stated, has_v, limits.v_max, fname, paths, notes)
             if spec.reverse:
                 rows = [(x, y, -v) for x, y, v in rows]
             geo, cond = _waypoint_geometry(rows, has_v, fname, opt, paths, lines, spec.tolerance)
@@ -380,8 +413,10 @@ def load_path(source: str | os.PathLike[str] | Mapping[str, Any], limits: SpeedL
     fname = os.fspath(source)
     low = fname.lower()
     if low.endswith(".csv"):
-        rows, has_v, lines = read_points_csv(fname, paths)
+        csvp = read_points_csv(fname, paths)
+        rows, has_v, lines = csvp.rows, csvp.has_v, csvp.lines
         notes: list[str] = []
+        _check_units(rows, csvp.unit_stated, has_v, limits.v_max, fname, paths, notes)
         _note_point_caps([r[2] for r in rows], limits.v_max, fname, notes)
         opt = GeometryOptions(paths.sample_step_m, paths.pivot_radius_m, paths.corner_pivot_deg, paths.blend_max_m)
         geo, cond = _waypoint_geometry(rows, has_v, fname, opt, paths, lines)
