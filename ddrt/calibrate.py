@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from ddrt.errors import DdrtError
 from ddrt.core.adapt import NAMES, DynamicsAdapter
 from ddrt.config import Config
 from ddrt.core.types import Setpoint
@@ -29,7 +30,7 @@ from hal.base import Hal
 DEG = math.pi / 180.0
 
 
-class CalibrationRunError(RuntimeError):
+class CalibrationRunError(DdrtError, RuntimeError):
     """A calibration run could not finish (fault, timeout, bad area or measurement)."""
 
 

@@ -11,13 +11,14 @@ from abc import ABC, abstractmethod
 from typing import Protocol
 
 from ddrt.core.types import HalInfo, Sample
+from ddrt.errors import DdrtError
 
 __all__ = ["Hal", "HalError", "HalInfo", "HalInitError", "HalIOError", "HalTimeoutError",
            "HalValueError", "Sample", "TrueMotion", "check_duty"]
 
 
-class HalError(Exception):
-    """Root of every error a HAL raises; catch this to catch them all."""
+class HalError(DdrtError):
+    """Root of every error a HAL raises; catch this to catch them all (a `DdrtError` too)."""
 
 
 class HalInitError(HalError, OSError):

@@ -6,10 +6,12 @@ why the serial protocol frames with it. Overhead is one byte per 254 bytes, plus
 
 from __future__ import annotations
 
+from ddrt.errors import DdrtError
+
 __all__ = ["CobsDecodeError", "decode", "encode", "max_encoded_len"]
 
 
-class CobsDecodeError(ValueError):
+class CobsDecodeError(DdrtError, ValueError):
     """The bytes are not a valid COBS encoding (a zero inside, or a code past the end)."""
 
 

@@ -12,6 +12,7 @@ import struct
 from dataclasses import dataclass, fields
 from typing import ClassVar, Union
 
+from ddrt.errors import DdrtError
 from hal import cobs
 from hal.crc import crc16_ccitt_false
 
@@ -46,7 +47,7 @@ _HEADER = struct.Struct("<BB")
 _CRC = struct.Struct("<H")
 
 
-class ProtocolError(ValueError):
+class ProtocolError(DdrtError, ValueError):
     """A packet that cannot be encoded or a frame that does not decode to a valid packet.
 
     `kind` names the failed check: "short", "oversize", "crc", "malformed" or "encode".

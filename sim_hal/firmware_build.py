@@ -13,6 +13,8 @@ import shutil
 import subprocess
 from pathlib import Path
 
+from ddrt.errors import DdrtError
+
 __all__ = ["FIRMWARE_DIR", "BUILD_DIR", "BuildError", "artifact", "build", "missing_tools"]
 
 FIRMWARE_DIR = Path(__file__).resolve().parents[1] / "firmware"
@@ -29,7 +31,7 @@ INSTALL_HINT = ("apt-get install -y --no-install-recommends gcc-avr avr-libc lib
                 "make gcc")
 
 
-class BuildError(RuntimeError):
+class BuildError(DdrtError, RuntimeError):
     """make failed (the message carries its output) or the toolchain is missing."""
 
 

@@ -8,6 +8,7 @@
 - ddrt/params and ddrt/runtime are leaves: they import nothing of ddrt but themselves (the
   runtime its Clock protocol from ddrt.core.types).
 - No import cycle between packages: the package graph (every import, at any depth) is a DAG.
+- Every exception class of ddrt/, hal/ and sim_hal/ descends from ddrt.errors.DdrtError.
 """
 
 from __future__ import annotations
@@ -214,3 +215,54 @@ def test_the_tick_and_the_daemon_stay_small(where: tuple[str, str]) -> None:
     tree = ast.parse((REPO / path).read_text(encoding="utf-8"))
     cls = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == name)
     assert cls.end_lineno - cls.lineno + 1 <= MAX_CLASS_LINES[where]
+
+
+def project_exceptions(root: Path = REPO, folders: tuple[str, ...] = ("ddrt", "hal", "sim_hal"),
+                       ) -> tuple[list[type[BaseException]], list[str]]:
+    """Every exception class defined in the folders' modules (each imported), and the modules
+    that could not be imported here (an optional dependency missing)."""
+    found: list[type[BaseException]] = []
+    unimported: list[str] = []
+    for folder in folders:
+        for f in sorted((root / folder).rglob("*.py")):
+            parts = f.relative_to(root).with_suffix("").parts
+            name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+            if parts[-1] == "__main__":
+                continue
+            try:
+                module = importlib.import_module(name)
+            except ImportError:
+                unimported.append(name)
+                continue
+            found.extend(obj for obj in vars(module).values()
+                         if isinstance(obj, type) and issubclass(obj, BaseException) and obj.__module__ == name)
+    return found, unimported
+
+
+def test_every_error_of_the_project_descends_from_one_root() -> None:
+    """A caller catches ddrt's errors by kind: each one is a DdrtError (the HAL's tree under
+    it), beside the builtin it is a kind of."""
+    from ddrt.errors import DdrtError
+
+    found, unimported = project_exceptions()
+    assert len(found) > 20 and not unimported, unimported
+    outside = sorted(f"{e.__module__}.{e.__qualname__}" for e in found
+                     if e is not DdrtError and not issubclass(e, DdrtError))
+    assert outside == [], f"exceptions outside DdrtError: {outside}"
+
+
+def test_the_root_check_sees_a_stray_exception(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # The checker itself: an exception defined at any depth of a package is found by the walk,
+    # and one imported from elsewhere is not counted twice.
+    pkg = tmp_path / "strayroot"
+    (pkg / "inner").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "inner" / "__init__.py").write_text("")
+    (pkg / "inner" / "mod.py").write_text("from ddrt.errors import DdrtError\n\n"
+                                          "class Stray(ValueError):\n    pass\n\n"
+                                          "class Kept(DdrtError, ValueError):\n    pass\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    found, unimported = project_exceptions(tmp_path, ("strayroot",))
+    assert sorted(e.__name__ for e in found) == ["Kept", "Stray"] and unimported == []
+    names = {e.__name__ for e in project_exceptions()[0]}
+    assert {"ConfigError", "PathError", "HalError", "HalTimeoutError", "ProtocolError"} <= names

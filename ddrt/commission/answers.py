@@ -13,14 +13,15 @@ import sys
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
+from ddrt.errors import DdrtError
 from ddrt.config.yamlio import read_yaml
 
 
-class NoAnswer(ValueError):
+class NoAnswer(DdrtError, ValueError):
     """An answer was needed and none came (stdin closed, or no terminal)."""
 
 
-class AnswersError(ValueError):
+class AnswersError(DdrtError, ValueError):
     """The answers file is malformed: wrong type, unknown key, a value out of range."""
 
 

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator, Mapping
 
+from ddrt.errors import DdrtError
 from ddrt.commission.answers import Answers
 from ddrt.commission.state import State
 from ddrt.config import Config, config_from_mapping
@@ -17,7 +18,7 @@ from ddrt.config.load import merge_mappings
 from hal.base import Hal
 
 
-class CommissionError(ValueError):
+class CommissionError(DdrtError, ValueError):
     """A step cannot go on (nothing moved, a measurement refused, a bad area): one clear line."""
 
 

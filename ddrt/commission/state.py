@@ -11,8 +11,10 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ddrt.errors import DdrtError
 
-class StateError(ValueError):
+
+class StateError(DdrtError, ValueError):
     """The state file cannot be read as a commissioning state."""
 
 

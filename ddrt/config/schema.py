@@ -13,6 +13,7 @@ import types
 import typing
 from typing import Any, Collection, Literal, Mapping, TypeVar, get_args, get_origin, get_type_hints
 
+from ddrt.errors import DdrtError
 from ddrt.params.numbers import finite_float
 from ddrt.config.yamlio import shorten
 
@@ -28,7 +29,7 @@ FLOAT_MIN = 1e-12
 FLOAT_MAX = 1e12
 
 
-class ConfigError(ValueError):
+class ConfigError(DdrtError, ValueError):
     """A config value is missing, unknown or invalid; the message names the key."""
 
 

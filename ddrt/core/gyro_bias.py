@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import math
 
+from ddrt.errors import DdrtError
+
 DEG = math.pi / 180.0
 SLOPE_PRIOR_DPS_PER_C = 0.2  # 1 sigma of an unknown slope (deg/s per degC; the MPU-6050's +-20 deg/s over 125 degC is 0.16)
 SLOPE_WALK = 2e-6  # rad/s per degC per sqrt(s): how fast a learnt slope is forgotten
@@ -33,7 +35,7 @@ MIN_WINDOW_S = 0.3  # a shorter rest gives no pair
 NOISE_FLOOR = 1e-4 * DEG  # rad/s: the least a pair's 1 sigma is taken to be (quantisation, vibration)
 
 
-class CalibrationError(ValueError):
+class CalibrationError(DdrtError, ValueError):
     """The gyro could not be calibrated: too few samples, or the robot was moving."""
 
 

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from ddrt.errors import DdrtError
 from ddrt.core.uncertainty import N, Tracker, phi, propagate
 from ddrt.core.wrap import wrap_angle
 
@@ -38,7 +39,7 @@ FIELDS = ("x", "y", "theta", "cov", "stamp")
 MAX_OUTLIERS_IN_A_ROW = 5
 
 
-class FixError(ValueError):
+class FixError(DdrtError, ValueError):
     """A pose fix or pose that cannot be used; `field` names the request's key."""
 
     def __init__(self, field: str, message: str) -> None:

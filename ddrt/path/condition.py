@@ -54,6 +54,7 @@ from typing import Sequence
 
 import numpy as np
 
+from ddrt.errors import DdrtError
 from ddrt.path.corners import CornerPin, corner_scale, find_corners, line_turns, refine_corner
 from ddrt.path.geometry import Geometry, GeometryOptions, Piece, line_piece, pivot_piece, polyline_geometry
 from ddrt.path.noise import TOLERANCE_FLOOR_M, arc_parameter, auto_tolerance, estimate_noise
@@ -71,7 +72,7 @@ GRID_TOLERANCE_CELLS = 0.5  # a grid plan's tolerance, in cells: the robot stays
 NOISE_FLOOR_M = 2e-5  # below this the points are exact (an export): smooth to this level
 
 
-class ConditionError(ValueError):
+class ConditionError(DdrtError, ValueError):
     """The polyline cannot be conditioned; the message names the point (line or key)."""
 
 
@@ -332,7 +333,7 @@ def _plan(p: np.ndarray, mode: str, tol: float, cell: float | None, noise: float
     return _Plan(p, mode, tol, noise, knot, scale, corners, pins, wrap, grid_axis(p) if mode == GRID else None, opt)
 
 
-class _LegStops(Exception):
+class _LegStops(DdrtError):
     """A leg's fit stops and turns back at point `index` (of the whole polyline)."""
 
     def __init__(self, index: int) -> None:
@@ -340,7 +341,7 @@ class _LegStops(Exception):
         self.index = index
 
 
-class _LegUnmet(Exception):
+class _LegUnmet(DdrtError):
     """A leg's ToleranceUnmet, with the leg's first point (its index counts from there)."""
 
     def __init__(self, cause: ToleranceUnmet, first: int) -> None:

@@ -44,6 +44,7 @@ from typing import Callable
 
 import numpy as np
 
+from ddrt.errors import DdrtError
 from ddrt.path.geometry import GeometryOptions, Piece, line_piece, polyline_geometry
 from ddrt.path.noise import arc_parameter, chase_floor
 
@@ -58,7 +59,7 @@ CUSP_SWING = 0.25 * math.pi  # rad: a heading turning this much within an eighth
 SEARCH_POINTS = 4000  # a longer leg chooses its smoothing on windows of this many points
 
 
-class FitError(ValueError):
+class FitError(DdrtError, ValueError):
     """The leg cannot be fitted (no length, a singular system, a tolerance no curve meets)."""
 
 
@@ -72,7 +73,7 @@ class ToleranceUnmet(FitError):
         self.index, self.x, self.y, self.deviation = index, x, y, deviation
 
 
-class CurveStops(Exception):
+class CurveStops(DdrtError):
     """The fitted curve stops (zero speed) at `index`: a u value, or a point's index in its leg."""
 
     def __init__(self, index: float) -> None:

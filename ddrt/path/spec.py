@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from ddrt.errors import DdrtError
 from ddrt.config.schema import ConfigError, build
 from ddrt.config.sections import PathsConfig
 from ddrt.config.yamlio import read_text, read_yaml, shorten
@@ -40,7 +41,7 @@ if TYPE_CHECKING:
 __all__ = ["PathError", "config_path_error", "load_path", "path_source", "read_points_csv", "resolve_path", "speed_limits"]
 
 
-class PathError(ValueError):
+class PathError(DdrtError, ValueError):
     """A path file or spec is malformed; the message names the file, line or key, and the problem."""
 
 

@@ -15,6 +15,8 @@ import math
 from dataclasses import dataclass
 from typing import Sequence
 
+from ddrt.errors import DdrtError
+
 __all__ = ["UNITS", "UnitError", "CsvColumns", "csv_columns", "check_plausible", "check_speeds"]
 
 # Metres per unit, for every unit a path's coordinates may be written in.
@@ -28,7 +30,7 @@ SPEED_COLUMN_FACTOR = 20.0
 SPEED_COLUMN_MIN_MPS = 10.0
 
 
-class UnitError(ValueError):
+class UnitError(DdrtError, ValueError):
     """The points' unit is wrong or unstated in a way that would drive a path nobody meant."""
 
 

@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 from typing import Any, Mapping
 
+from ddrt.errors import DdrtError
 from ddrt.config.ros2 import Ros2Config
 from ddrt.loop.states import state_label
 from ddrt.ros2 import convert
@@ -37,7 +38,7 @@ FROM_CSV = {"t": "t", "x_est": "x", "y_est": "y", "theta_est": "theta", "v_est":
             "gyro_bias": "gyro_bias", "state": "state"}
 
 
-class BagError(ValueError):
+class BagError(DdrtError, ValueError):
     """A recording that cannot be written or an input that cannot be read (names the file)."""
 
 

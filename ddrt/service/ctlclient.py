@@ -16,6 +16,7 @@ import sys
 import time
 from typing import Any
 
+from ddrt.errors import DdrtError
 from ddrt.service.jsonlines import decode_strict, encode_line
 
 CONNECT_RETRY_S = 0.005  # between two connect() attempts while the listen backlog is full
@@ -49,7 +50,7 @@ def control_socket(socket_arg: str | None, config: str | None) -> tuple[str, str
                             f"set {SOCKET_ENV}")
 
 
-class ControlClientError(OSError):
+class ControlClientError(DdrtError, OSError):
     """`request` could not reach the daemon or got no usable reply."""
 
 

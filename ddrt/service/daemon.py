@@ -28,6 +28,7 @@ import time
 from pathlib import Path as FsPath
 from typing import Any, Mapping
 
+from ddrt.errors import DdrtError
 from ddrt.config import Config, load_config
 from ddrt.config.policy import ReloadPlan
 from ddrt.config.schema import ConfigError
@@ -57,7 +58,7 @@ from hal.registry import open_hal
 log = logging.getLogger("ddrt.service.daemon")
 
 
-class _Interrupted(Exception):
+class _Interrupted(DdrtError):
     """A stop was requested before the loop started."""
 
 

@@ -15,8 +15,10 @@ import fcntl
 import os
 import stat
 
+from ddrt.errors import DdrtError
 
-class AlreadyRunning(OSError):
+
+class AlreadyRunning(DdrtError, OSError):
     """Another process holds the lock."""
 
     def __init__(self, path: str, pid: int | None) -> None:

@@ -14,6 +14,8 @@ import json
 import math
 from typing import Any
 
+from ddrt.errors import DdrtError
+
 
 class NonFinite:
     """What a NaN, Infinity or out-of-range number in a request parses to."""
@@ -24,7 +26,7 @@ class NonFinite:
         self.token = token
 
 
-class DuplicateKey(ValueError):
+class DuplicateKey(DdrtError, ValueError):
     """An object gives the same key twice: which value was meant is not for the server to guess."""
 
 

@@ -45,6 +45,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+from ddrt.errors import DdrtError
 from ddrt.service.pathjob import Build, BuildJob, build_path
 
 log = logging.getLogger("ddrt.service.pathworker")
@@ -211,7 +212,7 @@ def worker_main() -> int:
 # --------------------------------------------------------------------------- the daemon's side
 
 
-class _Stop(Exception):
+class _Stop(DdrtError):
     """Why a job ended without a path (the message is the error)."""
 
 

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path as FsPath
 from typing import Any, Mapping
 
+from ddrt.errors import DdrtError
 from ddrt.config.schema import INT_LIMIT
 from ddrt.config.yamlio import read_yaml, shorten
 from ddrt.service.pathjob import mode_kind
@@ -41,7 +42,7 @@ DEFAULT_TIMEOUT_S = 600.0
 DEFAULT_SUMMARY_METRIC = "rms_cross_track_m"
 
 
-class CampaignError(ValueError):
+class CampaignError(DdrtError, ValueError):
     """A campaign is malformed or one of its cases is invalid; the message names the file,
     the case where there is one, and the key."""
 

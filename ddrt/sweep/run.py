@@ -11,6 +11,7 @@ import logging
 import time
 from typing import Any, Callable
 
+from ddrt.errors import DdrtError
 from ddrt.path import Path
 from ddrt.simrun.runner import json_ready, run_sim
 from ddrt.sweep.campaign import RunSettings
@@ -21,7 +22,7 @@ from ddrt.sweep.criteria import passes
 Row = dict[str, Any]
 
 
-class RunTimedOut(Exception):
+class RunTimedOut(DdrtError):
     """Raised from the run's progress hook once the case has used its wall-time budget."""
 
 
