@@ -234,10 +234,8 @@ def _follow_content(fname: str, args: argparse.Namespace) -> dict:
     """`ddrt ctl follow FILE` sends the file's content, not its name: a sandboxed service
     (ProtectHome, PrivateTmp, its own user) cannot see a user's files. Held to
     paths.max_file_bytes (of --config, else the default) here too; the daemon checks again."""
-    import os
-    import stat
-
     from ddrt.config.sections import PathsConfig
+    from ddrt.config.textfile import read_text
 
     limit = PathsConfig().max_file_bytes
     if args.config:
@@ -248,26 +246,7 @@ def _follow_content(fname: str, args: argparse.Namespace) -> dict:
     fmt = "csv" if low.endswith(".csv") else "yaml" if low.endswith((".yaml", ".yml")) else None
     if fmt is None:
         raise ValueError(f"{fname}: unknown path file type (expected .csv, .yaml or .yml)")
-    try:
-        fd = os.open(fname, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
-    except OSError as exc:
-        raise ValueError(f"{fname}: cannot read: {exc.strerror or exc}") from None
-    try:
-        st = os.fstat(fd)
-        if not stat.S_ISREG(st.st_mode):
-            raise ValueError(f"{fname}: not a regular file")
-        if st.st_size > limit:
-            raise ValueError(f"{fname}: {st.st_size} bytes, more than paths.max_file_bytes = {limit}")
-        with os.fdopen(fd, "rb", closefd=False) as fh:
-            data = fh.read(limit + 1)
-    finally:
-        os.close(fd)
-    if len(data) > limit:
-        raise ValueError(f"{fname}: more than paths.max_file_bytes = {limit} bytes")
-    try:
-        text = data.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"{fname}: not UTF-8 text (byte {exc.start})") from None
+    text = read_text(fname, ValueError, limit, "paths.max_file_bytes", regular_only=True, what="a path")
     return {"content": text, "format": fmt, "name": Path(fname).name}
 
 

@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ddrt.config.textfile import read_state_text
 from ddrt.errors import DdrtError
 
 
@@ -40,7 +41,7 @@ class State:
         self.steps: dict[str, dict[str, Any]] = {}
         if path.exists():
             try:
-                data = json.loads(path.read_text(encoding="utf-8"))
+                data = json.loads(read_state_text(path, ValueError))
             except (OSError, ValueError) as exc:
                 raise StateError(f"{path}: not a commissioning state ({exc}); remove it to start over") from None
             if not isinstance(data, dict) or not isinstance(data.get("steps"), dict):

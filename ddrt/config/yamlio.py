@@ -27,6 +27,8 @@ from typing import Any, Callable
 import yaml
 from yaml.nodes import MappingNode, Node, ScalarNode
 
+from ddrt.config import textfile
+
 __all__ = ["MAX_BYTES", "MAX_DEPTH", "MAX_NODES", "load_yaml_text", "read_text", "read_yaml", "shorten"]
 
 MAX_DEPTH = 64
@@ -186,22 +188,9 @@ def load_yaml_text(text: str, name: str, error: type[Exception]) -> Any:
 
 
 def read_text(path: str | FsPath, error: type[Exception], limit: int = MAX_BYTES, limit_from: str = "") -> str:
-    """A file's text; it must be UTF-8 (a leading byte-order mark is allowed) and at most
-    `limit` bytes long (`limit_from` says which setting makes that limit, for the error)."""
-    try:
-        with open(path, "rb") as fh:
-            data = fh.read(limit + 1)
-    except OSError as exc:
-        raise error(f"{path}: cannot read: {exc.strerror or exc}") from None
-    if len(data) > limit:
-        raise error(f"{path}: larger than {limit} bytes{f' ({limit_from})' if limit_from else ''}: "
-                    "not a file ddrt reads")
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise error(f"{path}: not UTF-8 text: byte {exc.start} (0x{data[exc.start]:02x}) "
-                    f"cannot be decoded") from None
-    return text.removeprefix("\ufeff")
+    """A YAML or CSV file's text through ddrt's one bounded reader (ddrt/config/textfile.py),
+    at most MAX_BYTES unless the caller's setting says otherwise."""
+    return textfile.read_text(path, error, limit, limit_from)
 
 
 def read_yaml(path: str | FsPath, error: type[Exception]) -> Any:

@@ -10,10 +10,11 @@ anything), and the CSV an inline or YAML `file:` names likewise.
 from __future__ import annotations
 
 import os
-import stat
 import time
 from dataclasses import dataclass, field
 from typing import Any, Mapping
+
+from ddrt.config.textfile import check_regular_file
 
 
 CONTENT_FORMATS = {"csv": ".csv", "yaml": ".yaml"}
@@ -115,41 +116,8 @@ def describe(source: Any) -> str:
 
 
 def check_path_file(fname: str, max_bytes: int, error: type[Exception]) -> None:
-    """A path file must be a readable regular file of at most `max_bytes`; never blocks.
-
-    stat first (a FIFO, a device or a directory is refused by its type), then an O_NONBLOCK
-    open and fstat of what was opened (the name may have been swapped in between).
-    """
-    try:
-        st = os.stat(fname)
-    except OSError as exc:
-        raise error(f"{fname}: cannot read: {exc.strerror or exc}") from None
-    _check_stat(fname, st, max_bytes, error)
-    try:
-        fd = os.open(fname, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
-    except OSError as exc:
-        raise error(f"{fname}: cannot read: {exc.strerror or exc}") from None
-    try:
-        _check_stat(fname, os.fstat(fd), max_bytes, error)
-    finally:
-        os.close(fd)
-
-
-def mode_kind(mode: int) -> str:
-    """What a stat mode is, for a message: "a file" (regular), "a directory", "a FIFO", ..."""
-    if stat.S_ISREG(mode):
-        return "a file"
-    return ("a directory" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode)
-            else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
-            else "a socket" if stat.S_ISSOCK(mode) else "not a regular file")
-
-
-def _check_stat(fname: str, st: os.stat_result, max_bytes: int, error: type[Exception]) -> None:
-    kind = mode_kind(st.st_mode)
-    if kind != "a file":
-        raise error(f"{fname}: is {kind}: a path is read from a regular file only")
-    if st.st_size > max_bytes:
-        raise error(f"{fname}: {st.st_size} bytes, more than paths.max_file_bytes = {max_bytes}")
+    """A path file must be a readable regular file of at most `max_bytes`; never blocks."""
+    check_regular_file(fname, max_bytes, error, "paths.max_file_bytes", "a path")
 
 
 def _nested_file(data: Any, base_dir: str | None) -> str | None:

@@ -28,7 +28,7 @@ from typing import Any, Mapping
 from ddrt.errors import DdrtError
 from ddrt.config.schema import INT_LIMIT
 from ddrt.config.yamlio import read_yaml, shorten
-from ddrt.service.pathjob import mode_kind
+from ddrt.config.textfile import mode_kind
 from ddrt.sweep.columns import KNOWN_METRICS, NUMERIC_METRICS, TEXT_METRICS
 from ddrt.sweep.criteria import Criterion, parse_criterion
 from ddrt.sweep.ranges import axis_values, finite

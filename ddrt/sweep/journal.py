@@ -14,6 +14,7 @@ import os
 from pathlib import Path as FsPath
 from typing import Any, TextIO
 
+from ddrt.config.textfile import read_state_text
 from ddrt.sweep.campaign import CampaignError, file_kind
 from ddrt.sweep.cases import Case, Plan
 from ddrt.sweep.columns import STATUSES
@@ -106,7 +107,7 @@ def _is_row_of(row: Any, cases: dict[str, Case], kinds: dict[str, str]) -> bool:
 
 def _state(path: FsPath) -> dict[str, Any]:
     try:
-        state = json.loads(path.read_text(encoding="utf-8"))
+        state = json.loads(read_state_text(path, ValueError))
     except (OSError, ValueError):
         return {}
     return state if isinstance(state, dict) else {}
