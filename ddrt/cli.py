@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Sequence
 
 from ddrt.service import ctlclient
-from ddrt.service.commands import COMMANDS, STREAMS, ctl_number
+from ddrt.service.commands import DECLARED, ctl_epilog, ctl_number
 from ddrt.service.ctlclient import DEFAULT_SOCKET, SOCKET_ENV
 
 
@@ -441,7 +441,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--log-level", default="info", help="debug, info, warning or error")
     run.set_defaults(func=_cmd_run)
 
-    ctl = sub.add_parser("ctl", help="talk to a running daemon over its control socket")
+    ctl = sub.add_parser("ctl", help="talk to a running daemon over its control socket", epilog=ctl_epilog(),
+                         formatter_class=argparse.RawDescriptionHelpFormatter)
     ctl.add_argument("--socket", default=None,
                      help=f"control socket path (default: --config's daemon.socket, else ${SOCKET_ENV}, "
                           f"else {DEFAULT_SOCKET})")
@@ -450,7 +451,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help=f"seconds to wait for the reply (default 2; {FOLLOW_TIMEOUT_S:g} for follow, "
                           f"{RELOAD_TIMEOUT_S:g} for reload)")
     ctl.add_argument("command_name", metavar="COMMAND",
-                     choices=[c for c in COMMANDS if c not in STREAMS and c != "pose_fix"])  # pose --cov sends a fix
+                     choices=[c.name for c in DECLARED.values() if not c.stream and not c.ctl.startswith("(")])
     ctl.add_argument("args", nargs="*", help="follow: the path file (its content is sent); drive: V (m/s) and "
                                              "OMEGA (rad/s); pose: X Y THETA (m, m, rad) sets the pose (--cov: a fix)")
     ctl.add_argument("--here", action="store_true",

@@ -202,7 +202,7 @@ def test_a_ten_thousand_point_csv_is_built_off_the_loop(fd: DaemonProc) -> None:
     """The CSV that stalled the loop 1.2 s: 10 000 points (paths.max_points), zig-zagging."""
     csv = fd.workdir / "zigzag.csv"
     with open(csv, "w") as fh:
-        fh.write("x,y\n")
+        fh.write("x_m,y_m\n")  # 100 m long: beyond paths.workspace_m, so its unit is stated
         fh.writelines(f"{i * 0.01:.3f},{0.004 * (i % 2):.3f}\n" for i in range(10_000))
     pending = Pending(fd, {"path": str(csv), "pose": [0.0, 0.0, 0.0]})
     answers = []

@@ -297,9 +297,9 @@ def test_status_shows_the_mode_and_the_commanded_and_limited_velocities(rig: Dae
 
 
 @pytest.mark.parametrize(("req", "error"), [
-    ({"cmd": "drive", "v": 0.1}, "drive: missing field 'omega'"),
-    ({"cmd": "drive", "omega": 0.1}, "drive: missing field 'v'"),
-    ({"cmd": "drive", "v": 0.1, "omega": 0, "speed": 1}, "drive: unknown field 'speed'"),
+    ({"cmd": "drive", "v": 0.1}, "drive: omega: missing (yaw rate, rad/s)"),
+    ({"cmd": "drive", "omega": 0.1}, "drive: v: missing (forward speed, m/s)"),
+    ({"cmd": "drive", "v": 0.1, "omega": 0, "speed": 1}, "drive: speed: unknown field (drive takes v, omega)"),
     ({"cmd": "drive", "v": "0.1", "omega": 0}, "drive: v: expected a number in m/s, got str"),
     ({"cmd": "drive", "v": 0.1, "omega": True}, "drive: omega: expected a number in rad/s, got bool"),
     ({"cmd": "drive", "v": 1e300, "omega": 0}, "drive: v: 1e+300 m/s is more than 10 x limits.v_max"),
@@ -313,7 +313,7 @@ def test_bad_requests_are_refused_with_the_field_and_change_nothing(rig: DaemonR
 
 def test_drive_while_a_follow_is_prepared_is_refused(rig: DaemonRig) -> None:
     d = rig.d
-    d._pending = _PendingFollow(Build(BuildJob(LINE, speed_limits(d.cfg), d.cfg.paths)), None, None, "shape line", 0)
+    d.follows.hold(_PendingFollow(Build(BuildJob(LINE, speed_limits(d.cfg), d.cfg.paths)), None, None, "shape line", 0))
     reply = d.handle({"cmd": "drive", "v": 0.1, "omega": 0.0})
     assert reply["ok"] is False and "preparing shape line" in reply["error"] and d.loop.state == LoopState.IDLE
 

@@ -40,12 +40,12 @@ def test_ctl_pose_sets_the_pose_and_reset_zeroes_it(idle: DaemonProc) -> None:
 
 
 @pytest.mark.parametrize("payload, needle", [
-    ({"cmd": "pose"}, "pose: pose: expected [x, y, theta]"),
+    ({"cmd": "pose"}, "pose: pose: missing (the robot's pose, m, m, rad)"),
     ({"cmd": "pose", "pose": [1, 2]}, "pose: pose: expected [x, y, theta]"),
-    ({"cmd": "pose", "pose": [1, "a", 0]}, "pose: y: expected a finite number"),
-    ({"cmd": "pose", "pose": [1, 2, True]}, "pose: theta: expected a finite number"),
-    ({"cmd": "pose", "pose": [1e9, 0, 0]}, "pose: x: 1e+09 is beyond"),
-    ({"cmd": "pose", "pose": [0, 0, 0], "speed": 1}, "pose: speed: unknown key"),
+    ({"cmd": "pose", "pose": [1, "a", 0]}, "pose: pose[1] (y): expected a number, got str"),
+    ({"cmd": "pose", "pose": [1, 2, True]}, "pose: pose[2] (theta): expected a number, got bool"),
+    ({"cmd": "pose", "pose": [1e9, 0, 0]}, "pose: pose[0] (x): 1e+09 is beyond"),
+    ({"cmd": "pose", "pose": [0, 0, 0], "speed": 1}, "pose: speed: unknown field (pose takes pose, cov)"),
     ({"cmd": "follow", "shape": "line", "length": 0.3, "here": 1}, "follow: here: expected true or false"),
     ({"cmd": "follow", "shape": "line", "length": 0.3, "here": True, "pose": [0, 0, 0]}, "here and pose"),
 ])

@@ -15,6 +15,7 @@ from typing import Iterator
 import pytest
 
 from ddrt.loop import LoopState
+from ddrt.service.commands import CommandError, parse
 from ddrt.service import stream as st
 from tests.support.daemon import wait_for
 
@@ -78,7 +79,7 @@ def test_a_subscriber_gets_the_loops_state_at_its_rate(stream) -> None:
     with reader(name) as r:
         s.put(0.0)
         assert s._seq == 0  # nobody listens: nothing packed
-        reply = s.subscribe({"cmd": "stream", "to": "@" + name, "rate_hz": 100})
+        reply = s.subscribe("@" + name, 100)
         assert reply["ok"] and reply["fields"] == list(st.NAMES)
         s.put(42.0)
         values = dict(zip(reply["fields"], st.decode(r.recv(4096))))
@@ -120,8 +121,9 @@ def test_a_subscriber_gets_the_loops_state_at_its_rate(stream) -> None:
 ])
 def test_a_bad_request_is_refused_naming_the_field_and_changes_nothing(stream, req, field) -> None:
     s, _, _ = stream
-    reply = s.subscribe({"cmd": "stream", **req})
-    assert reply["ok"] is False and reply["error"].startswith("stream: ") and field in reply["error"]
+    with pytest.raises(CommandError) as err:
+        parse({"cmd": "stream", **req})  # what the daemon does before the subscription is touched
+    assert str(err.value).startswith(f"stream: {field}: ")
     assert s.counts() == {} and not s.active
 
 
@@ -130,11 +132,11 @@ def test_beyond_the_subscriber_bound_is_busy(stream) -> None:
     socks = [reader(f"ddrt-busy-{i}-{id(s):x}") for i in range(st.MAX_SUBSCRIBERS)]
     try:
         for i in range(st.MAX_SUBSCRIBERS):
-            assert s.subscribe({"cmd": "stream", "to": f"@ddrt-busy-{i}-{id(s):x}", "rate_hz": 10})["ok"]
-        reply = s.subscribe({"cmd": "stream", "to": "@one-more", "rate_hz": 10})
+            assert s.subscribe(f"@ddrt-busy-{i}-{id(s):x}", 10)["ok"]
+        reply = s.subscribe("@one-more", 10)
         assert reply["ok"] is False and "busy" in reply["error"]
         # A renewal of a subscriber already there is not a new one.
-        assert s.subscribe({"cmd": "stream", "to": f"@ddrt-busy-0-{id(s):x}", "rate_hz": 20})["ok"]
+        assert s.subscribe(f"@ddrt-busy-0-{id(s):x}", 20)["ok"]
     finally:
         for r in socks:
             r.close()
@@ -146,7 +148,7 @@ def test_a_slow_reader_is_dropped_for_and_a_vanished_one_removed_while_others_st
     with reader(slow) as rs, reader(fast) as rf:
         rs.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # fills after a few datagrams
         for name in (slow, fast, gone):
-            assert s.subscribe({"cmd": "stream", "to": "@" + name, "rate_hz": 400})["ok"]
+            assert s.subscribe("@" + name, 400)["ok"]
         with ticking(s, 1000.0):
             wait_for(lambda: s.counts().get("@" + slow, {}).get("dropped", 0) > 20, 10.0, "drops for the slow reader")
             assert "@" + gone not in s.counts()  # nobody at that address: removed on the first send
@@ -164,7 +166,7 @@ def test_a_subscriber_that_stops_renewing_expires(stream) -> None:
     s, _, clock = stream
     name = f"ddrt-lease-{id(s):x}"
     with reader(name) as r:
-        assert s.subscribe({"cmd": "stream", "to": "@" + name, "rate_hz": 50})["ok"]
+        assert s.subscribe("@" + name, 50)["ok"]
         s.put(1.0)
         r.recv(4096)  # sent once: the lease, not the loop, decides from here
         clock.offset = st.LEASE_S + 0.1

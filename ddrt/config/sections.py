@@ -465,7 +465,7 @@ class PathsConfig:
     # A polyline that states no unit and reaches farther than this is refused as likely in
     # mm, cm or inches (path/units.py); beyond half of it, a warning.
     workspace_m: float = 50.0
-    max_duration_s: float = 3_600.0
+    max_duration_s: float = 86_400.0
     # The daemon reads and builds a path in a worker process, within these bounds.
     max_file_bytes: int = 4_000_000  # a path file (and a CSV it names) larger than this is refused unread
     build_timeout_s: float = 30.0  # the worker is stopped if the path is not ready by then

@@ -35,6 +35,7 @@ from ddrt.loop.states import state_label
 from ddrt.ros2 import convert
 from ddrt.ros2.link import DaemonLink, StateInbox
 from ddrt.ros2.node import DEFAULT, TF, TF_STATIC, Node
+from ddrt.service.commands import CommandError, payload
 
 log = logging.getLogger("ddrt.ros2")
 
@@ -137,7 +138,7 @@ class Bridge:
             self._publish_diagnostics(s if fresh else None)
 
     def _publish_diagnostics(self, s: dict[str, float] | None) -> None:
-        self._status = self._request({"cmd": "status"}).get("status") or {}
+        self._status = self._request("status").get("status") or {}
         st = self._status
         timing = st.get("timing") if isinstance(st.get("timing"), dict) else {}
         values = {k: timing[k] for k in sorted(timing) if not isinstance(timing[k], (dict, list))}
@@ -193,7 +194,7 @@ class Bridge:
             self._last_drive = now
             if math.isfinite(v) and math.isfinite(w):
                 self.count.drives += 1
-                self._answer(self._request({"cmd": "drive", "v": v, "omega": w}), "cmd_vel")
+                self._answer(self._request("drive", v=v, omega=w), "cmd_vel")
             else:
                 self._error("cmd_vel: a non-finite velocity, dropped")
         if self._path is not None:
@@ -208,18 +209,17 @@ class Bridge:
         c = self.cfg
         self.count.paths += 1
         if not path.poses:
-            self._answer(self._request({"cmd": "stop"}), "path (empty: stop)")
+            self._answer(self._request("stop"), "path (empty: stop)")
             return
         frame = path.header.frame_id.lstrip("/")
-        req: dict[str, Any] = {"cmd": "follow", "content": convert.path_csv(path.poses), "format": "csv",
-                               "name": "ros2-path.csv"}
+        req: dict[str, Any] = {"content": convert.path_csv(path.poses), "format": "csv", "name": "ros2-path.csv"}
         if frame == c.map_frame:
             req["frame"] = "map"
         elif frame not in ("", c.odom_frame):
             self._error(f"{c.path_topic}: a path in frame {frame!r}: only {c.odom_frame!r} and "
                         f"{c.map_frame!r} are followed")
             return
-        self._answer(self._request(req, timeout_s=10.0), c.path_topic)
+        self._answer(self._request("follow", timeout_s=10.0, **req), c.path_topic)
 
     def _pose_fix(self, topic: str, m: Any) -> None:
         s = self.state
@@ -230,16 +230,22 @@ class Bridge:
         # The message's stamp on the loop's clock: ROS time -> monotonic -> the sample clock.
         stamp = convert.stamp_seconds(m.header.stamp) - self._epoch + (s["t"] - s["mono"])
         self.count.fixes += 1
-        self._answer(self._request({"cmd": "pose_fix", "x": p.position.x, "y": p.position.y,
-                                    "theta": convert.quaternion_yaw(p.orientation),
-                                    "cov": convert.cov3(list(m.pose.covariance)), "stamp": stamp}), topic)
+        self._answer(self._request("pose_fix", x=p.position.x, y=p.position.y,
+                                   theta=convert.quaternion_yaw(p.orientation),
+                                   cov=convert.cov3(list(m.pose.covariance)), stamp=stamp), topic)
 
     # ------------------------------------------------------------------ the daemon
 
-    def _request(self, payload: dict[str, Any], timeout_s: float = 2.0) -> dict[str, Any]:
+    def _request(self, cmd: str, timeout_s: float = 2.0, **fields: Any) -> dict[str, Any]:
+        """The daemon's reply to one command, built and checked against its declaration here
+        (a message that fits no request is answered as the daemon would refuse it)."""
+        try:
+            wire = payload(cmd, **fields)
+        except CommandError as exc:
+            return {"ok": False, "error": str(exc)}
         self.link.timeout_s = timeout_s
         try:
-            reply = self.link.request(payload)
+            reply = self.link.request(wire)
         except (OSError, ValueError) as exc:
             text = f"{exc}"
             if text != self._down:

@@ -38,11 +38,11 @@ from ddrt.path.spec import config_path_error, path_source, speed_limits
 from ddrt.runtime import rt
 from ddrt.runtime.clock import MonotonicClock
 from ddrt.service.audit import StateLog
-from ddrt.service.commands import COMMANDS, NEVER_REFUSED, PRIORITY
+from ddrt.service.commands import COMMANDS, NEVER_REFUSED, PRIORITY, CommandError, Request, parse
 from ddrt.service.ctlqueue import Deferred
 from ddrt.service.ctlserver import ControlServer
-from ddrt.service.follow import PendingFollow, cancel_follow, follow_step
-from ddrt.service.handlers import HANDLERS, drive
+from ddrt.service.follow import FollowSlot, PendingFollow, cancel_follow, follow_step
+from ddrt.service.handlers import HANDLERS
 from ddrt.service.instance import AlreadyRunning, InstanceLock, lock_path_for
 from ddrt.service.pathjob import Build, BuildJob
 from ddrt.service.pathworker import PathWorker
@@ -99,10 +99,10 @@ class Daemon:
         self.reloads = self.reloader.counts
         # Paths are read and built in a worker process (ddrt/service/pathworker.py), never on
         # the loop thread; at most one follow waits for its path at a time
-        # (ddrt/service/follow.py reads and sets _pending).
+        # (ddrt/service/follow.py's FollowSlot).
         self.paths: PathWorker | None = None
         self._start_build: Build | None = None
-        self._pending: PendingFollow | None = None
+        self.follows = FollowSlot()
         self._teleop_refusal = ""  # the last teleop refusal logged
         self.viz: Any = None  # Foxglove and MCAP, the state stream, the ROS 2 bridge (ddrt/service/taps.py)
 
@@ -143,14 +143,17 @@ class Daemon:
 
     # ------------------------------------------------------------------ between two ticks
 
-    def handle(self, req: dict[str, Any]) -> dict[str, Any] | Deferred:
-        """One control-socket request: its command's handler (ddrt/service/handlers.py)."""
+    def handle(self, req: Mapping[str, Any] | Request) -> dict[str, Any] | Deferred:
+        """One request, between two ticks: checked against its command's declaration
+        (ddrt/service/commands.py) unless it comes typed, then its handler's reply
+        (ddrt/service/handlers.py). The one entry of every way in."""
         assert self.loop is not None
-        cmd = req["cmd"]
-        handler = HANDLERS.get(cmd) if isinstance(cmd, str) else None
-        if handler is None:
-            return {"ok": False, "error": f"unknown command {cmd!r}"}
-        return handler(self, req)
+        if not isinstance(req, Request):
+            try:
+                req = parse(req)
+            except CommandError as exc:
+                return {"ok": False, "error": str(exc)}
+        return HANDLERS[req.name](self, req)
 
     def status(self) -> dict[str, Any]:
         """The status reply's body (ddrt/service/status.py)."""
@@ -169,7 +172,10 @@ class Daemon:
         """A Foxglove teleop command (between two ticks): the velocity mode, as a socket
         `drive`. A refusal is logged once until the reason changes (a panel publishing at
         20 Hz while a path runs must not flood the log)."""
-        reply = drive(self, v, omega, "foxglove", "over Foxglove teleop")
+        try:
+            reply = self.handle(parse({"cmd": "drive", "v": v, "omega": omega}, "foxglove", "over Foxglove teleop"))
+        except CommandError as exc:
+            reply = {"ok": False, "error": str(exc)}
         error = "" if reply.get("ok") else str(reply.get("error", ""))
         if error and error != self._teleop_refusal:
             log.warning("foxglove teleop refused: %s", error)
@@ -304,7 +310,7 @@ class Daemon:
         if self.follow_at_start and self._start_build is not None:
             # Built in the worker meanwhile (or still being built): the loop switches to it
             # between two ticks once it is ready.
-            self._pending = PendingFollow(self._start_build, None, None, f"{cfg.source}: path", self.stats.missed)
+            self.follows.hold(PendingFollow(self._start_build, None, None, f"{cfg.source}: path", self.stats.missed))
             follow_step(self, 0.0)  # ready already (the usual case): following from the first tick
         self._start_build = None
         self._fixed_rate_loop()
@@ -370,7 +376,7 @@ class Daemon:
                 self.ready_s = time.monotonic() - self.t_start
                 notifier.ready()
                 log.info("ready after %.3f s at %.0f Hz", self.ready_s, 1.0 / self.period)
-            if self._pending is not None:
+            if self.follows.pending is not None:
                 follow_step(self, woke - deadline)
             if self.server is not None:
                 self.server.poll(self.handle)

@@ -1,9 +1,8 @@
 """The control socket's `drive` request and the velocity mode's part of `status`.
 
 `{"cmd": "drive", "v": V, "omega": W}` (m/s, rad/s; an "id" may ride along): the request's
-shape is checked here (both fields present, nothing else), the values by the loop
-(ddrt.core.drive.check_command), so every caller of `handlers.drive` gets the same checks.
-NaN, Infinity and 1e999 never get this far: the socket's strict JSON refuses them.
+shape is checked by its declaration (ddrt/service/commands.py), the values against the limits
+by the loop (ddrt.core.drive.check_command), so every way in gets the same checks.
 """
 
 from __future__ import annotations
@@ -12,20 +11,6 @@ import time
 from typing import Any, Callable
 
 from ddrt.core.drive import DriveReference
-
-REQUEST_KEYS = ("cmd", "id", "v", "omega")
-
-
-def drive_fields(req: dict[str, Any]) -> tuple[Any, Any]:
-    """The request's (v, omega), unchecked; ValueError naming a missing or unknown field."""
-    for name, unit in (("v", "m/s"), ("omega", "rad/s")):
-        if name not in req:
-            raise ValueError(f"missing field {name!r} ({unit}); expected "
-                             '{"cmd": "drive", "v": V, "omega": W}')
-    extra = sorted(str(k)[:40] for k in req if k not in REQUEST_KEYS)
-    if extra:
-        raise ValueError(f"unknown field {extra[0]!r} (drive takes v in m/s and omega in rad/s)")
-    return req["v"], req["omega"]
 
 
 def drive_status(loop: Any) -> dict[str, Any]:

@@ -2,7 +2,7 @@
 process (ddrt/service/pathworker.py), the loop keeps ticking, and between two ticks, once
 the path is ready, the loop switches to it and the request's `Deferred` reply is sent.
 
-At most one follow waits for its path at a time: the daemon's `_pending`. Nothing here reads
+At most one follow waits for its path at a time: the daemon's `FollowSlot`. Nothing here reads
 a file or builds anything on the loop thread: a follow costs the loop microseconds whatever
 it asks for. A stop, an estop or the daemon's exit cancels a follow still being prepared.
 """
@@ -10,7 +10,6 @@ it asks for. A stop, an estop or the daemon's exit cancels a follow still being 
 from __future__ import annotations
 
 import logging
-import math
 from array import array
 from typing import TYPE_CHECKING, Any
 
@@ -20,6 +19,7 @@ from ddrt.path import PathError
 from ddrt.path.frame import in_map, inverse
 from ddrt.path.spec import config_path_error, speed_limits
 from ddrt.service.audit import peer_text
+from ddrt.service.commands import Request
 from ddrt.service.ctlqueue import Deferred
 from ddrt.service.pathjob import Build, BuildJob, build_path, content_source, describe
 from ddrt.service.timing import select_quantiles
@@ -39,7 +39,7 @@ class PendingFollow:
     __slots__ = ("build", "pose", "reply", "what", "ticks", "late", "missed0", "who", "built")
 
     def __init__(self, build: Build, pose: tuple[float, float, float] | None, reply: Deferred | None,
-                 what: str, missed0: int, who: str = "") -> None:
+                 what: str, missed0: int, who: str = "", built: tuple[float, float, float] | None = None) -> None:
         self.who = who  # who asked, over which channel (the log's audit line)
         self.build = build
         self.pose = pose
@@ -48,7 +48,7 @@ class PendingFollow:
         self.ticks = 0
         self.late = array("d")  # each tick's lateness while the path is prepared (bounded)
         self.missed0 = missed0
-        self.built: tuple[float, float, float] | None = None  # frame map: the correction the path was built at
+        self.built = built  # frame map: the correction the path was built at
 
     def report(self, missed: int) -> dict[str, Any]:
         """What preparing the path cost the loop: the ticks it ran meanwhile, how late."""
@@ -59,11 +59,37 @@ class PendingFollow:
                 "late_max_us": top * 1e6 if top is not None else None}
 
 
-def start_follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
+class FollowSlot:
+    """The one follow that may wait for its path at a time, owned by the daemon; the socket's
+    handlers ask it, and only this module's steps fill and empty it."""
+
+    def __init__(self) -> None:
+        self._pending: PendingFollow | None = None
+
+    @property
+    def pending(self) -> PendingFollow | None:
+        return self._pending
+
+    def hold(self, pending: PendingFollow) -> None:
+        if self._pending is not None:
+            raise RuntimeError(f"a follow of {self._pending.what} is already being prepared")
+        self._pending = pending
+
+    def release(self) -> PendingFollow | None:
+        """The follow that was waiting (None if none was), and the slot empty."""
+        pending, self._pending = self._pending, None
+        return pending
+
+    def busy_text(self) -> str:
+        """'' when free, else what is being prepared, for a refusal."""
+        return "" if self._pending is None else self._pending.what
+
+
+def start_follow(d: Daemon, req: Request) -> dict[str, Any] | Deferred:
     """Check the request, hand the path to the worker, answer when the loop has switched.
 
-    A follow while following (or while another one is being prepared) is refused, as
-    before: send stop first.
+    A follow while following (or while another one is being prepared) is refused: send stop
+    first.
     """
     loop = d.loop
     assert loop is not None
@@ -71,47 +97,38 @@ def start_follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
         return {"ok": False, "error": f"already {loop.state}: send stop first"}
     if loop.state in (LoopState.ESTOP, LoopState.FAULT):
         return {"ok": False, "error": f"in {loop.state}: send reset first"}
-    if d._pending is not None:
-        return {"ok": False, "error": f"busy: still preparing {d._pending.what} "
-                                      f"({d._pending.build.elapsed_s:.1f} s): send stop to cancel it"}
+    waiting = d.follows.pending
+    if waiting is not None:
+        return {"ok": False, "error": f"busy: still preparing {waiting.what} "
+                                      f"({waiting.build.elapsed_s:.1f} s): send stop to cancel it"}
     source: Any
-    if "path" in req:
-        source = req["path"]
-        if not isinstance(source, str):
-            return {"ok": False, "error": "follow: path: expected a file name"}
-        if not source or "\0" in source:
-            return {"ok": False, "error": f"follow: path: not a file name: {source!r}"}
-    elif "content" in req:
+    args = req.args
+    if "path" in args:
+        source = args["path"]
+        if req.extra:
+            return {"ok": False, "error": f"follow: {sorted(req.extra)[0]!s:.40}: not with path (the keys of a "
+                                          "path spec belong in the file it names)"}
+    elif "content" in args:
         # A path file's content (ddrt ctl follow FILE): read as that file would be.
         try:
-            source = content_source(req, d.cfg.paths.max_file_bytes)
+            source = content_source({**args, **req.extra}, d.cfg.paths.max_file_bytes)
         except ValueError as exc:
             return {"ok": False, "error": f"follow: {exc}"}
-    elif "points" in req or "shape" in req:
+    elif "points" in req.extra or "shape" in req.extra:
         # An inline spec: every key but the request's own goes to the path loader, which
         # refuses unknown ones and clamps limits above the config's (reported below).
-        source = {k: v for k, v in req.items() if k not in ("cmd", "id", "pose", "here", "frame")}
+        source = dict(req.extra)
         if "points" in source:
             source.setdefault("speed", min(0.3, speed_limits(d.cfg).v_max))
     else:
         return {"ok": False, "error": "follow: give path (a file the daemon reads), content (a file's text, "
                                       "with format csv or yaml), points ([[x, y], ...]) or shape"}
-    pose = req.get("pose")
-    if pose is not None:
-        if (not isinstance(pose, list) or len(pose) != 3
-                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-                           for v in pose)):
-            return {"ok": False, "error": "follow: pose: expected [x, y, theta]"}
-        pose = (float(pose[0]), float(pose[1]), float(pose[2]))
-    here = req.get("here", False)
-    if not isinstance(here, bool):
-        return {"ok": False, "error": "follow: here: expected true or false"}
+    pose = tuple(args["pose"]) if "pose" in args else None
+    here = args["here"]
     if here and pose is not None:
         return {"ok": False, "error": "follow: here and pose: give one (here places the path at the robot's "
                                       "pose; pose says where the robot is)"}
-    frame = req.get("frame", "odom")
-    if frame not in ("odom", "map"):
-        return {"ok": False, "error": f"follow: frame: expected 'odom' or 'map', got {frame!r:.40}"}
+    frame = args["frame"]
     built = None
     if frame == "map":
         if pose is not None:
@@ -132,20 +149,17 @@ def start_follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
             build._finish(path=build_path(job))
         except (PathError, ValueError, TypeError, OSError) as exc:
             return {"ok": False, "error": f"follow: {exc}"}
-        pending = PendingFollow(build, pose, None, what, d.stats.missed, who)
-        pending.built = built
-        return switch(d, pending, build)
+        return switch(d, PendingFollow(build, pose, None, what, d.stats.missed, who, built), build)
     build = d.paths.submit(job)
     reply = Deferred()
-    d._pending = PendingFollow(build, pose, reply, what, d.stats.missed, who)
-    d._pending.built = built
+    d.follows.hold(PendingFollow(build, pose, reply, what, d.stats.missed, who, built))
     log.info("follow: preparing %s", what)
     return reply
 
 
 def follow_step(d: Daemon, late_s: float) -> None:
     """Between two ticks while a follow waits for its path: switch once it is ready."""
-    p = d._pending
+    p = d.follows.pending
     assert p is not None
     p.ticks += 1
     if len(p.late) < PREPARE_SAMPLES:
@@ -153,7 +167,7 @@ def follow_step(d: Daemon, late_s: float) -> None:
     build = p.build
     if not build.done:
         return
-    d._pending = None
+    d.follows.release()
     reply = switch(d, p, build) if not build.error else {"ok": False, "error": f"follow: {build.error}"}
     reply["prepared"] = p.report(d.stats.missed)
     if not reply["ok"]:
@@ -208,10 +222,9 @@ def switch(d: Daemon, p: PendingFollow, build: Build) -> dict[str, Any]:
 
 def cancel_follow(d: Daemon, why: str) -> dict[str, Any]:
     """A stop or estop (or the daemon's exit) cancels a follow still being prepared."""
-    p = d._pending
+    p = d.follows.release()
     if p is None:
         return {}
-    d._pending = None
     if d.paths is not None:
         d.paths.cancel(p.build)
     log.info("follow of %s %s", p.what, why)
@@ -222,7 +235,7 @@ def cancel_follow(d: Daemon, why: str) -> dict[str, Any]:
 
 def preparing(d: Daemon) -> dict[str, Any] | None:
     """The follow being prepared, for status (None when there is none)."""
-    p = d._pending
+    p = d.follows.pending
     if p is None:
         return None
     return {"source": p.what, "phase": p.build.phase, "elapsed_s": p.build.elapsed_s}

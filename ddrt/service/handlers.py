@@ -4,8 +4,9 @@ function that answers it, between two ticks, on the loop thread.
 `command_table` checks the table against the command list when this module is imported: a
 command without a handler, or a handler for a command the list does not have, stops the
 daemon before it starts (the server refuses unknown commands by that same list). A handler
-takes the daemon and the request and returns the reply, or a `Deferred` that the loop
-completes later (a follow, once its path is built).
+takes the daemon and the request, already checked against its command's declaration (a
+`Request`), and returns the reply, or a `Deferred` that the loop completes later (a follow,
+once its path is built).
 """
 
 from __future__ import annotations
@@ -14,9 +15,8 @@ import logging
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping
 
 from ddrt.service.audit import peer_text
-from ddrt.service.commands import COMMANDS
+from ddrt.service.commands import COMMANDS, Request
 from ddrt.service.ctlqueue import Deferred
-from ddrt.service.drivecmd import drive_fields
 from ddrt.service.follow import cancel_follow, start_follow
 from ddrt.service.posefix import pose_cmd, pose_fix_cmd
 from ddrt.loop import LoopState
@@ -26,7 +26,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("ddrt.service.daemon")
 
-CommandHandler = Callable[["Daemon", dict[str, Any]], "dict[str, Any] | Deferred"]
+CommandHandler = Callable[["Daemon", Request], "dict[str, Any] | Deferred"]
 
 
 def command_table(handlers: Mapping[str, CommandHandler], commands: Iterable[str]) -> dict[str, CommandHandler]:
@@ -46,8 +46,8 @@ def drive(d: Daemon, v: object, omega: object, source: str, channel: str = "") -
     socket, a teleop bridge), between two ticks; a refusal changes nothing."""
     loop = d.loop
     assert loop is not None
-    if d._pending is not None:
-        return {"ok": False, "error": f"drive: busy: preparing {d._pending.what} to follow: "
+    if d.follows.busy_text():
+        return {"ok": False, "error": f"drive: busy: preparing {d.follows.busy_text()} to follow: "
                                       "send stop to cancel it"}
     old = loop.path
     try:
@@ -73,17 +73,17 @@ def vars_of(obj: Any) -> dict[str, Any]:
     return {k: getattr(obj, k) for k in obj.__dataclass_fields__}
 
 
-def _status(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
+def _status(d: Daemon, req: Request) -> dict[str, Any]:
     return {"ok": True, "status": d.status()}
 
 
-def _gains(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
+def _gains(d: Daemon, req: Request) -> dict[str, Any]:
     c = d.cfg.controller
     return {"ok": True, "mode": c.mode, "outer": vars_of(c.outer), "inner": vars_of(c.inner),
             "wheel_pid": vars_of(c.wheel_pid), "heading_gain": c.heading_gain}
 
 
-def _stop(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
+def _stop(d: Daemon, req: Request) -> dict[str, Any]:
     loop = d.loop
     assert loop is not None
     d.audit.note(f"stop {who(d)}")
@@ -92,7 +92,7 @@ def _stop(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
     return {"ok": True, "state": loop.state.label, **cancelled}
 
 
-def _estop(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
+def _estop(d: Daemon, req: Request) -> dict[str, Any]:
     loop = d.loop
     assert loop is not None
     d.audit.note(f"estop {who(d)}")
@@ -101,7 +101,7 @@ def _estop(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
     return {"ok": True, "state": loop.state.label, **cancelled}
 
 
-def _resume(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
+def _resume(d: Daemon, req: Request) -> dict[str, Any]:
     # After a hold ended stopped (daemon.on_recover: wait): the path from where the robot
     # stands, the schedule ramping up from rest.
     loop = d.loop
@@ -115,7 +115,7 @@ def _resume(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
     return {"ok": True, "state": loop.state.label}
 
 
-def _reset(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
+def _reset(d: Daemon, req: Request) -> dict[str, Any]:
     loop = d.loop
     assert loop is not None
     try:
@@ -128,39 +128,35 @@ def _reset(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
     return {"ok": True, "state": loop.state.label}
 
 
-def _pose(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
-    return pose_cmd(d, req, who(d))  # ddrt/service/posefix.py, beside pose_fix
+def _pose(d: Daemon, req: Request) -> dict[str, Any]:
+    return pose_cmd(d, req, req.channel or who(d))  # ddrt/service/posefix.py, beside pose_fix
 
 
-def _pose_fix(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
-    return pose_fix_cmd(d, req, who(d))
+def _pose_fix(d: Daemon, req: Request) -> dict[str, Any]:
+    return pose_fix_cmd(d, req, req.channel or who(d))
 
 
-def _stream(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
+def _stream(d: Daemon, req: Request) -> dict[str, Any]:
     """Send the loop's state to a datagram socket (ddrt/service/stream.py; the ROS 2 bridge)."""
     from ddrt.service.taps import Taps
 
     if not isinstance(d.viz, Taps):
         return {"ok": False, "error": "stream: this daemon has no state stream"}
-    return d.viz.stream.subscribe(req)
+    return d.viz.stream.subscribe(req.args["to"], req.args["rate_hz"])
 
 
-def _reload(d: Daemon, req: dict[str, Any]) -> Deferred:
+def _reload(d: Daemon, req: Request) -> Deferred:
     """The file is read off the loop thread (Reloader.request); the reply waits for that."""
     reply = Deferred()
     d.reloader.request(reply.complete)
     return reply
 
 
-def _drive(d: Daemon, req: dict[str, Any]) -> dict[str, Any]:
-    try:
-        v, omega = drive_fields(req)
-    except ValueError as exc:
-        return {"ok": False, "error": f"drive: {exc}"}
-    return drive(d, v, omega, "control socket", who(d))
+def _drive(d: Daemon, req: Request) -> dict[str, Any]:
+    return drive(d, req.args["v"], req.args["omega"], req.origin or "control socket", req.channel or who(d))
 
 
-def _follow(d: Daemon, req: dict[str, Any]) -> dict[str, Any] | Deferred:
+def _follow(d: Daemon, req: Request) -> dict[str, Any] | Deferred:
     loop = d.loop
     assert loop is not None
     if loop.state == LoopState.STOPPING:

@@ -16,13 +16,12 @@ error naming the field and changes nothing.
 from __future__ import annotations
 
 import logging
-import math
 from typing import TYPE_CHECKING, Any
 
-from ddrt.core.pose_fix import POSE_BOUND_M, FixError, parse_cov, parse_fix
+from ddrt.core.pose_fix import FixError, parse_cov, parse_fix
 from ddrt.core.wrap import wrap_angle
 from ddrt.loop import LoopState
-from ddrt.service.commands import ctl_number
+from ddrt.service.commands import Request, ctl_number
 
 if TYPE_CHECKING:
     from ddrt.service.daemon import Daemon
@@ -30,34 +29,23 @@ if TYPE_CHECKING:
 log = logging.getLogger("ddrt.service.daemon")
 
 
-def pose_cmd(d: Daemon, req: dict[str, Any], who: str) -> dict[str, Any]:
+def pose_cmd(d: Daemon, req: Request, who: str) -> dict[str, Any]:
     """Set the estimator's pose (m, m, rad), optionally with its covariance. Refused while the
     robot moves along a reference or a follow is prepared; changes nothing then."""
     loop = d.loop
     assert loop is not None
-    extra = sorted(k for k in req if k not in ("cmd", "id", "pose", "cov"))
-    if extra:
-        return {"ok": False, "error": f"pose: {extra[0]}: unknown key (give pose: [x, y, theta], and cov if known; "
-                                      "a measured pose while moving is a pose_fix)"}
-    pose = req.get("pose")
-    if not isinstance(pose, list) or len(pose) != 3:
-        return {"ok": False, "error": "pose: pose: expected [x, y, theta] (metres, metres, radians)"}
-    for name, v in zip(("x", "y", "theta"), pose):
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not _finite(v):
-            return {"ok": False, "error": f"pose: {name}: expected a finite number, got {v!r:.40}"}
-        if abs(v) > POSE_BOUND_M:
-            return {"ok": False, "error": f"pose: {name}: {v:g} is beyond +-{POSE_BOUND_M:g}"}
+    pose = req.args["pose"]  # [x, y, theta], finite and within bounds (its declaration)
     cov = None
     if req.get("cov") is not None:
         try:
-            cov = parse_cov(req["cov"])
+            cov = parse_cov(req.args["cov"])
         except FixError as exc:
             return {"ok": False, "error": f"pose: {exc}"}
     if loop.state in (LoopState.FOLLOWING, LoopState.STOPPING, LoopState.DRIVING, LoopState.HOLDING):
         return {"ok": False, "error": f"pose: refused while {loop.state}: send stop, and set the pose once "
                                       "status says 'stopped' (or send the measured pose as a pose_fix)"}
-    if d._pending is not None:
-        return {"ok": False, "error": f"pose: refused while preparing {d._pending.what} to follow: "
+    if d.follows.busy_text():
+        return {"ok": False, "error": f"pose: refused while preparing {d.follows.busy_text()} to follow: "
                                       "send stop to cancel it"}
     x, y, theta = float(pose[0]), float(pose[1]), wrap_angle(float(pose[2]))
     loop.estimator.set_pose((x, y, theta), cov)
@@ -65,13 +53,13 @@ def pose_cmd(d: Daemon, req: dict[str, Any], who: str) -> dict[str, Any]:
     return {"ok": True, "state": loop.state.label, "pose": [x, y, theta]}
 
 
-def pose_fix_cmd(d: Daemon, req: dict[str, Any], who: str) -> dict[str, Any]:
+def pose_fix_cmd(d: Daemon, req: Request, who: str) -> dict[str, Any]:
     """Fuse a pose fix into the map frame; any state but before the estimator has started."""
     loop = d.loop
     assert loop is not None
     est = loop.estimator
     try:
-        fix = parse_fix(req, est.t_est)
+        fix = parse_fix(dict(req.args), est.t_est)
         result = est.fuse_fix(fix)
     except FixError as exc:
         return {"ok": False, "error": f"pose_fix: {exc}"}
@@ -85,13 +73,6 @@ def pose_fix_cmd(d: Daemon, req: dict[str, Any], who: str) -> dict[str, Any]:
     return {"ok": True, "state": loop.state.label, **result, "stamp": fix.stamp,
             "pose_map": [xm, ym, thm], "std": [sx, sy, sth],
             "fixes": {"fused": est.frame.counters.fused, "outliers": est.frame.counters.outliers}}
-
-
-def _finite(v: float) -> bool:
-    try:
-        return math.isfinite(v)
-    except OverflowError:
-        return False
 
 
 def ctl_fix_request(xyt: list[float], cov: str | None, stamp: str | None) -> dict[str, Any]:

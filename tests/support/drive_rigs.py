@@ -74,4 +74,4 @@ class DaemonRig:
         loop = self.d.loop
         ref = loop.reference
         drive = (ref.commanded, ref.target, ref.age_s, ref.braking, ref.commands) if hasattr(ref, "commanded") else None
-        return loop.state, loop.fault, ref, drive, self.d._pending
+        return loop.state, loop.fault, ref, drive, self.d.follows.pending
