@@ -10,6 +10,7 @@ import copy
 from pathlib import Path as FsPath
 from typing import Any, Mapping
 
+from ddrt.config.filekind import CONFIG, PATH, not_a
 from ddrt.config.schema import ConfigError, build, convert
 from ddrt.config.sections import (
     Config, ControllerConfig, DaemonConfig, DriveConfig, EstimatorConfig, HalConfig, LimitsConfig, PathsConfig,
@@ -201,10 +202,15 @@ def daemon_socket_of(path: str | FsPath, error: Exception) -> str | None:
 def load_config(path: str | FsPath, overrides: Mapping[str, Any] | None = None) -> Config:
     """Read, merge and validate a YAML config file (plus optional in-memory overrides)."""
     p = FsPath(path)
+    if p.suffix.lower() == ".csv":
+        raise ConfigError(PATH.sentence(str(p), "a config"))
     try:
         data = _read_yaml(p.resolve())
     except ConfigError as exc:
         raise ConfigError(str(exc).replace(str(p.resolve()), str(p), 1)) from None
+    other = not_a(data, CONFIG, str(p), "a config")
+    if other is not None:
+        raise ConfigError(other)
     if overrides:
         data = merge_mappings(data, overrides)
     return config_from_mapping(data, source=str(p), base_dir=str(p.resolve().parent))

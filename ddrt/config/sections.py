@@ -463,7 +463,7 @@ class PathsConfig:
     max_points: int = 10_000
     max_extent_m: float = 10_000.0
     # A polyline that states no unit and reaches farther than this is refused as likely in
-    # mm, cm or inches (path/units.py); beyond half of it, a warning.
+    # mm, cm or inches (path/units.py); beyond 0.3 of it (15 m), a warning.
     workspace_m: float = 50.0
     max_duration_s: float = 3_600.0
     # The daemon reads and builds a path in a worker process, within these bounds.
