@@ -57,7 +57,7 @@ def _write(folder: Path, name: str, data: dict) -> Path:
 
 
 def test_every_file_key_resolves_against_the_folder_of_the_file_that_gives_it(tmp_path, monkeypatch) -> None:
-    base = _write(tmp_path / "base", "base.yaml", {
+    _write(tmp_path / "base", "base.yaml", {
         "extends": str(SIM_YAML),
         "daemon": {"socket": "run/b.sock", "telemetry_dir": "tel"},
         "hal": {"pwm_sysfs": {"root": "fake-sys"}},

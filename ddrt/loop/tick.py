@@ -50,6 +50,11 @@ FOLLOWING, STOPPING, STOPPED = LoopState.FOLLOWING, LoopState.STOPPING, LoopStat
 ESTOP, FAULT, HOLDING, DRIVING = LoopState.ESTOP, LoopState.FAULT, LoopState.HOLDING, LoopState.DRIVING
 
 
+class StartTooFar(ValueError):
+    """A path refused because its start is farther from the robot than limits.max_path_error_m
+    (a caller that can place the path at the robot says how)."""
+
+
 def _no_stamp() -> None:
     """The tick's stage stamp outside benchmarks: nothing."""
 
@@ -201,7 +206,7 @@ class ControlLoop:
             start = path.at(0.0)
             why = self._off_path(x, y, start.x, start.y)
             if why:
-                raise ValueError(f"the path's start is {why}: move the robot or the path")
+                raise StartTooFar(f"the path's start is {why}: move the robot or the path")
 
     def _off_path(self, x: float, y: float, px: float, py: float) -> str:
         """'' while (x, y) is within limits.max_path_error_m of the path point (px, py), else why."""

@@ -1,0 +1,170 @@
+"""What a new user reads in the first hour says what it means: the summary's wall time and
+real-time factor, the progress line in a log, `ddrt path`'s length, the command line's help."""
+
+from __future__ import annotations
+
+import io
+import re
+import subprocess
+import sys
+
+import pytest
+
+from ddrt.cli import main
+from ddrt.simrun.progress import StderrProgress
+from ddrt.simrun.runner import summary_text
+from tests.support.repo import REPO, SIM_YAML
+
+METRICS = {"controller": "outer", "completed": True, "state": "stopped", "fault": None, "sim_duration_s": 12.65,
+           "ticks": 2530, "wall_s": 0.27, "realtime_factor": 51.0, "rms_cross_track_m": 1e-4,
+           "max_cross_track_m": 2e-4, "rms_tracking_m": 1e-4, "max_tracking_m": 2e-4, "rms_heading_err_rad": 0.01,
+           "final_pos_err_m": 1e-3, "saturated_fraction": 0.0}
+
+
+# ---------------------------------------------------------------------------------------------
+# The summary's wall time
+
+
+def test_the_summary_says_which_wall_time_the_real_time_factor_is_of() -> None:
+    text = summary_text(METRICS)
+    line = next(ln for ln in text.splitlines() if ln.startswith("wall time"))
+    # 12.65 s / 51 = 0.248 s following; 0.27 s in all with the set-up.
+    assert "0.27 s in all" in line and "0.25 s of it following the path (51x real time)" in line
+
+
+def test_a_run_s_wall_time_figures_agree_with_each_other(tmp_path, capsys) -> None:
+    assert main(["sim", str(SIM_YAML), "--duration", "3", "--out", str(tmp_path), "--quiet"]) == 0
+    out = capsys.readouterr().out
+    m = re.search(r"wall time +([\d.]+) s in all, ([\d.]+) s of it following the path \((\d+)x real time\)", out)
+    assert m, out
+    total, following, factor = float(m[1]), float(m[2]), int(m[3])
+    sim = float(re.search(r"simulated +([\d.]+) s", out)[1])
+    assert following <= total
+    assert sim / following == pytest.approx(factor, rel=0.05, abs=1.0)
+
+
+# ---------------------------------------------------------------------------------------------
+# Progress
+
+
+class _Tty(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_progress_off_a_terminal_is_whole_lines_of_the_expected_time() -> None:
+    out = io.StringIO()
+    p = StderrProgress(out)
+    for t in range(0, 30, 1):  # a path of 12.65 s (its run limited to 29 s)
+        p(float(t), 12.65)
+    p.end()
+    text = out.getvalue()
+    assert "\r" not in text and text.endswith("\n")
+    lines = text.splitlines()
+    assert 10 <= len(lines) <= 25  # one a tenth of the run, not one a call
+    assert all(ln.endswith("of 12.7 s") and "at most" not in ln for ln in lines)
+
+
+def test_progress_on_a_terminal_rewrites_one_line_and_ends_it() -> None:
+    out = _Tty()
+    p = StderrProgress(out)
+    p(0.0, 5.0)
+    p(2.5, 5.0)
+    assert out.getvalue().count("\r") == 2 and "\n" not in out.getvalue()
+    p.end()
+    p.end()
+    assert out.getvalue().endswith("of 5.0 s\n") and out.getvalue().count("\n") == 1
+
+
+def test_ddrt_sim_into_a_log_writes_lines_that_end(tmp_path) -> None:
+    r = subprocess.run([sys.executable, "-m", "ddrt.cli", "sim", str(SIM_YAML), "--duration", "12", "--out",
+                        str(tmp_path)], cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    progress = [ln for ln in r.stderr.splitlines() if "simulated" in ln]
+    assert "\r" not in r.stderr and r.stderr.endswith("\n")
+    assert progress and all(ln.endswith("of 12.0 s") for ln in progress)
+
+
+# ---------------------------------------------------------------------------------------------
+# The command line's help
+
+
+def test_ddrt_version_is_the_package_s(capsys) -> None:
+    import tomllib
+
+    from ddrt import __version__
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0
+    assert capsys.readouterr().out.strip() == f"ddrt {__version__}"
+    assert tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["version"] == __version__
+
+
+def test_ddrt_ctl_help_lists_every_command_with_what_it_does(capsys) -> None:
+    from ddrt.ctlcli import HELP
+    from ddrt.service.commands import COMMANDS, STREAMS
+
+    offered = [c for c in COMMANDS if c not in STREAMS and c != "pose_fix"]
+    assert sorted(HELP) == sorted(offered)
+    with pytest.raises(SystemExit):
+        main(["ctl", "-h"])
+    text = capsys.readouterr().out
+    listed = text[text.index("commands:"):].splitlines()[1:]
+    assert [ln.split()[0] for ln in listed] == list(HELP)
+    assert all(len(ln.split()) >= 4 for ln in listed)  # a name and what it does
+
+
+# ---------------------------------------------------------------------------------------------
+# ddrt path: turns in place have no length
+
+
+def _two_pivots(tmp_path):
+    from ddrt.path import load_path
+
+    f = tmp_path / "pivots.csv"
+    f.write_text("x,y\n0,0\n1,0\n1,1\n2,1\n")  # 3 m with two 90 degree turns in place
+    return load_path(f), str(f)
+
+
+def test_ddrt_path_reports_the_driven_length_without_the_turns_in_place(tmp_path) -> None:
+    from ddrt.path.report import path_report, report_text
+
+    path, name = _two_pivots(tmp_path)
+    assert path.length > 3.2  # progress counts pivot_radius a radian of turning
+    r = path_report(path, name)
+    assert r.driven_m == pytest.approx(3.0, abs=1e-9)
+    text = report_text(r)
+    assert "length        3.000 m driven and 2 turns in place (180 deg)" in text
+    assert f"mean speed {3.0 / r.duration_s:.3f} m/s" in text
+    assert sum(r.share_length.values()) == pytest.approx(1.0) and r.share_length["pivot omega"] == 0.0
+    assert r.share_time["pivot omega"] > 0.0
+
+
+def test_path_report_png_shows_no_speed_in_a_turn_in_place_and_every_cap_in_its_own_colour(tmp_path) -> None:
+    import matplotlib
+    import numpy as np
+    from matplotlib.colors import to_rgb
+
+    from ddrt.path import load_path
+    from ddrt.path.report import CAP_STYLE, path_report, pivot_runs, report_figure
+
+    matplotlib.use("Agg")
+    path, name = _two_pivots(tmp_path)
+    ax1 = report_figure(path, path_report(path, name)).axes[1]
+    profile = next(ln for ln in ax1.get_lines() if ln.get_label().startswith("profile"))
+    s, u = (np.asarray(v, dtype=float) for v in profile.get_data())
+    for i0, i1 in pivot_runs(path):  # inside each turn: no speed drawn (it was pivot_radius x omega)
+        assert np.all(np.isnan(u[i0 + 1:i1]))
+    assert any(p.get_label() == "turn in place" for p in ax1.patches)
+    # A path with a point cap: drawn above the profile.
+    f = tmp_path / "caps.csv"
+    f.write_text("x,y,v\n0,0,1\n1,0,0.3\n1.5,0.4,1\n")
+    capped = load_path(f)
+    ax1 = report_figure(capped, path_report(capped, str(f))).axes[1]
+    lines = {ln.get_label(): ln for ln in ax1.get_lines()}
+    assert lines["point cap"].get_zorder() > lines["profile (speed)"].get_zorder()
+    colours = [to_rgb(style["color"]) for style in CAP_STYLE.values()]
+    for i, a in enumerate(colours):
+        for b in colours[i + 1:]:
+            assert sum(abs(x - y) for x, y in zip(a, b)) > 0.3  # omega and pivot omega were two blues
