@@ -7,6 +7,7 @@ import io
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -168,3 +169,53 @@ def test_path_report_png_shows_no_speed_in_a_turn_in_place_and_every_cap_in_its_
     for i, a in enumerate(colours):
         for b in colours[i + 1:]:
             assert sum(abs(x - y) for x, y in zip(a, b)) > 0.3  # omega and pivot omega were two blues
+
+
+# ---------------------------------------------------------------------------------------------
+# The commissioning report
+
+
+def test_the_commissioning_report_lists_its_steps_flags_what_it_cannot_separate_and_labels_its_figures(
+        tmp_path, monkeypatch) -> None:
+    """configs/sim-minimal.yaml's plant has d_yc 0 and two motors that differ: the run reads
+    the difference as a lateral offset, which the report must not present as measured."""
+    import matplotlib
+    from matplotlib.colors import to_rgb
+    from matplotlib.figure import Figure
+
+    from ddrt.commission import commission, paths_for, session_for
+    from ddrt.commission.session import STEPS, Options
+
+    matplotlib.use("Agg")
+    saved: dict[str, Figure] = {}
+    savefig = Figure.savefig
+
+    def keep(fig: Figure, fname, *args, **kw):
+        saved[Path(fname).name] = fig
+        return savefig(fig, fname, *args, **kw)
+
+    monkeypatch.setattr(Figure, "savefig", keep)
+    out = tmp_path / "robot.yaml"
+    session = session_for(REPO / "configs" / "sim-minimal.yaml", Options(out=out, from_sim_truth=True), yes=True,
+                          out=io.StringIO())
+    commission(session)
+    report = (paths_for(out)[1] / "report.md").read_text()
+    listed = [ln[2:].split(":")[0] for ln in report.splitlines() if ln.startswith("- ")]
+    assert listed[:7] == [*STEPS, "check"]
+    rows = {ln.split("|")[1].strip(): ln for ln in report.splitlines() if ln.startswith("| ")}
+    assert "(not separated)" in rows["d_yc"] and "Not separated by this run: d_yc" in report
+    for key in ("m_p", "d_xc", "I_p"):
+        assert "x the residual" in rows[key] and "(not separated)" not in rows[key], rows[key]
+    # check.png: against time, the reference, estimate and truth in colours far apart
+    track, error = saved["check.png"].axes
+    assert "time" in error.get_xlabel() and "(s)" in error.get_xlabel()
+    t = error.get_lines()[0].get_xdata()
+    assert t[-1] == pytest.approx(session.state.get("result")["check"]["path_s"], abs=3.0)
+    colours = [to_rgb(ln.get_color()) for ln in track.get_lines()]
+    assert len(colours) == 3
+    for i, a in enumerate(colours):
+        for b in colours[i + 1:]:
+            assert sum(abs(x - y) for x, y in zip(a, b)) > 0.5
+    # wiring.png: one quantity an axis, each labelled with its unit
+    labels = [ax.get_ylabel() for ax in saved["wiring.png"].axes]
+    assert sorted(labels) == sorted(["duty (%)", "encoder (mm)", "gyro (deg)"] * 2)
