@@ -219,3 +219,35 @@ def test_the_commissioning_report_lists_its_steps_flags_what_it_cannot_separate_
     # wiring.png: one quantity an axis, each labelled with its unit
     labels = [ax.get_ylabel() for ax in saved["wiring.png"].axes]
     assert sorted(labels) == sorted(["duty (%)", "encoder (mm)", "gyro (deg)"] * 2)
+
+
+# ---------------------------------------------------------------------------------------------
+# The docs name commands as the command line does
+
+
+def test_every_command_the_docs_show_is_one_ddrt_has() -> None:
+    """`ddrt X ...` in a code span or block of README.md and docs/*.md names a subcommand (and
+    for ctl, calibrate and bag, one of theirs); no doc writes `python -m ddrt.cli`."""
+    import argparse
+
+    from ddrt.cli import build_parser
+
+    def choices(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+        return next(a.choices for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+
+    top = choices(build_parser())
+    nested = {"calibrate": set(choices(top["calibrate"])), "bag": set(choices(top["bag"])),
+              "ctl": set(next(a.choices for a in top["ctl"]._actions if a.dest == "command_name"))}
+    pattern = re.compile(r"(?:`|^ {4,}(?:\$ )?)(?:[\w./-]*/)?ddrt ([a-z][\w-]*)(?: (?:--?[\w-]+(?: [\w./]+)? )*([a-z]\w*))?",
+                         re.M)
+    wrong, seen = [], 0
+    for doc in [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]:
+        text = doc.read_text(encoding="utf-8")
+        assert "python -m ddrt.cli" not in text, doc.name
+        for m in pattern.finditer(text):
+            seen += 1
+            if m[1] not in top:
+                wrong.append(f"{doc.name}: ddrt {m[1]}")
+            elif m[1] in nested and m[2] is not None and m[2] not in nested[m[1]]:
+                wrong.append(f"{doc.name}: ddrt {m[1]} {m[2]}")
+    assert seen > 50 and not wrong, wrong
