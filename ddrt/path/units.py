@@ -5,15 +5,17 @@ hundreds or thousands of metres across that would still load and drive for an ho
 polyline that says nothing about its unit is held against the robot's workspace
 (`paths.workspace_m`): beyond it the file is refused, naming the units that would make it
 room-sized; beyond WARN_FRACTION of it (15 m of the default 50 m), a warning. The warning's
-bound sits below 0.5 m written in inches (19.7 "m"), so no room-sized path in mm, cm or inches
-loads unremarked, and above a 15 m lab floor in metres, which loads without one. A unit given explicitly (a CSV header such as
-`x_mm,y_mm`, a YAML spec's `units: mm`, or `units: m` / `x_m,y_m` for a path that really is
-that large) is taken as meant and converted to metres.
+bound sits below 0.5 m written in inches (19.7 "m"), so no room-sized path in mm, cm or
+inches loads unremarked, and above a 15 m lab floor in metres, which loads without one. A
+unit given explicitly (a CSV header such as `x_mm,y_mm`, a YAML spec's `units: mm`, or
+`units: m` / `x_m,y_m` for a path that really is that large) is taken as meant and converted
+to metres.
 """
 
 from __future__ import annotations
 
 import math
+import statistics
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -93,8 +95,7 @@ def check_plausible(xy: Sequence[tuple[float, float]], where: str, workspace_m: 
     span = max(max(xs) - min(xs), max(ys) - min(ys), reach)
     if span <= WARN_FRACTION * workspace_m:
         return
-    gaps = sorted(math.hypot(b[0] - a[0], b[1] - a[1]) for a, b in zip(xy, xy[1:]))
-    spacing = gaps[len(gaps) // 2]
+    spacing = statistics.median(math.hypot(b[0] - a[0], b[1] - a[1]) for a, b in zip(xy, xy[1:]))
     likely = _room_sized(span)
     guess = (" or ".join(f"{UNIT_NAMES[u]} (then {span * UNITS[u]:.3g} m)" for u in likely)
              if likely else "a unit other than metres")
