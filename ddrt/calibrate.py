@@ -9,7 +9,7 @@ into the robot's config; nothing is written into an existing config.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -116,6 +116,10 @@ class IdentifyResult:
     rows: int
     duration_s: float
     area: tuple[float, float]
+    # The rms force (N) each parameter's term accounts for over the run. A term no larger than
+    # the residual is one the run cannot tell from what the model leaves out (two motors that
+    # differ, say), however small its formal standard error.
+    effect_n: dict[str, float] = field(default_factory=dict)
 
 
 def parse_area(text: str) -> tuple[float, float]:
@@ -209,7 +213,8 @@ def fit(rows: list[tuple[list[float], float]], duration_s: float, area: tuple[fl
     r2 = 1.0 - float(res @ res) / ss if ss > 0 else 0.0
     return IdentifyResult(values=dict(zip(NAMES, (float(v) for v in theta))),
                           std_err=dict(zip(NAMES, (float(math.sqrt(max(c, 0.0))) for c in np.diag(cov)))),
-                          r2=r2, residual_rms_n=math.sqrt(s2), rows=len(rows), duration_s=duration_s, area=area)
+                          r2=r2, residual_rms_n=math.sqrt(s2), rows=len(rows), duration_s=duration_s, area=area,
+                          effect_n={n: float(np.sqrt(np.mean((phi[:, i] * theta[i]) ** 2))) for i, n in enumerate(NAMES)})
 
 
 def robot_update(p: RobotParams, values: dict[str, float]) -> dict[str, float]:

@@ -5,20 +5,13 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from importlib import import_module
 from pathlib import Path
 from typing import Sequence
 
-from ddrt.service import ctlclient
-from ddrt.service.commands import DECLARED, ctl_epilog, ctl_number
-from ddrt.service.ctlclient import DEFAULT_SOCKET, SOCKET_ENV
 
+from ddrt.ctlcli import FOLLOW_TIMEOUT_S, RELOAD_TIMEOUT_S, add_ctl_parser, control_socket
 
-FOLLOW_TIMEOUT_S = 120.0
-RELOAD_TIMEOUT_S = 60.0
-def control_socket(args: argparse.Namespace) -> tuple[str, str]:
-    """`ddrt ctl`'s socket and where it came from (ddrt/service/ctlclient.py)."""
-    return ctlclient.control_socket(args.socket, args.config)
+__all__ = ["main", "build_parser", "FOLLOW_TIMEOUT_S", "RELOAD_TIMEOUT_S", "control_socket", "sim_exit_status"]
 
 
 def _pose(text: str) -> tuple[float, float, float]:
@@ -62,7 +55,8 @@ def _run_name(config: str, source: object) -> str:
 def _cmd_sim(args: argparse.Namespace) -> int:
     from ddrt.config import load_config
     from ddrt.path.spec import path_source, resolve_path
-    from ddrt.simrun.runner import run_sim, stderr_progress, summary_text, write_outputs
+    from ddrt.simrun.progress import StderrProgress
+    from ddrt.simrun.runner import run_sim, summary_text, write_outputs
 
     if args.plot:
         import importlib.util
@@ -86,16 +80,17 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     # The rows go to telemetry.csv as the run makes them (the figures read them back from it),
     # so an earlier run's metrics.json, which no longer describes them, goes first.
     (_out_dir(args.out, make=True) / "metrics.json").unlink(missing_ok=True)
+    progress = None if args.quiet else StderrProgress()
     try:
         result = run_sim(cfg, path, duration=args.duration, seed=args.seed, start=args.start,
-                         progress=None if args.quiet else stderr_progress,
-                         telemetry=Path(args.out) / "telemetry.csv", mcap=args.mcap)
+                         progress=progress, telemetry=Path(args.out) / "telemetry.csv", mcap=args.mcap)
     except KeyboardInterrupt:
-        sys.stderr.write("" if args.quiet else "\n")  # past the progress line
+        if progress is not None:
+            progress.end()  # past the progress line
         print(f"ddrt: interrupted: {args.out}/telemetry.csv holds the rows up to now; no metrics.json", file=sys.stderr)
         return 130
-    if not args.quiet:
-        sys.stderr.write("\n")
+    if progress is not None:
+        progress.end()
     write_outputs(result, args.out)
     if args.plot:
         from ddrt.simrun.plots import write_plots
@@ -181,105 +176,6 @@ def _cmd_bag(args: argparse.Namespace) -> int:
         raise ValueError(f"bag export: needs the ros2 extra (pip install 'ddrt[ros2]'): {exc}") from None
     print(json.dumps(export_csv(args.telemetry, args.out, cfg, args.epoch), indent=2))
     return 0
-
-
-def _cmd_ctl(args: argparse.Namespace) -> int:
-    from ddrt.service.ctlclient import request
-
-    for flag, value, cmd in (("--for", args.for_s, "drive"), ("--here", args.here or None, "follow"), ("--cov", args.cov, "pose"),
-                             ("--stamp", args.stamp, "pose"), ("--frame", args.frame, "follow")):
-        if value is not None and args.command_name != cmd:
-            raise ValueError(f"ctl: {flag} is for {cmd} only")
-    payload: dict = {"cmd": args.command_name}
-    if args.command_name == "drive":
-        return _ctl_drive(args)
-    if args.command_name == "follow":
-        if not args.args:
-            raise ValueError("ctl follow: give a path file")
-        try:
-            payload.update(_follow_content(args.args[0], args))
-        except ValueError as exc:  # as the daemon's refusal would look: a JSON reply, exit 1
-            print(json.dumps({"ok": False, "error": f"follow: {exc}"}, indent=2, sort_keys=True))
-            return 1
-        if args.here:
-            payload["here"] = True  # the daemon moves the path to start at the robot's pose
-        if args.frame is not None:
-            payload["frame"] = args.frame
-    elif args.command_name == "pose":
-        if len(args.args) != 3:
-            raise ValueError("ctl pose: give X Y THETA (metres, metres, radians)")
-        xyt = [ctl_number(v, name, "pose") for v, name in zip(args.args, ("X", "Y", "THETA"))]
-        payload["pose"] = xyt  # set the pose (at rest); with --cov a measured pose: a fix (docs/estimation.md)
-        if args.cov is not None or args.stamp is not None:
-            payload = import_module("ddrt.service.posefix").ctl_fix_request(xyt, args.cov, args.stamp)
-    elif args.args:
-        raise ValueError(f"ctl {args.command_name}: takes no arguments, got {' '.join(args.args)!r}")
-    timeout = args.timeout
-    if timeout is None:
-        # A follow is answered once its path is built and followed (within the daemon's
-        # paths.build_timeout_s), a reload once the file is read beside the loop (seconds for
-        # a config of hundreds of KB); everything else between two ticks.
-        timeout = {"follow": FOLLOW_TIMEOUT_S, "reload": RELOAD_TIMEOUT_S}.get(args.command_name, 2.0)
-    socket, source = control_socket(args)
-    try:
-        reply = request(socket, payload, timeout=timeout)
-    except (OSError, TimeoutError) as exc:
-        print(f"ddrt ctl: cannot reach {socket} ({source}): {exc}", file=sys.stderr)
-        return 1
-    print(json.dumps(reply, indent=2, sort_keys=True))
-    return 0 if reply.get("ok") else 1
-
-
-def _follow_content(fname: str, args: argparse.Namespace) -> dict:
-    """`ddrt ctl follow FILE` sends the file's content, not its name: a sandboxed service
-    (ProtectHome, PrivateTmp, its own user) cannot see a user's files. Held to
-    paths.max_file_bytes (of --config, else the default) here too; the daemon checks again."""
-    from ddrt.config.sections import PathsConfig
-    from ddrt.config.textfile import read_text
-
-    limit = PathsConfig().max_file_bytes
-    if args.config:
-        from ddrt.config import load_config
-
-        limit = load_config(args.config).paths.max_file_bytes
-    low = fname.lower()
-    fmt = "csv" if low.endswith(".csv") else "yaml" if low.endswith((".yaml", ".yml")) else None
-    if fmt is None:
-        raise ValueError(f"{fname}: unknown path file type (expected .csv, .yaml or .yml)")
-    text = read_text(fname, ValueError, limit, "paths.max_file_bytes", regular_only=True, what="a path")
-    return {"content": text, "format": fmt, "name": Path(fname).name}
-
-
-def _ctl_drive(args: argparse.Namespace) -> int:
-    """`ddrt ctl drive V W [--for S]`: one drive command, or S seconds of them then a stop."""
-    from ddrt.service.ctlclient import request
-    from ddrt.service.drivecmd import drive_for
-
-    if len(args.args) != 2:
-        raise ValueError("ctl drive: give V (m/s) and OMEGA (rad/s), e.g. ddrt ctl drive 0.3 0 --for 2")
-    v = ctl_number(args.args[0], "V (m/s)", "drive")
-    omega = ctl_number(args.args[1], "OMEGA (rad/s)", "drive")
-    timeout = args.timeout if args.timeout is not None else 2.0
-    socket, source = control_socket(args)
-
-    def send(payload: dict) -> dict:
-        return request(socket, payload, timeout=timeout)
-
-    try:
-        if args.for_s is None:
-            reply = send({"cmd": "drive", "v": v, "omega": omega})
-        else:
-            if not 0.0 < args.for_s < float("inf"):
-                raise ValueError(f"ctl drive: --for: expected seconds > 0, got {args.for_s:g}")
-            try:
-                reply = drive_for(send, v, omega, args.for_s)
-            except KeyboardInterrupt:  # drive_for sent the stop on its way out
-                return 130
-    except (OSError, TimeoutError) as exc:
-        print(f"ddrt ctl: cannot reach {socket} ({source}): {exc}", file=sys.stderr)
-        return 1
-    print(json.dumps(reply, indent=2, sort_keys=True))
-    return 0 if reply.get("ok") else 1
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
@@ -408,7 +304,10 @@ def _cmd_commission(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from ddrt import __version__
+
     parser = argparse.ArgumentParser(prog="ddrt", description="Real-time controller for differential-drive robots.")
+    parser.add_argument("--version", action="version", version=f"ddrt {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     sim = sub.add_parser("sim", help="run the closed loop on the simulated robot, as fast as possible")
@@ -441,28 +340,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--log-level", default="info", help="debug, info, warning or error")
     run.set_defaults(func=_cmd_run)
 
-    ctl = sub.add_parser("ctl", help="talk to a running daemon over its control socket", epilog=ctl_epilog(),
-                         formatter_class=argparse.RawDescriptionHelpFormatter)
-    ctl.add_argument("--socket", default=None,
-                     help=f"control socket path (default: --config's daemon.socket, else ${SOCKET_ENV}, "
-                          f"else {DEFAULT_SOCKET})")
-    ctl.add_argument("--config", default=None, help="the daemon's YAML config: its daemon.socket is the socket")
-    ctl.add_argument("--timeout", type=float, default=None,
-                     help=f"seconds to wait for the reply (default 2; {FOLLOW_TIMEOUT_S:g} for follow, "
-                          f"{RELOAD_TIMEOUT_S:g} for reload)")
-    ctl.add_argument("command_name", metavar="COMMAND",
-                     choices=[c.name for c in DECLARED.values() if not c.stream and not c.ctl.startswith("(")])
-    ctl.add_argument("args", nargs="*", help="follow: the path file (its content is sent); drive: V (m/s) and "
-                                             "OMEGA (rad/s); pose: X Y THETA (m, m, rad) sets the pose (--cov: a fix)")
-    ctl.add_argument("--here", action="store_true",
-                     help="follow: place the path so that it starts at the robot's current pose and heading")
-    ctl.add_argument("--for", dest="for_s", type=float, metavar="S",
-                     help="drive: re-send the command at 10 Hz for S seconds, then stop")
-    ctl.add_argument("--cov", metavar="C", help="pose: send a pose fix (fused in map, any state) with this covariance: "
-                                                "3 variances (m^2, m^2, rad^2) or 9 entries, comma-separated")
-    ctl.add_argument("--stamp", metavar="T", help="pose --cov: when the pose was true (the loop's clock: status clock_s)")
-    ctl.add_argument("--frame", choices=("odom", "map"), help="follow: the frame the path is in (default odom)")
-    ctl.set_defaults(func=_cmd_ctl)
+    add_ctl_parser(sub)
 
     r2 = sub.add_parser("ros2", help="the ROS 2 bridge to a running daemon (pip install 'ddrt[ros2]'; docs/ros2.md)")
     from ddrt.ros2.main import add_arguments as ros2_arguments

@@ -15,6 +15,7 @@ import pytest
 
 from ddrt import cli
 from ddrt.simrun.runner import json_ready
+from ddrt.service.ctlclient import DEFAULT_SOCKET
 
 REPO = Path(__file__).resolve().parents[1]
 SIM = REPO / "configs" / "sim.yaml"
@@ -103,7 +104,7 @@ def test_the_default_socket_says_how_to_name_another(monkeypatch) -> None:
     monkeypatch.delenv("DDRT_SOCKET", raising=False)
     args = cli.build_parser().parse_args(["ctl", "status"])
     path, source = cli.control_socket(args)
-    assert path == cli.DEFAULT_SOCKET and "--config" in source and "DDRT_SOCKET" in source
+    assert path == DEFAULT_SOCKET and "--config" in source and "DDRT_SOCKET" in source
 
 
 def test_a_config_without_a_socket_is_a_clear_error(tmp_path, capsys) -> None:

@@ -49,7 +49,8 @@ ANSWER_BOUND_S = 1.0  # estop / stop / status round trip from a client (10 ms is
 HUGE_BUILD_S = 600.0
 
 
-DAEMON_SECTIONS = {"paths": {"max_file_bytes": 2_000_000, "build_timeout_s": HUGE_BUILD_S}}  # module_daemon's
+DAEMON_SECTIONS = {"paths": {"max_file_bytes": 2_000_000, "build_timeout_s": HUGE_BUILD_S,
+                             "max_duration_s": 86_400.0}}  # module_daemon's: huge paths take hours
 
 
 @pytest.fixture()
@@ -240,7 +241,7 @@ def test_follow_at_start_on_a_huge_path_ticks_while_it_is_built() -> None:
     """--follow with a path that takes seconds to build: the loop starts idle (the socket
     answers, estop works) and switches to the path once it is ready."""
     d = start_daemon("--follow", path={k: v for k, v in HUGE_CIRCLE.items() if k != "pose"}, start=[0.0, 0.0, 0.0],
-                     paths={"build_timeout_s": HUGE_BUILD_S})
+                     paths={"build_timeout_s": HUGE_BUILD_S, "max_duration_s": 86_400.0})
     try:
         d.wait_ready()
         s = wait_for(lambda: (s := d.status())["state"] == "following" and s, HUGE_BUILD_S + 60.0,

@@ -70,7 +70,8 @@ def test_ctl_follow_here_starts_the_path_at_the_robot(idle: DaemonProc) -> None:
     assert idle.request({"cmd": "pose", "pose": [2.0, 1.0, 1.2]})["ok"] is True
     circle = str(PATHS / "circle_1m.yaml")
     res = ctl(idle.socket, "follow", circle)
-    assert res.returncode == 1 and "limits.max_path_error_m" in json.loads(res.stdout)["error"]
+    error = json.loads(res.stdout)["error"]
+    assert res.returncode == 1 and "limits.max_path_error_m" in error and "ddrt ctl follow FILE --here" in error
     # ... unless placed here: it starts at the robot's pose and heading
     res = ctl(idle.socket, "follow", circle, "--here")
     assert res.returncode == 0, res.stdout + res.stderr

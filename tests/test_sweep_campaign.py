@@ -291,9 +291,41 @@ def test_outputs_summary_and_figures(tmp_path: Path, small_plan, small_rows) -> 
     assert len(csv_lines) == 5 and csv_lines[0].startswith('"case","case_id","controller.outer.k_y"')
     text = (tmp_path / "summary.md").read_text()
     assert "## By controller.outer.k_y" in text and "## By controller.outer.k_theta" in text
-    assert "| 400 | 2 | 2 |" in text and "rms_cross_track_m p90" in text
+    assert "| 400 | 2 | 2 |" in text and "rms_cross_track_m p50" in text
+    assert not any("p90" in ln or "p99" in ln for ln in text.splitlines() if ln.startswith("|"))  # 4 runs
     names = sorted(p.name for p in (tmp_path / "figures").glob("*.png"))
     assert figures == 3 and "pass_rate_controller.outer.k_y_x_controller.outer.k_theta.png" in names
+
+
+def test_percentiles_are_given_only_over_enough_runs() -> None:
+    from ddrt.sweep.summary import MIN_RUNS, _table, group
+
+    rows = [{"status": "ok", "m": float(v)} for v in range(12)]
+    table = _table("x", [group(rows, "many", ["m"]), group(rows[:3], "few", ["m"])], ["m"])
+    assert table[0] == "| x | runs | ok | pass | m p50 | m p90 | m max |"  # no group has 100 runs: no p99
+    many, few = table[2].split(" | "), table[3].split(" | ")
+    assert many[5] == "9.9" and few[5] == "-" and few[4] == "1" and few[6] == "2 |"
+    assert MIN_RUNS[90] == 10 and _table("x", [group(rows[:9], "nine", ["m"])], ["m"])[0].count("p90") == 0
+
+
+def test_the_sweep_says_one_figure_and_draws_lengths_in_mm(tmp_path: Path, small_plan, small_rows,
+                                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    from matplotlib.figure import Figure
+
+    from ddrt.sweep.driver import SweepReport
+    from ddrt.sweep.figures import box_plot
+
+    assert SweepReport(small_plan, tmp_path, figures=1).text().splitlines()[1].endswith(" and 1 figure")
+    assert SweepReport(small_plan, tmp_path, figures=3).text().splitlines()[1].endswith(" and 3 figures")
+    saved: list[Figure] = []
+    monkeypatch.setattr(Figure, "savefig", lambda fig, *a, **k: saved.append(fig))
+    box_plot(small_plan, small_rows, "controller.outer.k_y", "rms_cross_track_m", tmp_path / "b.png")
+    ax = saved[0].axes[0]
+    assert ax.get_ylabel() == "rms_cross_track_m (mm)"
+    drawn = sorted(v for ln in ax.get_lines() for v in ln.get_ydata() if math.isfinite(v))
+    assert max(drawn) == pytest.approx(1000.0 * max(r["rms_cross_track_m"] for r in small_rows), rel=1e-12)
+    saved[0].canvas.draw()
+    assert ax.yaxis.get_major_formatter().get_offset() == ""  # no "1e-5" over the axis
 
 
 def test_a_value_with_a_bar_or_a_newline_stays_one_table_cell() -> None:

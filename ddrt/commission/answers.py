@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
+from ddrt.config.filekind import ANSWERS, not_a
 from ddrt.errors import DdrtError
 from ddrt.config.yamlio import read_yaml
 
@@ -46,6 +47,9 @@ def load_answers(path: str | Path) -> dict[str, Any]:
     if not isinstance(data, Mapping):
         raise AnswersError(f"{path}: expected a mapping of sections (wiring:, battery:, odometry:, check:), "
                            f"got {type(data).__name__}")
+    other = not_a(data, ANSWERS, str(path), "an answers file")
+    if other is not None:
+        raise AnswersError(other)
     out: dict[str, Any] = {}
     sections = sorted({k.split(".")[0] for k in KEYS})
     for section, body in data.items():

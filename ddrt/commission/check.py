@@ -26,7 +26,7 @@ def run(session: Session, cfg: Config) -> dict[str, Any]:
         f"figure-eight in the same {width:g} x {height:g} m area and stops where it started.")
     est_sq = true_sq = 0.0
     n = 0
-    trace: list[tuple[float, float, float, float, float, float]] = []
+    trace: list[tuple[float, ...]] = []  # every 10th tick: reference, estimate, truth (x, y), time (s)
     start = path.start_pose  # a simulated robot starts there too, so truth and estimate share a frame
     with session.robot(cfg, start=start) as hal:
         loop, clock = cal.start_loop(cfg, hal)
@@ -44,7 +44,7 @@ def run(session: Session, cfg: Config) -> dict[str, Any]:
             true_sq += (tx - sp.x_d) ** 2 + (ty - sp.y_d) ** 2
             n += 1
             if n % 10 == 0:
-                trace.append((sp.x_d, sp.y_d, x, y, tx, ty))
+                trace.append((sp.x_d, sp.y_d, x, y, tx, ty, n * lp.period))
 
         loop.on_tick = record
         follow_to_end(loop, clock, path, start, "check")

@@ -42,4 +42,5 @@ def run(session: Session) -> dict[str, Any]:
                 f"I_p {before['I_p']:.5f} -> {robot['I_p']:.5f} kg m^2, d_xc {before['d_xc']:.4f} -> "
                 f"{robot['d_xc']:.4f} m")
     return {"config": {"robot": robot}, "before": before, "r2": res.r2, "rows": res.rows,
-            "duration_s": res.duration_s, "area": list(res.area), "values": res.values, "std_err": res.std_err}
+            "duration_s": res.duration_s, "area": list(res.area), "values": res.values, "std_err": res.std_err,
+            "effect_n": res.effect_n, "residual_rms_n": res.residual_rms_n}

@@ -9,7 +9,13 @@ from pathlib import Path
 from typing import Any
 
 from ddrt.commission.odometry import radius_rows, radius_uncertainty
-from ddrt.commission.session import Session
+from ddrt.commission.session import STEPS, Session
+
+# A platform key and the identified terms it comes from (ddrt/calibrate.py robot_update).
+TERMS = {"m_p": ("m_k",), "d_xc": ("m_x",), "d_yc": ("mbar",), "I_p": ("I",), "coulomb_nm": ("fric_l", "fric_r")}
+# A term that accounts for less than this many times the fit's residual is not separated from
+# what the model leaves out: the report says so rather than present the value as measured.
+SEEN_MIN = 3.0
 
 
 def _figures(session: Session, check: dict[str, Any] | None, folder: Path) -> list[str]:
@@ -23,37 +29,40 @@ def _figures(session: Session, check: dict[str, Any] | None, folder: Path) -> li
     names = []
     w = session.state.get("wiring")
     if w and w.get("traces"):
-        fig, axes = plt.subplots(1, 2, figsize=(9, 3.2), constrained_layout=True)
-        for ax, (key, title) in zip(axes, (("0", "left output"), ("1", "right output"))):
+        # One quantity a row, each on its own axis in its own unit.
+        rows = (("duty (%)", lambda r: 100 * r[1]), ("encoder (mm)", lambda r: 1e3 * r[2]),
+                ("gyro (deg)", lambda r: math.degrees(r[3])))
+        fig, axes = plt.subplots(3, 2, figsize=(9, 5.4), sharex="col", constrained_layout=True)
+        for col, (key, title) in enumerate((("0", "left output"), ("1", "right output"))):
             tr = w["traces"].get(key) or []
-            if not tr:
-                continue
-            t = [r[0] for r in tr]
-            ax.plot(t, [1e3 * r[2] for r in tr], label="encoder (mm)")
-            ax.plot(t, [math.degrees(r[3]) for r in tr], label="gyro (deg)")
-            ax.plot(t, [100 * r[1] for r in tr], "--", label="duty (%)")
-            ax.set_title(f"{title} pulsed alone (as wired)")
-            ax.set_xlabel("s")
-            ax.legend(fontsize=7)
+            axes[0, col].set_title(f"{title} pulsed alone (as wired)")
+            axes[-1, col].set_xlabel("time (s)")
+            for row, (label, value) in enumerate(rows):
+                axes[row, col].set_ylabel(label)
+                if tr:
+                    axes[row, col].plot([r[0] for r in tr], [value(r) for r in tr], color=f"C{row}")
         fig.savefig(folder / "wiring.png", dpi=90)
         plt.close(fig)
         names.append("wiring.png")
     if check and check.get("trace"):
         tr = check["trace"]
         fig, (ax, ax2) = plt.subplots(1, 2, figsize=(10, 3.6), constrained_layout=True)
-        ax.plot([r[0] for r in tr], [r[1] for r in tr], "k-", lw=0.8, label="reference")
-        ax.plot([r[2] for r in tr], [r[3] for r in tr], "b-", lw=0.8, label="estimate")
-        k = range(len(tr))
-        ax2.plot(k, [1e3 * math.hypot(r[2] - r[0], r[3] - r[1]) for r in tr], "b-", lw=0.8, label="estimate")
+        # The reference wide and light under the estimate (orange) and the truth (blue).
+        ax.plot([r[0] for r in tr], [r[1] for r in tr], "-", color="0.75", lw=3.0, label="reference")
+        ax.plot([r[2] for r in tr], [r[3] for r in tr], "-", color="tab:orange", lw=0.9, label="estimate")
+        t = [r[6] for r in tr]
+        ax2.plot(t, [1e3 * math.hypot(r[2] - r[0], r[3] - r[1]) for r in tr], "-", color="tab:orange", lw=0.9,
+                 label="estimate")
         if not math.isnan(tr[0][4]):
-            ax.plot([r[4] for r in tr], [r[5] for r in tr], "r--", lw=0.8, label="truth (simulation)")
-            ax2.plot(k, [1e3 * math.hypot(r[4] - r[0], r[5] - r[1]) for r in tr], "r-", lw=0.8, label="truth")
+            ax.plot([r[4] for r in tr], [r[5] for r in tr], "--", color="tab:blue", lw=0.9, label="truth (simulation)")
+            ax2.plot(t, [1e3 * math.hypot(r[4] - r[0], r[5] - r[1]) for r in tr], "-", color="tab:blue", lw=0.9,
+                     label="truth")
         ax.set_aspect("equal")
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
         ax.set_title("check path with the commissioned config")
         ax.legend(fontsize=7)
-        ax2.set_xlabel("sample (every 10th tick)")
+        ax2.set_xlabel("time on the check path (s)")
         ax2.set_ylabel("distance to the reference point (mm)")
         ax2.set_title("tracking error")
         ax2.legend(fontsize=7)
@@ -63,15 +72,26 @@ def _figures(session: Session, check: dict[str, Any] | None, folder: Path) -> li
     return names
 
 
+def _seen(d: dict[str, Any], key: str) -> float | None:
+    """How many times the fit's residual the terms behind `key` account for (None: not stored)."""
+    effect, resid = d.get("effect_n"), d.get("residual_rms_n")
+    if not effect or not resid:
+        return None
+    return sum(effect[t] for t in TERMS[key]) / len(TERMS[key]) / resid
+
+
 def write_report(session: Session, folder: Path, config_file: Path, check: dict[str, Any] | None) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     st = session.state
     figs = _figures(session, check, folder) if session.opts.figures else []
     lines = [f"# Commissioning report: {session.config_path}", "",
              f"Config written: `{config_file.name}`. Steps and when they finished:", ""]
-    for step in ("link", "wiring", "rest", "dynamics", "odometry"):
+    for step in STEPS[:-1]:
         res = st.get(step)
         lines.append(f"- {step}: {res['finished'] if res else 'not run'}")
+    lines.append(f"- result: `{config_file.name}` written with this report")
+    lines.append("- check: " + ("driven with the commissioned config (below)" if check
+                                else "not run (--no-check, or no robot to drive it)"))
     link = st.get("link")
     if link:
         lines += ["", "## Link", "",
@@ -102,10 +122,22 @@ def write_report(session: Session, folder: Path, config_file: Path, check: dict[
     if d:
         lines += ["", "## Dynamics", "",
                   f"{d['duration_s']:.0f} s figure-eight in {d['area'][0]:g} x {d['area'][1]:g} m, {d['rows']} rows, "
-                  f"R^2 {d['r2']:.4f}.", "", "| key | before | after |", "|---|---|---|"]
+                  f"R^2 {d['r2']:.4f}.", "", "| key | before | after | seen in the data |", "|---|---|---|---|"]
         after = dict(d["config"]["robot"], coulomb_nm=d["config"]["robot"]["motor"]["coulomb_nm"])
+        unseen = []
         for k, v in d["before"].items():
-            lines.append(f"| {k} | {v:.6g} | {after[k]:.6g} |")
+            seen = _seen(d, k)
+            lines.append(f"| {k} | {v:.6g} | {after[k]:.6g} | "
+                         + ("" if seen is None else f"{seen:.1f}x the residual{' (not separated)' * (seen < SEEN_MIN)}")
+                         + " |")
+            if seen is not None and seen < SEEN_MIN:
+                unseen.append(k)
+        if unseen:
+            lines += ["", f"Not separated by this run: {', '.join(unseen)}. The term each comes from accounts for less "
+                      f"than {SEEN_MIN:g} times the fit's residual ({d['residual_rms_n']:.3f} N rms), so the run cannot "
+                      "tell its value from what the model leaves out (two motors that differ, say), however small its "
+                      "standard error. Measure it another way (for d_xc and d_yc: a scale under each wheel), or keep "
+                      "the value before in the config."]
     o = st.get("odometry")
     if o:
         lines += ["", "## Odometry", "", f"{o['distance_cmd_m']:g} m straight, then {o['turns']} turns in place; "

@@ -4,7 +4,6 @@ check path and the report."""
 
 from __future__ import annotations
 
-import os
 import time
 from pathlib import Path
 from typing import Any
@@ -14,7 +13,7 @@ import yaml
 from ddrt.commission.odometry import radius_changes, radius_uncertainty
 from ddrt.commission.session import STEPS, CommissionError, Session
 from ddrt.config import load_config
-from ddrt.config.load import merge_mappings
+from ddrt.config.load import files_relative_to, merge_mappings
 
 
 def _comment_lines(session: Session) -> list[str]:
@@ -48,9 +47,7 @@ def final_mapping(session: Session, out_file: Path) -> dict[str, Any]:
     from ddrt.commission.session import explicit_robot
 
     data = merge_mappings(explicit_robot(session.cfg), session.overrides("result"))
-    if isinstance(data.get("path"), str) and os.path.isabs(data["path"]):
-        data["path"] = os.path.relpath(data["path"], out_file.resolve().parent)
-    return data
+    return files_relative_to(data, out_file.resolve().parent, Path(session.cfg.base_dir))
 
 
 def write_config(session: Session, out_file: Path) -> str:

@@ -7,9 +7,11 @@ file raises ConfigError with the file name and the dotted key.
 from __future__ import annotations
 
 import copy
+import os
 from pathlib import Path as FsPath
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
+from ddrt.config.filekind import CONFIG, PATH, not_a
 from ddrt.config.schema import ConfigError, build, convert
 from ddrt.config.sections import (
     Config, ControllerConfig, DaemonConfig, DriveConfig, EstimatorConfig, HalConfig, LimitsConfig, PathsConfig,
@@ -45,6 +47,45 @@ def merge_mappings(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str
     return out
 
 
+# Every key of a config that names a file or a folder. One rule for all of them: a relative
+# name is taken from the folder of the config file that names it (also when that file is the
+# base of another through extends:), never from the working directory, so a config and the
+# files beside it can be copied anywhere together. `hal.url` is a serial URL, not a file.
+FILE_KEYS: tuple[tuple[str, ...], ...] = (
+    ("path",), ("path", "file"), ("daemon", "socket"), ("daemon", "telemetry_dir"), ("hal", "pwm_sysfs", "root"),
+)
+
+
+def _file_names(data: dict[str, Any], change: Callable[[str], str]) -> dict[str, Any]:
+    """`data` (changed in place) with `change` applied to every non-empty name under FILE_KEYS;
+    anything else there (absent, null, not text) is left for validation to judge."""
+    for keys in FILE_KEYS:
+        parent: Any = data
+        for key in keys[:-1]:
+            parent = parent.get(key) if isinstance(parent, Mapping) else None
+        if not isinstance(parent, dict):
+            continue  # a section that is not a mapping (or a path given as a file name) has no such key
+        value = parent.get(keys[-1])
+        if isinstance(value, str) and value:
+            parent[keys[-1]] = change(value)
+    return data
+
+
+def _anchored(data: dict[str, Any], folder: FsPath) -> dict[str, Any]:
+    """`data` with every relative file name made absolute against `folder`."""
+    return _file_names(data, lambda name: name if FsPath(name).is_absolute() else str(folder / name))
+
+
+def files_relative_to(data: Mapping[str, Any], folder: FsPath, given_in: FsPath) -> dict[str, Any]:
+    """A copy of a loaded config's mapping for a config written into `folder` (the commissioned
+    config): the names the file in `given_in` gave relative (loading joined them to that
+    folder) become relative to `folder`, so that both name the same files and move with
+    them; absolute names (/run/ddrt/ddrt.sock) stay as they were given."""
+    prefix = str(given_in).rstrip(os.sep) + os.sep
+    out = copy.deepcopy(dict(data))
+    return _file_names(out, lambda name: os.path.relpath(name, folder) if name.startswith(prefix) else name)
+
+
 def _read_yaml(path: FsPath, chain: tuple[str, ...] = ()) -> dict[str, Any]:
     if str(path) in chain:
         raise ConfigError(f"{path}: extends itself through {' -> '.join(chain)}")
@@ -53,11 +94,7 @@ def _read_yaml(path: FsPath, chain: tuple[str, ...] = ()) -> dict[str, Any]:
         data = {}
     if not isinstance(data, Mapping):
         raise ConfigError(f"{path}: the top level must be a mapping of sections")
-    data = dict(data)
-    if isinstance(data.get("path"), str) and not FsPath(data["path"]).is_absolute():
-        # A path file is named relative to the config file that names it, even when that
-        # file is the base of another through extends:.
-        data["path"] = str(path.parent / data["path"])
+    data = _anchored(dict(data), path.parent)
     parent = data.get("extends")
     if parent is not None:
         if not isinstance(parent, str):
@@ -201,10 +238,15 @@ def daemon_socket_of(path: str | FsPath, error: Exception) -> str | None:
 def load_config(path: str | FsPath, overrides: Mapping[str, Any] | None = None) -> Config:
     """Read, merge and validate a YAML config file (plus optional in-memory overrides)."""
     p = FsPath(path)
+    if p.suffix.lower() == ".csv":
+        raise ConfigError(PATH.sentence(str(p), "a config"))
     try:
         data = _read_yaml(p.resolve())
     except ConfigError as exc:
         raise ConfigError(str(exc).replace(str(p.resolve()), str(p), 1)) from None
+    other = not_a(data, CONFIG, str(p), "a config")
+    if other is not None:
+        raise ConfigError(other)
     if overrides:
         data = merge_mappings(data, overrides)
     return config_from_mapping(data, source=str(p), base_dir=str(p.resolve().parent))

@@ -463,9 +463,9 @@ class PathsConfig:
     max_points: int = 10_000
     max_extent_m: float = 10_000.0
     # A polyline that states no unit and reaches farther than this is refused as likely in
-    # mm, cm or inches (path/units.py); beyond half of it, a warning.
+    # mm, cm or inches (path/units.py); beyond 0.3 of it (15 m), a warning.
     workspace_m: float = 50.0
-    max_duration_s: float = 86_400.0
+    max_duration_s: float = 3_600.0
     # The daemon reads and builds a path in a worker process, within these bounds.
     max_file_bytes: int = 4_000_000  # a path file (and a CSV it names) larger than this is refused unread
     build_timeout_s: float = 30.0  # the worker is stopped if the path is not ready by then

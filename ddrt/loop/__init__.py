@@ -11,6 +11,6 @@
 from ddrt.loop.hold import RecoveryCounters
 from ddrt.loop.record import COLUMNS
 from ddrt.loop.states import LoopState, state_label
-from ddrt.loop.tick import ControlLoop
+from ddrt.loop.tick import ControlLoop, StartTooFar
 
-__all__ = ["COLUMNS", "ControlLoop", "LoopState", "RecoveryCounters", "state_label"]
+__all__ = ["COLUMNS", "ControlLoop", "LoopState", "RecoveryCounters", "StartTooFar", "state_label"]

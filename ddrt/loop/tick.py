@@ -19,6 +19,7 @@ import math
 from typing import Callable
 
 from ddrt.config import Config
+from ddrt.errors import DdrtError
 from ddrt.config.sections import LimitsConfig
 from ddrt.core.adapt import DynamicsAdapter
 from ddrt.core.control import Command, DynamicController, KinematicController, make_controller
@@ -48,6 +49,11 @@ AT_REST_W = 5e-3
 # its Enum class costs about 0.1 us, five times a module global.
 FOLLOWING, STOPPING, STOPPED = LoopState.FOLLOWING, LoopState.STOPPING, LoopState.STOPPED
 ESTOP, FAULT, HOLDING, DRIVING = LoopState.ESTOP, LoopState.FAULT, LoopState.HOLDING, LoopState.DRIVING
+
+
+class StartTooFar(DdrtError, ValueError):
+    """A path refused because its start is farther from the robot than limits.max_path_error_m
+    (a caller that can place the path at the robot says how)."""
 
 
 def _no_stamp() -> None:
@@ -201,7 +207,7 @@ class ControlLoop:
             start = path.at(0.0)
             why = self._off_path(x, y, start.x, start.y)
             if why:
-                raise ValueError(f"the path's start is {why}: move the robot or the path")
+                raise StartTooFar(f"the path's start is {why}: move the robot or the path")
 
     def _off_path(self, x: float, y: float, px: float, py: float) -> str:
         """'' while (x, y) is within limits.max_path_error_m of the path point (px, py), else why."""

@@ -139,6 +139,17 @@ class PathReport:
     warnings: list[str] = field(default_factory=list)
     cusps: list[tuple[float, float, float]] = field(default_factory=list)  # (sigma, x, y) where it reverses
     reverse_m: float = 0.0  # length driven backwards
+    # The length the wheels drive the robot: progress less the turns in place, which the
+    # profile steps as pivot_radius of progress a radian.
+    driven_m: float = 0.0
+
+
+def pivot_interior(path: Path) -> np.ndarray:
+    """The samples inside a turn in place (not its two ends, where the robot is at rest)."""
+    piv = path.arrays()["seg_pivot"]
+    inside = np.zeros(len(piv) + 1, dtype=bool)
+    inside[1:-1] = piv[:-1] & piv[1:]
+    return inside
 
 
 def pivot_runs(path: Path) -> list[tuple[int, int]]:
@@ -173,7 +184,7 @@ def path_report(path: Path, source: str) -> PathReport:
     a = path.arrays()
     labels = active_limits(path)
     s, t = a["sigma"], a["t"]
-    ds = np.diff(s)
+    ds = np.where(a["seg_pivot"], 0.0, np.diff(s))  # a turn in place has no length, only time
     dt = np.diff(t)
     wl = np.zeros(len(s))
     wt = np.zeros(len(s))
@@ -205,13 +216,16 @@ def path_report(path: Path, source: str) -> PathReport:
         corridor_m=_corridor(path), share_length=share_l, share_time=share_t, stretches=stretches, labels=labels,
         warnings=list(path.warnings), cusps=[(c, path.at(c).x, path.at(c).y)
                                              for c in path.cusps],
-        reverse_m=float(np.sum(np.diff(s)[(a["direction"] < 0) & ~a["seg_pivot"]])))
+        reverse_m=float(np.sum(np.diff(s)[(a["direction"] < 0) & ~a["seg_pivot"]])), driven_m=float(ds.sum()))
 
 
 def report_text(r: PathReport, max_stretches: int = 24) -> str:
     lines = [f"path          {r.source}", f"read as       {r.summary}"]
-    lines.append(f"length        {r.length_m:.3f} m   duration {r.duration_s:.2f} s   mean speed "
-                 f"{r.length_m / r.duration_s if r.duration_s > 0 else 0.0:.3f} m/s (path speed {r.v_cap:g} m/s)")
+    turned = sum(abs(p[3]) for p in r.pivots)
+    pivots = f" and {len(r.pivots)} turn{'s' * (len(r.pivots) != 1)} in place ({math.degrees(turned):.0f} deg)"
+    lines.append(f"length        {r.driven_m:.3f} m driven{pivots if r.pivots else ''}   duration {r.duration_s:.2f} s   "
+                 f"mean speed {r.driven_m / r.duration_s if r.duration_s > 0 else 0.0:.3f} m/s "
+                 f"(path speed {r.v_cap:g} m/s)")
     radius = f" (radius {1.0 / r.kappa_max:.3g} m)" if r.kappa_max > 0 else ""
     lines.append(f"curvature     max {r.kappa_max:.3g} /m at {r.kappa_max_at_m:.3f} m{radius}")
     lines.append(f"corners       {len(r.pivots)} turned in place" + (f", {r.blends} blended" if r.mode == "waypoints" else "")
@@ -234,7 +248,7 @@ def report_text(r: PathReport, max_stretches: int = 24) -> str:
     for name in LABELS:
         if r.share_length[name] > 0.0 or r.share_time[name] > 0.0:
             lines.append(f"  {name:<16s} {100 * r.share_length[name]:6.1f} %  {100 * r.share_time[name]:6.1f} %")
-    lines.append("where         (progress in m)")
+    lines.append("where         (progress in m" + (", a turn in place counting pivot_radius a radian)" if r.pivots else ")"))
     shown = r.stretches
     if len(shown) > max_stretches:
         keep = sorted(sorted(range(len(shown)), key=lambda i: -(shown[i].end_m - shown[i].start_m))[:max_stretches])
@@ -247,6 +261,18 @@ def report_text(r: PathReport, max_stretches: int = 24) -> str:
     return "\n".join(lines)
 
 
+# Each cap its own colour, far from the others'; the point cap above the profile (which often
+# runs along it), thick and dotted. A turn in place is shaded instead of its pivot omega cap.
+CAP_STYLE: dict[str, dict[str, object]] = {
+    "speed": {"color": "0.55", "lw": 0.9, "ls": "--"},
+    "point cap": {"color": "tab:purple", "lw": 2.2, "ls": ":", "zorder": 4},
+    "lateral": {"color": "tab:green", "lw": 0.9, "ls": "--"},
+    "omega": {"color": "tab:orange", "lw": 0.9, "ls": "--"},
+    "curv. rate": {"color": "tab:brown", "lw": 0.9, "ls": "--"},
+    "pivot omega": {"color": "tab:cyan", "lw": 0.9, "ls": "-."},  # never drawn: it lies inside the turns
+}
+
+
 def report_figure(path: Path, r: PathReport) -> "Figure":
     """The input against the reference at equal scale (start, direction, corners, cusps), and
     the speed profile under its caps; the layout follows the path's extent (ddrt/path/figure.py)."""
@@ -256,7 +282,8 @@ def report_figure(path: Path, r: PathReport) -> "Figure":
     c = path.conditioning
     pts = np.asarray(c.points, dtype=float).reshape(-1, 2) if c is not None else np.empty((0, 2))
     ref = np.column_stack([a["x"], a["y"]])
-    head = f"{FsPath(r.source).name}: {r.length_m:.2f} m in {r.duration_s:.1f} s"
+    head = (f"{FsPath(r.source).name}: {r.driven_m:.2f} m in {r.duration_s:.1f} s"
+            + (f", {len(r.pivots)} turned in place" if r.pivots else ""))
     title = "\n".join([head] + textwrap.wrap(r.summary, 110))
     fig, ax0, ax1 = xy_figure(np.vstack([pts, ref]), title)
     if len(pts):
@@ -272,11 +299,19 @@ def report_figure(path: Path, r: PathReport) -> "Figure":
     mark_route(ax0, ref, [(x, y) for _, x, y in r.cusps], back)
     legend_above(ax0)
     s = a["sigma"]
-    top = 1.3 * max(r.v_cap, float(np.max(a["u"])), 1e-9)
-    for name, cap in _caps(path).items():
-        if np.any(np.isfinite(cap) & (cap < top)):
-            ax1.plot(s, np.where(cap < top, cap, np.nan), lw=0.8, ls="--", label=name if "cap" in name else f"{name} cap")
-    ax1.plot(s, a["u"], "k-", lw=1.4, label="profile (progress rate)")
+    # A turn in place is a span of progress with no speed: shaded, its pivot_radius x omega
+    # left out so that it does not read as m/s.
+    inside = pivot_interior(path)
+    u = np.where(inside, np.nan, a["u"])
+    top = 1.3 * max(r.v_cap, float(np.nanmax(u)) if np.any(np.isfinite(u)) else 0.0, 1e-9)
+    terms = _terms(path)
+    for name, cap in _caps(path, terms).items():
+        cap = np.where(terms.in_piv | (cap >= top), np.nan, cap)  # the pivot omega cap: all of it
+        if np.any(np.isfinite(cap)):
+            ax1.plot(s, cap, label=name if "cap" in name else f"{name} cap", **CAP_STYLE[name])
+    for k, (i0, i1) in enumerate(pivot_runs(path)):
+        ax1.axvspan(s[i0], s[i1], color="tab:blue", alpha=0.15, lw=0, label="turn in place" if k == 0 else None)
+    ax1.plot(s, u, "k-", lw=1.4, label="profile (speed)", zorder=3)
     ax1.set_xlim(s[0], s[-1])
     ax1.set_ylim(0.0, top)
     ax1.set_xlabel("progress (m)")

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from ddrt.config.filekind import PATH, not_a
 from ddrt.errors import DdrtError
 from ddrt.config.schema import ConfigError, build
 from ddrt.config.sections import PathsConfig
@@ -286,6 +287,9 @@ def _spec(m: Any, where: str, paths: PathsConfig) -> PathCommon:
     if not isinstance(m, Mapping):
         raise PathError(f"{where}: expected a mapping at the top level, got {type(m).__name__}")
     kinds = [k for k in ("shape", "points", "file") if k in m]
+    other = not_a(m, PATH, where, "a path file") if not kinds else None
+    if other is not None:
+        raise PathError(other)
     if len(kinds) != 1:
         raise PathError(f"{where}: exactly one of keys 'shape', 'points', 'file' is required, got {kinds or 'none'}")
     kind = kinds[0]
@@ -322,13 +326,14 @@ def _from_mapping(m: Any, limits: SpeedLimits, where: str, base_dir: str | None,
     lim, v_cap = _clamped_limits(spec, limits, where, notes)
     if isinstance(spec, PointsSpec):
         rows = []
+        scale = UNITS[spec.units or "m"]
         for j, item in enumerate(spec.points):
+            x, y = item[0] * scale, item[1] * scale  # the workspace bound is in metres, whatever the unit
             try:
-                paths.check_pose(item, f"points[{j}]")
+                paths.check_pose((x, y), f"points[{j}]")
             except ConfigError as exc:
                 raise _path_error(exc, where) from None
-            scale = UNITS[spec.units or "m"]
-            rows.append((item[0] * scale, item[1] * scale, item[2] if len(item) == 3 else math.inf))
+            rows.append((x, y, item[2] if len(item) == 3 else math.inf))
         has_v = any(len(item) == 3 for item in spec.points)
         _check_units(rows, spec.units is not None, has_v, limits.v_max, f"{where}: key 'points'", paths, notes)
         if spec.reverse:

@@ -4,14 +4,18 @@ Path files are in metres. A file in millimetres, centimetres or inches reads as 
 hundreds or thousands of metres across that would still load and drive for an hour, so a
 polyline that says nothing about its unit is held against the robot's workspace
 (`paths.workspace_m`): beyond it the file is refused, naming the units that would make it
-room-sized; beyond half of it, a warning. A unit given explicitly (a CSV header such as
-`x_mm,y_mm`, a YAML spec's `units: mm`, or `units: m` / `x_m,y_m` for a path that really is
-that large) is taken as meant and converted to metres.
+room-sized; beyond WARN_FRACTION of it (15 m of the default 50 m), a warning. The warning's
+bound sits below 0.5 m written in inches (19.7 "m"), so no room-sized path in mm, cm or
+inches loads unremarked, and above a 15 m lab floor in metres, which loads without one. A
+unit given explicitly (a CSV header such as `x_mm,y_mm`, a YAML spec's `units: mm`, or
+`units: m` / `x_m,y_m` for a path that really is that large) is taken as meant and converted
+to metres.
 """
 
 from __future__ import annotations
 
 import math
+import statistics
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -28,6 +32,8 @@ ROOM_MIN_M, ROOM_MAX_M = 0.2, 20.0
 # merely above the limit is clamped to it, with a note.
 SPEED_COLUMN_FACTOR = 20.0
 SPEED_COLUMN_MIN_MPS = 10.0
+# Points reaching beyond this fraction of paths.workspace_m (and not beyond it) are warned about.
+WARN_FRACTION = 0.3
 
 
 class UnitError(DdrtError, ValueError):
@@ -81,7 +87,7 @@ def _room_sized(span_m: float) -> list[str]:
 def check_plausible(xy: Sequence[tuple[float, float]], where: str, workspace_m: float,
                     warnings: list[str]) -> None:
     """Refuse (UnitError) points without a stated unit that span more than `workspace_m`;
-    note in `warnings` those that span more than half of it. Each message names the span,
+    note in `warnings` those that span more than WARN_FRACTION of it. Each message names the span,
     the units that would make the points room-sized, and how to state the unit."""
     if len(xy) < 2:
         return
@@ -89,15 +95,14 @@ def check_plausible(xy: Sequence[tuple[float, float]], where: str, workspace_m: 
     ys = [p[1] for p in xy]
     reach = max(max(map(abs, xs)), max(map(abs, ys)))
     span = max(max(xs) - min(xs), max(ys) - min(ys), reach)
-    if span <= 0.5 * workspace_m:
+    if span <= WARN_FRACTION * workspace_m:
         return
-    gaps = sorted(math.hypot(b[0] - a[0], b[1] - a[1]) for a, b in zip(xy, xy[1:]))
-    spacing = gaps[len(gaps) // 2]
+    spacing = statistics.median(math.hypot(b[0] - a[0], b[1] - a[1]) for a, b in zip(xy, xy[1:]))
     likely = _room_sized(span)
     guess = (" or ".join(f"{UNIT_NAMES[u]} (then {span * UNITS[u]:.3g} m)" for u in likely)
              if likely else "a unit other than metres")
     detail = (f"the points reach {span:.6g} m (median spacing {spacing:.4g} m), "
-              f"beyond {'' if span > workspace_m else 'half of '}paths.workspace_m = {workspace_m:g} m: "
+              f"beyond {'' if span > workspace_m else f'{WARN_FRACTION:g} of '}paths.workspace_m = {workspace_m:g} m: "
               f"likely in {guess}")
     fix = ("state the unit: a CSV header such as x_mm,y_mm (or x_cm, x_in), or `units: mm` in a YAML spec; "
            "if the path really is this large, x_m,y_m or `units: m` (or raise paths.workspace_m)")

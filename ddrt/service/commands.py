@@ -21,7 +21,7 @@ from typing import Any, Mapping
 from ddrt.errors import DdrtError
 
 __all__ = ["Field", "Command", "Request", "CommandError", "DECLARED", "COMMANDS", "PRIORITY", "NEVER_REFUSED",
-           "STREAMS", "parse", "payload", "ctl_number", "reference_markdown"]
+           "STREAMS", "parse", "payload", "ctl_commands", "ctl_epilog", "ctl_number", "reference_markdown"]
 
 POSE_BOUND_M = 1e6  # |x|, |y| beyond this is no place on a floor (ddrt/core/pose_fix.py holds the same)
 STREAM_MAX_RATE_HZ = 500.0
@@ -289,14 +289,17 @@ def ctl_number(text: str, what: str, command: str) -> float:
     return value
 
 
+def ctl_commands() -> list[str]:
+    """The commands `ddrt ctl` offers: not those for processes, nor pose_fix (`pose --cov` sends it)."""
+    return [c.name for c in DECLARED.values() if not c.stream and not c.ctl.startswith("(")]
+
+
 def ctl_epilog() -> str:
     """`ddrt ctl -h`'s list of commands, from the declarations."""
     lines = ["commands:"]
-    for c in DECLARED.values():
-        if c.stream or c.ctl.startswith("("):
-            continue
-        usage = f"{c.name} {c.ctl}".strip()
-        lines.append(f"  {usage:<40} {c.help}")
+    for name in ctl_commands():
+        c = DECLARED[name]
+        lines.append(f"  {f'{c.name} {c.ctl}'.strip():<40} {c.help}")
     return "\n".join(lines)
 
 

@@ -23,7 +23,7 @@ from ddrt.service.commands import Request
 from ddrt.service.ctlqueue import Deferred
 from ddrt.service.pathjob import Build, BuildJob, build_path, content_source, describe
 from ddrt.service.timing import select_quantiles
-from ddrt.loop import LoopState
+from ddrt.loop import LoopState, StartTooFar
 
 if TYPE_CHECKING:
     from ddrt.service.daemon import Daemon
@@ -198,7 +198,10 @@ def switch(d: Daemon, p: PendingFollow, build: Build) -> dict[str, Any]:
     except (ValueError, RuntimeError) as exc:
         if d.paths is not None:
             d.paths.dispose(path)
-        return {"ok": False, "error": f"follow: {exc}"}
+        # --here moves the path to start at the robot: the other way out of a far start.
+        here = (", or follow it from where the robot stands: `ddrt ctl follow FILE --here`"
+                if isinstance(exc, StartTooFar) else "")
+        return {"ok": False, "error": f"follow: {exc}{here}"}
     if old is not None and old is not path and d.paths is not None:
         d.paths.dispose(old)  # the loop's last reference is gone: free it off the loop
     del old

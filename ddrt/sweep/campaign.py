@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path as FsPath
 from typing import Any, Mapping
 
+from ddrt.config.filekind import CAMPAIGN, not_a
 from ddrt.errors import DdrtError
 from ddrt.config.schema import INT_LIMIT
 from ddrt.config.yamlio import read_yaml, shorten
@@ -136,6 +137,9 @@ class _Reader:
             raise CampaignError(f"{self.source}: the campaign is empty")
         if not isinstance(data, Mapping):
             raise CampaignError(f"{self.source}: the top level must be a mapping of campaign keys")
+        other = not_a(data, CAMPAIGN, self.source, "a campaign")
+        if other is not None:
+            raise CampaignError(other)
         for key in data:
             if key not in KEYS:
                 raise self.fail(str(key), f"unknown key (known: {', '.join(KEYS)})")

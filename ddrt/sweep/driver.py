@@ -70,7 +70,7 @@ class SweepReport:
         lines = [f"sweep: {len(self.rows)} of {len(self.plan.cases)} cases have rows ({self.ran} run now, "
                  f"{self.resumed} kept from before); {self.not_ok} failed or timed out; {passed} passed",
                  f"wrote {self.out / PARQUET}, {self.out / CSV}, {self.out / SUMMARY}"
-                 + (f" and {self.figures} figures" if self.figures else "")]
+                 + (f" and {self.figures} figure{'s' * (self.figures != 1)}" if self.figures else "")]
         if self.left:
             lines.append(("interrupted: " if self.interrupted else "") + f"{self.left} cases left; "
                          "the same command with --resume runs them")

@@ -42,18 +42,27 @@ def _axes_of(plan: Plan, rows: Sequence[Row]) -> list[str]:
     return [c for c in varied(plan, rows) if c != "seed"]
 
 
+def shown_as(metric: str) -> tuple[float, str]:
+    """The scale and axis label a metric is drawn with: a length in metres (`*_m`) in mm, which
+    reads without an offset at the sub-millimetre errors a sweep compares."""
+    return (1000.0, f"{metric} (mm)") if metric.endswith("_m") else (1.0, metric)
+
+
 def box_plot(plan: Plan, rows: Sequence[Row], column: str, metric: str, dest: FsPath) -> None:
     from matplotlib.figure import Figure
 
     groups = by_value(plan, rows, column)
-    data = [_values([r for r in rows if value_key(r.get(column)) == value_key(g.value)], metric) for g in groups]
+    scale, label = shown_as(metric)
+    data = [[scale * v for v in _values([r for r in rows if value_key(r.get(column)) == value_key(g.value)], metric)]
+            for g in groups]
     fig = Figure(figsize=(max(5.0, 0.45 * len(groups) + 2.0), 4.0), layout="constrained")
     ax = fig.add_subplot()
     ax.boxplot([d if d else [np.nan] for d in data], showfliers=True)
     ax.set_xticks(range(1, len(groups) + 1), [str(g.value) for g in groups], rotation=45 if len(groups) > 8 else 0,
                   ha="right" if len(groups) > 8 else "center")
     ax.set_xlabel(column)
-    ax.set_ylabel(metric)
+    ax.set_ylabel(label)
+    ax.ticklabel_format(axis="y", useOffset=False)
     ax.set_title(f"{sum(map(len, data))} runs that ended", fontsize=10)
     ax.grid(True, axis="y", alpha=0.3)
     fig.savefig(dest, dpi=110)
@@ -72,7 +81,7 @@ def heat_map(plan: Plan, rows: Sequence[Row], x: str, y: str, metric: str, dest:
             if cell:
                 rate[i, j] = sum(bool(r.get("pass")) for r in cell) / len(cell)
                 vals = _values(cell, metric)
-                median[i, j] = float(np.median(vals)) if vals else np.nan
+                median[i, j] = shown_as(metric)[0] * float(np.median(vals)) if vals else np.nan
     fig = Figure(figsize=(max(5.0, 0.8 * len(xs) + 2.5), max(3.5, 0.5 * len(ys) + 2.0)), layout="constrained")
     ax = fig.add_subplot()
     im = ax.imshow(rate, vmin=0.0, vmax=1.0, cmap="RdYlGn", origin="lower", aspect="auto")
@@ -81,7 +90,7 @@ def heat_map(plan: Plan, rows: Sequence[Row], x: str, y: str, metric: str, dest:
     ax.set_yticks(range(len(ys)), [str(v) for v in ys])
     ax.set_xlabel(x)
     ax.set_ylabel(y)
-    ax.set_title(f"pass rate; in each cell the median {metric}")
+    ax.set_title(f"pass rate; in each cell the median {shown_as(metric)[1]}")
     for i in range(len(ys)):
         for j in range(len(xs)):
             if np.isfinite(median[i, j]):

@@ -40,10 +40,10 @@ def _deadline(timeout_s: float | None, t0: float) -> Callable[[float, float], No
     if timeout_s is None:
         return None
 
-    def check(t_sim: float, limit: float) -> None:
+    def check(t_sim: float, expected: float) -> None:
         if time.perf_counter() - t0 > timeout_s:
             raise RunTimedOut(f"ran longer than run.timeout_s = {timeout_s:g} s of wall time "
-                              f"({t_sim:.1f} of at most {limit:.0f} simulated seconds done)")
+                              f"({t_sim:.1f} of the {expected:.1f} simulated seconds expected done)")
 
     return check
 

@@ -19,7 +19,25 @@ from ddrt.sweep.run import Row
 
 SUMMARY = "summary.md"
 PERCENTILES = (50, 90, 99)
+# The fewest runs a percentile says something over: p90 of 2 runs is their larger one, p99 of
+# 10 their largest (which max already gives). A group with fewer shows '-', and a column no
+# group of a table reaches is left out.
+MIN_RUNS = {50: 1, 90: 10, 99: 100}
 MAX_FAILURES_LISTED = 10
+
+
+@dataclass(frozen=True)
+class Spread:
+    """A metric over `n` runs: its PERCENTILES and its largest value."""
+
+    n: int
+    percentiles: tuple[float, ...]
+    max: float
+
+    def cells(self, shown: Sequence[int]) -> list[str]:
+        """The shown percentiles ('-' where there are too few runs for one) and the max."""
+        return [_num(v) if self.n >= MIN_RUNS[p] else "-" for p, v in zip(PERCENTILES, self.percentiles)
+                if p in shown] + [_num(self.max)]
 
 
 @dataclass(frozen=True)
@@ -30,20 +48,20 @@ class Group:
     runs: int
     ok: int
     passed: int
-    spread: dict[str, tuple[float, ...] | None]  # metric -> percentiles and max; None: no values
+    spread: dict[str, Spread | None]  # metric -> its spread over the runs that ended; None: no values
 
     @property
     def pass_rate(self) -> float:
         return self.passed / self.runs if self.runs else math.nan
 
 
-def spread(rows: Sequence[Row], metric: str) -> tuple[float, ...] | None:
+def spread(rows: Sequence[Row], metric: str) -> Spread | None:
     values = np.array([r[metric] for r in rows if r.get("status") == "ok" and isinstance(r.get(metric), (int, float))
                        and not isinstance(r.get(metric), bool)], dtype=float)
     values = values[np.isfinite(values)]
     if len(values) == 0:
         return None
-    return tuple(float(v) for v in np.percentile(values, PERCENTILES)) + (float(values.max()),)
+    return Spread(len(values), tuple(float(v) for v in np.percentile(values, PERCENTILES)), float(values.max()))
 
 
 def group(rows: Sequence[Row], value: Any, metrics: Sequence[str]) -> Group:
@@ -83,15 +101,19 @@ def _cell_text(value: Any) -> str:
 
 
 def _table(title: str, groups: Iterable[Group], metrics: Sequence[str]) -> list[str]:
+    groups = list(groups)
     head = [title, "runs", "ok", "pass"]
+    shown: dict[str, list[int]] = {}
     for m in metrics:
-        head += [f"{m} p{p}" for p in PERCENTILES] + [f"{m} max"]
+        most = max((s.n for g in groups if (s := g.spread[m]) is not None), default=0)
+        shown[m] = [p for p in PERCENTILES if most >= MIN_RUNS[p]] or [PERCENTILES[0]]
+        head += [f"{m} p{p}" for p in shown[m]] + [f"{m} max"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for g in groups:
         cells = [_cell_text(g.value), str(g.runs), str(g.ok), f"{g.passed} ({g.pass_rate:.0%})" if g.runs else "0"]
         for m in metrics:
             s = g.spread[m]
-            cells += [_num(v) for v in s] if s is not None else ["-"] * (len(PERCENTILES) + 1)
+            cells += s.cells(shown[m]) if s is not None else ["-"] * (len(shown[m]) + 1)
         lines.append("| " + " | ".join(cells) + " |")
     return lines
 
@@ -108,7 +130,9 @@ def summary_text(plan: Plan, rows: Sequence[Row]) -> str:
              f"{passed} passed ({passed / len(rows):.1%})." if rows else
              f"Campaign `{camp.source}`: no runs yet of {len(plan.cases)} cases.",
              "", "Pass: " + " and ".join(f"`{c.text}`" for c in camp.run.criteria) + " (and the run ended: status ok).",
-             "", f"Percentiles are over the runs that ended (status ok); metrics: {', '.join(metrics)}.", ""]
+             "", f"Percentiles are over the runs that ended (status ok); metrics: {', '.join(metrics)}. "
+             + "; ".join(f"p{p} is given over {n} runs or more" for p, n in MIN_RUNS.items() if n > 1)
+             + " ('-' for fewer; a column no row reaches is left out).", ""]
     lines += _table("all runs", [group(rows, "all", metrics)], metrics)
     for column in varied(plan, rows):
         lines += ["", f"## By {column}", ""]
