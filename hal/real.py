@@ -54,6 +54,7 @@ class Imu(Protocol):
 
     gyro_range_dps: int
     gyro_delay_s: float  # group delay of its low-pass
+    fault_counts: Mapping[str, int]  # what it counted of the faults it saw (status: imu.<name>)
 
     def read_gyro_z_raw(self) -> int: ...
 
@@ -212,10 +213,8 @@ class RealHal(Hal):
         out = dict(self._counters)
         for k, v in self._bridge_stats().items():
             out[f"bridge.{k}"] = v
-        for k in ("retries", "errors"):
-            v = getattr(self.imu, k, None)
-            if isinstance(v, int):
-                out[f"imu.{k}"] = v
+        for k, v in self.imu.fault_counts.items():
+            out[f"imu.{k}"] = v
         return out
 
     # -- internals ------------------------------------------------------------------------
@@ -342,12 +341,15 @@ class RealHal(Hal):
 
     @classmethod
     def from_config(cls, cfg: "Config", clock: Clock | None = None, *,
-                    i2c_bus: Any = None) -> "RealHal":
+                    i2c_bus: Any = None, watch_repeats: bool = True) -> "RealHal":
         """Build from a validated config: its `hal` section and `sensors.gyro_range_dps`.
 
         The walker (ddrt.config) has checked every value and range; what is left here is
         what only opening needs: `hal.imu.bus: sim` needs the emulated bus passed as `i2c_bus`.
+        `watch_repeats=False` (an emulated noise-free gyro only): the driver does not take a
+        repeated output word for a frozen part.
         """
+        clock = clock if clock is not None else MonotonicClock()
         hal = cfg.hal
         hal.check_real("hal")  # a config loaded for the sim backend may lack the devices
         imu_cfg, link, pwm_cfg = hal.imu, hal.bridge, hal.pwm_sysfs
@@ -361,7 +363,8 @@ class RealHal(Hal):
             if i2c_bus is None:
                 opened.append(bus)
             imu = Mpu6050(bus, imu_cfg.address, cfg.sensors.gyro_range_dps, imu_cfg.dlpf_cfg,
-                          imu_cfg.sample_rate_div, fifo=cfg.sensors.gyro_fifo)
+                          imu_cfg.sample_rate_div, fifo=cfg.sensors.gyro_fifo, clock=clock.now,
+                          watch_repeats=watch_repeats)
             bridge = Bridge(link.url, link.baudrate, link.drive_timeout_ms, link.state_stale_s, clock=clock)
             opened.append(bridge)
             motors = None
