@@ -41,6 +41,7 @@ Otherwise HalSensorFault. Each is counted (`fault_counts`).
 from __future__ import annotations
 
 import errno
+import logging
 import math
 import time
 from dataclasses import dataclass
@@ -52,6 +53,8 @@ from ddrt.params.gyro_scale import GYRO_LSB_PER_DPS, GYRO_RANGES_DPS, gyro_lsb_p
 from ddrt.params.mpu_parts import MPU_PARTS, MpuPart, known_parts, part_by_who_am_i
 from hal.base import HalInitError, HalIOError, HalSensorFault, HalTimeoutError, HalValueError
 from hal.mpu_watch import ALIVE, OutputWatch, StuckBound, Symptom, stuck_bound
+
+log = logging.getLogger("ddrt.hal.mpu")
 
 __all__ = [
     "DEFAULT_ADDRESS", "FIFO_BYTES", "FIFO_COUNTH", "FIFO_EN", "FIFO_R_W", "FifoBatch", "GYRO_CONFIG", "GYRO_DELAY_S", "GYRO_FS_SEL", "GYRO_ZOUT_H", "PWR_MGMT_1",
@@ -178,6 +181,9 @@ class Mpu6050:
                                              self.part.dlpf_bandwidth_hz[dlpf_cfg], self.sample_rate_hz)
         self._watch = OutputWatch(self.stuck, self.sample_rate_hz)
         self._reinit_t: deque[float] = deque()
+        self._dead: str = ""  # once a fault is seen, every read raises it again (counted once)
+        self._prev_raw: int | None = None  # the last register reading
+        self.last_event = ""  # what the liveness checks last saw (a re-initialisation, a fault)
         self._starting_until = -math.inf  # after a re-initialisation: no valid sample before
         try:
             self._configure()
@@ -315,11 +321,23 @@ class Mpu6050:
         self.counts["reinits"] += 1
         self._watch.reset()
         self._starting_until = now + self.part.startup_s
-        raise HalTimeoutError(f"{self._where}: {saw}; re-initialised, no sample for its "
-                              f"{self.part.startup_s * 1e3:.0f} ms start-up")
+        self.last_event = (f"{self._where}: {saw}; re-initialised, no sample for its "
+                           f"{self.part.startup_s * 1e3:.0f} ms start-up")
+        log.warning("%s", self.last_event)
+        raise HalTimeoutError(self.last_event)
 
     def _alive(self, symptom: Symptom = ALIVE) -> None:
-        """Per read: the periodic read-back, and a look at the part when the output looks dead."""
+        """Per read: the periodic read-back, and a look at the part when the output looks dead.
+        A fault found once stands: the part is not trusted again until it is opened anew."""
+        if self._dead:
+            raise HalSensorFault(self._dead)
+        try:
+            self._look(symptom)
+        except HalSensorFault as e:
+            self._dead = self.last_event = str(e)
+            raise
+
+    def _look(self, symptom: Symptom) -> None:
         now = self._clock()
         if self._starting_until > -math.inf:
             if now < self._starting_until:
@@ -401,6 +419,13 @@ class Mpu6050:
             symptom = self._watch.word(raw, self._clock())
             if symptom:
                 self._alive(symptom)
+        if raw == 0 and self._prev_raw == 0:
+            # A reset zeroes the output registers: read the part back now, not at the next
+            # periodic check, so that few zeros are taken for a rate (a live part reads exactly
+            # 0 twice in a row rarely, and then this costs three short reads).
+            self._check_due = -math.inf
+            self._alive()
+        self._prev_raw = raw
         return raw
 
     def read_temp_c(self) -> float:

@@ -254,7 +254,8 @@ class RealHal(Hal):
         if over or not have_last:
             self._counters["timeouts"] += 1
             cause = getattr(self, "_last_error", None)
-            raise HalTimeoutError(f"{dev}: no new data for {missing} tick(s) ({bound})") from cause
+            last = f"; last error: {cause}" if cause is not None else ""
+            raise HalTimeoutError(f"{dev}: no new data for {missing} tick(s) ({bound}){last}") from cause
         self._counters[f"{dev}_holds"] += 1
         faults.append(f"{dev}_hold")
 

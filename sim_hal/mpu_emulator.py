@@ -109,6 +109,8 @@ class MpuEmulator:
         self._who_am_i = part.who_am_i if who_am_i is None else who_am_i
         self.output = "live"  # the part's own faults: "live", "frozen", "stalled" (module doc)
         self.brown_outs = 0
+        self._last_raw = 0  # the last sample it produced (register or FIFO)
+        self._frozen_raw = 0
         self._clock = clock
         self._clock_scale = 1.0 + clock_ppm * 1e-6  # its oscillator runs this much fast
         self._temperature_c = temperature_c
@@ -130,7 +132,8 @@ class MpuEmulator:
     # --- the part's own faults ------------------------------------------------------------------
 
     def freeze(self) -> None:
-        """Its output repeats the word it holds now (the register, and every FIFO sample)."""
+        """Its output repeats its last sample (the register, and every FIFO sample)."""
+        self._frozen_raw = self._last_raw
         self.output = "frozen"
 
     def stall(self) -> None:
@@ -152,9 +155,6 @@ class MpuEmulator:
         reg = self.part.fifo_size_register
         return self.part.fifo_bytes if reg is None else 512 << ((self.regs[reg] >> 6) & 0x03)
 
-    def _held_raw(self) -> int:
-        raw = (self.regs[GYRO_ZOUT_H] << 8) | self.regs[GYRO_ZOUT_H + 1]
-        return raw - 0x10000 if raw & 0x8000 else raw
 
     @property
     def asleep(self) -> bool:
@@ -227,7 +227,10 @@ class MpuEmulator:
                     self.regs[INT_STATUS] |= FIFO_OFLOW_INT
                 frozen = self.output == "frozen"
                 for r in samples:
-                    self._push(self._held_raw() if frozen else r)
+                    if frozen:
+                        r = self._frozen_raw
+                    self._last_raw = r
+                    self._push(r)
             return
         if self.output == "stalled":
             return
@@ -250,8 +253,9 @@ class MpuEmulator:
 
     def _raw_now(self) -> int:
         if self.output == "frozen":
-            return self._held_raw()
-        return round(self.source.gyro_z_rad_s() * _DPS_PER_RAD_S * self.lsb_per_dps)
+            return self._frozen_raw
+        self._last_raw = round(self.source.gyro_z_rad_s() * _DPS_PER_RAD_S * self.lsb_per_dps)
+        return self._last_raw
 
     def _fifo_read(self, register: int, length: int) -> list[int]:
         """Registers with side effects: FIFO_COUNT (filled first), FIFO_R_W (pops), INT_STATUS
