@@ -192,6 +192,11 @@ class Mpu6050:
         self._check_due = self._clock() + CONFIG_CHECK_S
 
     @property
+    def gyro_part(self) -> str:
+        """The part found, as reports print it: "MPU-6500 (WHO_AM_I 0x70)"."""
+        return self.part.label
+
+    @property
     def fifo_bytes(self) -> int:
         return self.part.fifo_bytes
 

@@ -55,6 +55,7 @@ class Imu(Protocol):
     gyro_range_dps: int
     gyro_delay_s: float  # group delay of its low-pass
     fault_counts: Mapping[str, int]  # what it counted of the faults it saw (status: imu.<name>)
+    gyro_part: str  # which part it is, as reports print it (HalInfo.gyro_part)
 
     def read_gyro_z_raw(self) -> int: ...
 
@@ -110,7 +111,8 @@ class RealHal(Hal):
                             wheel_counts_per_rev=int(bridge.wheel_counts_per_rev),
                             battery_measured=bool(bridge.battery_measured),
                             hw_estop_wired=bool(bridge.hw_estop_wired),
-                            gyro_temp_hz=float(temp_hz) if hasattr(imu, "read_temp_c") else 0.0)
+                            gyro_temp_hz=float(temp_hz) if hasattr(imu, "read_temp_c") else 0.0,
+                            gyro_part=imu.gyro_part)
         self._temp_next_t = -math.inf  # clock time of the next TEMP_OUT read
         # V per mV the MCU reports: its divider's calibration against a multimeter
         # (sensors.battery_scale, docs/hardware.md), 1.0 when the firmware's is right
