@@ -110,9 +110,13 @@ def family_run(part: str, fifo: bool, seed: int = 1) -> FamilyRun:
 
     cfg = load_config(SIM_CONFIG.parent / "scenarios" / "figure8_fast.yaml",
                       {**EMULATED, "sim": {"gyro": {"part": part}}, "sensors": {"gyro_fifo": fifo}})
+    hal = open_hal(cfg, seed=seed)
+    try:
+        seen = hal.info.gyro_part  # what the driver identified by WHO_AM_I
+    finally:
+        hal.close()
     res = run_sim(cfg, resolve_path(cfg), seed=seed)
-    return FamilyRun(part, fifo, res.metrics["rms_cross_track_m"] * 1e3, bool(res.metrics["completed"]),
-                     part)
+    return FamilyRun(part, fifo, res.metrics["rms_cross_track_m"] * 1e3, bool(res.metrics["completed"]), seen)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -134,12 +138,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             sys.stdout.flush()
     print(f"\nworst travel after a fault: {worst:.3f} m")
     print("\n# the MPU family on the fast figure-eight (0.8 m/s)")
-    print("| part | FIFO | true cross-track RMS (mm) | completed |")
-    print("|---|---|---|---|")
+    print("| emulated part | driver found | FIFO | true cross-track RMS (mm) | completed |")
+    print("|---|---|---|---|---|")
     for part in args.parts:
         for fifo in (False, True):
             r = family_run(part, fifo)
-            print(f"| {r.part} | {'on' if fifo else 'off'} | {r.rms_mm:.2f} | {r.completed} |")
+            print(f"| {r.part} | {r.seen} | {'on' if fifo else 'off'} | {r.rms_mm:.2f} | {r.completed} |")
             sys.stdout.flush()
     return 0
 

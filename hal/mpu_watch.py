@@ -97,23 +97,21 @@ class OutputWatch:
         """Forget the history (after a re-initialisation)."""
         self._word: int | None = None
         self._since = 0.0  # clock time the current word first appeared (register path)
-        self._looks = 0  # looks on the current word since it appeared
-        self._look_t = -math.inf  # clock time of the last counted look
+        self._looks = 0  # register reads of the current word after its first
         self._run = 0  # FIFO: samples of the current word in a row
         self._last_sample_t: float | None = None  # FIFO: clock time of the last read that had samples
 
     def word(self, raw: int, t: float) -> Symptom:
-        """A register read. A read counts as a new look once 1/looks_per_s has passed since the
-        last one counted, so a loop faster than the part, or stalled between two reads, cannot
-        make a run out of a few samples."""
+        """A register read. The run's looks are its span times looks_per_s, and never more than
+        its reads: a loop faster than the part, or stalled between two reads, cannot make a run
+        out of a few samples."""
         if raw != self._word:
-            self._word, self._looks, self._look_t, self._since = raw, 0, t, t
+            self._word, self._looks, self._since = raw, 0, t
             return ALIVE
-        if t - self._look_t >= 1.0 / self.bound.looks_per_s - 1e-9:
-            self._looks += 1
-            self._look_t = t
-        if self._looks >= self.bound.looks:
-            return self._repeated(f"{self._looks + 1} looks over {t - self._since:.3f} s")
+        self._looks += 1  # here: the reads of the word after its first
+        looks = min(self._looks, math.floor((t - self._since) * self.bound.looks_per_s + 1e-9))
+        if looks >= self.bound.looks:
+            return self._repeated(f"{looks} looks over {t - self._since:.3f} s")
         return ALIVE
 
     def batch(self, words: list[int], t: float) -> Symptom:
