@@ -424,7 +424,7 @@ class Mpu6050:
             symptom = self._watch.word(raw, self._clock())
             if symptom:
                 self._alive(symptom)
-        if raw == 0 and self._prev_raw == 0:
+        if raw == 0 and self._prev_raw == 0 and self._watch_repeats:
             # A reset zeroes the output registers: read the part back now, not at the next
             # periodic check, so that few zeros are taken for a rate (a live part reads exactly
             # 0 twice in a row rarely, and then this costs three short reads).
