@@ -16,6 +16,7 @@ from typing import Any
 from ddrt.config import Config
 from hal.base import Hal, Sample
 from hal.wire import PROTOCOL_V1, PROTOCOL_VERSION
+from hal.mpu_watch import NOISE_FLOOR_DPS_RTHZ
 from hal.real import RealHal
 from sim_hal.serial_urls import protocol_ddrtsim
 from sim_hal.factory import plant_config
@@ -168,10 +169,11 @@ def real_hal_on(cfg: Config, devices: Any) -> RealHal:
     its clock and I2C bus theirs; the devices are closed if it cannot be built."""
     hal = replace(cfg.hal, bridge=replace(cfg.hal.bridge, url=devices.url))
     try:
-        # A noise-free simulated gyro repeats its word at rest, which no live part does: the
-        # driver's repeated-word check is for real parts (its other checks stay on).
+        # A simulated gyro quieter than any real part (noise-free, or below the floor the
+        # driver's bound assumes) repeats its word at rest, which no live part does: the
+        # repeated-word check is for real parts (the driver's other checks stay on).
         return RealHal.from_config(replace(cfg, hal=hal), clock=devices.time, i2c_bus=devices.i2c,
-                                   watch_repeats=cfg.sim.gyro.noise_dps_rthz > 0.0)
+                                   watch_repeats=cfg.sim.gyro.noise_dps_rthz >= NOISE_FLOOR_DPS_RTHZ)
     except BaseException:
         devices.close()
         raise
