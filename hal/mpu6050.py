@@ -68,7 +68,7 @@ SMPLRT_DIV = 0x19
 CONFIG = 0x1A  # DLPF_CFG in bits 2:0
 GYRO_CONFIG = 0x1B  # FS_SEL in bits 4:3
 GYRO_ZOUT_H = 0x47  # GYRO_ZOUT_L follows at 0x48
-TEMP_OUT_H = 0x41  # TEMP_OUT_L follows at 0x42; degC = TEMP_OUT / 340 + 36.53 (register map 4.18)
+TEMP_OUT_H = 0x41  # TEMP_OUT_L follows at 0x42; degC by the part's formula (ddrt.params.mpu_parts)
 PWR_MGMT_1 = 0x6B
 WHO_AM_I = 0x75
 WHO_AM_I_VALUE = 0x68  # the MPU-6050's; the family's values are ddrt.params.mpu_parts'
@@ -180,6 +180,10 @@ class Mpu6050:
         self.stuck: StuckBound = stuck_bound(GYRO_LSB_PER_DPS[gyro_range_dps],
                                              self.part.dlpf_bandwidth_hz[dlpf_cfg], self.sample_rate_hz)
         self._watch = OutputWatch(self.stuck, self.sample_rate_hz)
+        if watch_repeats and not self.stuck.usable:
+            log.warning("%s: at %d deg/s behind DLPF_CFG %d its noise (%.2f LSB) is too small to tell a frozen "
+                        "output within %.2f s: the repeat check is too slow to stop the robot in time "
+                        "(docs/hardware.md)", self._where, gyro_range_dps, dlpf_cfg, self.stuck.sigma_lsb, 0.5)
         self._reinit_t: deque[float] = deque()
         self._dead: str = ""  # once a fault is seen, every read raises it again (counted once)
         self._prev_raw: int | None = None  # the last register reading
