@@ -52,7 +52,7 @@ from collections import deque
 from ddrt.params.gyro_scale import GYRO_LSB_PER_DPS, GYRO_RANGES_DPS, gyro_lsb_per_rad_s
 from ddrt.params.mpu_parts import MPU_PARTS, MpuPart, known_parts, part_by_who_am_i
 from hal.base import HalInitError, HalIOError, HalSensorFault, HalTimeoutError, HalValueError
-from hal.mpu_watch import ALIVE, OutputWatch, StuckBound, Symptom, stuck_bound
+from hal.mpu_watch import ALIVE, MAX_STUCK_S, OutputWatch, StuckBound, Symptom, stuck_bound
 
 log = logging.getLogger("ddrt.hal.mpu")
 
@@ -183,7 +183,7 @@ class Mpu6050:
         if watch_repeats and not self.stuck.usable:
             log.warning("%s: at %d deg/s behind DLPF_CFG %d its noise (%.2f LSB) is too small to tell a frozen "
                         "output within %.2f s: the repeat check is too slow to stop the robot in time "
-                        "(docs/hardware.md)", self._where, gyro_range_dps, dlpf_cfg, self.stuck.sigma_lsb, 0.5)
+                        "(docs/hardware.md)", self._where, gyro_range_dps, dlpf_cfg, self.stuck.sigma_lsb, MAX_STUCK_S)
         self._reinit_t: deque[float] = deque()
         self._dead: str = ""  # once a fault is seen, every read raises it again (counted once)
         self._prev_raw: int | None = None  # the last register reading
