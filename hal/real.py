@@ -349,8 +349,8 @@ class RealHal(Hal):
 
         The walker (ddrt.config) has checked every value and range; what is left here is
         what only opening needs: `hal.imu.bus: sim` needs the emulated bus passed as `i2c_bus`.
-        `watch_repeats=False` (an emulated noise-free gyro only): the driver does not take a
-        repeated output word for a frozen part.
+        `watch_repeats=False` (an emulated gyro quieter than any real part only): the driver
+        does not take a repeated output word for a frozen part.
         """
         clock = clock if clock is not None else MonotonicClock()
         hal = cfg.hal

@@ -14,13 +14,13 @@ from dataclasses import replace
 from typing import Any
 
 from ddrt.config import Config
+from ddrt.params.mpu_parts import part_by_name
 from hal.base import Hal, Sample
 from hal.wire import PROTOCOL_V1, PROTOCOL_VERSION
 from hal.mpu_watch import NOISE_FLOOR_DPS_RTHZ
 from hal.real import RealHal
 from sim_hal.serial_urls import protocol_ddrtsim
 from sim_hal.factory import plant_config
-from ddrt.params.mpu_parts import part_by_name
 from sim_hal.faults import FaultyI2cBus
 from sim_hal.mcu_emulator import McuEmulator
 from sim_hal.mpu_emulator import MpuEmulator
