@@ -14,7 +14,7 @@ from ddrt.core.types import HalInfo, Sample
 from ddrt.errors import DdrtError
 
 __all__ = ["Hal", "HalError", "HalInfo", "HalInitError", "HalIOError", "HalTimeoutError",
-           "HalValueError", "Sample", "TrueMotion", "check_duty"]
+           "HalSensorFault", "HalValueError", "Sample", "TrueMotion", "check_duty"]
 
 
 class HalError(DdrtError):
@@ -31,6 +31,12 @@ class HalIOError(HalError, OSError):
 
 class HalTimeoutError(HalIOError, TimeoutError):
     """A device stopped answering within its bound (stale STATE stream, I2C timeout)."""
+
+
+class HalSensorFault(HalError):
+    """A sensor answers, but not with a live measurement: its output repeats one word longer
+    than its noise allows, reads all zeros, its FIFO stopped filling, or it reset itself and
+    could not safely be restarted. Not retried and not held: the loop latches a fault."""
 
 
 class HalValueError(HalError, ValueError):

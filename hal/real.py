@@ -54,6 +54,8 @@ class Imu(Protocol):
 
     gyro_range_dps: int
     gyro_delay_s: float  # group delay of its low-pass
+    fault_counts: Mapping[str, int]  # what it counted of the faults it saw (status: imu.<name>)
+    gyro_part: str  # which part it is, as reports print it (HalInfo.gyro_part)
 
     def read_gyro_z_raw(self) -> int: ...
 
@@ -109,7 +111,8 @@ class RealHal(Hal):
                             wheel_counts_per_rev=int(bridge.wheel_counts_per_rev),
                             battery_measured=bool(bridge.battery_measured),
                             hw_estop_wired=bool(bridge.hw_estop_wired),
-                            gyro_temp_hz=float(temp_hz) if hasattr(imu, "read_temp_c") else 0.0)
+                            gyro_temp_hz=float(temp_hz) if hasattr(imu, "read_temp_c") else 0.0,
+                            gyro_part=imu.gyro_part)
         self._temp_next_t = -math.inf  # clock time of the next TEMP_OUT read
         # V per mV the MCU reports: its divider's calibration against a multimeter
         # (sensors.battery_scale, docs/hardware.md), 1.0 when the firmware's is right
@@ -212,10 +215,8 @@ class RealHal(Hal):
         out = dict(self._counters)
         for k, v in self._bridge_stats().items():
             out[f"bridge.{k}"] = v
-        for k in ("retries", "errors"):
-            v = getattr(self.imu, k, None)
-            if isinstance(v, int):
-                out[f"imu.{k}"] = v
+        for k, v in self.imu.fault_counts.items():
+            out[f"imu.{k}"] = v
         return out
 
     # -- internals ------------------------------------------------------------------------
@@ -255,7 +256,8 @@ class RealHal(Hal):
         if over or not have_last:
             self._counters["timeouts"] += 1
             cause = getattr(self, "_last_error", None)
-            raise HalTimeoutError(f"{dev}: no new data for {missing} tick(s) ({bound})") from cause
+            last = f"; last error: {cause}" if cause is not None else ""
+            raise HalTimeoutError(f"{dev}: no new data for {missing} tick(s) ({bound}){last}") from cause
         self._counters[f"{dev}_holds"] += 1
         faults.append(f"{dev}_hold")
 
@@ -342,12 +344,15 @@ class RealHal(Hal):
 
     @classmethod
     def from_config(cls, cfg: "Config", clock: Clock | None = None, *,
-                    i2c_bus: Any = None) -> "RealHal":
+                    i2c_bus: Any = None, watch_repeats: bool = True) -> "RealHal":
         """Build from a validated config: its `hal` section and `sensors.gyro_range_dps`.
 
         The walker (ddrt.config) has checked every value and range; what is left here is
         what only opening needs: `hal.imu.bus: sim` needs the emulated bus passed as `i2c_bus`.
+        `watch_repeats=False` (an emulated gyro quieter than any real part only): the driver
+        does not take a repeated output word for a frozen part.
         """
+        clock = clock if clock is not None else MonotonicClock()
         hal = cfg.hal
         hal.check_real("hal")  # a config loaded for the sim backend may lack the devices
         imu_cfg, link, pwm_cfg = hal.imu, hal.bridge, hal.pwm_sysfs
@@ -361,7 +366,8 @@ class RealHal(Hal):
             if i2c_bus is None:
                 opened.append(bus)
             imu = Mpu6050(bus, imu_cfg.address, cfg.sensors.gyro_range_dps, imu_cfg.dlpf_cfg,
-                          imu_cfg.sample_rate_div, fifo=cfg.sensors.gyro_fifo)
+                          imu_cfg.sample_rate_div, fifo=cfg.sensors.gyro_fifo, clock=clock.now,
+                          watch_repeats=watch_repeats)
             bridge = Bridge(link.url, link.baudrate, link.drive_timeout_ms, link.state_stale_s, clock=clock)
             opened.append(bridge)
             motors = None

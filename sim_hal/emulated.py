@@ -14,11 +14,14 @@ from dataclasses import replace
 from typing import Any
 
 from ddrt.config import Config
+from ddrt.params.mpu_parts import part_by_name
 from hal.base import Hal, Sample
 from hal.wire import PROTOCOL_V1, PROTOCOL_VERSION
+from hal.mpu_watch import NOISE_FLOOR_DPS_RTHZ
 from hal.real import RealHal
 from sim_hal.serial_urls import protocol_ddrtsim
 from sim_hal.factory import plant_config
+from sim_hal.faults import FaultyI2cBus
 from sim_hal.mcu_emulator import McuEmulator
 from sim_hal.mpu_emulator import MpuEmulator
 from sim_hal.plant import SimRobot
@@ -87,8 +90,10 @@ class EmulatedDevices:
         self.link = protocol_ddrtsim.register(self.name, self.mcu, self.mcu_time(self.robot.t))
         robot = self.robot
         g = cfg.sim.gyro
-        self.i2c = MpuEmulator(_PlantGyro(robot), clock=(lambda: robot.t) if g.register_hold else None,
+        self.mpu = MpuEmulator(_PlantGyro(robot), part=part_by_name(g.part),
+                               clock=(lambda: robot.t) if g.register_hold else None,
                                clock_ppm=g.clock_ppm, temperature_c=lambda: robot.gyro_die_temp_c)
+        self.i2c = FaultyI2cBus(self.mpu)  # the bus the driver is given: faults injectable (sim_hal/faults.py)
         self.time = SimTime(lambda: robot.t, self._advance, paced)  # the real drivers' Clock
         self.link.pump(self.mcu_time(robot.t))
 
@@ -164,7 +169,11 @@ def real_hal_on(cfg: Config, devices: Any) -> RealHal:
     its clock and I2C bus theirs; the devices are closed if it cannot be built."""
     hal = replace(cfg.hal, bridge=replace(cfg.hal.bridge, url=devices.url))
     try:
-        return RealHal.from_config(replace(cfg, hal=hal), clock=devices.time, i2c_bus=devices.i2c)
+        # A simulated gyro quieter than any real part (noise-free, or below the floor the
+        # driver's bound assumes) repeats its word at rest, which no live part does: the
+        # repeated-word check is for real parts (the driver's other checks stay on).
+        return RealHal.from_config(replace(cfg, hal=hal), clock=devices.time, i2c_bus=devices.i2c,
+                                   watch_repeats=cfg.sim.gyro.noise_dps_rthz >= NOISE_FLOOR_DPS_RTHZ)
     except BaseException:
         devices.close()
         raise

@@ -4,7 +4,9 @@
   `to_mcu=`): drops bytes, flips bits, injects garbage, or goes mute. Seeded, so a failing
   test replays exactly.
 - `FaultyI2cBus`: wraps an smbus-like bus; fails the next n transfers with an errno (a burst
-  of EIO), or stops answering altogether.
+  of EIO), stops answering altogether (NAKs), or answers every read with zeros.
+- `inject_gyro_fault`: one of GYRO_FAULTS on an emulated gyro and its bus: its output frozen,
+  stalled (its FIFO stops filling), all zeros, NAKs, or a reset of the part (a brown-out).
 - `reset_mcu`: reboots the emulated microcontroller (its seq restarts, its count jumps).
 """
 
@@ -15,8 +17,12 @@ import random
 from typing import Any
 
 from sim_hal.mcu_emulator import McuEmulator, _Link
+from sim_hal.mpu_emulator import MpuEmulator
 
-__all__ = ["FaultyI2cBus", "SerialFaults", "reset_mcu"]
+__all__ = ["GYRO_FAULTS", "FaultyI2cBus", "SerialFaults", "inject_gyro_fault", "reset_mcu"]
+
+# What a gyro that stops answering does: the part's own faults, then its bus's.
+GYRO_FAULTS = ("frozen", "stalled", "zeros", "nak", "reset")
 
 
 class SerialFaults:
@@ -66,14 +72,19 @@ class SerialFaults:
 
 class FaultyI2cBus:
     """smbus-like wrapper: `fail_next(n, err)` makes the next n transfers raise OSError(err);
-    `stop_answering(err)` makes every transfer fail until `resume()`."""
+    `stop_answering(err)` makes every transfer fail, and `read_zeros()` every read return zeros
+    (writes lost), until `resume()`."""
 
     def __init__(self, bus: Any) -> None:
         self.bus = bus
         self._fail_left = 0
         self._fail_errno = errno.EIO
         self._dead_errno: int | None = None
+        self._zeros = False
         self.injected = 0
+
+    def read_zeros(self) -> None:
+        self._zeros = True
 
     def fail_next(self, n: int, err: int = errno.EIO) -> None:
         self._fail_left = n
@@ -85,6 +96,7 @@ class FaultyI2cBus:
     def resume(self) -> None:
         self._dead_errno = None
         self._fail_left = 0
+        self._zeros = False
 
     def _maybe_fail(self) -> None:
         if self._dead_errno is not None:
@@ -97,17 +109,38 @@ class FaultyI2cBus:
 
     def read_byte_data(self, i2c_addr: int, register: int, force: bool | None = None) -> int:
         self._maybe_fail()
+        if self._zeros:
+            return 0
         return self.bus.read_byte_data(i2c_addr, register)
 
     def write_byte_data(self, i2c_addr: int, register: int, value: int,
                         force: bool | None = None) -> None:
         self._maybe_fail()
-        self.bus.write_byte_data(i2c_addr, register, value)
+        if not self._zeros:
+            self.bus.write_byte_data(i2c_addr, register, value)
 
     def read_i2c_block_data(self, i2c_addr: int, register: int, length: int,
                             force: bool | None = None) -> list[int]:
         self._maybe_fail()
+        if self._zeros:
+            return [0] * length
         return self.bus.read_i2c_block_data(i2c_addr, register, length)
+
+
+def inject_gyro_fault(kind: str, part: MpuEmulator, bus: FaultyI2cBus) -> None:
+    """Make the emulated gyro `part`, reached through `bus`, fail as `kind` (GYRO_FAULTS) from now."""
+    if kind == "frozen":
+        part.freeze()
+    elif kind == "stalled":
+        part.stall()
+    elif kind == "reset":
+        part.brown_out()
+    elif kind == "zeros":
+        bus.read_zeros()
+    elif kind == "nak":
+        bus.stop_answering(errno.EREMOTEIO)
+    else:
+        raise ValueError(f"gyro fault: expected one of {', '.join(GYRO_FAULTS)}, got {kind!r}")
 
 
 def reset_mcu(target: McuEmulator | _Link, now: float | None = None) -> None:

@@ -46,7 +46,9 @@ from ddrt.core.wrap import wrap_i32
 from hal.base import HalInitError, HalIOError
 from sim_hal import firmware_build
 from sim_hal.serial_urls import protocol_simavr
+from ddrt.params.mpu_parts import part_by_name
 from sim_hal.emulated import EmulatedRealHal, _PlantGyro, real_hal_on
+from sim_hal.faults import FaultyI2cBus
 from sim_hal.factory import plant_config
 from sim_hal.mpu_emulator import MpuEmulator
 from sim_hal.plant import SimRobot
@@ -379,7 +381,8 @@ class FirmwareSimDevices:
         else:
             self.counts = protocol_simavr.register(self.name, self.sim.pty)
             self.url = f"simavr://{self.name}"
-        self.i2c = MpuEmulator(_PlantGyro(self.robot))
+        self.mpu = MpuEmulator(_PlantGyro(self.robot), part=part_by_name(cfg.sim.gyro.part))
+        self.i2c = FaultyI2cBus(self.mpu)  # as EmulatedDevices: faults injectable (sim_hal/faults.py)
         robot = self.robot
         self._t0 = robot.t
         self._count = robot.read_encoder()

@@ -1,24 +1,31 @@
-"""An MPU-6050 register file behind the three smbus2 calls the driver uses.
+"""An InvenSense gyro's register file (the MPU-6050 family of ddrt.params.mpu_parts) behind
+the three smbus2 calls the driver uses.
 
-The rate it reports comes from a `GyroSource` (later the simulated robot's yaw rate),
-quantised to int16 at the FS_SEL written to GYRO_CONFIG, with the part's power-on state:
-asleep (PWR_MGMT_1 = 0x40), data registers frozen until SLEEP is cleared. Every call is
-recorded in `calls` so tests can count bus transactions.
+`part` chooses which one (`sim.gyro.part`): its WHO_AM_I, its temperature formula, its FIFO's
+size (the ICM-20689's as its FIFO_SIZE bits say: 512 bytes after a reset, 4096 at 0xC0) and
+PWR_MGMT_1 after a reset (the MPU-6050 and ICM-20689 wake asleep, 0x40; the MPU-6500 and
+MPU-9250 awake, 0x01). The rate it reports comes from a `GyroSource` (the simulated robot's yaw
+rate), quantised to int16 at the FS_SEL written to GYRO_CONFIG; while asleep the data registers
+hold. Every call is recorded in `calls` so tests can count bus transactions.
 
 Given a `clock` (seconds), the part samples as the real one does: its output registers are
 refreshed at the sample rate, the gyro output rate (1 kHz with the DLPF on, 8 kHz with
 DLPF_CFG 0 or 7) / (1 + SMPLRT_DIV), on its own oscillator (`clock_ppm` off), and hold between
-refreshes; without one, every read samples anew. TEMP_OUT reports the die
-temperature from `temperature_c` (36.53 degC, a register of 0, without it) by the datasheet's
-T = TEMP_OUT / 340 + 36.53.
+refreshes; without one, every read samples anew. TEMP_OUT reports the die temperature from
+`temperature_c` (a register of 0 without it) by the part's formula.
 
-The FIFO (USER_CTRL's FIFO_EN, FIFO_EN's ZG_FIFO_EN, FIFO_COUNT, FIFO_R_W): 1024 bytes, each
-gyro z sample 2 bytes big-endian; full, the oldest sample is overwritten and INT_STATUS's
-FIFO_OFLOW_INT set (cleared when INT_STATUS is read). Where the samples come from: a source
-with its own FIFO (`gyro_fifo_samples()`, the simulated robot's every sample, exactly once);
-else with a clock, the source's rate at each sample instant passed (the rate now, for every
-instant since the last access: exact for a constant rate); else one sample per FIFO_COUNT read.
-`fifo_garbage(count)` (fault injection) makes the next FIFO_COUNT read report `count`.
+The FIFO (USER_CTRL's FIFO_EN, FIFO_EN's ZG_FIFO_EN, FIFO_COUNT, FIFO_R_W): each gyro z sample
+2 bytes big-endian; full, the oldest sample is overwritten and INT_STATUS's FIFO_OFLOW_INT set
+(cleared when INT_STATUS is read). Where the samples come from: a source with its own FIFO
+(`gyro_fifo_samples()`, the simulated robot's every sample, exactly once); else with a clock,
+the source's rate at each sample instant passed (the rate now, for every instant since the last
+access: exact for a constant rate); else one sample per FIFO_COUNT read.
+
+Faults of the part itself (sim_hal/faults.py injects them, with the bus's): `freeze()` (its
+output repeats the word it holds, in the register and into the FIFO), `stall()` (it stops
+sampling: the register holds, the FIFO stops filling, everything else answers), `brown_out()`
+(it resets itself: registers to their power-on values), `recover()` (live again).
+`fifo_garbage(count)` makes the next FIFO_COUNT read report `count`.
 """
 
 from __future__ import annotations
@@ -29,26 +36,26 @@ from collections import Counter
 from typing import Callable, Protocol
 
 from ddrt.params.gyro_scale import GYRO_LSB_PER_DPS
+from ddrt.params.mpu_parts import MPU_PARTS, MpuPart
 from hal.mpu6050 import (
-    CONFIG, FIFO_BYTES, FIFO_COUNTH, FIFO_EN, FIFO_R_W, GYRO_CONFIG, GYRO_FS_SEL, GYRO_ZOUT_H, PWR_MGMT_1, PWR_SLEEP,
-    SMPLRT_DIV, USER_CTRL, USER_FIFO_EN, USER_FIFO_RESET, WHO_AM_I, WHO_AM_I_VALUE, ZG_FIFO_EN,
+    CONFIG, FIFO_COUNTH, FIFO_EN, FIFO_R_W, GYRO_CONFIG, GYRO_FS_SEL, GYRO_ZOUT_H, PWR_MGMT_1, PWR_SLEEP,
+    SMPLRT_DIV, USER_CTRL, USER_FIFO_EN, USER_FIFO_RESET, WHO_AM_I, ZG_FIFO_EN,
 )
 
 __all__ = ["ConstantGyro", "GyroSource", "MpuEmulator", "SineGyro", "temp_out_c", "temp_out_raw"]
 
 TEMP_OUT_H = 0x41  # TEMP_OUT_L follows at 0x42
-TEMP_OFFSET_C = 36.53
-TEMP_LSB_PER_C = 340.0
+MPU_6050 = MPU_PARTS[0]
 
 
-def temp_out_raw(temp_c: float) -> int:
-    """The int16 TEMP_OUT holds at die temperature `temp_c` (MPU-6050 register map, 4.18)."""
-    return max(-32768, min(32767, round((temp_c - TEMP_OFFSET_C) * TEMP_LSB_PER_C)))
+def temp_out_raw(temp_c: float, part: MpuPart = MPU_6050) -> int:
+    """The int16 TEMP_OUT holds at die temperature `temp_c` (the part's formula)."""
+    return part.temp_raw(temp_c)
 
 
-def temp_out_c(raw: int) -> float:
+def temp_out_c(raw: int, part: MpuPart = MPU_6050) -> float:
     """Die temperature (degC) from a TEMP_OUT reading."""
-    return raw / TEMP_LSB_PER_C + TEMP_OFFSET_C
+    return part.temp_c(raw)
 
 _DEVICE_RESET = 0x80
 INT_STATUS = 0x3A
@@ -89,14 +96,21 @@ class SineGyro:
 
 
 class MpuEmulator:
-    """smbus2-compatible fake bus holding one MPU-6050 at `address`."""
+    """smbus2-compatible fake bus holding one part of the family at `address` (`who_am_i`
+    overrides the part's own, to try a part ddrt does not know)."""
 
     def __init__(self, source: GyroSource, address: int = 0x68,
-                 who_am_i: int = WHO_AM_I_VALUE, *, clock: Callable[[], float] | None = None,
+                 who_am_i: int | None = None, *, part: MpuPart = MPU_6050,
+                 clock: Callable[[], float] | None = None,
                  clock_ppm: float = 0.0, temperature_c: Callable[[], float] | None = None) -> None:
         self.source = source
         self.address = address
-        self._who_am_i = who_am_i
+        self.part = part
+        self._who_am_i = part.who_am_i if who_am_i is None else who_am_i
+        self.output = "live"  # the part's own faults: "live", "frozen", "stalled" (module doc)
+        self.brown_outs = 0
+        self._last_raw = 0  # the last sample it produced (register or FIFO)
+        self._frozen_raw = 0
         self._clock = clock
         self._clock_scale = 1.0 + clock_ppm * 1e-6  # its oscillator runs this much fast
         self._temperature_c = temperature_c
@@ -112,8 +126,35 @@ class MpuEmulator:
         self._latched = -1  # index of the sample period the output registers hold
         self.fifo = bytearray()
         self._fifo_instant: int | None = None  # with a clock: the last sample instant pushed
-        self.regs[PWR_MGMT_1] = PWR_SLEEP
+        self.regs[PWR_MGMT_1] = self.part.pwr_mgmt_1_reset
         self.regs[WHO_AM_I] = self._who_am_i
+
+    # --- the part's own faults ------------------------------------------------------------------
+
+    def freeze(self) -> None:
+        """Its output repeats its last sample (the register, and every FIFO sample)."""
+        self._frozen_raw = self._last_raw
+        self.output = "frozen"
+
+    def stall(self) -> None:
+        """It stops sampling: the register holds, the FIFO stops filling; the rest answers."""
+        self.output = "stalled"
+
+    def brown_out(self) -> None:
+        """It resets itself, as after a dip in its supply: every register to its power-on value."""
+        self.brown_outs += 1
+        self.output = "live"
+        self._power_on()
+
+    def recover(self) -> None:
+        self.output = "live"
+
+    @property
+    def fifo_bytes(self) -> int:
+        """The FIFO's size now: the part's, or as its FIFO_SIZE bits (7:6) choose."""
+        reg = self.part.fifo_size_register
+        return self.part.fifo_bytes if reg is None else 512 << ((self.regs[reg] >> 6) & 0x03)
+
 
     @property
     def asleep(self) -> bool:
@@ -139,7 +180,7 @@ class MpuEmulator:
     def _sample(self) -> None:
         """Latch a new measurement into GYRO_ZOUT and TEMP_OUT (only while awake); with a clock,
         only once per sample period (the registers hold in between)."""
-        if self.asleep:
+        if self.asleep or self.output == "stalled":
             return
         if self._clock is not None:
             n = math.floor(self._clock() / self.sample_period_s + 1e-9)
@@ -148,10 +189,10 @@ class MpuEmulator:
             self._latched = n
         self.refreshes += 1
         if self._temperature_c is not None:
-            t_raw = temp_out_raw(self._temperature_c()) & 0xFFFF
+            t_raw = self.part.temp_raw(self._temperature_c()) & 0xFFFF
             self.regs[TEMP_OUT_H] = t_raw >> 8
             self.regs[TEMP_OUT_H + 1] = t_raw & 0xFF
-        raw = round(self.source.gyro_z_rad_s() * _DPS_PER_RAD_S * self.lsb_per_dps)
+        raw = self._raw_now()
         raw = max(-32768, min(32767, raw)) & 0xFFFF
         self.regs[GYRO_ZOUT_H] = raw >> 8
         self.regs[GYRO_ZOUT_H + 1] = raw & 0xFF
@@ -171,8 +212,9 @@ class MpuEmulator:
         raw = max(-32768, min(32767, raw)) & 0xFFFF
         self.fifo += bytes((raw >> 8, raw & 0xFF))
         self.fifo_pushed += 1
-        if len(self.fifo) > FIFO_BYTES:
-            del self.fifo[:len(self.fifo) - FIFO_BYTES]
+        size = self.fifo_bytes
+        if len(self.fifo) > size:
+            del self.fifo[:len(self.fifo) - size]
             self.regs[INT_STATUS] |= FIFO_OFLOW_INT
 
     def _fill_fifo(self, on_count_read: bool) -> None:
@@ -180,11 +222,17 @@ class MpuEmulator:
         drain = getattr(self.source, "gyro_fifo_samples", None)
         if drain is not None:
             samples, lost = drain()
-            if self.fifo_running:
+            if self.fifo_running and self.output != "stalled":
                 if lost:
                     self.regs[INT_STATUS] |= FIFO_OFLOW_INT
+                frozen = self.output == "frozen"
                 for r in samples:
+                    if frozen:
+                        r = self._frozen_raw
+                    self._last_raw = r
                     self._push(r)
+            return
+        if self.output == "stalled":
             return
         if not self.fifo_running:
             self._fifo_instant = None
@@ -199,12 +247,15 @@ class MpuEmulator:
             return
         if n > self._fifo_instant:
             raw = self._raw_now()
-            for _ in range(min(n - self._fifo_instant, FIFO_BYTES // 2 + 1)):
+            for _ in range(min(n - self._fifo_instant, self.fifo_bytes // 2 + 1)):
                 self._push(raw)
             self._fifo_instant = n
 
     def _raw_now(self) -> int:
-        return round(self.source.gyro_z_rad_s() * _DPS_PER_RAD_S * self.lsb_per_dps)
+        if self.output == "frozen":
+            return self._frozen_raw
+        self._last_raw = round(self.source.gyro_z_rad_s() * _DPS_PER_RAD_S * self.lsb_per_dps)
+        return self._last_raw
 
     def _fifo_read(self, register: int, length: int) -> list[int]:
         """Registers with side effects: FIFO_COUNT (filled first), FIFO_R_W (pops), INT_STATUS

@@ -416,6 +416,17 @@ def test_the_link_step_on_the_emulated_devices(tmp_path: Path) -> None:
     assert link["fresh_fraction"] > 0.5 and link["gyro_raw_span"] > 0
 
 
+@pytest.mark.parametrize("part, who", [("MPU-6050", 0x68), ("MPU-6500", 0x70), ("ICM-20689", 0x98)])
+def test_the_link_step_says_which_gyro_part_it_found(tmp_path: Path, part: str, who: int) -> None:
+    src = _config(tmp_path, hal={"backend": "real", "imu": {"bus": "sim"}, "bridge": {"url": "ddrtsim://commission"}},
+                  sim={"gyro": {"part": part}})
+    said = io.StringIO()
+    session = session_for(src, Options(out=tmp_path / "o.yaml", from_sim_truth=True, figures=False), yes=True, out=said)
+    commission(session, step="link")
+    assert session.state.get("link")["gyro_part"] == f"{part} (WHO_AM_I 0x{who:02x})"
+    assert f"gyro {part} (WHO_AM_I 0x{who:02x})" in said.getvalue()
+
+
 def test_a_changed_config_is_said_and_a_foreign_state_refused(tmp_path: Path) -> None:
     src = _config(tmp_path)
     out = tmp_path / "o.yaml"

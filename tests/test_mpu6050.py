@@ -18,10 +18,15 @@ from sim_hal.mpu_emulator import ConstantGyro, MpuEmulator, SineGyro
 DEG = math.pi / 180.0
 
 
-def test_who_am_i_wrong_raises_init_error_naming_address_and_value() -> None:
-    bus = MpuEmulator(ConstantGyro(), who_am_i=0x70)
-    with pytest.raises(HalInitError, match=r"0x68.*0x70"):
+@pytest.mark.parametrize("who", [0x00, 0x12, 0x69, 0x72, 0xFF])
+def test_an_unknown_who_am_i_is_refused_with_the_value_and_the_known_parts(who: int) -> None:
+    bus = MpuEmulator(ConstantGyro(), who_am_i=who)
+    with pytest.raises(HalInitError) as ei:
         Mpu6050(bus)
+    msg = str(ei.value)
+    assert f"read 0x{who:02x}" in msg and "0x68" in msg
+    for name, value in (("MPU-6050", "0x68"), ("MPU-6500", "0x70"), ("MPU-9250", "0x71"), ("ICM-20689", "0x98")):
+        assert f"{name} ({value})" in msg
 
 
 def test_no_device_at_address_is_init_error() -> None:

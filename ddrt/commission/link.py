@@ -1,10 +1,11 @@
 """Step 1, link: the robot's devices answer, at the rate the loop needs.
 
 Opening the backend is the check itself: the serial bridge says HELLO and checks the
-protocol version and the STATE rate, the MPU-6050 driver reads WHO_AM_I (hal/bridge.py,
-hal/mpu6050.py). What fails is turned into what to do next (port, permissions, udev rule,
-wiring). Then one second of readings: how many were fresh, whether the gyro is alive, the
-supply voltage if the driver measures it.
+protocol version and the STATE rate, the gyro driver reads WHO_AM_I and says which part of the
+MPU-6050 family it found (hal/bridge.py, hal/mpu6050.py, ddrt/params/mpu_parts.py). What fails
+is turned into what to do next (port, permissions, udev rule, wiring). Then one second of
+readings: how many were fresh, whether the gyro is alive, the supply voltage if the driver
+measures it.
 """
 
 from __future__ import annotations
@@ -16,8 +17,9 @@ from ddrt.commission.session import CommissionError, Session
 from hal.base import HalError
 
 HINTS = (  # (text in the error, what to do next): the gyro's first (a missing I2C bus is "no such file" too)
-    ("who_am_i", "the gyro answers with the wrong identity: check hal.imu.address (0x68, or 0x69 with AD0 high) and "
-                 "the wiring SDA, SCL, VCC, GND (docs/hardware.md)"),
+    ("who_am_i", "the gyro answers with an identity ddrt does not know: check hal.imu.address (0x68, or 0x69 with "
+                 "AD0 high) and the wiring SDA, SCL, VCC, GND; a part outside the list above is not supported "
+                 "(docs/hardware.md, 'Which gyro boards work')"),
     ("no answer during set-up", "the gyro does not answer: check its wiring SDA, SCL, VCC, GND and hal.imu.address "
                                 "(`i2cdetect -y 1` should show 0x68)"),
     ("i2c bus", "the gyro's I2C bus cannot be used: check hal.imu.bus (1 is /dev/i2c-1), that I2C is enabled "
@@ -79,6 +81,7 @@ def run(session: Session) -> dict[str, Any]:
         "fresh_fraction": fresh / n,
         "gyro_raw_span": max(raws) - min(raws),
         "encoder_counts_per_rev": info.encoder_counts_per_rev,
+        "gyro_part": info.gyro_part or None,
         "battery_v": sum(volts) / len(volts) if volts else None,
     }
     if fresh < 0.5 * n:
@@ -89,6 +92,7 @@ def run(session: Session) -> dict[str, Any]:
         session.notes.append("link: the gyro's reading did not change at all in one second (a real gyro is never "
                              "that quiet): check that it is configured (hal.imu)")
     session.say(f"link: ok ({fresh}/{n} fresh readings in 1 s"
+                + (f", gyro {info.gyro_part}" if info.gyro_part else "")
                 + (f", protocol v{result['protocol_version']} checked at HELLO"
                    if result["protocol_version"] is not None else "")
                 + (f", supply {result['battery_v']:.2f} V" if result["battery_v"] is not None else

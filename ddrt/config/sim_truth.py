@@ -13,6 +13,7 @@ from typing import ClassVar
 
 from ddrt.config.schema import RESTART, ConfigError, non_negative, positive
 from ddrt.config.wiring import SimWiring
+from ddrt.params.mpu_parts import part_by_name
 
 # Open-circuit voltage of one Li-ion (NMC/graphite) cell against its state of charge, at rest
 # and 25 degC: a typical published curve (3.0 V empty, 3.7 V around half, 4.2 V full), the
@@ -194,7 +195,7 @@ class SlipConfig:
 
 @dataclass(frozen=True)
 class GyroTruth:
-    """How the simulated MPU-6050 departs from the truth."""
+    """How the simulated gyro departs from the truth, and which part it is."""
 
     noise_dps_rthz: float = 0.005
     bias_dps: float = 1.5
@@ -211,8 +212,13 @@ class GyroTruth:
     clock_ppm: float = 0.0  # the MPU's own oscillator error (sets when it refreshes)
     bias_step_dps: float = 0.0  # a step in the zero-rate bias (deg/s) ...
     bias_step_at_s: float = 0.0  # ... at this sim time (s): what tracking the bias on the move must follow
+    part: str = "MPU-6050"  # the emulated part (hal.imu.bus: sim): a name of ddrt.params.mpu_parts
 
     def validate(self, where: str) -> None:
+        try:
+            part_by_name(self.part)
+        except ValueError as e:
+            raise ConfigError(f"{where}.part: {e}") from None
         non_negative(where, noise_dps_rthz=self.noise_dps_rthz, bias_step_at_s=self.bias_step_at_s)
         if abs(self.bias_step_dps) > 50.0:
             raise ConfigError(f"{where}.bias_step_dps: within +-50 deg/s, got {self.bias_step_dps}")

@@ -48,6 +48,7 @@ class HalInfo:
     # estimator learns the true period (the part's own clock) from their count. 0: no FIFO, the
     # output register is read at the tick.
     gyro_fifo_period_s: float = 0.0
+    gyro_part: str = ""  # the gyro the driver identified ("MPU-6500 (WHO_AM_I 0x70)"); "": not told (the simulator)
 
 
 @dataclass(slots=True)

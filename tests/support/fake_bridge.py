@@ -62,6 +62,8 @@ class FakeEncoder:
 class FakeImu:
     gyro_range_dps = 500
     gyro_delay_s = 0.0019
+    fault_counts = {"retries": 0, "errors": 0}
+    gyro_part = "a fake gyro"
 
     def read_gyro_z_raw(self) -> int:
         return 42
