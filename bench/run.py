@@ -4,14 +4,21 @@ One command measures everything and writes the Markdown; nobody edits BENCHMARKS
 so every number in it can be traced to a run on the machine it names. The timing sections run
 one after another on an otherwise idle process; only the accuracy grid uses a process pool.
 
-Sections 14 to 20 (OWN_COMMAND) are measured by commands of their own; the full run keeps
+Sections 14 to 21 (OWN_COMMAND) are measured by commands of their own; the full run keeps
 their text from the file it replaces.
 
+The report is grouped by capability (CAPABILITIES: a `# ` heading each); a section keeps its
+number, which `--only N` and other documents use to name it, wherever its group puts it.
+Each section opens with its headline (a line starting `**Headline`), written by whoever
+measured it: a regenerated section keeps the headline of the file it replaces, so that a
+reader gets the figure first; update it when the figures under it change.
+
 `--only N` measures section N alone (those in ONLY: 1, 4, 9, 10, 11, 12, 13) and splices it into the --out file:
-the section's text from its `## N.` heading to the next `## ` heading is replaced (or, when
-the file has no such section, inserted after the last section that precedes it in SECTIONS);
-every other line of the file stays as it was. The spliced section says that it was measured
-alone, with its command, date and load average, since the file's header names the full run.
+the section's text from its `## N.` heading to the next heading of level 1 or 2 is replaced
+(or, when the file has no such section, inserted after the last section that precedes it in
+DOC_ORDER); every other line of the file stays as it was. The spliced section says that it
+was measured alone, with its command, date and load average, since the file's header names
+the full run.
 """
 
 from __future__ import annotations
@@ -56,11 +63,24 @@ SECTIONS = (
     "14. The ROS 2 bridge under flood",
     "15. The estimate's uncertainty and pose fixes",
     "16. Wheel encoders in the estimator",
-    "17. Battery sag and gyro warm-up (issue 23 Done-when)",
+    "17. Battery sag and gyro warm-up",
     "18. Sweep throughput",
-    "19. Adaptation on by default? (issue 23 item 5)",
+    "19. Adaptation on by default?",
     "20. A reload beside the loop",
+    "21. A gyro that stops answering",
 )
+
+# What a reader wants to know, in the report's order: each group's sections by number.
+CAPABILITIES: tuple[tuple[str, tuple[int, ...]], ...] = (
+    ("Tracking accuracy", (1, 7, 19)),
+    ("Robots and paths", (9, 10, 13)),
+    ("Sensing and estimation", (15, 16, 12, 17, 21)),
+    ("Timing and load", (2, 3, 6, 5, 11, 20)),
+    ("Simulation speed", (4, 18)),
+    ("The daemon under abuse", (8, 14)),
+)
+DOC_ORDER: tuple[int, ...] = (0,) + tuple(n for _, group in CAPABILITIES for n in group)
+HEADLINE = "**Headline"
 
 # Sections measured by a command of their own (long, or needing extras and a quiet machine);
 # a full run carries their text over from the file it replaces, and names the command where
@@ -74,6 +94,7 @@ OWN_COMMAND: dict[int, str] = {
     19: "ddrt sweep configs/campaigns/adaptation_population.yaml, python -m bench.population "
         "--variants dynamic,dynamic+adapt [--harsh] and python -m bench.adaptation",
     20: "python -m bench.reload_stall --reloads 40 --repo OLDER_CHECKOUT --repo .",
+    21: "python -m bench.gyro_faults and python -m bench.gyro_faults --before",
 }
 
 
@@ -300,13 +321,37 @@ def measure_all(opts: BenchOptions, command: str, say: Callable[[str], None] = _
 # --------------------------------------------------------------------------- the document
 
 
+INTRO = (
+    "Grouped by what a user wants to know: tracking accuracy, robots and paths, sensing and estimation, "
+    "timing and load, simulation speed, the daemon under abuse. Each section opens with its headline, then "
+    "the command that reproduces it, then the details; a section's number is its name for "
+    "`python -m bench.run --only N` and for other documents. Every figure was measured on the machine "
+    "below unless its section says otherwise; the machine is shared (2 cores, other work beside it), so "
+    "ratios measured side by side are the figures to compare, not absolute times from different hours.",
+    "",
+    "Commands: `python -m bench.run` measures sections 1 to 13 (`--quick` a smoke run, `--only N` one of "
+    "1, 4, 9, 10, 11, 12, 13, spliced into this file); sections 14 to 20 name their own commands. "
+    "`python -m bench.gain_sweep` regenerates TUNING.md; `python -m bench.foxglove_gil` tells a late "
+    "tick's cause (the machine, or the Foxglove publisher); bench/common.py is what every script shares.",
+)
+
+
 def _header(n: int) -> str:
     return f"## {SECTIONS[n]}"
 
 
 def _section_end(lines: list[str], start: int) -> int:
-    """Index of the next `## ` heading after line `start` (len(lines): none)."""
-    return next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")), len(lines))
+    """Index of the next `## ` or `# ` heading after line `start` (len(lines): none)."""
+    return next((i for i in range(start + 1, len(lines)) if lines[i].startswith(("## ", "# "))), len(lines))
+
+
+def headline(doc: str, n: int) -> list[str]:
+    """Section n's headline paragraph in `doc` and a blank line after it ([] when it has none)."""
+    body = section_body(doc, n) or []
+    if not body or not body[0].startswith(HEADLINE):
+        return []
+    end = body.index("") if "" in body else len(body)
+    return body[:end] + [""]
 
 
 def section_body(doc: str, n: int) -> list[str] | None:
@@ -337,44 +382,40 @@ def render_document(r: Results, previous: str = "") -> str:
         f"Total measuring time {sum(r.wall_s.values()) / 60:.1f} min "
         f"({', '.join(f'{k} {v:.0f} s' for k, v in r.wall_s.items())}).",
         "",
+        *INTRO,
+        "",
         _header(0),
         "",
     ]
     lines += [f"- {k}: {v}" for k, v in r.machine.items()]
-    lines += ["", _header(1), ""]
-    lines += render_accuracy(AccuracySection(acc, o.workers))
-    lines += ["", _header(2), ""]
-    lines += tick_cost.render(r.ticks)
-    lines += ["", _header(3), ""]
-    lines += loop_timing.render(r.loop)
-    lines += ["", _header(4), ""]
-    lines += sim_scaling.render_section(r.speed)
     daemon_rss = None
     for run in r.loop.runs:
         if run.stats and run.rate_hz == 200 and isinstance(run.stats.get("maxrss_kb"), int):
             daemon_rss = run.stats["maxrss_kb"]
-    lines += ["", _header(5), ""]
-    lines += startup.render(r.startup, loop_timing.ready_s(r.loop), daemon_rss)
-    lines += ["", _header(6), ""]
-    lines += io_bound.render(r.bound, r.ticks.compute.p50_us, r.ticks.compute.p99_us, r.ticks.period_s)
-    lines += ["", _header(7), ""]
-    lines += adaptation.render(r.adapt)
-    lines += ["", _header(8), ""]
-    lines += ctl_flood.render(r.ctl)
-    lines += ["", _header(9), ""]
-    lines += paths_as_given.render(r.paths) if r.paths is not None else ["Not measured in this run."]
-    lines += ["", _header(10), ""]
-    lines += population.render(r.robots) if r.robots is not None else ["Not measured in this run."]
-    lines += ["", _header(11), ""]
-    lines += render_live(r.live) if r.live is not None else ["Not measured in this run."]
-    lines += ["", _header(12), ""]
-    lines += battery.render(r.supply) if r.supply is not None else ["Not measured in this run."]
-    lines += ["", _header(13), ""]
-    lines += commissioning.render(r.commissioning) if r.commissioning is not None else ["Not measured in this run."]
+    absent = ["Not measured in this run."]
+    bodies: dict[int, list[str]] = {
+        1: render_accuracy(AccuracySection(acc, o.workers)),
+        2: tick_cost.render(r.ticks),
+        3: loop_timing.render(r.loop),
+        4: sim_scaling.render_section(r.speed),
+        5: startup.render(r.startup, loop_timing.ready_s(r.loop), daemon_rss),
+        6: io_bound.render(r.bound, r.ticks.compute.p50_us, r.ticks.compute.p99_us, r.ticks.period_s),
+        7: adaptation.render(r.adapt),
+        8: ctl_flood.render(r.ctl),
+        9: paths_as_given.render(r.paths) if r.paths is not None else absent,
+        10: population.render(r.robots) if r.robots is not None else absent,
+        11: render_live(r.live) if r.live is not None else absent,
+        12: battery.render(r.supply) if r.supply is not None else absent,
+        13: commissioning.render(r.commissioning) if r.commissioning is not None else absent,
+    }
+    bodies = {n: headline(previous, n) + body for n, body in bodies.items()}
     for n, command in OWN_COMMAND.items():
         kept = section_body(previous, n)
-        lines += ["", _header(n), ""]
-        lines += kept if kept else [f"Not measured: `{command}` measures this section (not part of the full run)."]
+        bodies[n] = kept if kept else [f"Not measured: `{command}` measures this section (not part of the full run)."]
+    for title, group in CAPABILITIES:
+        lines += ["", f"# {title}"]
+        for n in group:
+            lines += ["", _header(n), ""] + bodies[n]
     return "\n".join(lines) + "\n"
 
 
@@ -391,8 +432,8 @@ ONLY: dict[int, tuple[Callable[[BenchOptions], object], Callable[[object], list[
 
 
 def splice_section(doc: str, n: int, body: list[str]) -> str:
-    """`doc` with section n's text (heading to the next `## `) replaced by `body`, or inserted
-    after the last earlier section of SECTIONS it has (before the next one) when it has none."""
+    """`doc` with section n's text (heading to the next `## ` or `# `) replaced by `body`, or
+    inserted after the last earlier section of DOC_ORDER it has (before the next one) when it has none."""
     lines = doc.rstrip("\n").split("\n")
     heads = {line: i for i, line in enumerate(lines) if line.startswith("## ")}
     new = [_header(n), ""] + body
@@ -401,7 +442,7 @@ def splice_section(doc: str, n: int, body: list[str]) -> str:
         end = _section_end(lines, start)
         lines[start:end] = new + ([""] if end < len(lines) else [])
     else:
-        later = [heads[_header(k)] for k in range(n + 1, len(SECTIONS)) if _header(k) in heads]
+        later = [heads[_header(k)] for k in DOC_ORDER[DOC_ORDER.index(n) + 1:] if _header(k) in heads]
         at = min(later) if later else len(lines)
         lines[at:at] = ([""] if at == len(lines) else []) + new + ([""] if later else [])
     return "\n".join(lines) + "\n"
@@ -443,8 +484,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         out = REPO / out
     out.parent.mkdir(parents=True, exist_ok=True)
     if args.only is not None:
-        body = measure_only(args.only, opts, command)
         old = out.read_text(encoding="utf-8") if out.exists() else "# Benchmarks\n"
+        body = headline(old, args.only) + measure_only(args.only, opts, command)
         out.write_text(splice_section(old, args.only, body), encoding="utf-8")
         _say(f"wrote section {args.only} into {out}")
         return 0

@@ -305,3 +305,16 @@ def test_a_full_run_keeps_the_sections_measured_by_their_own_commands() -> None:
     assert run.section_body("", own[0]) is None
     with pytest.raises(SystemExit):
         run.main(["--only", str(own[0]), "--out", "/nonexistent/x.md"])  # measured by its own command
+
+
+def test_capabilities_hold_every_section_once_and_headlines_survive_a_splice() -> None:
+    grouped = [n for _, group in run.CAPABILITIES for n in group]
+    assert sorted(grouped) == list(range(1, len(run.SECTIONS))) and run.DOC_ORDER == (0, *grouped)
+    assert not any("issue" in title.lower() for title in run.SECTIONS)
+    h = run._header
+    doc = "\n".join(["# Benchmarks", "", h(10), "", "**Headline:** 80 of 80.", "", "old table", "",
+                     "# Timing and load", "", h(2), "", "two", ""])
+    assert run.headline(doc, 10) == ["**Headline:** 80 of 80.", ""] and run.headline(doc, 2) == []
+    spliced = run.splice_section(doc, 10, run.headline(doc, 10) + ["new table"])
+    assert spliced == doc.replace("old table", "new table")  # the group heading ends the section
+    assert run.section_body(spliced, 10) == ["**Headline:** 80 of 80.", "", "new table"]

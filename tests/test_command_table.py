@@ -1,7 +1,7 @@
 """The control socket's commands, declared once (ddrt/service/commands.py): the handler table
 answers exactly the declared commands (and the check that says so can fail), a request is
-parsed into its typed form or refused naming the field, and the server's rules, `ddrt ctl -h`
-and docs/socket-commands.md come from the declarations."""
+parsed into its typed form or refused naming the field, and the server's rules and `ddrt ctl -h`
+come from the declarations (the reference page: tests/test_docgen.py)."""
 
 from __future__ import annotations
 
@@ -15,7 +15,6 @@ import pytest
 from ddrt.core.pose_fix import POSE_BOUND_M as CORE_POSE_BOUND_M
 from ddrt.service.commands import (
     COMMANDS, DECLARED, NEVER_REFUSED, POSE_BOUND_M, PRIORITY, STREAMS, CommandError, Request, parse, payload,
-    reference_markdown,
 )
 from ddrt.service.handlers import HANDLERS, command_table
 from tests.support.repo import REPO
@@ -125,14 +124,6 @@ def test_a_payload_is_checked_before_it_is_sent() -> None:
         "cmd": "pose_fix", "x": 1, "y": 2, "theta": 0, "cov": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}
     with pytest.raises(CommandError, match="drive: v: expected a finite number in m/s"):
         payload("drive", v=math.nan, omega=0.0)
-
-
-def test_the_committed_reference_is_what_the_declarations_give() -> None:
-    committed = (REPO / "docs" / "socket-commands.md").read_text(encoding="utf-8")
-    assert committed == reference_markdown(), "regenerate: python -m ddrt.service.commands > docs/socket-commands.md"
-    for c in DECLARED.values():
-        assert f"## `{c.name}`" in committed
-        assert all(f"| `{f.name}` |" in committed for f in c.fields)
 
 
 def test_ddrt_ctl_help_lists_every_command_it_offers() -> None:

@@ -166,10 +166,10 @@ def test_one_reversal_rule_for_waypoints_and_samples() -> None:
     assert turn == pytest.approx(160.0, abs=2.0)
 
 
-def test_the_readme_and_config_md_state_the_rule() -> None:
-    readme = " ".join((ROOT / "README.md").read_text(encoding="utf-8").split())
+def test_the_command_reference_and_config_md_state_the_rule() -> None:
+    commands = " ".join((ROOT / "docs" / "commands.md").read_text(encoding="utf-8").split())
     assert ("a reversal the file does not mark (the direction turns back, up to 180 degrees) is a turn in place"
-            in readme)
+            in commands)
     config = " ".join((ROOT / "docs" / "config.md").read_text(encoding="utf-8").split())
     assert "**Reversals: one rule for every input.**" in config
     assert "is a turn in place where the file does not mark it" in config
