@@ -60,7 +60,7 @@ from typing import Sequence
 import numpy as np
 
 from ddrt.path.corners import CornerPin, corner_scale, find_corners, line_turns, refine_corner
-from ddrt.path.gridplan import grid_axis, grid_cell, grid_corners, steps_back, tight_bends
+from ddrt.path.gridplan import corner_pin, grid_axis, grid_cell, grid_corners, steps_back, tight_bends
 from ddrt.path.geometry import Geometry, GeometryOptions, Piece, line_piece, pivot_piece, polyline_geometry
 from ddrt.path.noise import TOLERANCE_FLOOR_M, arc_parameter, auto_tolerance, estimate_noise
 from ddrt.path.smoothing import (
@@ -291,7 +291,7 @@ def _plan(p: np.ndarray, mode: str, tol: float, cell: float | None, noise: float
     mids = [0.5 * (u[a] + u[b]) for (a, _), (b, _) in zip(corners[:-1], corners[1:])]
     bounds = list(zip([-math.inf, *mids], [*mids, math.inf]))
     if mode == GRID:  # a grid plan turns at a cell's centre: its corner is that point
-        refined = [((k, t), (k, CornerPin(p[k].copy()))) for k, t in corners]
+        refined = [((k, t), (k, corner_pin(p, u, k, scale))) for k, t in corners]
     else:
         refined = [((k, t), refine_corner(p, u, k, scale, tol, bounds[i])) for i, (k, t) in enumerate(corners)]
     # A forced corner (the fit turned back there) stays at its point whatever its sides say.
@@ -303,7 +303,7 @@ def _plan(p: np.ndarray, mode: str, tol: float, cell: float | None, noise: float
     found = [pin for _, pin in kept]
     pinned = ends[0] is not None or ends[1] is not None
     wrap = _loop_wrap(p, knot, scale, threshold, tol, spacing) if not corners and not pinned else None
-    pins = _leg_pins(ends, found, mode == SAMPLES)
+    pins = _leg_pins(ends, found, True)
     return _Plan(p, mode, tol, noise, knot, scale, corners, pins, wrap, grid_axis(p) if mode == GRID else None, opt)
 
 
