@@ -251,16 +251,15 @@ class _Plan:
     opt: GeometryOptions
 
 
-def _leg_pins(ends: tuple[EndPin | None, EndPin | None], corners: list[CornerPin],
-              tangents: bool) -> list[tuple[EndPin | None, EndPin | None]]:
+def _leg_pins(ends: tuple[EndPin | None, EndPin | None],
+              corners: list[CornerPin]) -> list[tuple[EndPin | None, EndPin | None]]:
     """Each leg's start and end pins: the polyline's own ends, else a corner's point, with the
-    side lines' directions as the legs' tangents there where the corner gives them (a reversal
-    or a narrow U-turn, corners.py) and `tangents` (samples; a grid plan's corner keeps its point
-    only)."""
+    side lines' directions as the legs' tangents there where the corner gives them (samples'
+    corners, corners.py; a grid corner's straight runs, gridplan.py)."""
     starts: list[EndPin | None] = [ends[0]]
     stops: list[EndPin | None] = []
     for c in corners:
-        held = tangents and c.into is not None and c.out is not None
+        held = c.into is not None and c.out is not None
         stops.append(EndPin(c.point, c.into if held else None, c.settle))
         starts.append(EndPin(c.point if c.cap is None or not held else c.cap, c.out if held else None, c.settle))
     stops.append(ends[1])
@@ -303,7 +302,7 @@ def _plan(p: np.ndarray, mode: str, tol: float, cell: float | None, noise: float
     found = [pin for _, pin in kept]
     pinned = ends[0] is not None or ends[1] is not None
     wrap = _loop_wrap(p, knot, scale, threshold, tol, spacing) if not corners and not pinned else None
-    pins = _leg_pins(ends, found, True)
+    pins = _leg_pins(ends, found)
     return _Plan(p, mode, tol, noise, knot, scale, corners, pins, wrap, grid_axis(p) if mode == GRID else None, opt)
 
 
