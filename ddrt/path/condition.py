@@ -11,15 +11,14 @@ A CSV or `points:` list arrives as a polyline. Three kinds are told apart (`clas
   are free, not that the robot must zig-zag through their centres: it is smoothed like
   samples with a tolerance of half a cell (or the path's own `tolerance:`) measured along
   the grid's axes, so the corridor is each point's cell. Its corners are read from the cells
-  themselves (the staircase is exact, not noise): where the direction of the lines through six
-  cells either side, and three, turns by more than GRID_PIVOT_DEG (90, 135 and 180 degree
-  turns), the plan turns in place at that cell's centre; corners may lie two cells apart.
-  Staircases and 45 degree steps are smoothed within the cells. A turn the fit still bends
-  tighter than a cell's radius is turned in place at its sharpest point too: the smoothed
-  turns get one speed cap each that bounds the RMS of v^2 dkappa/ds over it
-  (ddrt/path/turnspeed.py), and a turn that tight would be crawled (a 135 degree corner bent
-  to 9 mm took 2x the time of the whole plan at speed); a turn in place costs a stop and
-  about half a second.
+  themselves (the staircase is exact, not noise; ddrt/path/gridplan.py): where the direction
+  of the lines through six cells either side, and three, turns by more than GRID_PIVOT_DEG
+  (90, 135 and 180 degree turns), the plan turns in place at that cell's centre; corners may
+  lie two cells apart. Staircases and 45 degree steps are smoothed within the cells. A turn
+  the fit still bends tighter than a cell's radius is turned in place at its sharpest point
+  too: the smoothed turns get one speed cap each that bounds the RMS of v^2 dkappa/ds over it
+  (ddrt/path/turnspeed.py), so a turn that tight is crawled (a 135 degree corner bent to 9 mm
+  doubles a whole plan's time), while a turn in place costs a stop and about half a second.
 - **samples**: anything denser. The points are samples of a curve with noise (a recording,
   a planner's output, an exported curve). The reference is a smoothing spline through them
   that stays within the tolerance of every point; genuine corners (the direction turns by
@@ -60,8 +59,8 @@ from typing import Sequence
 import numpy as np
 
 from ddrt.path.corners import CornerPin, corner_scale, find_corners, line_turns, refine_corner
-from ddrt.path.gridplan import corner_pin, grid_axis, grid_cell, grid_corners, steps_back, tight_bends
 from ddrt.path.geometry import Geometry, GeometryOptions, Piece, line_piece, pivot_piece, polyline_geometry
+from ddrt.path.gridplan import corner_pin, grid_axis, grid_cell, grid_corners, steps_back, tight_bends
 from ddrt.path.noise import TOLERANCE_FLOOR_M, arc_parameter, auto_tolerance, estimate_noise
 from ddrt.path.smoothing import (
     CurveStops, EndPin, FitError, FitRequest, FittedLeg, ToleranceUnmet, chord_length, fit_leg, staircase_noise,

@@ -4,10 +4,10 @@ A grid plan (every step one cell along an axis or a diagonal of one grid) is exa
 staircase is no noise, so its corners are read from the cells, not from a scale set by a
 noise estimate. The direction either side of a cell is the line through the cells within
 GRID_CORNER_CELLS of it (and half that): six cells, so each half-scale side holds three cells
-even along a diagonal (a side of two cells reads no direction, and a 135 degree corner was
-then no corner: the fit bent it to a 9 mm radius, crawled at the turn speed). Turns of 90
-degrees and more turn in place at their cell's centre; staircases and 45 degree steps are
-smoothed (condition.py). A bend the fit still makes tighter than a cell's radius is turned in
+even along a diagonal (a side of two cells reads no direction: a 135 degree corner read so
+is no corner, and the fit bends it to a 9 mm radius, crawled at the turn speed). Turns of 90
+degrees and more turn in place at their cell's centre, a leg that runs straight into one held
+along its run; staircases and 45 degree steps are smoothed (condition.py). A bend the fit still makes tighter than a cell's radius is turned in
 place too (`tight_bends`): at the turn speed's bounded yaw acceleration any turn takes at
 least sqrt(4 |turn| / accel) seconds (2.1 s for 90 degrees), a turn in place a stop and about
 half a second.
@@ -115,10 +115,10 @@ def _run_direction(p: np.ndarray, sel: np.ndarray) -> np.ndarray | None:
 
 def corner_pin(p: np.ndarray, u: np.ndarray, k: int, scale: float) -> CornerPin:
     """A grid corner at its cell's centre; a leg whose cells run straight into it (or out of it)
-    for half the corner scale is held there along that run. Left free, such a leg's end hooked
-    round the corner (a 10 cm plan's reference strayed 27 mm RMS from its staircase over the
-    metre after a 98 degree corner); a staircase side is left free (held along its mean line
-    it bent the leg harder than the corner did)."""
+    for half the corner scale is held there along that run. Left free, such a leg's end hooks
+    round the corner (the bench's 10 cm plan: 27 mm RMS from its staircase over the metre after
+    its 98 degree corner, against 13 mm held); a staircase side is left free (held along its
+    mean line, the leg bends harder than the corner does)."""
     before = np.flatnonzero((u >= u[k] - 0.5 * scale) & (u <= u[k]))
     after = np.flatnonzero((u >= u[k]) & (u <= u[k] + 0.5 * scale))
     into, out = _run_direction(p, before), _run_direction(p, after)
