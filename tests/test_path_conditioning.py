@@ -79,7 +79,7 @@ def test_grid_plan_is_smoothed_within_its_cells(tmp_path, cell) -> None:
     c = path.conditioning
     assert c.mode == "grid" and c.grid_cell_m == pytest.approx(cell)
     assert c.tolerance_m == pytest.approx(0.5 * cell)
-    assert not pivot_runs(path)
+    _only_sharp_turns_in_place(path)
     length = float(np.sum(np.hypot(*np.diff(case.xy, axis=0).T)))
     assert path.duration < 1.15 * length / case.speed + 3.0
     assert path.deviation_m <= 0.5 * cell + 1e-9
@@ -109,12 +109,25 @@ def _random_grid_plan(rng: np.random.Generator) -> tuple[float, np.ndarray] | No
     return cell, np.array([((i + 0.5) * cell, (j + 0.5) * cell) for i, j in plan])
 
 
+def _only_sharp_turns_in_place(path: Path) -> None:
+    """A grid plan turns in place only where it turns by 90 degrees or more (its 45 degree
+    steps are smoothed), once per corner."""
+    corners = path.conditioning.corners
+    assert len(pivot_runs(path)) == len(corners)
+    assert all(abs(math.degrees(c.turn)) > 60.0 for c in corners), [math.degrees(c.turn) for c in corners]
+
+
 def _yaw_accel_rms(path: Path) -> float:
-    """RMS over time of the profile's d(omega)/dt (what the bench measures on omega_ref)."""
+    """RMS over time of the profile's d(omega)/dt while driving (what the bench measures on
+    omega_ref; turns in place are left out, as the bench's target leaves them out)."""
     a = path.arrays()
     dt = np.diff(a["t"])
     dw = np.diff(a["omega"]) / dt
-    return float(np.sqrt(np.sum(dw ** 2 * dt) / np.sum(dt)))
+    piv = np.zeros(len(a["t"]), dtype=bool)
+    for i, j in pivot_runs(path):
+        piv[max(i - 1, 0):j + 1] = True
+    drive = ~(piv[:-1] | piv[1:]) & (dt > 0)
+    return float(np.sqrt(np.sum(dw[drive] ** 2 * dt[drive]) / np.sum(dt[drive])))
 
 
 def test_random_grid_plans_turn_smoothly_within_their_cells() -> None:
@@ -127,7 +140,7 @@ def test_random_grid_plans_turn_smoothly_within_their_cells() -> None:
         path = load_path({"points": xy.tolist(), "speed": 0.4}, LIM)  # the bench's grid speed
         c = path.conditioning
         assert c.mode == "grid" and c.grid_cell_m == pytest.approx(cell)
-        assert not pivot_runs(path)
+        _only_sharp_turns_in_place(path)
         assert _yaw_accel_rms(path) <= pg.TARGET_DOMEGA_RMS, (cell, len(xy))
         assert c.deviation_m <= 0.5 * cell + 1e-9  # every point's cell is crossed
         d = pg.curve_distance(pg.dense(xy), _xy(path)[::5])

@@ -10,11 +10,15 @@ A CSV or `points:` list arrives as a polyline. Three kinds are told apart (`clas
   diagonal of a common grid, a cell below the waypoint spacing). The plan says which cells
   are free, not that the robot must zig-zag through their centres: it is smoothed like
   samples with a tolerance of half a cell (or the path's own `tolerance:`) measured along
-  the grid's axes, so the corridor is each point's cell, and only turns sharper than 90
-  degrees (135, 180) become turns in place; 45 and 90 degree steps are smoothed within the
-  cells. A 90 degree step (at an obstacle's corner) still bends within about 1.7 cells, too
-  tight to take at speed, so each turn of the reference gets one speed cap that bounds the
-  RMS of v^2 dkappa/ds over it (ddrt/path/turnspeed.py).
+  the grid's axes, so the corridor is each point's cell. Its corners are read from the cells
+  themselves (the staircase is exact, not noise; ddrt/path/gridplan.py): where the direction
+  of the lines through six cells either side, and three, turns by more than GRID_PIVOT_DEG
+  (90, 135 and 180 degree turns), the plan turns in place at that cell's centre; corners may
+  lie two cells apart. Staircases and 45 degree steps are smoothed within the cells. A turn
+  the fit still bends tighter than a cell's radius is turned in place at its sharpest point
+  too: the smoothed turns get one speed cap each that bounds the RMS of v^2 dkappa/ds over it
+  (ddrt/path/turnspeed.py), so a turn that tight is crawled (a 135 degree corner bent to 9 mm
+  doubles a whole plan's time), while a turn in place costs a stop and about half a second.
 - **samples**: anything denser. The points are samples of a curve with noise (a recording,
   a planner's output, an exported curve). The reference is a smoothing spline through them
   that stays within the tolerance of every point; genuine corners (the direction turns by
@@ -57,6 +61,7 @@ import numpy as np
 from ddrt.errors import DdrtError
 from ddrt.path.corners import CornerPin, corner_scale, find_corners, line_turns, refine_corner
 from ddrt.path.geometry import Geometry, GeometryOptions, Piece, line_piece, pivot_piece, polyline_geometry
+from ddrt.path.gridplan import corner_pin, grid_axis, grid_cell, grid_corners, steps_back, tight_bends
 from ddrt.path.noise import TOLERANCE_FLOOR_M, arc_parameter, auto_tolerance, estimate_noise
 from ddrt.path.smoothing import (
     CurveStops, EndPin, FitError, FitRequest, FittedLeg, ToleranceUnmet, chord_length, fit_leg, staircase_noise,
@@ -67,7 +72,6 @@ __all__ = ["ConditionOptions", "Conditioning", "ConditionError", "classify", "co
            "point_noise", "run_tolerance"]
 
 WAYPOINTS, SAMPLES, GRID = "waypoints", "samples", "grid"
-GRID_PIVOT_DEG = 112.5  # in a grid plan, turns sharper than 90 degrees (135, 180) pivot
 GRID_TOLERANCE_CELLS = 0.5  # a grid plan's tolerance, in cells: the robot stays in the planned cells
 NOISE_FLOOR_M = 2e-5  # below this the points are exact (an export): smooth to this level
 
@@ -127,41 +131,6 @@ class Conditioning:
 
 def _wrap(a: np.ndarray) -> np.ndarray:
     return (a + math.pi) % (2.0 * math.pi) - math.pi
-
-
-def grid_cell(p: np.ndarray) -> float | None:
-    """The cell of a grid plan given cell by cell (every step one cell along an axis or a
-    diagonal of one grid, which may be rotated), else None."""
-    d = np.diff(p, axis=0)
-    if len(d) < 3:
-        return None
-    length = np.hypot(d[:, 0], d[:, 1])
-    c = float(length.min())
-    if not c > 0.0:
-        return None
-    tol = 1e-3 * c
-    axis = np.abs(length - c) <= tol
-    diag = np.abs(length - c * math.sqrt(2.0)) <= tol
-    if not np.all(axis | diag):
-        return None
-    ang = np.arctan2(d[:, 1], d[:, 0])
-    k = (ang - ang[0]) / (0.25 * math.pi)
-    kr = np.round(k)
-    if np.max(np.abs(k - kr)) > 1e-3:
-        return None
-    # Steps an odd number of eighths of a turn apart are of the other kind (axis vs diagonal).
-    parity = (kr.astype(np.int64) % 2) == 1
-    if not np.array_equal(parity, axis != axis[0]):
-        return None
-    return c
-
-
-def grid_axis(p: np.ndarray) -> float:
-    """The direction of a grid plan's first axis (its steps are along it, across it or diagonal)."""
-    d = p[1] - p[0]
-    ang = math.atan2(d[1], d[0])
-    diagonal = abs(math.hypot(d[0], d[1]) - float(np.min(np.hypot(*np.diff(p, axis=0).T)))) > 1e-6 * math.hypot(*d)
-    return ang - 0.25 * math.pi if diagonal else ang
 
 
 def classify(p: np.ndarray, copt: ConditionOptions) -> tuple[str, float | None, float | None]:
@@ -282,16 +251,15 @@ class _Plan:
     opt: GeometryOptions
 
 
-def _leg_pins(ends: tuple[EndPin | None, EndPin | None], corners: list[CornerPin],
-              tangents: bool) -> list[tuple[EndPin | None, EndPin | None]]:
+def _leg_pins(ends: tuple[EndPin | None, EndPin | None],
+              corners: list[CornerPin]) -> list[tuple[EndPin | None, EndPin | None]]:
     """Each leg's start and end pins: the polyline's own ends, else a corner's point, with the
-    side lines' directions as the legs' tangents there where the corner gives them (a reversal
-    or a narrow U-turn, corners.py) and `tangents` (samples; a grid plan's corner keeps its point
-    only)."""
+    side lines' directions as the legs' tangents there where the corner gives them (samples'
+    corners, corners.py; a grid corner's straight runs, gridplan.py)."""
     starts: list[EndPin | None] = [ends[0]]
     stops: list[EndPin | None] = []
     for c in corners:
-        held = tangents and c.into is not None and c.out is not None
+        held = c.into is not None and c.out is not None
         stops.append(EndPin(c.point, c.into if held else None, c.settle))
         starts.append(EndPin(c.point if c.cap is None or not held else c.cap, c.out if held else None, c.settle))
     stops.append(ends[1])
@@ -306,11 +274,13 @@ def _plan(p: np.ndarray, mode: str, tol: float, cell: float | None, noise: float
     u = chord_length(p) if mode == GRID else arc_parameter(p, noise)
     spacing = float(np.median(np.diff(u)))
     knot = knot_spacing(spacing, tol, cell)
-    scale = corner_scale(tol, noise, spacing)
     threshold = math.radians(opt.corner_pivot_deg)
     if mode == GRID:
-        threshold = max(threshold, math.radians(GRID_PIVOT_DEG))
-    corners = find_corners(p, u, scale, threshold, noise)
+        assert cell is not None
+        scale, corners = grid_corners(p, u, cell, threshold)
+    else:
+        scale = corner_scale(tol, noise, spacing)
+        corners = find_corners(p, u, scale, threshold, noise)
     # Within a corner scale of an end pinned with a shared tangent the points were found smooth
     # by the cusp's own fit (ddrt/path/cusp.py): a turn found there is the end's short chord on noise.
     held0 = ends[0] is not None and ends[0].slope is not None
@@ -319,7 +289,10 @@ def _plan(p: np.ndarray, mode: str, tol: float, cell: float | None, noise: float
     corners = sorted(corners + [(k, math.pi) for k in forced if all(k != c for c, _ in corners)])
     mids = [0.5 * (u[a] + u[b]) for (a, _), (b, _) in zip(corners[:-1], corners[1:])]
     bounds = list(zip([-math.inf, *mids], [*mids, math.inf]))
-    refined = [((k, t), refine_corner(p, u, k, scale, tol, bounds[i])) for i, (k, t) in enumerate(corners)]
+    if mode == GRID:  # a grid plan turns at a cell's centre: its corner is that point
+        refined = [((k, t), (k, corner_pin(p, u, k, scale))) for k, t in corners]
+    else:
+        refined = [((k, t), refine_corner(p, u, k, scale, tol, bounds[i])) for i, (k, t) in enumerate(corners)]
     # A forced corner (the fit turned back there) stays at its point whatever its sides say.
     refined = [((k, t), (k, CornerPin(p[k].copy()))) if pin is None and k in forced else ((at, t), (at, pin))
                for (k, t), (at, pin) in refined]
@@ -329,7 +302,7 @@ def _plan(p: np.ndarray, mode: str, tol: float, cell: float | None, noise: float
     found = [pin for _, pin in kept]
     pinned = ends[0] is not None or ends[1] is not None
     wrap = _loop_wrap(p, knot, scale, threshold, tol, spacing) if not corners and not pinned else None
-    pins = _leg_pins(ends, found, mode == SAMPLES)
+    pins = _leg_pins(ends, found)
     return _Plan(p, mode, tol, noise, knot, scale, corners, pins, wrap, grid_axis(p) if mode == GRID else None, opt)
 
 
@@ -508,14 +481,6 @@ def _turns_back(where: str, name: str) -> ConditionError:
                           "fits them: mark the points reached in reverse (a negative v) or split the path here")
 
 
-def _steps_back(p: np.ndarray) -> list[int]:
-    """Points of a grid plan where it steps back the way it came (turned in place)."""
-    d = np.diff(p, axis=0)
-    seg = np.hypot(d[:, 0], d[:, 1])
-    back = np.einsum("ij,ij->i", d[1:], d[:-1]) < -0.999 * seg[1:] * seg[:-1]
-    return (np.flatnonzero(back) + 1).tolist()
-
-
 def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: GeometryOptions, copt: ConditionOptions,
                        where: str, names: Sequence[str],
                        ends: tuple[EndPin | None, EndPin | None] = (None, None),
@@ -537,16 +502,20 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: GeometryOp
         return _waypoints(p, caps, opt, names, spacing, TOLERANCE_FLOOR_M if given is None else given)
     nz = _noise(p, cell) if noise is None else max(noise, NOISE_FLOOR_M)
     tol = resolve_tolerance(given, nz, len(p))
-    forced = _steps_back(p) if mode == GRID else []
+    forced = steps_back(p) if mode == GRID else []
+    tight: list[int] = []  # a grid plan's points where the fit bent tighter than a cell: turned in place
     widened = 0
-    for _ in range(MAX_REPLANS):
+    for attempt in range(MAX_REPLANS):
         info = Conditioning(mode, tol, p, names, noise_m=nz, grid_cell_m=cell, spacing_m=spacing,
                             auto=given is None and mode == SAMPLES)
-        plan = _plan(p, mode, tol, cell, nz, opt, ends, forced)
+        plan = _plan(p, mode, tol, cell, nz, opt, ends, forced + tight)
         info.extra["closed_loop"] = plan.wrap is not None
         try:
             geo = _assemble(plan, caps, info, where, names)
-            break
+            more = tight_bends(geo, info.point_sigma, cell, [k for k, _ in plan.corners]) if cell is not None else []
+            if not more or attempt == MAX_REPLANS - 1:
+                break
+            tight.extend(more)
         except _LegStops as exc:
             if exc.index in forced or exc.index in (0, len(p) - 1):
                 raise _turns_back(where, names[exc.index]) from None

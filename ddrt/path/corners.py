@@ -96,9 +96,10 @@ def line_turns(p: np.ndarray, u: np.ndarray, scale: float, noise: float = 0.0,
 
 
 def find_corners(p: np.ndarray, u: np.ndarray, scale: float, threshold: float,
-                 noise: float = 0.0) -> list[tuple[int, float]]:
+                 noise: float = 0.0, apart: float | None = None) -> list[tuple[int, float]]:
     """(index, turn) of corners: points where the direction turns by more than `threshold`
-    at both `scale` and half of it, one per `scale` of length (the sharpest), measured only
+    at both `scale` and half of it, one per `apart` of length (the sharpest; default `scale`:
+    a grid plan's exact corners may lie closer), measured only
     where the noise leaves each side's direction sure to a quarter of the threshold, and by
     more than the threshold with CORNER_SIGMAS of the turn's own noise taken off (a bend of
     28 degrees read as 36 on 22 mm of noise is no corner)."""
@@ -113,9 +114,10 @@ def find_corners(p: np.ndarray, u: np.ndarray, scale: float, threshold: float,
     if len(cand) == 0:
         return []
     order = cand[np.argsort(-score[cand], kind="stable")]
+    gap = scale if apart is None else apart
     taken: list[int] = []
     for i in order.tolist():
-        if all(abs(u[i] - u[k]) >= scale for k in taken):
+        if all(abs(u[i] - u[k]) >= gap for k in taken):
             taken.append(i)
     taken.sort()
     return [(i, float(t2[i])) for i in taken]

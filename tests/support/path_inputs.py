@@ -293,3 +293,84 @@ def curve_distance(curve: np.ndarray, xy: np.ndarray) -> np.ndarray:
     top = len(curve) - 2
     return np.minimum(distances_to_polyline(curve, xy, np.clip(near[0], 0, top), window=2 * stride),
                       distances_to_polyline(curve, xy, np.clip(near[1], 0, top), window=2 * stride))
+
+
+GRID_FUZZ_SPEED = 0.4  # m/s, as the bench's grid plans
+
+
+def random_grid(rng: np.random.Generator) -> np.ndarray:
+    """A boolean grid of free cells, 20-80 cells a side, with up to 10 random rectangular obstacles."""
+    nx, ny = int(rng.integers(20, 81)), int(rng.integers(20, 81))
+    free = np.ones((nx, ny), dtype=bool)
+    for _ in range(int(rng.integers(0, 11))):
+        w, h = int(rng.integers(1, max(2, nx // 3))), int(rng.integers(1, max(2, ny // 3)))
+        x0, y0 = int(rng.integers(0, nx - w)), int(rng.integers(0, ny - h))
+        free[x0:x0 + w, y0:y0 + h] = False
+    return free
+
+
+def staircase(a: tuple[int, int], b: tuple[int, int], diagonal: bool) -> list[tuple[int, int]]:
+    """The cells of a straight line from cell a to cell b, one step at a time (a step along an axis
+    or, `diagonal`, a diagonal): the staircase a planner's line of sight leaves on a grid."""
+    cells = [a]
+    x, y = a
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    while (x, y) != b:
+        # The step that keeps the cell closest to the line a-b.
+        best = None
+        for sx, sy in ((int(np.sign(b[0] - x)), 0), (0, int(np.sign(b[1] - y))),
+                       (int(np.sign(b[0] - x)), int(np.sign(b[1] - y)))):
+            if (sx, sy) == (0, 0) or (sx and sy and not diagonal):
+                continue
+            nx_, ny_ = x + sx, y + sy
+            off = abs(dx * (ny_ - a[1]) - dy * (nx_ - a[0]))
+            if best is None or off < best[0] - 1e-9:
+                best = (off, nx_, ny_)
+        assert best is not None
+        x, y = best[1], best[2]
+        cells.append((x, y))
+    return cells
+
+
+def grid_fuzz_plan(rng: np.random.Generator) -> tuple[str, float, np.ndarray] | None:
+    """A grid plan as planners hand them over, cell centres on a 2-10 cm grid, 4- or 8-connected:
+    an A* plan between two far-apart free cells of a random grid with obstacles, an A* plan through
+    one to three random via points (its legs meet at any angle, 135 and 180 degrees included), or a
+    walk of straight staircases between random cells of an open grid. (kind, cell, points); None
+    when the goal is walled off or the plan is shorter than 8 cells."""
+    cell = float(rng.uniform(0.02, 0.10))
+    diagonal = bool(rng.integers(2))
+    kind = ("astar", "via", "walk")[int(rng.integers(3))]
+    free = random_grid(rng) if kind != "walk" else np.ones((int(rng.integers(20, 81)),) * 2, dtype=bool)
+    cells = np.argwhere(free)
+    nx, ny = free.shape
+
+    def pick() -> tuple[int, int]:
+        c = cells[rng.integers(len(cells))]
+        return int(c[0]), int(c[1])
+
+    if kind == "astar":
+        a, b = pick(), pick()
+        for _ in range(50):
+            if math.hypot(a[0] - b[0], a[1] - b[1]) > 0.5 * max(nx, ny):
+                break
+            a, b = pick(), pick()
+        stops = [a, b]
+    else:
+        stops = [pick() for _ in range(int(rng.integers(3, 6)))]
+    plan: list[tuple[int, int]] = [stops[0]]
+    for a, b in zip(stops[:-1], stops[1:]):
+        leg = staircase(a, b, diagonal) if kind == "walk" else astar_cells(free, a, b, diagonal=diagonal)
+        if leg is None:
+            return None
+        plan.extend(leg[1:])
+    # A plan does not revisit the cell it just left (A* legs through a via point can).
+    out: list[tuple[int, int]] = []
+    for c in plan:
+        if len(out) >= 2 and c == out[-2]:
+            out.pop()
+        elif not out or c != out[-1]:
+            out.append(c)
+    if len(out) < 8:
+        return None
+    return kind, cell, np.array([((i + 0.5) * cell, (j + 0.5) * cell) for i, j in out])
