@@ -133,3 +133,18 @@ def test_ddrt_ctl_help_lists_every_command_it_offers() -> None:
     for c in DECLARED.values():
         offered = not c.stream and not c.ctl.startswith("(")
         assert (f"\n  {c.name} " in listed or f"\n  {c.name}\n" in listed) == offered, c.name
+
+
+def test_a_command_added_by_its_declaration_and_handler_is_served_and_listed(capsys) -> None:
+    # `version`: one declaration (commands.py) and one handler (handlers.py) is all it took.
+    from ddrt import __version__
+    from ddrt.cli import main
+    from ddrt.service.handlers import SOCKET_PROTOCOL
+
+    reply = HANDLERS["version"](None, parse({"cmd": "version"}))  # type: ignore[arg-type]
+    assert reply == {"ok": True, "version": __version__, "socket_protocol": SOCKET_PROTOCOL}
+    with pytest.raises(CommandError, match="version: verbose: unknown field"):
+        parse({"cmd": "version", "verbose": True})
+    with pytest.raises(SystemExit):
+        main(["ctl", "-h"])
+    assert "\n  version " in capsys.readouterr().out

@@ -153,6 +153,8 @@ DECLARED: dict[str, Command] = {c.name: c for c in (
             supersedes=("follow", "reset", "drive", "resume", "pose")),
     Command("reset", "leave estop or fault; the pose starts again from (0, 0, 0)"),
     Command("gains", "the controller's gains in force", reply="ok, mode, outer, inner, wheel_pid, heading_gain"),
+    Command("version", "the daemon's ddrt version and the protocol of its control socket",
+            reply="ok, version and socket_protocol"),
     Command("reload", "re-read the config file and put what changed in force between two ticks",
             reply="ok, and what changed, how each change was applied, or the error naming the key"),
     Command("pose", "set the estimator's pose at rest (with cov: and its covariance)",

@@ -26,6 +26,8 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("ddrt.service.daemon")
 
+SOCKET_PROTOCOL = 1  # the control socket's request and reply format (docs/reference/commands.md)
+
 CommandHandler = Callable[["Daemon", Request], "dict[str, Any] | Deferred"]
 
 
@@ -81,6 +83,12 @@ def _gains(d: Daemon, req: Request) -> dict[str, Any]:
     c = d.cfg.controller
     return {"ok": True, "mode": c.mode, "outer": vars_of(c.outer), "inner": vars_of(c.inner),
             "wheel_pid": vars_of(c.wheel_pid), "heading_gain": c.heading_gain}
+
+
+def _version(d: Daemon, req: Request) -> dict[str, Any]:
+    from ddrt import __version__
+
+    return {"ok": True, "version": __version__, "socket_protocol": SOCKET_PROTOCOL}
 
 
 def _stop(d: Daemon, req: Request) -> dict[str, Any]:
@@ -169,5 +177,5 @@ def _follow(d: Daemon, req: Request) -> dict[str, Any] | Deferred:
 HANDLERS = command_table({
     "status": _status, "follow": _follow, "drive": _drive, "stop": _stop, "resume": _resume,
     "estop": _estop, "reset": _reset, "gains": _gains, "reload": _reload, "pose": _pose,
-    "stream": _stream, "pose_fix": _pose_fix,
+    "stream": _stream, "pose_fix": _pose_fix, "version": _version,
 }, COMMANDS)
