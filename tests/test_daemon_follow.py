@@ -27,7 +27,8 @@ from ddrt.service.ctlclient import request
 from tests.support.cpu_queue import Stopwatch
 from tests.support.daemon import STATE_TIMEOUT_S, DaemonProc, start_daemon, wait_for, write_config
 
-HUGE_CIRCLE = {"shape": "circle", "radius": 300.0, "speed": 0.3, "pose": [0.0, 0.0, 0.0]}  # 942 000 samples
+# 942 000 samples; 3140 s at 0.6 m/s, within paths.max_duration_s (an hour)
+HUGE_CIRCLE = {"shape": "circle", "radius": 300.0, "speed": 0.6, "pose": [0.0, 0.0, 0.0]}
 STALL_BOUND_S = 0.1  # the worst tick while a path is prepared; main stalled 1.2 to 143 s
 MISSED_BOUND = 20  # ticks skipped meanwhile (a 1.2 s stall skips 240)
 MISSED_FRACTION = 0.05  # and of the slots meanwhile: a loaded host skips the odd one however
@@ -202,7 +203,7 @@ def test_a_ten_thousand_point_csv_is_built_off_the_loop(fd: DaemonProc) -> None:
     """The CSV that stalled the loop 1.2 s: 10 000 points (paths.max_points), zig-zagging."""
     csv = fd.workdir / "zigzag.csv"
     with open(csv, "w") as fh:
-        fh.write("x,y\n")
+        fh.write("x_m,y_m\n")  # 100 m long: beyond paths.workspace_m, so its unit is stated
         fh.writelines(f"{i * 0.01:.3f},{0.004 * (i % 2):.3f}\n" for i in range(10_000))
     pending = Pending(fd, {"path": str(csv), "pose": [0.0, 0.0, 0.0]})
     answers = []
