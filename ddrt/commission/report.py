@@ -8,14 +8,12 @@ import math
 from pathlib import Path
 from typing import Any
 
+from ddrt.calibrate import SEEN_MIN
 from ddrt.commission.odometry import radius_rows, radius_uncertainty
 from ddrt.commission.session import STEPS, Session
 
 # A platform key and the identified terms it comes from (ddrt/calibrate.py robot_update).
 TERMS = {"m_p": ("m_k",), "d_xc": ("m_x",), "d_yc": ("mbar",), "I_p": ("I",), "coulomb_nm": ("fric_l", "fric_r")}
-# A term that accounts for less than this many times the fit's residual is not separated from
-# what the model leaves out: the report says so rather than present the value as measured.
-SEEN_MIN = 3.0
 
 
 def _figures(session: Session, check: dict[str, Any] | None, folder: Path) -> list[str]:
