@@ -105,6 +105,11 @@ def gyro_fragment(res: GyroResult) -> str:
 # --------------------------------------------------------------------------- identification
 
 
+# A term that accounts for less than this many times the fit's residual is not separated from
+# what the model leaves out: reported as such rather than as a measured value.
+SEEN_MIN = 3.0
+
+
 @dataclass(frozen=True)
 class IdentifyResult:
     """Batch least squares over one excitation run: values, standard errors, fit quality."""
@@ -120,6 +125,10 @@ class IdentifyResult:
     # the residual is one the run cannot tell from what the model leaves out (two motors that
     # differ, say), however small its formal standard error.
     effect_n: dict[str, float] = field(default_factory=dict)
+
+    def seen(self, name: str) -> float:
+        """How many times the fit's residual the term `name` accounts for."""
+        return self.effect_n[name] / self.residual_rms_n if self.residual_rms_n > 0 else math.inf
 
 
 def parse_area(text: str) -> tuple[float, float]:
@@ -249,11 +258,13 @@ def identify_fragment(cfg: Config, res: IdentifyResult) -> str:
     lines = [
         f"# ddrt calibrate identify: {res.duration_s:.1f} s figure-eight in a {res.area[0]:g} x {res.area[1]:g} m area,",
         f"# {res.rows} excited regression rows, R^2 = {res.r2:.4f}, residual rms {res.residual_rms_n:.3f} N.",
-        "# Identified (value +- standard error):",
+        "# Identified (value +- standard error; how many times the fit's residual force its term accounts for):",
     ]
     units = {"m_k": "kg", "mbar": "kg m", "I": "kg m^2", "m_x": "kg m", "fric_l": "N m", "fric_r": "N m"}
     for name in NAMES:
-        lines.append(f"#   {name:7s} {v[name]:+.5f} +- {e[name]:.5f} {units[name]}")
+        seen = res.seen(name)
+        lines.append(f"#   {name:7s} {v[name]:+.5f} +- {e[name]:.5f} {units[name]:6s} {seen:5.1f}x the residual"
+                     + (": not separated from what the model leaves out" if seen < SEEN_MIN else ""))
     lines.append("# Platform parameters below reproduce m_k, mbar, I, m_x exactly; wheel friction is the mean")
     lines.append("# of both wheels' extra Coulomb friction added to the motor's.")
     return "\n".join(lines) + "\n" + yaml.safe_dump({"robot": robot}, sort_keys=False)

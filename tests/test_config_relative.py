@@ -13,6 +13,8 @@ import typing
 from pathlib import Path
 
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 import yaml
 
 from ddrt.config import load_config
@@ -133,3 +135,53 @@ def test_a_copied_config_runs_from_another_folder_and_writes_beside_itself(copie
         daemon.wait(timeout=30)
     assert (copied.parent / "out" / "daemon-telemetry" / "telemetry.csv").exists()
     assert not (elsewhere / "out").exists() and not (tmp_path / "out").exists()
+
+
+SEGMENT = st.sampled_from(["a", "b", "c d", "..", "x.y"])
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(folders=st.lists(st.lists(SEGMENT.filter(lambda s: s != ".."), min_size=0, max_size=3), min_size=1, max_size=3),
+       names=st.lists(st.fixed_dictionaries({}, optional={k: st.lists(SEGMENT, min_size=1, max_size=3)
+                                                          for k in ("socket", "telemetry_dir", "root", "path")}),
+                      min_size=3, max_size=3),
+       cwd=st.lists(SEGMENT.filter(lambda s: s != ".."), max_size=2))
+def test_any_chain_of_extends_resolves_each_name_against_the_file_that_gives_it(tmp_path, folders, names, cwd) -> None:
+    """A chain of 1 to 3 files in any folders, each giving some of the file keys (relative
+    names with `..` and spaces): each key is the last file's to give it, from that file's folder."""
+    import uuid
+
+    root = tmp_path / uuid.uuid4().hex
+    files = [root.joinpath(*f, f"c{i}.yaml") for i, f in enumerate(folders)]
+    expected: dict[str, Path] = {}
+    for i, f in enumerate(files):
+        given = names[i]
+        doc: dict = {"extends": os.path.relpath(files[i - 1], f.parent) if i else str(SIM_YAML)}
+        sections = {"socket": ("daemon", "socket"), "telemetry_dir": ("daemon", "telemetry_dir"),
+                    "root": ("hal", "pwm_sysfs", "root")}
+        for key, parts in given.items():
+            value = "/".join(parts)
+            if key == "path":
+                doc["path"] = {"file": value + ".csv"}
+                expected["path"] = Path(os.path.normpath(f.parent / (value + ".csv")))
+                continue
+            *outer, leaf = sections[key]
+            node = doc
+            for part in outer:
+                node = node.setdefault(part, {})
+            node[leaf] = value
+            expected[key] = Path(os.path.normpath(f.parent / value))
+        f.parent.mkdir(parents=True, exist_ok=True)
+        f.write_text(yaml.safe_dump(doc))
+    where = root.joinpath(*cwd)
+    where.mkdir(parents=True, exist_ok=True)
+    old = os.getcwd()
+    os.chdir(where)
+    try:
+        cfg = load_config(os.path.relpath(files[-1], where))
+    finally:
+        os.chdir(old)
+    got = {"socket": cfg.daemon.socket, "telemetry_dir": cfg.daemon.telemetry_dir, "root": cfg.hal.pwm_sysfs.root,
+           "path": cfg.path["file"] if isinstance(cfg.path, dict) else None}
+    for key, want in expected.items():
+        assert Path(os.path.normpath(got[key])) == want, (key, got[key], want)

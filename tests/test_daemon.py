@@ -958,7 +958,7 @@ def test_sigterm_while_the_start_path_is_built_exits_0_quietly() -> None:
     daemon waits for the worker to build it before it opens the robot: a SIGTERM then is a
     requested stop like any other (it used to exit 2, as for a bad path file, with a
     traceback from the worker's pipe closed under its reader)."""
-    huge = {"shape": "circle", "radius": 300.0, "speed": 0.3}  # seconds of building
+    huge = {"shape": "circle", "radius": 300.0, "speed": 0.6}  # seconds of building
     d = start_daemon(path=huge, paths={"build_timeout_s": 600.0})
     try:
         # The socket opens after the build is submitted and before the robot is opened.

@@ -250,3 +250,19 @@ def test_every_command_the_docs_show_is_one_ddrt_has() -> None:
             elif m[1] in nested and m[2] is not None and m[2] not in nested[m[1]]:
                 wrong.append(f"{doc.name}: ddrt {m[1]} {m[2]}")
     assert seen > 50 and not wrong, wrong
+
+
+def test_calibrate_identify_says_which_terms_the_run_cannot_separate() -> None:
+    """A term no larger than a few times the residual is flagged, however small its formal
+    standard error (here, mbar's 0.00012 kg m: the figures of configs/sim-minimal.yaml)."""
+    from ddrt import calibrate as cal
+    from ddrt.config import load_config
+
+    values = {"m_k": 4.54442, "mbar": -0.01735, "I": 0.05028, "m_x": 0.09203, "fric_l": 0.01069, "fric_r": -0.00432}
+    effect = {"m_k": 1.562, "mbar": 0.0663, "I": 0.982, "m_x": 0.653, "fric_l": 0.213, "fric_r": 0.0861}
+    res = cal.IdentifyResult(values=values, std_err={k: 1e-4 for k in values}, r2=0.9996, residual_rms_n=0.041,
+                             rows=8418, duration_s=21.8, area=(2.0, 1.5), effect_n=effect)
+    assert res.seen("mbar") == pytest.approx(0.0663 / 0.041)
+    text = cal.identify_fragment(load_config(REPO / "configs" / "sim-minimal.yaml"), res)
+    flagged = {ln.split()[1] for ln in text.splitlines() if ln.endswith("not separated from what the model leaves out")}
+    assert flagged == {"mbar", "fric_r"}

@@ -150,7 +150,7 @@ def test_a_fifo_named_by_a_yaml_files_file_key_is_refused(worker: PathWorker, tm
 
 def test_a_build_over_its_time_is_stopped_naming_the_key(worker: PathWorker) -> None:
     paths = replace(CFG.paths, build_timeout_s=0.2)
-    b = _build(worker, {"shape": "circle", "radius": 300.0, "speed": 0.3}, paths=paths)
+    b = _build(worker, {"shape": "circle", "radius": 300.0, "speed": 0.6}, paths=paths)
     # The circle is valid: only the deadline can end its build with an error, and it names it.
     assert "not ready within paths.build_timeout_s = 0.2 s" in b.error, b.error
     assert b.path is None
@@ -159,7 +159,7 @@ def test_a_build_over_its_time_is_stopped_naming_the_key(worker: PathWorker) -> 
 
 
 def test_cancel_stops_the_worker_and_the_next_job_runs(worker: PathWorker) -> None:
-    b = worker.submit(BuildJob({"shape": "circle", "radius": 300.0, "speed": 0.3}, LIMITS, CFG.paths))
+    b = worker.submit(BuildJob({"shape": "circle", "radius": 300.0, "speed": 0.6}, LIMITS, CFG.paths))
     _wait(lambda: b.phase == "building", "start of the build")
     worker.cancel(b)
     _wait(lambda: b.done, "end of the cancelled build")
@@ -168,7 +168,7 @@ def test_cancel_stops_the_worker_and_the_next_job_runs(worker: PathWorker) -> No
 
 
 def test_a_worker_that_dies_is_reported_not_waited_for(worker: PathWorker) -> None:
-    b = worker.submit(BuildJob({"shape": "circle", "radius": 300.0, "speed": 0.3}, LIMITS, CFG.paths))
+    b = worker.submit(BuildJob({"shape": "circle", "radius": 300.0, "speed": 0.6}, LIMITS, CFG.paths))
     _wait(lambda: b.phase == "building" and worker._active is not None, "start of the build")
     os.kill(worker._active.pid, signal.SIGKILL)  # what the OOM killer does
     _wait(lambda: b.done, "end of the build")
@@ -182,7 +182,7 @@ def test_close_during_a_build_ends_it_quietly(caplog: pytest.LogCaptureFixture) 
     and a traceback, or a read of whatever file took that descriptor next)."""
     w = PathWorker()
     try:
-        b = w.submit(BuildJob({"shape": "circle", "radius": 300.0, "speed": 0.3}, LIMITS, CFG.paths))
+        b = w.submit(BuildJob({"shape": "circle", "radius": 300.0, "speed": 0.6}, LIMITS, CFG.paths))
         _wait(lambda: b.phase == "building" and w._active is not None, "the build to start")
     finally:
         w.close(timeout=WORKER_HANG_S)

@@ -8,14 +8,12 @@ import math
 from pathlib import Path
 from typing import Any
 
+from ddrt.calibrate import SEEN_MIN
 from ddrt.commission.odometry import radius_rows, radius_uncertainty
 from ddrt.commission.session import STEPS, Session
 
 # A platform key and the identified terms it comes from (ddrt/calibrate.py robot_update).
 TERMS = {"m_p": ("m_k",), "d_xc": ("m_x",), "d_yc": ("mbar",), "I_p": ("I",), "coulomb_nm": ("fric_l", "fric_r")}
-# A term that accounts for less than this many times the fit's residual is not separated from
-# what the model leaves out: the report says so rather than present the value as measured.
-SEEN_MIN = 3.0
 
 
 def _figures(session: Session, check: dict[str, Any] | None, folder: Path) -> list[str]:
@@ -133,11 +131,13 @@ def write_report(session: Session, folder: Path, config_file: Path, check: dict[
             if seen is not None and seen < SEEN_MIN:
                 unseen.append(k)
         if unseen:
-            lines += ["", f"Not separated by this run: {', '.join(unseen)}. The term each comes from accounts for less "
-                      f"than {SEEN_MIN:g} times the fit's residual ({d['residual_rms_n']:.3f} N rms), so the run cannot "
-                      "tell its value from what the model leaves out (two motors that differ, say), however small its "
-                      "standard error. Measure it another way (for d_xc and d_yc: a scale under each wheel), or keep "
-                      "the value before in the config."]
+            one = len(unseen) == 1
+            lines += ["", f"Not separated by this run: {', '.join(unseen)}. The identified term behind "
+                      f"{'it' if one else 'each'} accounts for less than {SEEN_MIN:g} times the fit's residual "
+                      f"({d['residual_rms_n']:.3f} N rms), so the run cannot tell {'its value' if one else 'their values'} "
+                      "from what the model leaves out (two motors that differ, say), however small the standard error. "
+                      f"Measure {'it' if one else 'them'} another way (for d_xc and d_yc: a scale under each wheel), or "
+                      "keep the value before in the config."]
     o = st.get("odometry")
     if o:
         lines += ["", "## Odometry", "", f"{o['distance_cmd_m']:g} m straight, then {o['turns']} turns in place; "

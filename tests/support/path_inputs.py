@@ -266,8 +266,8 @@ CASES: dict[str, Callable[[], Case]] = {
 
 
 def write_csv(fname: FsPath, xy: np.ndarray, speed: float | np.ndarray) -> None:
-    """x_m,y_m,v rows (the unit stated: a long recording reaches beyond paths.workspace_m); `speed`
-    one value or one (signed) per point."""
+    """x,y,v rows in metres, stated by the header (a long recording reaches beyond
+    paths.workspace_m); `speed` one value or one (signed) per point."""
     v = np.broadcast_to(np.asarray(speed, dtype=float), (len(xy),))
     with open(fname, "w", encoding="utf-8") as fh:
         fh.write("x_m,y_m,v\n")
