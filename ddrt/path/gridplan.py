@@ -7,10 +7,14 @@ GRID_CORNER_CELLS of it (and half that): six cells, so each half-scale side hold
 even along a diagonal (a side of two cells reads no direction: a 135 degree corner read so
 is no corner, and the fit bends it to a 9 mm radius, crawled at the turn speed). Turns of 90
 degrees and more turn in place at their cell's centre, a leg that runs straight into one held
-along its run; staircases and 45 degree steps are smoothed (condition.py). A bend the fit still makes tighter than a cell's radius is turned in
-place too (`tight_bends`): at the turn speed's bounded yaw acceleration any turn takes at
-least sqrt(4 |turn| / accel) seconds (2.1 s for 90 degrees), a turn in place a stop and about
-half a second.
+along its run; staircases and 45 degree steps are smoothed (condition.py). A bend the fit
+still makes tighter than GRID_TIGHT_CELLS cells of radius is turned in place too
+(`tight_bends`): at the turn speed's bounded yaw acceleration any smoothed turn takes at least
+sqrt(4 |turn| / accel) seconds (2.1 s for 90 degrees) and a bend that tight is taken well
+below the asked speed, while a turn in place is a stop and about half a second. Five cells
+is what measured fastest over the fuzzed plans (tests/support/path_inputs.py grid_fuzz_plan,
+seeds 11-14, 150 each, within 1.3 x length / speed + 3 s): 1 cell 525 of 600, 5 cells 558,
+8 cells 545 (wider bends turned in place stop more often than they save).
 """
 
 from __future__ import annotations
@@ -28,7 +32,7 @@ __all__ = ["GRID_PIVOT_DEG", "corner_pin", "grid_axis", "grid_cell", "grid_corne
 GRID_PIVOT_DEG = 67.5  # in a grid plan, turns of 90 degrees and more (90, 135, 180) pivot
 GRID_CORNER_CELLS = 6.0  # a grid plan's corner scale: each half-scale side holds 3 cells even diagonally
 GRID_CORNER_APART_CELLS = 2.0  # a grid plan's corners at least this far apart (cells)
-GRID_TIGHT_CELLS = 1.0  # a grid plan's fit bending tighter than this radius (cells) turns in place there
+GRID_TIGHT_CELLS = 5.0  # a grid plan's fit bending tighter than this radius (cells) turns in place there
 
 
 def grid_cell(p: np.ndarray) -> float | None:
@@ -85,7 +89,7 @@ def steps_back(p: np.ndarray) -> list[int]:
 def tight_bends(geo: Geometry, sig: np.ndarray | None, cell: float, corners: Sequence[int]) -> list[int]:
     """A grid plan's points nearest to where the fit bends tighter than GRID_TIGHT_CELLS cells of
     radius (the sharpest point of each such bend; not already a corner): a turn that sharp is
-    slower driven than turned in place (it is taken at a crawl, turnspeed.py)."""
+    slower driven than turned in place (turnspeed.py slows it well below the asked speed)."""
     s0 = 0.0
     found: list[int] = []
     assert sig is not None  # each point's progress on the reference
