@@ -91,12 +91,25 @@ def test_many_fuzzed_grid_plans_stay_in_their_cells_and_bend_no_tighter_than_a_c
     _check_shape(_fuzz(20264, 400))
 
 
-@pytest.mark.xfail(strict=True, reason="a smoothed bend is taken at one speed whose RMS yaw acceleration over "
-                   "it is 1.4 rad/s^2 (ddrt/path/turnspeed.py), so it lasts at least sqrt(4 |turn| / 1.4) s "
-                   "(1.7 s for 60 degrees): 75 of 600 fuzzed plans exceed 1.3 x length / speed + 3 s "
-                   "(docs/BENCHMARKS.md, grid plans)")
-def test_fuzzed_grid_plans_take_at_most_1_3_x_length_over_speed_plus_3_s() -> None:
-    plans = _fuzz(20263, 40)
-    slow = [(kind, round(cell, 3), round(p.duration / (p.length / pg.GRID_FUZZ_SPEED), 2))
+def _slow(plans: list[tuple[str, float, np.ndarray, Path]]) -> list[tuple[str, float, float]]:
+    return [(kind, round(cell, 3), round(p.duration / (p.length / pg.GRID_FUZZ_SPEED), 2))
             for kind, cell, _, p in plans if not _within_bound(p, pg.GRID_FUZZ_SPEED)]
+
+
+def test_fuzzed_grid_plans_mostly_hold_1_3_x_length_over_speed_plus_3_s() -> None:
+    """Bends tighter than five cells turned in place: 34 of these 40 within the bound (31 when
+    only bends tighter than one cell are)."""
+    slow = _slow(_fuzz(20263, 40))
+    assert len(slow) <= 6, slow
+
+
+@pytest.mark.xfail(strict=True, reason="plans with many turns for their length: every turn of 30 degrees or more "
+                   "costs 0.8-1.1 s beyond length / speed (the median over all plans and over the misses), smoothed "
+                   "(one speed per turn, RMS yaw acceleration 1.4 rad/s^2, ddrt/path/turnspeed.py: at least "
+                   "sqrt(4 |turn| / 1.4) s) or in place (a stop, the turn, a start), against the bound's "
+                   "0.3 x length / speed + 3 s; 47 of 600 fuzzed plans exceed it (2.2 such turns a metre at the "
+                   "median, 0.8 for the rest): 23 of the 79 with cells under 3 cm, 22 of 143 with 3-5 cm, 2 of 378 "
+                   "with 5 cm and more (docs/BENCHMARKS.md, grid plans)")
+def test_fuzzed_grid_plans_take_at_most_1_3_x_length_over_speed_plus_3_s() -> None:
+    slow = _slow(_fuzz(20263, 40))
     assert not slow, slow

@@ -15,9 +15,10 @@ A CSV or `points:` list arrives as a polyline. Three kinds are told apart (`clas
   of the lines through six cells either side, and three, turns by more than GRID_PIVOT_DEG
   (90, 135 and 180 degree turns), the plan turns in place at that cell's centre; corners may
   lie two cells apart. Staircases and 45 degree steps are smoothed within the cells. A turn
-  the fit still bends tighter than a cell's radius is turned in place at its sharpest point
-  too: the smoothed turns get one speed cap each that bounds the RMS of v^2 dkappa/ds over it
-  (ddrt/path/turnspeed.py), so a turn that tight is crawled (a 135 degree corner bent to 9 mm
+  the fit still bends tighter than five cells' radius by 40 degrees or more (or tighter than a
+  cell at all) is turned in place at its sharpest point too: the smoothed turns get one speed
+  cap each that bounds the RMS of v^2 dkappa/ds over it (ddrt/path/turnspeed.py), so a turn
+  that tight is crawled (a 135 degree corner bent to 9 mm
   doubles a whole plan's time), while a turn in place costs a stop and about half a second.
 - **samples**: anything denser. The points are samples of a curve with noise (a recording,
   a planner's output, an exported curve). The reference is a smoothing spline through them
@@ -503,7 +504,7 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: GeometryOp
     nz = _noise(p, cell) if noise is None else max(noise, NOISE_FLOOR_M)
     tol = resolve_tolerance(given, nz, len(p))
     forced = steps_back(p) if mode == GRID else []
-    tight: list[int] = []  # a grid plan's points where the fit bent tighter than a cell: turned in place
+    tight: list[int] = []  # a grid plan's points where the fit bent too tight (gridplan.tight_bends): turned in place
     widened = 0
     for attempt in range(MAX_REPLANS):
         info = Conditioning(mode, tol, p, names, noise_m=nz, grid_cell_m=cell, spacing_m=spacing,

@@ -7,10 +7,18 @@ GRID_CORNER_CELLS of it (and half that): six cells, so each half-scale side hold
 even along a diagonal (a side of two cells reads no direction: a 135 degree corner read so
 is no corner, and the fit bends it to a 9 mm radius, crawled at the turn speed). Turns of 90
 degrees and more turn in place at their cell's centre, a leg that runs straight into one held
-along its run; staircases and 45 degree steps are smoothed (condition.py). A bend the fit still makes tighter than a cell's radius is turned in
-place too (`tight_bends`): at the turn speed's bounded yaw acceleration any turn takes at
-least sqrt(4 |turn| / accel) seconds (2.1 s for 90 degrees), a turn in place a stop and about
-half a second.
+along its run; staircases and 45 degree steps are smoothed (condition.py). A bend the fit
+still makes tighter than GRID_TIGHT_CELLS cells of radius while turning GRID_TIGHT_TURN_DEG or
+more there, or tighter than one cell at all, is turned in place too (`tight_bends`; a smaller
+wiggle is cheaper driven than stopped for, and the sharp turns of a plan's 45 degree steps
+stay smoothed): at the turn speed's bounded yaw acceleration any smoothed turn takes at least
+sqrt(4 |turn| / accel) seconds (2.1 s for 90 degrees) and a bend that tight is taken well
+below the asked speed, while a turn in place is a stop and about half a second. Five cells
+is what measured fastest over the fuzzed plans (tests/support/path_inputs.py grid_fuzz_plan,
+seeds 11-14, 150 each, within 1.3 x length / speed + 3 s): 1 cell 525 of 600, 5 cells 558,
+8 cells 545 (wider bends turned in place stop more often than they save); 5 cells where the
+bend turns 40 degrees or more, 553 (the turns of 10-15 degrees that the plain rule stopped for
+belong to 45 degree steps, which are driven).
 """
 
 from __future__ import annotations
@@ -28,7 +36,8 @@ __all__ = ["GRID_PIVOT_DEG", "corner_pin", "grid_axis", "grid_cell", "grid_corne
 GRID_PIVOT_DEG = 67.5  # in a grid plan, turns of 90 degrees and more (90, 135, 180) pivot
 GRID_CORNER_CELLS = 6.0  # a grid plan's corner scale: each half-scale side holds 3 cells even diagonally
 GRID_CORNER_APART_CELLS = 2.0  # a grid plan's corners at least this far apart (cells)
-GRID_TIGHT_CELLS = 1.0  # a grid plan's fit bending tighter than this radius (cells) turns in place there
+GRID_TIGHT_CELLS = 5.0  # a grid plan's fit bending tighter than this radius (cells) turns in place there
+GRID_TIGHT_TURN_DEG = 40.0  # if it turns by this much within that radius (or bends tighter than one cell)
 
 
 def grid_cell(p: np.ndarray) -> float | None:
@@ -84,8 +93,9 @@ def steps_back(p: np.ndarray) -> list[int]:
 
 def tight_bends(geo: Geometry, sig: np.ndarray | None, cell: float, corners: Sequence[int]) -> list[int]:
     """A grid plan's points nearest to where the fit bends tighter than GRID_TIGHT_CELLS cells of
-    radius (the sharpest point of each such bend; not already a corner): a turn that sharp is
-    slower driven than turned in place (it is taken at a crawl, turnspeed.py)."""
+    radius by GRID_TIGHT_TURN_DEG or more, or tighter than one cell at all (the sharpest point of
+    each such bend; not already a corner; a small wiggle is cheaper driven than stopped for): a turn that sharp is
+    slower driven than turned in place (turnspeed.py slows it well below the asked speed)."""
     s0 = 0.0
     found: list[int] = []
     assert sig is not None  # each point's progress on the reference
@@ -95,7 +105,8 @@ def tight_bends(geo: Geometry, sig: np.ndarray | None, cell: float, corners: Seq
             over = k > 1.0 / (GRID_TIGHT_CELLS * cell)
             edges = np.flatnonzero(np.diff(over.astype(np.int8))) + 1
             for a, b in zip(np.concatenate(([0], edges)).tolist(), np.concatenate((edges, [len(k)])).tolist()):
-                if over[a]:
+                turn = abs(float(np.sum(pc.kappa[a:b - 1] * np.diff(pc.s[a:b])))) if b - a > 1 else 0.0
+                if over[a] and (turn >= math.radians(GRID_TIGHT_TURN_DEG) or k[a:b].max() > 1.0 / cell):
                     at = s0 + float(pc.s[a + int(np.argmax(k[a:b]))])
                     i = int(np.argmin(np.abs(sig - at)))
                     if 0 < i < len(sig) - 1 and i not in corners and i not in found:
