@@ -217,10 +217,9 @@ class Power:
             raise ValueError(self.reason)
         self.stopped_ref = None
 
-    def check_reset(self) -> None:
-        """ValueError while the hardware estop input is open."""
-        if self.hw_estop:
-            raise ValueError(f"{HW_ESTOP_REASON}: close it (release the button), then reset")
+    def reset_guard(self) -> str:
+        """Why a reset is refused now (the hardware estop input is open), or ''."""
+        return f"{HW_ESTOP_REASON}: close it (release the button), then reset" if self.hw_estop else ""
 
     def resumable(self, ref: Reference | None) -> bool:
         """`ref` was stopped by a low battery (and may now be resumed from where it stopped)."""
