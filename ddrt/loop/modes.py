@@ -23,7 +23,7 @@ from typing import Callable, Protocol
 from ddrt.errors import DdrtError
 from ddrt.loop.states import LoopState
 
-__all__ = ["Event", "ModeMachine", "ModeRefused", "Transition", "TRANSITIONS", "modes_md", "refusal"]
+__all__ = ["Event", "ModeMachine", "ModeRefused", "Transition", "TRANSITIONS", "modes_md", "refusal", "row"]
 
 IDLE, FOLLOWING, STOPPING, STOPPED = LoopState.IDLE, LoopState.FOLLOWING, LoopState.STOPPING, LoopState.STOPPED
 ESTOP, FAULT, HOLDING, DRIVING = LoopState.ESTOP, LoopState.FAULT, LoopState.HOLDING, LoopState.DRIVING
@@ -156,7 +156,7 @@ QUIET = frozenset({Event.STOP, Event.RELOAD, Event.FAULT, Event.ESTOP, Event.RES
 _ADVICE: dict[LoopState, str] = {
     ESTOP: "send reset first",
     FAULT: "send reset first",
-    HOLDING: "holding after a sensor gap: wait until it ends (or stop)",
+    HOLDING: "a sensor gap: wait until the hold ends (or stop)",
     FOLLOWING: "send stop first",
     STOPPING: "send stop first",
     DRIVING: "send stop first, and follow once status says 'stopped'",
@@ -169,6 +169,7 @@ _EVENT_ADVICE: dict[tuple[Event, LoopState], str] = {
     (Event.DRIVE, FOLLOWING): "a drive does not take over a path; send stop, and drive once status says 'stopped'",
     (Event.DRIVE, STOPPING): "a drive does not take over a path; drive once status says 'stopped'",
     (Event.CALIBRATE, DRIVING): "send stop first",
+    (Event.CALIBRATE, STOPPING): "wait until status says 'stopped'",
     **{(Event.RESUME, s): NOTHING_TO_RESUME for s in ALL if s not in (ESTOP, FAULT, HOLDING)},
 }
 
@@ -177,6 +178,11 @@ for _t in TRANSITIONS:
     for _s in _t.sources:
         assert (_t.event, _s) not in _TABLE, f"two rows for {_t.event} in {_s}"
         _TABLE[(_t.event, _s)] = _t
+
+
+def row(event: Event, state: LoopState) -> Transition | None:
+    """The table's row for `event` in `state`, or None."""
+    return _TABLE.get((event, state))
 
 
 def refusal(event: Event, state: LoopState, why: str = "") -> str:
@@ -252,12 +258,13 @@ def modes_md() -> str:
         "A request with no row for the loop's state is refused, and the loop changes nothing; the",
         "reply names the request and the state, for example `follow refused in estop: send reset first`.",
         f"These never are: {', '.join(f'`{e}`' for e in Event if e in QUIET)}; with no row, they change nothing.",
+        "The tick's own events (`arrive`, `hold`, `recover`, `hold_stopped`) fire only where a row allows them.",
         "",
         "| request | refused in | advice |",
         "|---|---|---|",
     ]
     for event in (Event.FOLLOW, Event.DRIVE, Event.RESUME, Event.CALIBRATE):
         for s in LoopState:
-            if (event, s) not in _TABLE:
+            if row(event, s) is None:
                 lines.append(f"| `{event}` | `{s.label}` | {refusal(event, s).split(': ', 1)[1]} |")
     return "\n".join(lines) + "\n"
