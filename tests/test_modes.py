@@ -73,6 +73,7 @@ class _Host(ModeMachine):
     """The least a machine needs: guards that say what the test sets, a count of zeroings."""
 
     def __init__(self, why: str = "") -> None:
+        super().__init__()
         self.why = why
         self.zeroed = 0
 

@@ -194,7 +194,8 @@ def refusal(event: Event, state: LoopState, why: str = "") -> str:
 class ModeMachine:
     """The state and the one place that changes it, by the table. `ControlLoop` is one."""
 
-    state: LoopState = IDLE
+    def __init__(self) -> None:
+        self.state = IDLE
 
     def allow(self: ModeHost, event: Event) -> Transition | None:
         """The transition `event` takes now; None for a quiet event with no row here;

@@ -210,11 +210,13 @@ class Power:
 
     # ------------------------------------------------------------------ commands
 
-    def check_start(self) -> None:
-        """ValueError while a low battery keeps the robot still; else the robot moves again
-        (what the low battery stopped is no longer resumable)."""
-        if self.reason:
-            raise ValueError(self.reason)
+    def start_guard(self) -> str:
+        """Why the robot may not start moving now (a low battery), or ''."""
+        return self.reason
+
+    def started(self) -> None:
+        """The robot moves again (the mode machine allowed it): what the low battery stopped is
+        no longer resumable."""
         self.stopped_ref = None
 
     def reset_guard(self) -> str:

@@ -48,7 +48,7 @@ AT_REST_W = 5e-3
 
 # The states the tick tests every tick, as module names: on Python 3.11 a member looked up on
 # its Enum class costs about 0.1 us, five times a module global.
-FOLLOWING, STOPPING, STOPPED = LoopState.FOLLOWING, LoopState.STOPPING, LoopState.STOPPED
+FOLLOWING, STOPPED = LoopState.FOLLOWING, LoopState.STOPPED
 ESTOP, FAULT, HOLDING, DRIVING = LoopState.ESTOP, LoopState.FAULT, LoopState.HOLDING, LoopState.DRIVING
 
 
@@ -66,6 +66,7 @@ class ControlLoop(ModeMachine):
     only by its mode machine's table (ddrt/loop/modes.py)."""
 
     def __init__(self, cfg: Config, hal: Hal) -> None:
+        super().__init__()  # the mode machine: idle
         self.cfg = cfg
         self.hal = hal
         self.period = 1.0 / cfg.controller.rate_hz
@@ -82,7 +83,7 @@ class ControlLoop(ModeMachine):
         self.setpoint = Setpoint()
         self.idle_cmd = Command()
         self.cmd = self.idle_cmd
-        self.fault = ""  # the state is the mode machine's, IDLE to begin with
+        self.fault = ""
         self.ticks = 0
         self.saturated_ticks = 0
         self._starting = False
@@ -211,14 +212,14 @@ class ControlLoop(ModeMachine):
             why = self._off_path(x, y, start.x, start.y)
             if why:
                 raise StartTooFar(f"the path's start is {why}: move the robot or the path")
-        self.power.check_start()  # moving again: what a low battery stopped is no longer resumable
+        self.power.started()
         return t
 
     # The table's guards (ddrt/loop/modes.py): why a change is refused now, or ''.
 
     def start_guard(self) -> str:
         """A low battery keeps the robot still."""
-        return self.power.reason
+        return self.power.start_guard()
 
     def drive_guard(self) -> str:
         if self.cfg.controller.mode == "seed":
@@ -265,7 +266,7 @@ class ControlLoop(ModeMachine):
         path, estop, fault, a low battery)."""
         v_lim, w_lim, clamped = check_command(v, omega, self.drive_limits())
         t = self.allow(Event.DRIVE)
-        self.power.check_start()
+        self.power.started()
         ref = self.reference
         if self.state != DRIVING or not isinstance(ref, DriveReference):
             d = self.cfg
@@ -293,7 +294,7 @@ class ControlLoop(ModeMachine):
         """Resume an interrupted path from where the robot stands (after a hold ended
         stopped, with daemon.on_recover: wait)."""
         t = self.allow(Event.RESUME)
-        self.power.check_start()
+        self.power.started()
         assert self.reference is not None  # the guard saw to it
         self.resume_reference(self.reference, t)
 
@@ -313,8 +314,8 @@ class ControlLoop(ModeMachine):
         self.fault = reason
 
     def reset(self) -> None:
-        """Leave estop/fault: back to idle, motors still at zero (ValueError while the
-        hardware estop input is open: ModeRefused)."""
+        """Leave estop/fault (or whatever runs): back to idle, motors at zero; ModeRefused while
+        the hardware estop input is open."""
         t = self.allow(Event.RESET)  # the motors go to zero on entering idle
         self.controller.reset()
         self._take_deferred_limits()
