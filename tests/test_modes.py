@@ -17,7 +17,7 @@ from ddrt.path import load_path
 from ddrt.path.spec import speed_limits
 from tests.support.drive_rigs import DaemonRig, Robot
 
-REQUESTS = (Event.FOLLOW, Event.DRIVE, Event.RESUME, Event.CALIBRATE)
+REQUESTS = (Event.FOLLOW, Event.DRIVE, Event.RESUME, Event.POSE, Event.CALIBRATE)
 STATE_COL = list(COLUMNS).index("state")
 
 

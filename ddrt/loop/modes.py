@@ -45,6 +45,7 @@ class Event(Enum):
     STOP = "stop"  # a controlled stop: along the path, by the drive's ramp, or a hold's end
     RESUME = "resume"  # an interrupted path resumes from where the robot stands
     CALIBRATE = "calibrate"  # the gyro's bias measured at rest
+    POSE = "pose"  # "the robot is here": the estimator's pose set
     RELOAD = "reload"  # a new config put in force between two ticks
     ARRIVE = "arrive"  # the reference is done and the robot at rest
     HOLD = "hold"  # a transient sensor fault while moving (ddrt/loop/hold.py)
@@ -131,6 +132,7 @@ TRANSITIONS: tuple[Transition, ...] = (
     Transition(Event.RESUME, (STOPPED,), FOLLOWING, "resume an interrupted path from where the robot stands",
                _resume, None, "a path a hold or a low battery interrupted; " + BATTERY),
     Transition(Event.CALIBRATE, AT_REST, None, "measure the gyro's bias with the motors at zero"),
+    Transition(Event.POSE, (IDLE, STOPPED, ESTOP, FAULT), None, "set the estimator's pose, the robot at rest"),
     Transition(Event.RELOAD, ALL, None, "a new config in force between two ticks"),
     Transition(Event.ARRIVE, (FOLLOWING, STOPPING, DRIVING), STOPPED, "the reference is done, the robot at rest",
                None, _zero, "", ZERO),
@@ -170,6 +172,8 @@ _EVENT_ADVICE: dict[tuple[Event, LoopState], str] = {
     (Event.DRIVE, STOPPING): "a drive does not take over a path; drive once status says 'stopped'",
     (Event.CALIBRATE, DRIVING): "send stop first",
     (Event.CALIBRATE, STOPPING): "wait until status says 'stopped'",
+    **{(Event.POSE, s): ("send stop, and set the pose once status says 'stopped' (or send the measured pose "
+                         "as a pose_fix)") for s in (FOLLOWING, STOPPING, DRIVING, HOLDING)},
     **{(Event.RESUME, s): NOTHING_TO_RESUME for s in ALL if s not in (ESTOP, FAULT, HOLDING)},
 }
 
@@ -264,7 +268,7 @@ def modes_md() -> str:
         "| request | refused in | advice |",
         "|---|---|---|",
     ]
-    for event in (Event.FOLLOW, Event.DRIVE, Event.RESUME, Event.CALIBRATE):
+    for event in (Event.FOLLOW, Event.DRIVE, Event.RESUME, Event.POSE, Event.CALIBRATE):
         for s in LoopState:
             if row(event, s) is None:
                 lines.append(f"| `{event}` | `{s.label}` | {refusal(event, s).split(': ', 1)[1]} |")
