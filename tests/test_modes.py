@@ -11,7 +11,7 @@ from typing import Any, Callable
 import pytest
 
 from ddrt.loop import ControlLoop, Event, LoopState, ModeRefused
-from ddrt.loop.modes import QUIET, TRANSITIONS, ModeMachine, modes_md, refusal, row
+from ddrt.loop.modes import QUIET, TRANSITIONS, ModeMachine, modes_md, refusal, refused_in, row
 from ddrt.loop.record import COLUMNS
 from ddrt.path import load_path
 from ddrt.path.spec import speed_limits
@@ -183,3 +183,17 @@ def test_over_the_socket_a_refusal_is_the_machines_one_message(tmp_path: Any) ->
         assert d.handle(req) == {"ok": False, "error": msg}
         assert d.loop.state is LoopState.ESTOP and d.loop.reference is None
     assert d.handle({"cmd": "reset"}) == {"ok": True, "state": "idle"}
+
+
+def test_refused_in_is_what_the_machine_says_without_its_guards() -> None:
+    """The service's early check (before it prepares a path) and the machine agree, state by state."""
+    for event in Event:
+        for state in LoopState:
+            h = _Host()
+            h.state = state  # a test's stand-in for a loop in that state
+            try:
+                h.allow(event)
+                said = ""
+            except ModeRefused as exc:
+                said = str(exc)
+            assert refused_in(event, state) == said, (event, state)

@@ -18,12 +18,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import Enum
-from typing import Callable, Protocol
+from typing import Callable
 
 from ddrt.errors import DdrtError
 from ddrt.loop.states import LoopState
 
-__all__ = ["Event", "ModeMachine", "ModeRefused", "Transition", "TRANSITIONS", "modes_md", "refusal", "row"]
+__all__ = ["Event", "ModeMachine", "ModeRefused", "Transition", "TRANSITIONS", "modes_md", "refusal", "refused_in", "row"]
 
 IDLE, FOLLOWING, STOPPING, STOPPED = LoopState.IDLE, LoopState.FOLLOWING, LoopState.STOPPING, LoopState.STOPPED
 ESTOP, FAULT, HOLDING, DRIVING = LoopState.ESTOP, LoopState.FAULT, LoopState.HOLDING, LoopState.DRIVING
@@ -60,43 +60,27 @@ class Event(Enum):
         return self.value
 
 
-class ModeHost(Protocol):
-    """What the table's guards and entry actions use of the machine's owner (`ControlLoop`)."""
-
-    state: LoopState
-
-    def zero_motors(self) -> None: ...
-
-    def start_guard(self) -> str: ...
-
-    def resume_guard(self) -> str: ...
-
-    def drive_guard(self) -> str: ...
-
-    def reset_guard(self) -> str: ...
+Guard = Callable[["ModeMachine"], str]  # why the change is refused now, or ''
+Action = Callable[["ModeMachine"], None]
 
 
-Guard = Callable[[ModeHost], str]  # why the change is refused now, or ''
-Action = Callable[[ModeHost], None]
-
-
-def _zero(host: ModeHost) -> None:
+def _zero(host: ModeMachine) -> None:
     host.zero_motors()
 
 
-def _start(host: ModeHost) -> str:
+def _start(host: ModeMachine) -> str:
     return host.start_guard()
 
 
-def _resume(host: ModeHost) -> str:
+def _resume(host: ModeMachine) -> str:
     return host.resume_guard() or host.start_guard()
 
 
-def _drive(host: ModeHost) -> str:
+def _drive(host: ModeMachine) -> str:
     return host.drive_guard() or host.start_guard()
 
 
-def _reset(host: ModeHost) -> str:
+def _reset(host: ModeMachine) -> str:
     return host.reset_guard()
 
 
@@ -189,6 +173,14 @@ def row(event: Event, state: LoopState) -> Transition | None:
     return _TABLE.get((event, state))
 
 
+def refused_in(event: Event, state: LoopState) -> str:
+    """The refusal of `event` in `state` by the table's rows alone, or '' (its guard is asked
+    when it fires): a service refuses a request before it prepares anything for it."""
+    if _TABLE.get((event, state)) is not None or event in QUIET:
+        return ""
+    return refusal(event, state)
+
+
 def refusal(event: Event, state: LoopState, why: str = "") -> str:
     """The one message of a refused request: the request, the state, and what to do."""
     advice = why or _EVENT_ADVICE.get((event, state)) or _ADVICE[state]
@@ -196,12 +188,33 @@ def refusal(event: Event, state: LoopState, why: str = "") -> str:
 
 
 class ModeMachine:
-    """The state and the one place that changes it, by the table. `ControlLoop` is one."""
+    """The state and the one place that changes it, by the table. `ControlLoop` is one, and
+    gives the table's guards and entry action what they ask (the methods below)."""
 
     def __init__(self) -> None:
         self.state = IDLE
 
-    def allow(self: ModeHost, event: Event) -> Transition | None:
+    def zero_motors(self) -> None:
+        """The entry action into rest, estop and fault."""
+        raise NotImplementedError
+
+    def start_guard(self) -> str:
+        """Why the robot may not start moving now, or ''."""
+        raise NotImplementedError
+
+    def drive_guard(self) -> str:
+        """Why the velocity mode is refused (by the config), or ''."""
+        raise NotImplementedError
+
+    def resume_guard(self) -> str:
+        """Why there is nothing to resume, or ''."""
+        raise NotImplementedError
+
+    def reset_guard(self) -> str:
+        """Why a reset is refused now, or ''."""
+        raise NotImplementedError
+
+    def allow(self, event: Event) -> Transition | None:
         """The transition `event` takes now; None for a quiet event with no row here;
         ModeRefused (naming the request and the state) for anything else it may not do."""
         state = self.state
@@ -214,22 +227,15 @@ class ModeMachine:
             raise ModeRefused(refusal(event, state, why))
         return t
 
-    def enter(self: ModeHost, t: Transition | None) -> None:
-        """Make the transition `allow` gave: the new state, then its entry action."""
+    def enter(self, t: Transition | None) -> None:
+        """Make the transition `allow` gave (in this state): the new state, then its entry action."""
         if t is None:
             return
+        assert self.state in t.sources, f"{t.event} from {self.state}: allowed in {t.sources}"
         if t.to is not None:
             self.state = t.to
         if t.enter is not None:
             t.enter(self)
-
-    def refused(self, event: Event) -> str:
-        """Why `event` would be refused now (the message ModeRefused carries), or ''."""
-        try:
-            self.allow(event)
-        except ModeRefused as exc:
-            return str(exc)
-        return ""
 
     def fire(self, event: Event) -> None:
         """`allow` and `enter` in one: the event now, or ModeRefused."""

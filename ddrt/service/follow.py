@@ -24,6 +24,7 @@ from ddrt.service.ctlqueue import Deferred
 from ddrt.service.pathjob import Build, BuildJob, build_path, content_source, describe
 from ddrt.service.timing import select_quantiles
 from ddrt.loop import Event, ModeRefused, StartTooFar
+from ddrt.loop.modes import refused_in
 
 if TYPE_CHECKING:
     from ddrt.service.daemon import Daemon
@@ -88,12 +89,12 @@ class FollowSlot:
 def start_follow(d: Daemon, req: Request) -> dict[str, Any] | Deferred:
     """Check the request, hand the path to the worker, answer when the loop has switched.
 
-    A follow the loop's mode machine refuses now (ddrt/loop/modes.py) is refused before its
-    path is built, and so is one while another is being prepared (send stop to cancel that).
+    A follow the loop's mode machine refuses in its state (ddrt/loop/modes.py) is refused before
+    its path is built (its guard, a low battery, when the loop takes it), and so is one while another is being prepared (send stop to cancel that).
     """
     loop = d.loop
     assert loop is not None
-    if why := loop.refused(Event.FOLLOW):
+    if why := refused_in(Event.FOLLOW, loop.state):
         return {"ok": False, "error": why}
     waiting = d.follows.pending
     if waiting is not None:
