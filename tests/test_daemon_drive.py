@@ -77,5 +77,5 @@ def test_estop_during_drive_zeroes_the_motors_and_drive_waits_for_reset(dd: Daem
     assert dd.request({"cmd": "estop"}) == {"ok": True, "state": "estop"}
     assert dd.status()["duty"] == {"l": 0.0, "r": 0.0}
     reply = dd.request({"cmd": "drive", "v": 0.5, "omega": 0.0})
-    assert reply == {"ok": False, "error": "drive: cannot drive in state estop: reset first"}
+    assert reply == {"ok": False, "error": "drive refused in estop: send reset first"}
     assert dd.status()["state"] == "estop"

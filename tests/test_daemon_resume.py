@@ -25,7 +25,7 @@ def test_resume_continues_a_path_a_waiting_hold_stopped() -> None:
     try:
         d.wait_ready()
         nothing = d.request({"cmd": "resume"})
-        assert nothing["ok"] is False and "nothing to resume in state idle" in nothing["error"]
+        assert nothing["ok"] is False and "resume refused in idle: nothing to resume" in nothing["error"]
         assert d.status()["state"] == "idle"
         started = d.request({"cmd": "follow", **LINE})
         assert started["ok"] is True, started

@@ -322,7 +322,7 @@ def test_follow_while_driving_is_refused_over_handle(rig: DaemonRig) -> None:
     d = rig.d
     assert d.handle({"cmd": "drive", "v": 0.1, "omega": 0.0})["ok"]
     reply = d.handle({"cmd": "follow", **LINE})
-    assert reply == {"ok": False, "error": "already driving: send stop first"}
+    assert reply == {"ok": False, "error": "follow refused in driving: send stop first, and follow once status says 'stopped'"}
 
 
 _JUNK: list[Any] = [None, True, False, 0, -1, 1, 0.5, -0.5, 3, 1e300, -1e300, 10**30, 2**63, "1", "", "nan",

@@ -292,6 +292,56 @@ def test_the_reach_check_sees_a_private_write_and_a_private_import(tmp_path: Pat
         "ddrt/m.py: import ddrt.other._helper", "ddrt/m.py: loop._state", "ddrt/m.py: est._fuse"}
 
 
+STATE_OWNER = "ddrt/loop/modes.py"  # the loop's mode machine: the one place a loop state is assigned
+_MEMBERS = frozenset({"LoopState", "IDLE", "FOLLOWING", "STOPPING", "STOPPED", "ESTOP", "FAULT", "HOLDING",
+                      "DRIVING", "MOVING"})
+
+
+def state_writes(root: Path = REPO, folders: tuple[str, ...] = ("ddrt", "hal", "sim_hal")) -> list[str]:
+    """Each "file:line" outside the mode machine that assigns a `state` attribute a loop state
+    (a LoopState member, an alias of one, LoopState(...)), writes `state` on an object other
+    than self, or sets it with setattr: the loop's state changes only by the machine's table."""
+    out: list[str] = []
+    for folder in folders:
+        for f in sorted((root / folder).rglob("*.py")):
+            rel = f.relative_to(root).as_posix()
+            if rel == STATE_OWNER:
+                continue
+            for node in ast.walk(ast.parse(f.read_text(encoding="utf-8"))):
+                if isinstance(node, (ast.Assign, ast.AugAssign, ast.AnnAssign)):
+                    targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+                    flat = [e for t in targets for e in (t.elts if isinstance(t, ast.Tuple) else [t])]
+                    for t in flat:
+                        if not (isinstance(t, ast.Attribute) and t.attr == "state"):
+                            continue
+                        on_self = isinstance(t.value, ast.Name) and t.value.id == "self"
+                        loopish = node.value is not None and any(
+                            isinstance(n, ast.Name) and n.id in _MEMBERS for n in ast.walk(node.value))
+                        if not on_self or loopish:
+                            out.append(f"{rel}:{node.lineno}")
+                elif (isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "setattr"
+                      and len(node.args) >= 2 and isinstance(node.args[1], ast.Constant)
+                      and node.args[1].value == "state"):
+                    out.append(f"{rel}:{node.lineno}")
+    return out
+
+
+def test_only_the_mode_machine_assigns_the_loops_state() -> None:
+    assert state_writes() == [], f"a loop state is assigned outside {STATE_OWNER}: fire an Event instead"
+
+
+def test_the_state_write_check_sees_each_way_of_assigning_a_state(tmp_path: Path) -> None:
+    (tmp_path / "ddrt" / "loop").mkdir(parents=True)
+    (tmp_path / "ddrt" / "m.py").write_text(
+        "from ddrt.loop.states import LoopState\nFOLLOWING = LoopState.FOLLOWING\n\n"
+        "class A:\n    def go(self, loop, other):\n        self.state = 'ok'\n"
+        "        self.state = LoopState.IDLE\n        loop.state = FOLLOWING\n"
+        "        other.state = 3\n        setattr(loop, 'state', 0)\n        self.state = LoopState(2)\n")
+    (tmp_path / "ddrt" / "loop" / "modes.py").write_text("class M:\n    def enter(self, t):\n        self.state = t.to\n")
+    # line 6 (a state of self that is no loop state) and the machine's own write are not found
+    assert sorted(state_writes(tmp_path, ("ddrt",))) == [f"ddrt/m.py:{n}" for n in (10, 11, 7, 8, 9)]
+
+
 def project_exceptions(root: Path = REPO, folders: tuple[str, ...] = ("ddrt", "hal", "sim_hal"),
                        ) -> tuple[list[type[BaseException]], list[str]]:
     """Every exception class defined in the folders' modules (each imported), and the modules

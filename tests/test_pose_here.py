@@ -60,7 +60,7 @@ def test_bad_pose_requests_change_nothing(idle: DaemonProc, payload: dict[str, A
 def test_pose_is_refused_while_driving(idle: DaemonProc) -> None:
     assert idle.request({"cmd": "drive", "v": 0.05, "omega": 0.0})["ok"] is True
     reply = idle.request({"cmd": "pose", "pose": [3.0, 3.0, 0.0]})
-    assert reply["ok"] is False and "refused while driving" in reply["error"]
+    assert reply["ok"] is False and reply["error"].startswith("pose refused in driving: send stop")
     assert math.hypot(*pose_of(idle)[:2]) < 0.5
     idle.request({"cmd": "stop"})
 

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Callable, Protocol
 from ddrt.config import Config
 from ddrt.core.estimator import EstimatorHealth
 from ddrt.core.types import Sample
+from ddrt.loop.modes import Event
 from ddrt.loop.states import LoopState
 
 if TYPE_CHECKING:
@@ -246,7 +247,7 @@ class HoldMachine:
         if why := self.begin(cause, t, stall, loop.state, max(est.blind_s, est.gap_s)):
             loop.enter_fault(why)
             return
-        loop.state = LoopState.HOLDING
+        loop.fire(Event.HOLD)
         if not self.braking:
             loop.zero_motors()
         elif loop.reference is not None:
@@ -291,8 +292,7 @@ class HoldMachine:
             log.info("hold ended (%s): resuming the path at %.3f m", h.cause, ref.sigma)
         else:
             self.end(resumed=False)
-            loop.zero_motors()
-            loop.state = LoopState.STOPPED
+            loop.fire(Event.HOLD_STOPPED)  # the motors to zero
             log.info("hold ended (%s): stopped, waiting for a command", h.cause)
 
 

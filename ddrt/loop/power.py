@@ -210,17 +210,18 @@ class Power:
 
     # ------------------------------------------------------------------ commands
 
-    def check_start(self) -> None:
-        """ValueError while a low battery keeps the robot still; else the robot moves again
-        (what the low battery stopped is no longer resumable)."""
-        if self.reason:
-            raise ValueError(self.reason)
+    def start_guard(self) -> str:
+        """Why the robot may not start moving now (a low battery), or ''."""
+        return self.reason
+
+    def started(self) -> None:
+        """The robot moves again (the mode machine allowed it): what the low battery stopped is
+        no longer resumable."""
         self.stopped_ref = None
 
-    def check_reset(self) -> None:
-        """ValueError while the hardware estop input is open."""
-        if self.hw_estop:
-            raise ValueError(f"{HW_ESTOP_REASON}: close it (release the button), then reset")
+    def reset_guard(self) -> str:
+        """Why a reset is refused now (the hardware estop input is open), or ''."""
+        return f"{HW_ESTOP_REASON}: close it (release the button), then reset" if self.hw_estop else ""
 
     def resumable(self, ref: Reference | None) -> bool:
         """`ref` was stopped by a low battery (and may now be resumed from where it stopped)."""

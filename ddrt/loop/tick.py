@@ -31,6 +31,7 @@ from ddrt.core.motor import Motor
 from ddrt.core.reference import Reference
 from ddrt.core.types import Setpoint
 from ddrt.loop.hold import HoldBounds, HoldMachine, RecoveryCounters
+from ddrt.loop.modes import NOTHING_TO_RESUME, Event, ModeMachine, Transition
 from ddrt.loop.power import Power
 from ddrt.loop.record import COLUMNS, fill_row
 from ddrt.loop.reload import drive_limits, reconfigure
@@ -47,7 +48,7 @@ AT_REST_W = 5e-3
 
 # The states the tick tests every tick, as module names: on Python 3.11 a member looked up on
 # its Enum class costs about 0.1 us, five times a module global.
-FOLLOWING, STOPPING, STOPPED = LoopState.FOLLOWING, LoopState.STOPPING, LoopState.STOPPED
+FOLLOWING, STOPPED = LoopState.FOLLOWING, LoopState.STOPPED
 ESTOP, FAULT, HOLDING, DRIVING = LoopState.ESTOP, LoopState.FAULT, LoopState.HOLDING, LoopState.DRIVING
 
 
@@ -60,10 +61,12 @@ def _no_stamp() -> None:
     """The tick's stage stamp outside benchmarks: nothing."""
 
 
-class ControlLoop:
-    """The controller around one HAL: calibrate, follow a path, stop safely."""
+class ControlLoop(ModeMachine):
+    """The controller around one HAL: calibrate, follow a path, stop safely. Its state changes
+    only by its mode machine's table (ddrt/loop/modes.py)."""
 
     def __init__(self, cfg: Config, hal: Hal) -> None:
+        super().__init__()  # the mode machine: idle
         self.cfg = cfg
         self.hal = hal
         self.period = 1.0 / cfg.controller.rate_hz
@@ -80,7 +83,6 @@ class ControlLoop:
         self.setpoint = Setpoint()
         self.idle_cmd = Command()
         self.cmd = self.idle_cmd
-        self.state = LoopState.IDLE
         self.fault = ""
         self.ticks = 0
         self.saturated_ticks = 0
@@ -110,12 +112,15 @@ class ControlLoop:
 
     def reconfigure(self, cfg: Config) -> None:
         """Put a config in force between two ticks (ddrt/loop/reload.py)."""
+        t = self.allow(Event.RELOAD)
         reconfigure(self, cfg)
+        self.enter(t)
 
     # ------------------------------------------------------------------ start-up
 
     def calibrate(self, sleep_until: Callable[[float], float], now: Callable[[], float]) -> tuple[float, float]:
         """Hold the motors at zero and measure the gyro bias at rest; returns (bias, std)."""
+        self.fire(Event.CALIBRATE)
         self.hal.stop()
         est_cfg = self.cfg.estimator
         n = max(10, int(round(est_cfg.calibration_s / self.period)))
@@ -157,7 +162,7 @@ class ControlLoop:
         a start heading more than `pursuit.max_start_heading_deg` from the robot's is turned
         to in place first (or refused, with `pursuit.start_turn: refuse`), and a start off
         the path or off its heading is joined at no more than the path's speed."""
-        self._check_start(path, pose)
+        self._check_start(path, pose)  # refused before any work
         path = self.power.fit_path(self, path)  # under the motors at the measured supply
         p = self.cfg.pursuit
         ref: PathReference | StartReference = PathReference(
@@ -181,7 +186,12 @@ class ControlLoop:
     def follow_reference(self, reference: Reference, pose: tuple[float, float, float] | None = None,
                          path: Path | None = None) -> None:
         """Start following any reference stage (calibration's turn in place is one)."""
-        self._check_start(path, pose)
+        self.enter(self._check_start(path, pose))
+        self._start_reference(reference, pose, path)
+
+    def _start_reference(self, reference: Reference, pose: tuple[float, float, float] | None,
+                         path: Path | None) -> None:
+        """Make `reference` the loop's, from rest (the caller makes the state change)."""
         if pose is not None:
             self.estimator.set_pose(pose)
         self._take_deferred_limits()
@@ -190,24 +200,43 @@ class ControlLoop:
         sp = self.setpoint
         sp.v_cap = sp.omega_cap = sp.y_cap = math.inf  # a previous start's caps end here
         self.controller.reset()
-        self.state = FOLLOWING
         self.holds.cancel()
         self._starting = True  # the robot stood still until now: a pause before this is no gap
 
-    def _check_start(self, path: Path | None, pose: tuple[float, float, float] | None) -> None:
-        if self.state in (ESTOP, FAULT):
-            raise RuntimeError(f"cannot follow a path in state {self.state}: reset first")
-        if self.state == HOLDING:
-            raise ValueError("holding after a sensor gap: wait until it ends (or stop)")
-        if self.state == DRIVING:
-            raise ValueError("driving: send stop first, and follow once status says 'stopped'")
-        self.power.check_start()
+    def _check_start(self, path: Path | None, pose: tuple[float, float, float] | None) -> Transition | None:
+        """The follow's transition, or ModeRefused; StartTooFar for a path that starts far away."""
+        t = self.allow(Event.FOLLOW)
         if path is not None:
             x, y, _ = pose if pose is not None else self.estimator_pose()
             start = path.at(0.0)
             why = self._off_path(x, y, start.x, start.y)
             if why:
                 raise StartTooFar(f"the path's start is {why}: move the robot or the path")
+        self.power.started()
+        return t
+
+    # The table's guards (ddrt/loop/modes.py): why a change is refused now, or ''.
+
+    def start_guard(self) -> str:
+        """A low battery keeps the robot still."""
+        return self.power.start_guard()
+
+    def drive_guard(self) -> str:
+        if self.cfg.controller.mode == "seed":
+            # Its weak fixed inner gains hold a speed only with the outer law's pose feedback
+            # (measured: 0.17 m/s for a 0.3 m/s command); it is there to compare paths.
+            return ("controller.mode seed (the report's method, for comparison on paths) does not "
+                    "drive: use dynamic or kinematic")
+        return ""
+
+    def resume_guard(self) -> str:
+        ref = self.reference
+        if ref is None or (ref.done and not self.power.resumable(ref)) or not ref.resumable:
+            return NOTHING_TO_RESUME
+        return ""
+
+    def reset_guard(self) -> str:
+        return self.power.reset_guard()
 
     def _off_path(self, x: float, y: float, px: float, py: float) -> str:
         """'' while (x, y) is within limits.max_path_error_m of the path point (px, py), else why."""
@@ -232,30 +261,18 @@ class ControlLoop:
         """Hold the velocities (v, omega) until the next command, a stop, or
         daemon.command_timeout_s without one (ddrt/core/drive.py); returns them as limited
         and the fields that were clamped. Changes nothing when it refuses: ValueError for a
-        value that is no plausible velocity (naming it), with controller.mode seed, and while holding, following or
-        stopping a path (a drive does not take over a path: stop it first); RuntimeError in
-        estop or fault (reset first)."""
+        value that is no plausible velocity (naming it); ModeRefused where the mode machine
+        refuses it (ddrt/loop/modes.py: controller.mode seed, holding, following or stopping a
+        path, estop, fault, a low battery)."""
         v_lim, w_lim, clamped = check_command(v, omega, self.drive_limits())
-        if self.cfg.controller.mode == "seed":
-            # Its weak fixed inner gains hold a speed only with the outer law's pose feedback
-            # (measured: 0.17 m/s for a 0.3 m/s command); it is there to compare paths.
-            raise ValueError("controller.mode seed (the report's method, for comparison on paths) does not "
-                             "drive: use dynamic or kinematic")
-        state = self.state
-        if state in (ESTOP, FAULT):
-            raise RuntimeError(f"cannot drive in state {state}: reset first")
-        if state == HOLDING:
-            raise ValueError("holding after a sensor gap: wait until it ends (or stop)")
-        self.power.check_start()
-        if state in (FOLLOWING, STOPPING):
-            raise ValueError(f"{state} a path: a drive does not take over a path; send stop, and drive once "
-                             "status says 'stopped'")
+        t = self.allow(Event.DRIVE)
+        self.power.started()
         ref = self.reference
-        if state != DRIVING or not isinstance(ref, DriveReference):
+        if self.state != DRIVING or not isinstance(ref, DriveReference):
             d = self.cfg
             ref = DriveReference(self.drive_limits(), d.drive, d.daemon.command_timeout_s, self.period)
-            self.follow_reference(ref)
-            self.state = DRIVING
+            self._start_reference(ref, None, None)
+            self.enter(t)
             log.info("driving (%s): v %.3f m/s, omega %.3f rad/s", source or "a command", v_lim, w_lim)
         ref.command(v_lim, w_lim, (float(v), float(omega)), source)  # type: ignore[arg-type]
         return v_lim, w_lim, clamped
@@ -263,62 +280,61 @@ class ControlLoop:
     def stop(self) -> None:
         """Controlled stop along the path (in a hold: end it stopped, do not resume); in
         the velocity mode, braking to rest within its limits as on a timeout."""
-        if self.state == FOLLOWING and self.reference is not None:
+        state = self.state
+        t = self.allow(Event.STOP)
+        if state == FOLLOWING and self.reference is not None:
             self.reference.request_stop(self.cfg.daemon.stop_decel)
-            self.state = STOPPING
-        elif self.state == DRIVING and self.reference is not None:
+        elif state == DRIVING and self.reference is not None:
             self.reference.request_stop(self.limits.limits.accel)
-        elif self.state == HOLDING:
+        elif state == HOLDING:
             self.holds.stop_when_over()
+        self.enter(t)
 
     def resume(self) -> None:
         """Resume an interrupted path from where the robot stands (after a hold ended
         stopped, with daemon.on_recover: wait)."""
-        ref = self.reference
-        if self.state != STOPPED or ref is None or (ref.done and not self.power.resumable(ref)) or not ref.resumable:
-            raise ValueError(f"nothing to resume in state {self.state}")
-        self.power.check_start()
-        self.resume_reference(ref)
+        t = self.allow(Event.RESUME)
+        self.power.started()
+        assert self.reference is not None  # the guard saw to it
+        self.resume_reference(self.reference, t)
 
-    def resume_reference(self, ref: Reference) -> None:
-        """Restart `ref` from where the robot stands and follow it."""
+    def resume_reference(self, ref: Reference, t: Transition | None = None) -> None:
+        """Restart `ref` from where the robot stands and follow it (by `t`, else a hold's end)."""
+        if t is None:
+            t = self.allow(Event.RECOVER)
         est = self.estimator
         ref.resume(est.x, est.y, est.theta)
         self.controller.reset()
-        self.state = FOLLOWING
+        self.enter(t)
         self._starting = True
 
     def estop(self, reason: str = "estop requested") -> None:
         """Motors to zero now, latched until reset()."""
-        self.zero_motors()
-        self.state = ESTOP
+        self.fire(Event.ESTOP)
         self.fault = reason
 
     def reset(self) -> None:
-        """Leave estop/fault: back to idle, motors still at zero (ValueError while the
-        hardware estop input is open)."""
-        self.power.check_reset()
-        self.zero_motors()
+        """Leave estop/fault (or whatever runs): back to idle, motors at zero; ModeRefused while
+        the hardware estop input is open."""
+        t = self.allow(Event.RESET)  # the motors go to zero on entering idle
         self.controller.reset()
         self._take_deferred_limits()
         self.reference = None
         self.estimator.health.fault = ""
         self.fault = ""
         self.holds.cancel()
-        self.state = LoopState.IDLE
+        self.enter(t)
 
     def shutdown(self) -> None:
         """The process is stopping: motors to zero, and a last row that shows it."""
-        self.zero_motors()
-        if self.state in (FOLLOWING, STOPPING, LoopState.IDLE, HOLDING, DRIVING):
-            self.state = STOPPED
+        self.fire(Event.SHUTDOWN)
         fill_row(self.row, self, self.sample.t if self.sample is not None else 0.0)
 
     def enter_fault(self, reason: str) -> None:
-        self.zero_motors()
-        if self.state != FAULT:
+        was = self.state
+        self.fire(Event.FAULT)
+        if was != FAULT:
             log.error("fault: %s; motors zeroed", reason)
-        self.state = FAULT
         self.fault = reason
 
     def zero_motors(self) -> None:
@@ -411,8 +427,7 @@ class ControlLoop:
             if self.state == HOLDING:
                 self.zero_motors()  # at rest at the end of the stop: the hold decides what next
                 return
-            self.state = STOPPED
-            self.zero_motors()
+            self.fire(Event.ARRIVE)
         elif not (math.isfinite(cmd.duty_l) and math.isfinite(cmd.duty_r)
                   and math.isfinite(est.x) and math.isfinite(est.y) and math.isfinite(est.theta)):
             self.enter_fault("non-finite value in the controller")

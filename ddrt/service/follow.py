@@ -23,7 +23,8 @@ from ddrt.service.commands import Request
 from ddrt.service.ctlqueue import Deferred
 from ddrt.service.pathjob import Build, BuildJob, build_path, content_source, describe
 from ddrt.service.timing import select_quantiles
-from ddrt.loop import LoopState, StartTooFar
+from ddrt.loop import Event, ModeRefused, StartTooFar
+from ddrt.loop.modes import refused_in
 
 if TYPE_CHECKING:
     from ddrt.service.daemon import Daemon
@@ -88,15 +89,13 @@ class FollowSlot:
 def start_follow(d: Daemon, req: Request) -> dict[str, Any] | Deferred:
     """Check the request, hand the path to the worker, answer when the loop has switched.
 
-    A follow while following (or while another one is being prepared) is refused: send stop
-    first.
+    A follow the loop's mode machine refuses in its state (ddrt/loop/modes.py) is refused before
+    its path is built (its guard, a low battery, when the loop takes it), and so is one while another is being prepared (send stop to cancel that).
     """
     loop = d.loop
     assert loop is not None
-    if loop.state in (LoopState.FOLLOWING, LoopState.STOPPING, LoopState.DRIVING):
-        return {"ok": False, "error": f"already {loop.state}: send stop first"}
-    if loop.state in (LoopState.ESTOP, LoopState.FAULT):
-        return {"ok": False, "error": f"in {loop.state}: send reset first"}
+    if why := refused_in(Event.FOLLOW, loop.state):
+        return {"ok": False, "error": why}
     waiting = d.follows.pending
     if waiting is not None:
         return {"ok": False, "error": f"busy: still preparing {waiting.what} "
@@ -188,16 +187,16 @@ def switch(d: Daemon, p: PendingFollow, build: Build) -> dict[str, Any]:
     path, build.path = build.path, None
     old = getattr(loop, "path", None)
     try:
-        if loop.state in (LoopState.FOLLOWING, LoopState.STOPPING, LoopState.DRIVING):
-            raise ValueError(f"already {loop.state}")
         d.audit.note(f"follow of {p.what} {p.who or 'at start-up (--follow)'}", always=False)
         loop.follow(path, p.pose)
         if p.built is not None:  # a path in map, steered in odom (ddrt/path/frame.py)
             loop.reference = in_map(loop.reference, loop.estimator.frame, p.built, d.cfg.estimator.map_blend_s,
                                     loop.period)
-    except (ValueError, RuntimeError) as exc:
+    except (ValueError, RuntimeError) as exc:  # ModeRefused among them: its message says it all
         if d.paths is not None:
             d.paths.dispose(path)
+        if isinstance(exc, ModeRefused):
+            return {"ok": False, "error": str(exc)}
         # --here moves the path to start at the robot: the other way out of a far start.
         here = (", or follow it from where the robot stands: `ddrt ctl follow FILE --here`"
                 if isinstance(exc, StartTooFar) else "")

@@ -19,7 +19,7 @@ from ddrt.service.commands import COMMANDS, Request
 from ddrt.service.ctlqueue import Deferred
 from ddrt.service.follow import cancel_follow, start_follow
 from ddrt.service.posefix import pose_cmd, pose_fix_cmd
-from ddrt.loop import LoopState
+from ddrt.loop import ModeRefused
 
 if TYPE_CHECKING:
     from ddrt.service.daemon import Daemon
@@ -54,6 +54,8 @@ def drive(d: Daemon, v: object, omega: object, source: str, channel: str = "") -
     old = loop.path
     try:
         v_lim, w_lim, clamped = loop.drive(v, omega, source)
+    except ModeRefused as exc:
+        return {"ok": False, "error": str(exc)}
     except (ValueError, RuntimeError) as exc:
         return {"ok": False, "error": f"drive: {exc}"}
     d.audit.note(f"drive {channel or 'over ' + source}", always=False)
@@ -117,9 +119,8 @@ def _resume(d: Daemon, req: Request) -> dict[str, Any]:
     try:
         loop.resume()
         d.audit.note(f"resume {who(d)}")
-    except ValueError as exc:
-        return {"ok": False, "error": f"resume: {exc} (only a path interrupted by a hold, "
-                                      "with daemon.on_recover: wait, is resumed)"}
+    except ModeRefused as exc:
+        return {"ok": False, "error": str(exc)}
     return {"ok": True, "state": loop.state.label}
 
 
@@ -128,8 +129,8 @@ def _reset(d: Daemon, req: Request) -> dict[str, Any]:
     assert loop is not None
     try:
         loop.reset()
-    except ValueError as exc:  # the hardware estop input is still open
-        return {"ok": False, "error": f"reset: {exc}"}
+    except ModeRefused as exc:  # the hardware estop input is still open
+        return {"ok": False, "error": str(exc)}
     d.audit.note(f"reset {who(d)}")
     # The pose starts again from (0, 0, 0): a path is placed in this frame (or with --here).
     loop.estimator.set_pose((0.0, 0.0, 0.0), anchored=False)  # the first fix says where map is
@@ -164,18 +165,8 @@ def _drive(d: Daemon, req: Request) -> dict[str, Any]:
     return drive(d, req.args["v"], req.args["omega"], req.origin or "control socket", req.channel or who(d))
 
 
-def _follow(d: Daemon, req: Request) -> dict[str, Any] | Deferred:
-    loop = d.loop
-    assert loop is not None
-    if loop.state == LoopState.STOPPING:
-        return {"ok": False, "error": "follow: not started: the robot is still stopping on its last path; "
-                                      "send follow again once status says 'stopped' "
-                                      "(estop stops it at once)"}
-    return start_follow(d, req)
-
-
 HANDLERS = command_table({
-    "status": _status, "follow": _follow, "drive": _drive, "stop": _stop, "resume": _resume,
+    "status": _status, "follow": start_follow, "drive": _drive, "stop": _stop, "resume": _resume,
     "estop": _estop, "reset": _reset, "gains": _gains, "reload": _reload, "pose": _pose,
     "stream": _stream, "pose_fix": _pose_fix, "version": _version,
 }, COMMANDS)

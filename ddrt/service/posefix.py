@@ -20,7 +20,8 @@ from typing import TYPE_CHECKING, Any
 
 from ddrt.core.pose_fix import FixError, parse_cov, parse_fix
 from ddrt.core.wrap import wrap_angle
-from ddrt.loop import LoopState
+from ddrt.loop import Event
+from ddrt.loop.modes import refused_in
 from ddrt.service.commands import Request, ctl_number
 
 if TYPE_CHECKING:
@@ -41,9 +42,8 @@ def pose_cmd(d: Daemon, req: Request, who: str) -> dict[str, Any]:
             cov = parse_cov(req.args["cov"])
         except FixError as exc:
             return {"ok": False, "error": f"pose: {exc}"}
-    if loop.state in (LoopState.FOLLOWING, LoopState.STOPPING, LoopState.DRIVING, LoopState.HOLDING):
-        return {"ok": False, "error": f"pose: refused while {loop.state}: send stop, and set the pose once "
-                                      "status says 'stopped' (or send the measured pose as a pose_fix)"}
+    if why := refused_in(Event.POSE, loop.state):  # the mode machine's (ddrt/loop/modes.py)
+        return {"ok": False, "error": why}
     if d.follows.busy_text():
         return {"ok": False, "error": f"pose: refused while preparing {d.follows.busy_text()} to follow: "
                                       "send stop to cancel it"}
