@@ -213,6 +213,35 @@ def adaptation_verdict(pairs: list[tuple[Run, Run]]) -> str:
                                 for a, b in worse[:8]) + ")" if worse else "") + ".")
 
 
+def rerun(robot: str, path: str, sim_seeds: Sequence[int], harsh: bool = False) -> dict[str, list[Run]]:
+    """One robot's run on `path` with adaptation off and on, at each of `sim_seeds`: how much of
+    a difference between the two is the plant's noise (the campaign runs each once)."""
+    drawn = {r.name: r for r in population(ROBOTS)}
+    if robot not in drawn or path not in PATHS:
+        raise ValueError(f"--rerun: expected ROBOT/PATH with ROBOT r00..r{ROBOTS - 1:02d} and PATH of "
+                         f"{', '.join(PATHS)}, got {robot}/{path}")
+    from ddrt.path.spec import resolve_path
+    from ddrt.simrun.runner import run_sim
+
+    out: dict[str, list[Run]] = {}
+    for variant in ("dynamic", "dynamic+adapt"):
+        runs = []
+        for seed in sim_seeds:
+            cfg = config_of(drawn[robot], path, variant)
+            cfg = dataclasses.replace(cfg, sim=dataclasses.replace(cfg.sim, seed=seed))
+            if harsh:
+                keys = harsh_sections(robot)
+                sim = dataclasses.replace(cfg.sim, gyro=dataclasses.replace(cfg.sim.gyro, **keys["sim"]["gyro"]),
+                                          actuators=ActuatorTruth(**keys["sim"]["actuators"]))
+                cfg = dataclasses.replace(cfg, sim=sim, sensors=dataclasses.replace(cfg.sensors, **keys["sensors"]))
+            m = run_sim(cfg, resolve_path(cfg)).metrics
+            runs.append(Run(robot, path, variant, float(m["rms_tracking_m"]), float(m["rms_cross_track_m"]),
+                            float(m["saturated_fraction"]), bool(m["completed"]), str(m.get("fault") or ""),
+                            float(m["sim_duration_s"]), 0))
+        out[variant] = runs
+    return out
+
+
 def _stats(runs: list[Run]) -> str:
     est = [r.est for r in runs]
     true = [r.true for r in runs]
@@ -267,7 +296,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--variants", default=",".join(VARIANTS), help=f"comma-separated, of {', '.join(VARIANTS)}")
     ap.add_argument("--json", help="also write every run's numbers to this file")
     ap.add_argument("--harsh", action="store_true", help="cheap parts on the realistic plant (module doc)")
+    ap.add_argument("--rerun", metavar="ROBOT/PATH", help="only this run, adaptation off and on, at --sim-seeds")
+    ap.add_argument("--sim-seeds", default="1,2,3", help="with --rerun: comma-separated sim.seed values")
     args = ap.parse_args(argv)
+    if args.rerun:
+        robot, _, path = args.rerun.partition("/")
+        seeds = [int(v) for v in args.sim_seeds.split(",") if v]
+        for variant, runs in rerun(robot, path, seeds, args.harsh).items():
+            print(f"{args.rerun}{' (harsh)' if args.harsh else ''} {variant}: true / est RMS (mm) at sim seeds "
+                  f"{', '.join(map(str, seeds))}: " + "; ".join(f"{r.true * 1e3:.3f} / {r.est * 1e3:.4f}" for r in runs))
+        return 0
     variants = tuple(v for v in args.variants.split(",") if v)
     res = measure_population(args.robots, args.workers, variants, harsh=args.harsh)
     print("\n".join(render(res)))
