@@ -32,8 +32,13 @@ def _session(tmp_path: Path, **over: Any) -> Any:
                        yes=True, out=io.StringIO())
 
 
-def test_the_rest_reads_the_die_and_leaves_the_slope_to_the_stops_at_one_temperature(tmp_path: Path) -> None:
-    s = _session(tmp_path, sensors={"gyro_temp_hz": 5})
+EMULATED = {"hal": {"backend": "real", "imu": {"bus": "sim"}, "bridge": {"url": "ddrtsim://robot"}}}
+
+
+@pytest.mark.parametrize("over", [{"sensors": {"gyro_temp_hz": 5}}, EMULATED], ids=["sim", "real-driver-defaults"])
+def test_the_rest_reads_the_die_and_leaves_the_slope_to_the_stops_at_one_temperature(
+        tmp_path: Path, over: dict[str, Any]) -> None:
+    s = _session(tmp_path, **over)
     commission(s, step="link")
     commission(s, step="rest")
     r = s.state.get("rest")

@@ -35,7 +35,7 @@ def run(session: Session) -> dict[str, Any]:
     earlier = session.state.get("rest") or {}
     with session.robot(cfg) as hal:
         res = calibrate_gyro_at_rest(cfg, hal)
-        temp_c = die_temperature(hal)
+        temp_c = die_temperature(hal, 1.0 / cfg.controller.rate_hz)
     out: dict[str, Any] = {
         "seconds": res.seconds,
         "bias_dps": math.degrees(res.bias_rad_s),
@@ -77,20 +77,20 @@ def run(session: Session) -> dict[str, Any]:
     return out
 
 
-def die_temperature(hal: Any) -> float:
-    """The gyro's die temperature (degC): the mean of TEMP_READS readings taken at the rate the
-    HAL reads TEMP_OUT, the motors still at zero; NaN when it reads none (`sensors.gyro_temp_hz` 0)."""
+def die_temperature(hal: Any, period_s: float) -> float:
+    """The gyro's die temperature (degC): the mean of TEMP_READS readings, the HAL read every
+    loop period (`period_s`) as the loop does, the motors still at zero; NaN when it reads
+    none (`sensors.gyro_temp_hz` 0, or TEMP_OUT failing)."""
     from ddrt.calibrate import clock_for
 
     hz = hal.info.gyro_temp_hz
     if not hz > 0.0:
         return math.nan
     clock = clock_for(hal)
-    period = 1.0 / hz / 4.0
     readings: list[float] = []
     t = clock.now()
-    for _ in range(4 * TEMP_READS + 4):
-        t += period
+    for _ in range(int((TEMP_READS + 1) / (hz * period_s)) + 1):
+        t += period_s
         clock.sleep_until(t)
         c = hal.read().gyro_temp_c
         if c == c:
