@@ -13,7 +13,7 @@ it is, tick until it stops at the end, tick 2 s at rest, again. Reported per set
 heading error (estimate minus truth, deg) at the end (after the last stop) and its largest
 magnitude at the end of any stop, and the position error at the end (mm).
 
-Settings: TEMP_OUT not read (`sensors.gyro_temp_hz: 0`, the estimator as before); read at
+Settings: TEMP_OUT not read (`sensors.gyro_temp_hz: 0`: the bias re-learnt at the stops only); read at
 5 Hz with the slope learnt at the stops (`estimator.gyro_bias_per_c_dps: null`); read with the
 slope set by commissioning (the true one); that again with the register read at the tick
 (`sim.gyro.register_hold: false`), which shows what the hold's tick-to-tick age costs; and the
