@@ -11,7 +11,10 @@ LocalCluster of `--workers` processes, or this process for one).
 Each robot drives the figure-eight (1.2 x 0.6 m) and the rectangle (1.2 x 0.8 m, pivots at
 the corners) of configs/paths/ at a speed drawn from 50-90 % of its motors' full-voltage
 no-load speed (a speed the motors reach; the profile keeps within its headroom and says so
-when it clamps). Controllers: dynamic (the default), dynamic with adaptation, kinematic.
+when it clamps). Controllers: dynamic with adaptation off, with it on (the default), kinematic.
+
+`--rerun ROBOT/PATH --sim-seeds 1,2,3`: that one run with adaptation off and on at each sim
+seed, to tell a difference between the two from the plant's own spread.
 
 `--harsh`: the same robots with cheap parts on the realistic plant (issue 23; drawn per robot
 from its name, so a robot is as harsh in every run): gyro sensitivity off by 2-3 % either
