@@ -189,5 +189,8 @@ def test_backend_change_waits_for_a_restart() -> None:
     # The real backend needs its devices named (hal.imu.bus, hal.bridge.url) to validate.
     new = with_overrides(old, {"hal": {"backend": "real", "imu": {"bus": 1}, "bridge": {"url": "/dev/ttyACM0"}}})
     plan = plan_reload(old, new)
-    assert plan.restart == ("hal.backend", "hal.imu.bus", "hal.bridge.url")
-    assert plan.in_force.hal == old.hal
+    # A real MPU's defaults (TEMP_OUT read, the FIFO on) come with the backend, at the restart too.
+    assert sorted(plan.restart) == sorted(("hal.backend", "hal.imu.bus", "hal.bridge.url",
+                                           "sensors.gyro_temp_hz", "sensors.gyro_fifo"))
+    assert new.sensors.gyro_temp_hz > 0 and new.sensors.gyro_fifo
+    assert plan.in_force.hal == old.hal and plan.in_force.sensors == old.sensors

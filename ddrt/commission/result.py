@@ -30,6 +30,9 @@ def _comment_lines(session: Session) -> list[str]:
     if r:
         lines.append(f"#   (at rest, {r['finished']}: gyro bias {r['bias_dps']:+.3f} deg/s, re-measured at every start; "
                      f"noise {r['noise_dps']:.4f} deg/s per sample; battery: {r.get('battery', 'checked')})")
+        if r.get("bias_per_c_dps") is not None:
+            lines.append(f"#   estimator.gyro_bias_per_c_dps ({r['finished']}): the gyro's bias at two rests, "
+                         f"{r['temperature']}")
     d = st.get("dynamics")
     if d:
         lines.append(f"#   robot.m_p, d_xc, d_yc, I_p, motor.coulomb_nm ({d['finished']}): identified over a "

@@ -192,7 +192,9 @@ def _config_from_mapping(data: Mapping[str, Any], source: str, base_dir: str) ->
         paths.check_pose(start, "start")
 
     limits = build(LimitsConfig, _section(data, "limits"), "limits")
-    sensors = build(SensorsConfig, _section(data, "sensors"), "sensors")
+    hal = build(HalConfig, _section(data, "hal"), "hal")
+    # The gyro's keys default per backend (SensorsConfig.for_backend): a real MPU reads TEMP_OUT and its FIFO.
+    sensors = build(SensorsConfig, _section(data, "sensors"), "sensors", base=SensorsConfig.for_backend(hal.backend))
 
     cfg = Config(
         robot=robot,
@@ -202,7 +204,7 @@ def _config_from_mapping(data: Mapping[str, Any], source: str, base_dir: str) ->
         plant_motor_r=plant_motor_r,
         sim=build(SimConfig, _section(data, "sim"), "sim"),
         sensors=sensors,
-        hal=build(HalConfig, _section(data, "hal"), "hal"),
+        hal=hal,
         controller=build(ControllerConfig, _section(data, "controller"), "controller"),
         estimator=build(EstimatorConfig, _section(data, "estimator"), "estimator"),
         pursuit=build(PursuitConfig, _section(data, "pursuit"), "pursuit"),

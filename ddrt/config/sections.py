@@ -32,8 +32,22 @@ class SensorsConfig:
     gyro_range_dps: int = 250
     wheel_counts_per_rev: int = 0  # drive-wheel encoders (protocol v2); 0: not counted
     battery_scale: float = 1.0  # true / reported supply voltage (divider calibration)
+    # The two gyro keys below default per backend (`for_backend`): these values are the
+    # simulated backend's, REAL_MPU_DEFAULTS a real MPU's (hal.backend: real).
     gyro_temp_hz: float = 0.0  # Hz: how often the gyro's TEMP_OUT is read (temperature-compensated bias); 0: never
     gyro_fifo: bool = False  # read every gyro sample once through the MPU's FIFO (their mean and count); False: the register at the tick
+
+    # On a real MPU (the robot's, or the emulated one behind the real driver) its die warms by
+    # degrees after power-up and its zero-rate output with it, and its sample clock beats
+    # against the loop's: TEMP_OUT read and the FIFO on measured better there (docs/BENCHMARKS.md,
+    # "Sensing: a warming gyro with the shipped config"). The simulated backend's default gyro
+    # neither warms nor has a sample clock, so it keeps both off (and integrates in its C kernel).
+    REAL_MPU_DEFAULTS: ClassVar[dict[str, Any]] = {"gyro_temp_hz": 5.0, "gyro_fifo": True}
+
+    @classmethod
+    def for_backend(cls, backend: str) -> "SensorsConfig":
+        """The section's defaults for `hal.backend` (a missing key takes these)."""
+        return cls(**cls.REAL_MPU_DEFAULTS) if backend == "real" else cls()
 
     def validate(self, where: str) -> None:
         non_negative(where, encoder_counts_per_rev=self.encoder_counts_per_rev,
@@ -183,9 +197,10 @@ WHEEL_PID = PidGains(kp=0.15, ki=1.5, kd=0.0, integrator_limit=0.3)
 
 @dataclass(frozen=True)
 class AdaptationConfig:
-    """Online estimation of the lumped dynamic parameters (off until proven)."""
+    """Online estimation of the lumped dynamic parameters: on, as measured over a population of
+    robots (docs/adaptation.md, "On by default"); false for the configured model alone."""
 
-    enabled: bool = False
+    enabled: bool = True
     forgetting: float = 0.999
     min_excitation: float = 0.05  # m/s^2 (yaw: times the half track) of filtered acceleration
     filter_hz: float = 2.0  # cut-off of the low-pass both sides of the regression pass through
