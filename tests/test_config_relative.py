@@ -23,8 +23,8 @@ from ddrt.config.sections import Config
 from ddrt.service.ctlclient import control_socket
 from tests.support.repo import REPO, SIM_YAML
 
-# Text keys of a config that name no file: hosts, ROS names, a serial URL, the I2C bus.
-NOT_FILES = {"hal.imu.bus", "hal.bridge.url", "daemon.foxglove.host", "daemon.ros2.namespace",
+# Text keys of a config that name no file: hosts, ROS names, a serial URL, the I2C bus, a part.
+NOT_FILES = {"hal.imu.bus", "hal.bridge.url", "daemon.foxglove.host", "daemon.ros2.namespace", "sim.gyro.part",
              "daemon.ros2.node_name", "daemon.ros2.odom_frame", "daemon.ros2.base_frame", "daemon.ros2.map_frame",
              "daemon.ros2.imu_frame", "daemon.ros2.path_topic", "daemon.ros2.pose_topic"}
 NOT_KEYS = {"source", "base_dir", "raw", "path"}  # Config's own fields; path: is checked below

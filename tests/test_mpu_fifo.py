@@ -131,7 +131,7 @@ def test_a_failed_data_read_is_not_retried_and_the_next_read_resets():
     clock = Clock()
     inner = MpuEmulator(ConstantGyro(5.0 * DEG), clock=clock)
     bus = FaultyI2cBus(inner)
-    imu = Mpu6050(bus, fifo=True, watch_repeats=False)
+    imu = Mpu6050(bus, fifo=True, watch_repeats=False, clock=clock)
     imu.read_gyro_fifo()
     clock.t += 0.02
 
@@ -171,7 +171,7 @@ def test_fuzz_never_a_traceback_and_never_a_sample_twice():
         clock = Clock()
         inner = MpuEmulator(ConstantGyro(rng.uniform(-200, 200) * DEG), clock=clock, clock_ppm=rng.uniform(-1e4, 1e4))
         bus = FaultyI2cBus(inner)
-        imu = Mpu6050(bus, fifo=True, watch_repeats=False)
+        imu = Mpu6050(bus, fifo=True, watch_repeats=False, clock=clock)
         delivered = 0
         for _ in range(800):
             clock.t += rng.choice((0.0, 0.001, 0.005, 0.0051, 0.03, 0.4, 3.0)) * rng.random()
