@@ -8,6 +8,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+from ddrt.commission.dynamics import held_text
 from ddrt.commission.odometry import radius_rows, radius_uncertainty
 from ddrt.commission.session import Session
 
@@ -106,6 +107,11 @@ def write_report(session: Session, folder: Path, config_file: Path, check: dict[
         after = dict(d["config"]["robot"], coulomb_nm=d["config"]["robot"]["motor"]["coulomb_nm"])
         for k, v in d["before"].items():
             lines.append(f"| {k} | {v:.6g} | {after[k]:.6g} |")
+        held = d.get("constrained", [])
+        if held:
+            lines += ["", "The fit left no physical split for these: they could not be separated from the configured "
+                      "wheels' masses and inertias (check those), were held at a physical bound, and the rest "
+                      "refitted (docs/commissioning.md, step 4):", ""] + [f"- {held_text(c)}" for c in held]
     o = st.get("odometry")
     if o:
         lines += ["", "## Odometry", "", f"{o['distance_cmd_m']:g} m straight, then {o['turns']} turns in place; "
