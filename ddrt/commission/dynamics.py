@@ -13,8 +13,11 @@ DEFAULT_AREA = (2.0, 1.5)
 
 def held_text(c: dict[str, Any]) -> str:
     """A held parameter as the dynamics step stored it (ddrt/core/split.py's Held), in words."""
-    was = "undefined" if c["unconstrained"] is None else f"{c['unconstrained']:.6g}"
-    return f"{c['name']} {was} -> {c['value']:.6g} (held at {c['bound']})"
+    from ddrt.core.split import UNITS
+
+    unit = UNITS.get(c["name"], "")
+    was = "undefined" if c["unconstrained"] is None else f"{c['unconstrained']:.6g} {unit}"
+    return f"{c['name']} {was} -> {c['value']:.6g} {unit} (held at {c['bound']})"
 
 
 def run(session: Session) -> dict[str, Any]:
