@@ -234,8 +234,8 @@ def held_lines(split: Split) -> list[str]:
     """One line per parameter the run could not separate, for the user and the config's comments."""
     if not split.held:
         return []
-    return ([f"{len(split.held)} parameter(s) could not be separated from the configured wheels and were held "
-             "physical (the rest refitted; check the wheels' configured masses and inertias):"]
+    return ([f"{len(split.held)} parameter(s) came out physically impossible: the run could not separate them, "
+             "so each is held at its physical bound and the rest refitted:"]
             + [f"  {h.describe()}" for h in split.held])
 
 

@@ -313,12 +313,13 @@ def test_an_impossible_split_is_held_physical_said_and_drives(tmp_path: Path) ->
     session = _session(src, out)
     outcome = commission(session)
     said = session.answers.out.getvalue()
-    assert "could not be separated" in said and "I_p" in said.split("could not be separated")[1]
+    assert "physically impossible" in said and "I_p" in said.split("physically impossible")[1]
+    assert "robot.I_L" in said  # what to check
     held = session.state.get("dynamics")["constrained"]
     assert [c["name"] for c in held] == ["I_p"] and held[0]["unconstrained"] < 0.0
     cfg = load_config(out)
     assert cfg.robot.I_p == pytest.approx(held[0]["value"]) and cfg.robot.I_p > 0.0
-    assert "not separable from the configured wheels: I_p" in out.read_text()
+    assert "not separable by the run: I_p" in out.read_text()
     assert "- I_p" in (paths_for(out)[1] / "report.md").read_text()
     assert outcome.check["true_rms_mm"] < 5.0
 

@@ -155,7 +155,7 @@ def test_identify_fragment_says_what_it_held(tmp_path) -> None:
     heavy = dataclasses.replace(cfg, robot=dataclasses.replace(cfg.robot, I_L=3 * p.I_L + 0.004,
                                                                I_R=3 * p.I_R + 0.004))
     text = cal.identify_fragment(heavy, res)
-    assert "could not be separated" in text and "I_p" in text.split("could not be separated")[1]
+    assert "physically impossible" in text and "I_p" in text.split("physically impossible")[1]
     import yaml
 
     frag = yaml.safe_load(text)["robot"]

@@ -13,11 +13,9 @@ DEFAULT_AREA = (2.0, 1.5)
 
 def held_text(c: dict[str, Any]) -> str:
     """A held parameter as the dynamics step stored it (ddrt/core/split.py's Held), in words."""
-    from ddrt.core.split import UNITS
+    from ddrt.core.split import Held
 
-    unit = UNITS.get(c["name"], "")
-    was = "undefined" if c["unconstrained"] is None else f"{c['unconstrained']:.6g} {unit}"
-    return f"{c['name']} {was} -> {c['value']:.6g} {unit} (held at {c['bound']})"
+    return Held(c["name"], c["unconstrained"], c["value"], c["bound"]).describe()
 
 
 def run(session: Session) -> dict[str, Any]:

@@ -109,9 +109,9 @@ def write_report(session: Session, folder: Path, config_file: Path, check: dict[
             lines.append(f"| {k} | {v:.6g} | {after[k]:.6g} |")
         held = d.get("constrained", [])
         if held:
-            lines += ["", "The fit left no physical split for these: they could not be separated from the configured "
-                      "wheels' masses and inertias (check those), were held at a physical bound, and the rest "
-                      "refitted (docs/commissioning.md, step 4):", ""] + [f"- {held_text(c)}" for c in held]
+            lines += ["", "The fit left these physically impossible: the run could not separate them, so each was "
+                      "held at its physical bound and the rest refitted (docs/commissioning.md, step 4):", ""] \
+                + [f"- {held_text(c)}" for c in held]
     o = st.get("odometry")
     if o:
         lines += ["", "## Odometry", "", f"{o['distance_cmd_m']:g} m straight, then {o['turns']} turns in place; "

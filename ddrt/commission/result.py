@@ -37,7 +37,7 @@ def _comment_lines(session: Session) -> list[str]:
         lines.append(f"#   robot.m_p, d_xc, d_yc, I_p, motor.coulomb_nm ({d['finished']}): identified over a "
                      f"{d['duration_s']:.0f} s figure-eight in {d['area'][0]:g} x {d['area'][1]:g} m, R^2 {d['r2']:.4f}")
         for c in d.get("constrained", []):
-            lines.append(f"#     not separable from the configured wheels: {held_text(c)}")
+            lines.append(f"#     held physical, not separable by the run: {held_text(c)}")
     o = st.get("odometry")
     if o:
         lines.append(f"#   robot.{radius_changes(o)} (+-{100 * radius_uncertainty(o):.2f}%), "

@@ -33,6 +33,16 @@ LUMPED = ("m_k", "mbar", "I", "m_x", "fric_l", "fric_r")
 MIN_FRACTION = 0.05
 
 UNITS = {"m_p": "kg", "d_xc": "m", "d_yc": "m", "I_p": "kg m^2", "fric_l": "N m", "fric_r": "N m"}
+# What a parameter held on its bound says about the input: what to check.
+HINTS = {
+    "m_p": "the configured wheels' masses (robot.m_L, m_R, m_3) and spin inertias leave no platform mass",
+    "I_p": "the configured wheels' yaw inertias (robot.I_L, I_R, I_3), masses and spin inertias leave no "
+           "platform inertia",
+    "d_xc": "the robot's moment needs more platform mass than the configured wheels leave",
+    "d_yc": "the robot's moment needs more platform mass than the configured wheels leave",
+    "fric_l": "the run did not separate the left wheel's friction from the model's other terms",
+    "fric_r": "the run did not separate the right wheel's friction from the model's other terms",
+}
 
 
 @dataclass(frozen=True)
@@ -57,7 +67,7 @@ class Held:
     def describe(self) -> str:
         unit = UNITS[self.name]
         was = "undefined" if self.unconstrained is None else f"{self.unconstrained:.6g} {unit}"
-        return f"{self.name} {was} -> {self.value:.6g} {unit} (held at {self.bound})"
+        return f"{self.name} {was} -> {self.value:.6g} {unit} (held at {self.bound}; {HINTS[self.name]})"
 
 
 @dataclass(frozen=True)
