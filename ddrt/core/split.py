@@ -23,11 +23,11 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from ddrt.core.adapt import NAMES as LUMPED  # the regression's parameters, in its order
 from ddrt.params.robot import RobotParams
 
 PLATFORM = ("m_p", "d_xc", "d_yc", "I_p")
 FRICTION = ("fric_l", "fric_r")
-LUMPED = ("m_k", "mbar", "I", "m_x", "fric_l", "fric_r")
 # A platform keeps at least this fraction of its configured mass and yaw inertia: strictly
 # positive (a physical body), small enough to bias the fitted model as little as the data allow.
 MIN_FRACTION = 0.05
