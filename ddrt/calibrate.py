@@ -23,6 +23,7 @@ from ddrt.core.wrap import wrap_angle
 from ddrt.loop import ControlLoop, LoopState
 from ddrt.core.model import Dynamics
 from ddrt.params.robot import RobotParams
+from ddrt.core.split import Split, physical_split
 from ddrt.path import Path, load_path
 from ddrt.path.start import TurnProfile
 from hal.base import Hal
@@ -129,6 +130,7 @@ class IdentifyResult:
     def seen(self, name: str) -> float:
         """How many times the fit's residual the term `name` accounts for."""
         return self.effect_n[name] / self.residual_rms_n if self.residual_rms_n > 0 else math.inf
+    normal: np.ndarray | None = field(default=None, repr=False, compare=False)  # phi^T phi, NAMES order
 
 
 def parse_area(text: str) -> tuple[float, float]:
@@ -223,36 +225,42 @@ def fit(rows: list[tuple[list[float], float]], duration_s: float, area: tuple[fl
     return IdentifyResult(values=dict(zip(NAMES, (float(v) for v in theta))),
                           std_err=dict(zip(NAMES, (float(math.sqrt(max(c, 0.0))) for c in np.diag(cov)))),
                           r2=r2, residual_rms_n=math.sqrt(s2), rows=len(rows), duration_s=duration_s, area=area,
-                          effect_n={n: float(np.sqrt(np.mean((phi[:, i] * theta[i]) ** 2))) for i, n in enumerate(NAMES)})
+                          effect_n={n: float(np.sqrt(np.mean((phi[:, i] * theta[i]) ** 2))) for i, n in enumerate(NAMES)},
+                          normal=phi.T @ phi)
 
 
-def robot_update(p: RobotParams, values: dict[str, float]) -> dict[str, float]:
-    """The platform's m_p, d_xc, d_yc, I_p that make `Dynamics.from_params` give `values`.
+def platform_split(cfg: Config, res: IdentifyResult) -> Split:
+    """The platform's m_p, d_xc, d_yc, I_p and each wheel's extra friction that make
+    `Dynamics.from_params` give the fit, held physical (ddrt/core/split.py).
 
     The lumped model has four mass parameters; the platform's four are the ones a payload
-    changes, so the wheels' own values stay as configured.
+    changes, so the wheels' own values stay as configured. When the fit leaves no physical
+    platform (the configured wheels too heavy, say), the split is the physical one closest to
+    the fit in its own metric, and `held` names each parameter it could not separate.
     """
-    k = p.I_wL / p.r_L**2 + p.I_wR / p.r_R**2 + p.I_w3 / p.r_3**2
-    m_p = values["m_k"] - k - p.m_L - p.m_R - p.m_3
-    if m_p <= 0.0:
-        raise CalibrationRunError(f"identified m + k = {values['m_k']:.3f} kg leaves no platform mass")
-    d_xc = (values["m_x"] - p.m_3 * p.H) / m_p
-    d_yc = -(values["mbar"] + p.m_L * p.L - p.m_R * p.R + p.L * p.I_wL / p.r_L**2 - p.R * p.I_wR / p.r_R**2) / m_p
-    rest = (p.I_L + p.I_R + p.I_3 + p.m_3 * p.H**2 + p.L**2 * p.I_wL / p.r_L**2 + p.R**2 * p.I_wR / p.r_R**2
-            + p.m_L * p.L**2 + p.m_R * p.R**2)
-    i_p = values["I"] - m_p * (d_xc**2 + d_yc**2) - rest
-    if i_p <= 0.0:
-        raise CalibrationRunError(f"identified I = {values['I']:.4f} kg m^2 leaves no platform inertia")
-    return {"m_p": m_p, "d_xc": d_xc, "d_yc": d_yc, "I_p": i_p}
+    try:
+        return physical_split(cfg.robot, cfg.robot_motor.coulomb_nm, res.values, res.normal, res.std_err)
+    except ValueError as exc:
+        raise CalibrationRunError(f"the identified model cannot be split into the platform's parameters: {exc}") \
+            from None
+
+
+def held_lines(split: Split) -> list[str]:
+    """One line per parameter the run could not separate, for the user and the config's comments."""
+    if not split.held:
+        return []
+    return ([f"{len(split.held)} parameter(s) came out physically impossible: the run could not separate them, "
+             "so each is held at its physical bound and the rest refitted:"]
+            + [f"  {h.describe()}" for h in split.held])
 
 
 def identify_fragment(cfg: Config, res: IdentifyResult) -> str:
     """robot: keys for the identified platform and motor friction, with a comment of the fit."""
-    upd = robot_update(cfg.robot, res.values)
-    coulomb = max(0.0, cfg.robot_motor.coulomb_nm + 0.5 * (res.values["fric_l"] + res.values["fric_r"]))
+    split = platform_split(cfg, res)
+    coulomb = max(0.0, cfg.robot_motor.coulomb_nm + 0.5 * (split.friction["fric_l"] + split.friction["fric_r"]))
     motor = {f: getattr(cfg.robot_motor, f) for f in ("supply_v", "resistance_ohm", "k_nm_per_a", "viscous_nms")}
     motor["coulomb_nm"] = round(coulomb, 5)
-    robot = {k: float(f"{v:.6g}") for k, v in upd.items()}
+    robot = {k: float(f"{v:.6g}") for k, v in split.platform.items()}
     robot["motor"] = motor
     v, e = res.values, res.std_err
     lines = [
@@ -265,8 +273,14 @@ def identify_fragment(cfg: Config, res: IdentifyResult) -> str:
         seen = res.seen(name)
         lines.append(f"#   {name:7s} {v[name]:+.5f} +- {e[name]:.5f} {units[name]:6s} {seen:5.1f}x the residual"
                      + (": not separated from what the model leaves out" if seen < SEEN_MIN else ""))
-    lines.append("# Platform parameters below reproduce m_k, mbar, I, m_x exactly; wheel friction is the mean")
-    lines.append("# of both wheels' extra Coulomb friction added to the motor's.")
+    if split.held:
+        lines += [f"# {line}" for line in held_lines(split)]
+        lines.append("# Platform parameters below give, within those bounds, the model closest to the fit:")
+        lines += [f"#   {name:7s} {split.lumped[name]:+.5f} {units[name]}" for name in NAMES]
+        lines.append("# Wheel friction is the mean of both wheels' extra Coulomb friction added to the motor's.")
+    else:
+        lines.append("# Platform parameters below reproduce m_k, mbar, I, m_x exactly; wheel friction is the mean")
+        lines.append("# of both wheels' extra Coulomb friction added to the motor's.")
     return "\n".join(lines) + "\n" + yaml.safe_dump({"robot": robot}, sort_keys=False)
 
 

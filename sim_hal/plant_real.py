@@ -280,8 +280,11 @@ class RealisticPlant:
                     self.gap_rate[i] = 0.0
 
     def _free_motors(self, d: tuple[float, float], ww_new: tuple[float, float]) -> None:
-        """Advance the motors turning in the play by one step (semi-implicit Euler; the back-EMF's
-        damping, k^2 / (R J), is well inside the step's stability)."""
+        """Advance the motors turning in the play by one step, exactly for the step's voltage: a
+        free motor relaxes to duty V / k at the rate of its back-EMF's damping, k^2 / (R J). An
+        explicit step diverges once that rate times the step passes 2 (a strong gearmotor's
+        k at the wheel on the default 2e-4 kg m^2: the motor then chatters across the play and
+        never drives its wheel)."""
         if self.half_play == 0.0:
             return
         h, jm = self.h, self.j_motor
@@ -294,8 +297,9 @@ class RealisticPlant:
             if self.side[i]:
                 continue
             m = self.motors[i]
-            cur = (d[i] * volts[i] - m.k_nm_per_a * wm[i]) / m.resistance_ohm
-            new = wm[i] + h * m.k_nm_per_a * cur / jm
+            rate = m.k_nm_per_a**2 / (m.resistance_ohm * jm)
+            settled = d[i] * volts[i] / m.k_nm_per_a
+            new = settled + (wm[i] - settled) * math.exp(-rate * h)
             self.gap_rate[i] = new - ww_new[i]
             self.gap[i] += h * self.gap_rate[i]
             if abs(self.gap[i]) >= self.half_play:

@@ -304,6 +304,26 @@ def test_a_full_commission_from_truth_calibrates_a_harsh_robot(tmp_path: Path) -
     assert outcome.check["true_rms_mm"] < 5.0 and math.isfinite(outcome.check["est_rms_mm"])
 
 
+def test_an_impossible_split_is_held_physical_said_and_drives(tmp_path: Path) -> None:
+    """The wheels configured 18 times too inertial in yaw: they alone exceed the robot's identified
+    yaw inertia, so no platform inertia is left. Commissioning holds I_p at its floor, says so in
+    its output, the config's comments and the report, and the config it writes drives."""
+    src = _config(tmp_path, robot={"I_L": 0.0064, "I_R": 0.0064})
+    out = tmp_path / "robot.yaml"
+    session = _session(src, out)
+    outcome = commission(session)
+    said = session.answers.out.getvalue()
+    assert "physically impossible" in said and "I_p" in said.split("physically impossible")[1]
+    assert "robot.I_L" in said  # what to check
+    held = session.state.get("dynamics")["constrained"]
+    assert [c["name"] for c in held] == ["I_p"] and held[0]["unconstrained"] < 0.0
+    cfg = load_config(out)
+    assert cfg.robot.I_p == pytest.approx(held[0]["value"]) and cfg.robot.I_p > 0.0
+    assert "not separable by the run: I_p" in out.read_text()
+    assert "- I_p" in (paths_for(out)[1] / "report.md").read_text()
+    assert outcome.check["true_rms_mm"] < 5.0
+
+
 def test_the_cli_writes_config_and_report(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     out = tmp_path / "c.yaml"
     assert main(["commission", str(SIM), "--out", str(out), "--from-sim-truth", "--yes",

@@ -189,6 +189,31 @@ def test_no_wheel_torque_while_the_motor_crosses_the_play() -> None:
     assert free_steps >= 2 and sim.velocity[0] < 0.0
 
 
+@pytest.mark.parametrize("k", [0.382, 1.0, 1.84, 4.0])
+def test_a_strong_gearmotor_crosses_the_play_and_drives_its_wheel(k: float) -> None:
+    """k^2 / (R J) times the step from 0.2 to 20: the free motor's back-EMF damping is stiff for
+    the larger ones (an explicit step diverges beyond 2), and still each motor takes up the play
+    once, in the time its exact free motion takes, and drives its wheel."""
+    m = MotorParams(k_nm_per_a=k, resistance_ohm=4.0)
+    sim = bot(SYM, motor=m, realism=Realism(actuators=ActuatorTruth(backlash_deg=1.5, motor_inertia_kgm2=2e-4)),
+              **QUIET)
+    duty = 0.2
+    sim.command(duty, 0.0)
+    steps, engaged_at = 0, None
+    while sim.t < 0.3 - 1e-9:
+        sim.advance_to(sim.t + sim.step_s)
+        steps += 1
+        if engaged_at is None and sim._real.side[0] != 0:
+            engaged_at = steps * sim.step_s
+    assert engaged_at is not None and sim._real.side[0] == 1
+    # From rest: w(t) = w_inf (1 - exp(-a t)), a = k^2 / (R J), w_inf = duty V / k; the play's
+    # half is crossed when the angle w_inf (t - (1 - exp(-a t)) / a) reaches it.
+    a, w_inf, half = k * k / (4.0 * 2e-4), duty * m.supply_v / k, math.radians(0.75)
+    t = next(i * 1e-5 for i in range(1, 100000) if w_inf * (i * 1e-5 - (1 - math.exp(-a * i * 1e-5)) / a) >= half)
+    assert engaged_at == pytest.approx(t, abs=2.5 * sim.step_s)
+    assert sim.pose[0] > 0.0 and sim.pose[2] < 0.0  # the left wheel alone: forward, turning clockwise
+
+
 def test_backlash_is_symmetric_left_right() -> None:
     mirrored = RobotParams(**TABLE_5_2).mirrored()
     a, same = _backlash_bot(TABLE_5_2), _backlash_bot()

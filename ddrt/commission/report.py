@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from ddrt.calibrate import SEEN_MIN
+from ddrt.commission.dynamics import held_text
 from ddrt.commission.odometry import radius_rows, radius_uncertainty
 from ddrt.commission.session import STEPS, Session
 
@@ -138,6 +139,11 @@ def write_report(session: Session, folder: Path, config_file: Path, check: dict[
                       "from what the model leaves out (two motors that differ, say), however small the standard error. "
                       f"Measure {'it' if one else 'them'} another way (for d_xc and d_yc: a scale under each wheel), or "
                       "keep the value before in the config."]
+        held = d.get("constrained", [])
+        if held:
+            lines += ["", "The fit left these physically impossible: the run could not separate them, so each was "
+                      "held at its physical bound and the rest refitted (docs/commissioning.md, step 4):", ""] \
+                + [f"- {held_text(c)}" for c in held]
     o = st.get("odometry")
     if o:
         lines += ["", "## Odometry", "", f"{o['distance_cmd_m']:g} m straight, then {o['turns']} turns in place; "

@@ -10,6 +10,7 @@ from typing import Any
 
 import yaml
 
+from ddrt.commission.dynamics import held_text
 from ddrt.commission.odometry import radius_changes, radius_uncertainty
 from ddrt.commission.session import STEPS, CommissionError, Session
 from ddrt.config import load_config
@@ -37,6 +38,8 @@ def _comment_lines(session: Session) -> list[str]:
     if d:
         lines.append(f"#   robot.m_p, d_xc, d_yc, I_p, motor.coulomb_nm ({d['finished']}): identified over a "
                      f"{d['duration_s']:.0f} s figure-eight in {d['area'][0]:g} x {d['area'][1]:g} m, R^2 {d['r2']:.4f}")
+        for c in d.get("constrained", []):
+            lines.append(f"#     held physical, not separable by the run: {held_text(c)}")
     o = st.get("odometry")
     if o:
         lines.append(f"#   robot.{radius_changes(o)} (+-{100 * radius_uncertainty(o):.2f}%), "
