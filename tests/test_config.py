@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import json
 import math
 import re
 import types
@@ -464,3 +465,34 @@ def test_docs_cover_the_real_backends_keys() -> None:
     assert keys == documented
 
 
+
+
+def _documented_value(text: str) -> Any:
+    """A default as docs/config.md writes it: `0.3`, `true`, `null`, `"MPU-6050"`, `[]`, `0x68`."""
+    text = text.strip().strip("`")
+    if text.startswith("0x"):
+        return int(text, 16)
+    try:
+        return json.loads(text)
+    except ValueError:
+        return text
+
+
+def test_every_documented_default_is_the_schemas() -> None:
+    """The reference's default column says what the dataclass gives (a default changed in code
+    and not in the docs fails here)."""
+    rows = {r[0]: r for r in _doc_rows()}
+    checked, wrong = 0, []
+    for key, (_cls, f) in _schema_keys().items():
+        if key not in rows or (f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING):
+            continue
+        value = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
+        if dataclasses.is_dataclass(value):
+            continue  # a section: its keys have rows of their own
+        doc = _documented_value(rows[key][2])
+        value = list(value) if isinstance(value, tuple) else value
+        numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (value, doc))
+        if not (math.isclose(value, doc, rel_tol=1e-12) if numbers else value == doc or str(value) == str(doc)):
+            wrong.append(f"{key}: docs say {rows[key][2]}, the schema {value!r}")
+        checked += 1
+    assert checked > 150 and not wrong, wrong
