@@ -2,7 +2,7 @@
 
 `python -m bench.paths_as_given [--seed N] [--cases a,b]` prints the table; bench/run.py
 includes it as a section. The inputs, each generated with a fixed seed, and the targets they
-are held to are tests/support/path_inputs.py's (the conditioning tests load the same ones).
+are held to are lab/path_inputs.py's (the conditioning tests load the same ones).
 For the manoeuvres with cusps, each cusp is a stop: the ideal time adds v / limits.accel per
 cusp (braking to rest and starting again), and the exact curve's own profile (or, for
 waypoints, the waypoints' own, turns in place included) makes the same stops; the larger of
@@ -38,7 +38,7 @@ from ddrt.config import load_config
 from ddrt.path.sampled import Path
 from ddrt.path.spec import load_path, speed_limits
 from ddrt.simrun.runner import run_sim
-from tests.support.path_inputs import (CASES, TARGET_DOMEGA_RMS, TARGET_GRID_RMS_M, TARGET_SATURATION,
+from lab.path_inputs import (CASES, TARGET_DOMEGA_RMS, TARGET_GRID_RMS_M, TARGET_SATURATION,
                                        TARGET_TRUE_RMS_M, Case, curve_distance, long_recording, write_csv)
 
 TIME_FACTOR, TIME_EXTRA_S = 1.3, 3.0
@@ -201,7 +201,7 @@ def _mark(ok: bool | None) -> str:
 def render(r: PathsResult) -> list[str]:
     lines = [
         "Polylines as recordings, planners and exports deliver them (bench/paths_as_given.py, inputs generated "
-        "with fixed seeds by tests/support/path_inputs.py), loaded as `ddrt sim --path FILE` loads a CSV on configs/sim.yaml and run on the "
+        "with fixed seeds by lab/path_inputs.py), loaded as `ddrt sim --path FILE` loads a CSV on configs/sim.yaml and run on the "
         "simulated robot (seed 1). time: simulated time to the end, against the target "
         f"{TIME_FACTOR:g} x max(length / speed, the exact curve's own profile) + {TIME_EXTRA_S:g} s; "
         "true: distance of the true pose from the underlying curve (a grid plan: its staircase), RMS / max; "

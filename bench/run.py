@@ -4,7 +4,7 @@ One command measures everything and writes the Markdown; nobody edits BENCHMARKS
 so every number in it can be traced to a run on the machine it names. The timing sections run
 one after another on an otherwise idle process; only the accuracy grid uses a process pool.
 
-Sections 14 to 25 (OWN_COMMAND) are measured by commands of their own; the full run keeps
+Sections 14 to 26 (OWN_COMMAND) are measured by commands of their own; the full run keeps
 their text from the file it replaces.
 
 The report is grouped by capability (CAPABILITIES: a `# ` heading each); a section keeps its
@@ -72,6 +72,7 @@ SECTIONS = (
     "23. A warming gyro with the shipped config",
     "24. Adaptation on by default, judged on the true pose",
     "25. Commissioning across a population of harsh robots",
+    "26. The daemon's memory over many commands",
 )
 
 # What a reader wants to know, in the report's order: each group's sections by number.
@@ -79,7 +80,7 @@ CAPABILITIES: tuple[tuple[str, tuple[int, ...]], ...] = (
     ("Tracking accuracy", (1, 7, 19, 24)),
     ("Robots and paths", (9, 10, 13, 25, 22)),
     ("Sensing and estimation", (15, 16, 12, 17, 21, 23)),
-    ("Timing and load", (2, 3, 6, 5, 11, 20)),
+    ("Timing and load", (2, 3, 6, 5, 11, 20, 26)),
     ("Simulation speed", (4, 18)),
     ("The daemon under abuse", (8, 14)),
 )
@@ -103,6 +104,7 @@ OWN_COMMAND: dict[int, str] = {
     23: "python -m bench.gyro_warmup --shipped",
     24: "python -m bench.population --workers 1 --variants dynamic,dynamic+adapt [--harsh]",
     25: "python -m bench.commissioning --only population --robots 100 --mismatch 0.15 --workers 1 --no-uncommissioned",
+    26: "python -m bench.soak --cycles 300 --every 10 [--ros2 | --foxglove]",
 }
 
 

@@ -299,17 +299,3 @@ def test_telemetry_columns_appended_at_the_end() -> None:
     assert COLUMNS[i:i + 7] == ("ad_m_k", "ad_mbar", "ad_I", "ad_m_x", "ad_fric_l", "ad_fric_r", "ad_active")
     assert COLUMNS[i - 1] == "hal_fault_ticks"
     assert COLUMNS[:2] == ("t", "x_est")
-
-
-@pytest.mark.slow
-def test_a_payload_put_on_mid_run_is_learnt() -> None:
-    """Where adaptation is for (issue 23 item 5): 1 kg put on at 8 s and a draggy floor patch on
-    the 0.8 m/s figure-eight; from the payload on, the estimated pose tracks at least 1.5x
-    better with adaptation (measured 2.5x, BENCHMARKS.md section 19)."""
-    from bench.adaptation import measure_events
-
-    name = "realistic/payload_floor_fast.yaml"
-    cells = measure_events((1,), 1, (name,))
-    off, on = cells[(name, False)], cells[(name, True)]
-    assert on[2] * 1.5 < off[2]
-    assert on[0] < off[0]

@@ -17,7 +17,7 @@ from ddrt.loop import ControlLoop
 from ddrt.path.spec import resolve_path
 from hal.wire import Drive, Packet, encode_frame
 from hal.registry import open_hal
-from tests.support import path_inputs
+from lab import path_inputs
 from tests.support.repo import SIM_YAML
 
 
@@ -210,6 +210,20 @@ def test_population_robots_are_physically_consistent() -> None:
         assert cfg.sim.command_latency_s > 0.0 and cfg.sim.sensor_latency_s > 0.0
         assert cfg.limits.v_max is None and cfg.limits.accel is None  # every other key at default
         assert 0.3 < speed_limits(cfg).v_max < 2.5
+
+
+def test_the_population_campaign_gives_each_robot_its_described_config() -> None:
+    """bench/population.py's campaign, expanded as `ddrt sweep` expands it, gives each robot the
+    config its config_of() describes."""
+    from bench import population
+    from ddrt.sweep.cases import expand
+
+    plan = expand(population.campaign(2))
+    robots = population.population(2)
+    assert len(plan.cases) > 0
+    for case in plan.cases:
+        r = robots[int(str(case.params["robot"])[1:])]
+        assert case.config.raw == population.config_of(r, case.params["path"], case.params["variant"]).raw
 
 
 # ------------------------------------------------------------------ section 9: paths as given

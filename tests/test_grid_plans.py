@@ -1,4 +1,4 @@
-"""Grid plans as planners hand them over (tests/support/path_inputs.py, grid_fuzz_plan): A*
+"""Grid plans as planners hand them over (lab/path_inputs.py, grid_fuzz_plan): A*
 plans, A* plans through via points and staircase walks, 4- and 8-connected, 2-10 cm cells.
 Their corners of 90 degrees and more turn in place at the cell's centre; what is smoothed stays
 within the planned cells and bends no tighter than a cell's radius (ddrt/path/gridplan.py)."""
@@ -15,7 +15,7 @@ from ddrt.path import load_path
 from ddrt.path.report import pivot_runs
 from ddrt.path.sampled import Path
 from ddrt.path.spec import speed_limits
-from tests.support import path_inputs as pg
+from lab import path_inputs as pg
 from tests.support.repo import SIM_YAML
 
 LIM = speed_limits(load_config(SIM_YAML))

@@ -206,17 +206,3 @@ def test_sim_hal_ages_the_gyro_by_half_the_hold_like_the_driver():
     tick = _sim(Realism(), 0.0)
     assert held.info.gyro_delay_s - tick.info.gyro_delay_s == pytest.approx(0.0025)
     assert tick.info.gyro_delay_s == pytest.approx(tick.robot.gyro_delay_s)  # the low-pass's alone
-
-
-def test_through_the_loop_a_warm_up_leaves_the_heading_true():
-    """ControlLoop on the realistic plant (bench/gyro_warmup.py's warm-up: 1 deg/s over 5 min),
-    two 28 s drives with a stop after each: with TEMP_OUT read the heading ends within a few
-    tenths of a degree, and the slope is learnt within 5 %; without it, degrees off."""
-    from bench.gyro_warmup import SLOPE_DPS_PER_C, one_run
-
-    with_temp = one_run(5.0, None, 1, drive_s=50.0)
-    without = one_run(0.0, None, 1, drive_s=50.0)
-    assert with_temp.stops == without.stops == 2 and not with_temp.fault
-    assert abs(with_temp.heading_end_deg) < 0.3
-    assert abs(without.heading_end_deg) > 3.0
-    assert with_temp.slope_dps_per_c == pytest.approx(SLOPE_DPS_PER_C, rel=0.05)

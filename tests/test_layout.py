@@ -11,6 +11,11 @@
 - Every exception class of ddrt/, hal/ and sim_hal/ descends from ddrt.errors.DdrtError.
 - No module reaches into another object's private state (a write, a read, a private import),
   but for the known list that is being taken out; modules are sized by cohesion, not lines.
+- The borders of the checkout: tests/ checks the product, bench/ measures it, and what both run
+  (inputs and their targets) is lab/. No test module imports bench except bench's own tests,
+  tests/test_bench_*.py (a benchmark's functions are what they test; other claims of a
+  benchmark are rerun there too); bench/ and lab/ never import tests; lab/ never imports bench;
+  the shipped packages (ddrt, hal, sim_hal) import none of tests, bench and lab.
 """
 
 from __future__ import annotations
@@ -48,15 +53,29 @@ def imported_modules(path: Path, root: Path = REPO) -> list[tuple[int, str]]:
     return found
 
 
-def violations(folder: str, forbidden: tuple[str, ...]) -> list[str]:
-    files = sorted((REPO / folder).rglob("*.py"))
+def violations(folder: str, forbidden: tuple[str, ...], root: Path = REPO,
+               exempt: str | None = None) -> list[str]:
+    """"file:line imports module" for every import of a forbidden package under `folder`, but in
+    files whose name matches the glob `exempt`."""
+    files = sorted(f for f in (root / folder).rglob("*.py") if not (exempt and f.match(exempt)))
     assert files, f"no modules under {folder}"
     out = []
     for f in files:
-        for line, mod in imported_modules(f):
+        for line, mod in imported_modules(f, root):
             if any(mod == bad or mod.startswith(bad + ".") for bad in forbidden):
-                out.append(f"{f.relative_to(REPO)}:{line} imports {mod}")
+                out.append(f"{f.relative_to(root)}:{line} imports {mod}")
     return out
+
+
+BENCH_OWN_TESTS = "test_bench_*.py"  # bench's own tests, the one place under tests/ that imports bench
+
+
+def border_violations(root: Path = REPO) -> list[str]:
+    """Every import across the checkout's borders (the module docstring's last rule)."""
+    return (violations("tests", ("bench",), root, exempt=BENCH_OWN_TESTS)
+            + violations("bench", ("tests",), root)
+            + violations("lab", ("tests", "bench"), root)
+            + [v for folder in ("ddrt", "hal", "sim_hal") for v in violations(folder, ("tests", "bench", "lab"), root)])
 
 
 def test_hal_never_imports_sim_hal() -> None:
@@ -160,6 +179,40 @@ def test_the_cycle_check_finds_a_cycle_through_three_packages(tmp_path: Path) ->
     assert cycles(graph) == [["ddrt.core", "ddrt.loop", "ddrt.path"]]
     (tmp_path / "ddrt" / "loop.py").write_text("import math\n")
     assert cycles(package_graph(tmp_path, ("ddrt",))) == []
+
+
+def test_tests_bench_and_lab_keep_their_borders() -> None:
+    assert border_violations() == []
+
+
+def test_the_border_check_finds_a_crossing_in_each_direction(tmp_path: Path) -> None:
+    # The checker itself: one clean tree, then each forbidden import added in turn is found.
+    files = {"tests/test_x.py": "import math\n", "tests/test_bench_x.py": "from bench import run\n",
+             "bench/b.py": "from lab import path_inputs\n", "lab/l.py": "import numpy\n",
+             "ddrt/d.py": "import os\n", "hal/h.py": "import os\n", "sim_hal/s.py": "import os\n"}
+    for name, text in files.items():
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text(text)
+    assert border_violations(tmp_path) == []
+    crossings = {"tests/test_x.py": "def f():\n    from bench.soak import slope\n",
+                 "bench/b.py": "from tests.support.daemon import ready_daemon\n",
+                 "lab/l.py": "import bench.common\n", "ddrt/d.py": "from lab import repo\n",
+                 "sim_hal/s.py": "import tests\n"}
+    for name, text in crossings.items():
+        clean = (tmp_path / name).read_text()
+        (tmp_path / name).write_text(text)
+        found = border_violations(tmp_path)
+        assert len(found) == 1 and found[0].startswith(name + ":"), (name, found)
+        (tmp_path / name).write_text(clean)
+
+
+def test_only_the_runtime_packages_ship() -> None:
+    """pyproject.toml installs ddrt, hal and sim_hal; tests, bench and lab are used from a checkout."""
+    import tomllib
+
+    spec = tomllib.loads((REPO / "pyproject.toml").read_text(encoding="utf-8"))
+    include = spec["tool"]["setuptools"]["packages"]["find"]["include"]
+    assert {name.split(".")[0] for name in include} == {"ddrt", "hal", "sim_hal"}
 
 
 @pytest.mark.parametrize("folder", ["ddrt/core", "ddrt/path"])

@@ -20,7 +20,7 @@ from ddrt.path.geometry import GeometryOptions, polyline_geometry
 from ddrt.path.report import LABELS, active_limits, path_report
 from ddrt.path.sampled import Path
 from ddrt.path.spec import resolve_path, speed_limits
-from tests.support import path_inputs as pg
+from lab import path_inputs as pg
 from tests.support.repo import REPO, SIM_YAML
 
 LIM = speed_limits(load_config(SIM_YAML))

@@ -27,8 +27,8 @@ import pytest
 from ddrt.config import load_config
 from ddrt.path.report import path_report
 from ddrt.path.spec import PathError, load_path, speed_limits
-from tests.support import path_inputs as pg
-from tests.support.cusp_inputs import random_manoeuvre
+from lab import path_inputs as pg
+from lab.cusp_inputs import random_manoeuvre
 from tests.support.repo import SIM_YAML
 
 CFG = load_config(SIM_YAML)

@@ -168,7 +168,7 @@ def test_the_cusp_estimate_recovers_the_point_and_heading_from_noisy_runs() -> N
     """Over 40 noisy recordings of a three-point turn (1.5 mm noise, 1 cm apart) the shared
     fit finds the cusp's point across the tangent and its heading to within what the noise
     allows."""
-    from tests.support.cusp_inputs import three_point_turn
+    from lab.cusp_inputs import three_point_turn
     from ddrt.path.cusp import estimate_cusp
 
     m = three_point_turn()
@@ -198,7 +198,7 @@ def test_the_cusp_estimate_recovers_the_point_and_heading_from_noisy_runs() -> N
 def test_a_recorded_three_point_turn_meets_at_each_cusp_without_a_shift(cfg) -> None:
     """Both cusps shared: the runs end and start on one point with one heading (no turn in
     place, no shift), and that point is the recorded cusp sample's within the tolerance."""
-    from tests.support.cusp_inputs import three_point_turn
+    from lab.cusp_inputs import three_point_turn
 
     m = three_point_turn()
     xy, v = m.recording(np.random.default_rng(11), 0.3, noise=0.0015)

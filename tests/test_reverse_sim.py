@@ -239,7 +239,7 @@ def test_a_reversed_path_takes_the_energy_of_its_mirror_image_driven_forward() -
 
 
 def test_random_marked_reverse_manoeuvres_are_driven_end_to_end() -> None:
-    """~50 random three-point turns, parking manoeuvres and zig-zags (tests/support/cusp_inputs.py),
+    """~50 random three-point turns, parking manoeuvres and zig-zags (lab/cusp_inputs.py),
     recorded with 1-2 mm of noise at 5-15 mm spacing and marked with negative v on the reverse
     legs, loaded and driven: each completes or is refused at load with a PathError, and the
     driven ones meet issue 13's targets: the true pose within 3 mm RMS of the curve the
@@ -247,8 +247,8 @@ def test_random_marked_reverse_manoeuvres_are_driven_end_to_end() -> None:
     (the runs share each cusp, ddrt/path/cusp.py, so nothing is shifted onto it), and no turn
     in place where the curve has none."""
     from ddrt.path.spec import PathError
-    from tests.support.cusp_inputs import random_manoeuvre
-    from tests.support.path_inputs import curve_distance
+    from lab.cusp_inputs import random_manoeuvre
+    from lab.path_inputs import curve_distance
 
     cfg = _cfg()
     lim = speed_limits(cfg)

@@ -72,7 +72,7 @@ def test_ranges_lists_and_the_product_of_axes() -> None:
 
 def test_population_paths_variants_and_path_speed() -> None:
     """The robots of ddrt/sweep/population.py, each on its own speed; a path file's speed as an axis."""
-    from bench import population as bench_population
+    from ddrt.sweep.population import population
 
     camp = campaign_from_mapping({
         "population": {"robots": 3, "seed": 7},
@@ -84,7 +84,7 @@ def test_population_paths_variants_and_path_speed() -> None:
     plan = expand(camp)
     assert plan.columns == ("variant", "robot", "path", "seed")
     assert len(plan.cases) == 2 * 3 * 2
-    robots = bench_population.population(3, 7)
+    robots = population(3, 7)
     for case in plan.cases:
         robot = robots[int(str(case.params["robot"])[1:])]
         assert case.config.robot.m_p == robot.sections["robot"]["m_p"]
@@ -92,11 +92,6 @@ def test_population_paths_variants_and_path_speed() -> None:
         path = plan.paths[case.path_key]
         assert case.config.path["speed"] == robot.path_speed  # a YAML path file, inlined to set its speed
         assert path.duration > 0
-    # bench/population.py's campaign gives each robot the config its config_of() describes.
-    bench_plan = expand(bench_population.campaign(2))
-    for case in bench_plan.cases:
-        r = bench_population.population(2)[int(str(case.params["robot"])[1:])]
-        assert case.config.raw == bench_population.config_of(r, case.params["path"], case.params["variant"]).raw
 
 
 def test_what_the_criteria_and_the_summary_read_is_kept_whatever_metrics_lists() -> None:

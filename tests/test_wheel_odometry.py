@@ -99,20 +99,3 @@ def test_wheels_only_drives_a_scenario_with_no_slip_flagged() -> None:
     assert m["completed"] and not m["fault"]
     assert m["rms_cross_track_m"] <= 1.5 * base["rms_cross_track_m"] + 2e-3
     assert res.column("wheel_slip").sum() == 0
-
-
-@pytest.mark.slow
-def test_bias_step_is_learnt_on_the_move_with_all_three_sensors() -> None:
-    """A 0.5 deg/s bias step mid-run on the rectangle (no stop) is learnt within 10 s, and the
-    true path is better than with the front encoder and gyro alone (generous bounds; the
-    figures are in BENCHMARKS.md, bench/wheel_encoders.py)."""
-    from bench.wheel_encoders import BIAS_STEP_AT_S, bias_step
-
-    got = bias_step(8192)
-    assert got["completed"] and got["first_stop_s"] > 10.0
-    assert got["learnt_s"] <= 10.0 and abs(got["end_err_dps"]) < 0.1
-    cfg = load_config("configs/scenarios/rectangle.yaml")
-    cfg = dc.replace(cfg, sim=dc.replace(cfg.sim, gyro=dc.replace(cfg.sim.gyro, bias_step_dps=0.5,
-                                                                  bias_step_at_s=BIAS_STEP_AT_S)))
-    front_only = run_sim(cfg, resolve_path(cfg)).metrics["rms_cross_track_m"]
-    assert got["true_rms"] < 0.7 * front_only

@@ -14,7 +14,7 @@ wiggle is cheaper driven than stopped for, and the sharp turns of a plan's 45 de
 stay smoothed): at the turn speed's bounded yaw acceleration any smoothed turn takes at least
 sqrt(4 |turn| / accel) seconds (2.1 s for 90 degrees) and a bend that tight is taken well
 below the asked speed, while a turn in place is a stop and about half a second. Five cells
-is what measured fastest over the fuzzed plans (tests/support/path_inputs.py grid_fuzz_plan,
+is what measured fastest over the fuzzed plans (lab/path_inputs.py grid_fuzz_plan,
 seeds 11-14, 150 each, within 1.3 x length / speed + 3 s): 1 cell 525 of 600, 5 cells 558,
 8 cells 545 (wider bends turned in place stop more often than they save); 5 cells where the
 bend turns 40 degrees or more, 553 (the turns of 10-15 degrees that the plain rule stopped for

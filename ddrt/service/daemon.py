@@ -324,8 +324,7 @@ class Daemon:
         ring = self.ring
         notifier = self.notifier
         sched = RateScheduler(self.period, clock.now())
-        perf = time.perf_counter
-        cpu = time.thread_time
+        perf, cpu = time.perf_counter, time.thread_time
         wd_interval = notifier.watchdog_interval() or 1.0
         next_watchdog = 0.0
         next_status = 0.0
@@ -335,7 +334,7 @@ class Daemon:
         advance_plant = self.hal.advance_to_wall_clock if self.hal.owns_time else None
         viz = self.viz
         truth = self.hal.robot if viz is not None else None
-        audit = self.audit
+        audit, sweeper = self.audit, rt.GcSweeper()  # once a second, what the stopped collector keeps
         while not self.stop_requested:
             deadline = sched.next_deadline()
             woke = clock.sleep_until(deadline)
@@ -394,6 +393,7 @@ class Daemon:
             if now >= next_status:
                 notifier.status(status_line(self))
                 next_status = now + 1.0
+                sweeper.maybe()
                 if self.cfg.daemon.watch_config and not self.reloader.busy and self.reloader.changed_on_disk():
                     log.info("%s changed on disk (daemon.watch_config)", self.config_path)
                     self.reloader.request()

@@ -12,7 +12,7 @@ below.
 - rectangle_recorded: a 1.2 m x 0.8 m rectangle recorded every 1 cm with 1 mm of noise
   (genuine 90 degree corners: they must stay turns in place), 0.3 m/s;
 - waypoints_sparse: configs/paths/waypoints_sparse.csv (must not change);
-- three_point_*, parallel_park_*: manoeuvres with two cusps (tests/support/cusp_inputs.py),
+- three_point_*, parallel_park_*: manoeuvres with two cusps (lab/cusp_inputs.py),
   recorded every 1 cm with 1.5 mm of noise or as exact waypoints every ~0.3 m, negative v on
   the reverse legs, 0.3 m/s;
 - long_recording: a long smooth route recorded every 1 cm with 1 mm of noise (the timing of
@@ -33,8 +33,8 @@ from ddrt.config import load_config
 from ddrt.path.geometry import Geometry, Piece
 from ddrt.path.sampled import Path, distances_to_polyline
 from ddrt.path.spec import load_path, speed_limits
-from tests.support.cusp_inputs import Manoeuvre, parallel_park, three_point_turn
-from tests.support.repo import REPO, SIM_YAML
+from lab.cusp_inputs import Manoeuvre, parallel_park, three_point_turn
+from lab.repo import REPO, SIM_YAML
 
 SPARSE_CSV = REPO / "configs" / "paths" / "waypoints_sparse.csv"
 
