@@ -15,17 +15,10 @@ from hal.mpu6050 import CONFIG_CHECK_S, MAX_REINITS, Mpu6050
 from hal.mpu_watch import FALSE_ALARMS_PER_S, NOISE_FLOOR_DPS_RTHZ, OutputWatch, stuck_bound
 from sim_hal.faults import FaultyI2cBus, inject_gyro_fault
 from sim_hal.mpu_emulator import MpuEmulator
+from tests.support.clocks import ManualClock as Clock
 
 DEG = math.pi / 180.0
 BY_NAME = {p.name: p for p in MPU_PARTS}
-
-
-class Clock:
-    def __init__(self) -> None:
-        self.t = 0.0
-
-    def __call__(self) -> float:
-        return self.t
 
 
 class NoisyGyro:

@@ -13,18 +13,11 @@ from ddrt.params.mpu_parts import MPU_PARTS, part_by_name, part_by_who_am_i, par
 from hal.base import HalInitError
 from hal.mpu6050 import FIFO_SIZE_MAX, TEMP_OUT_H, Mpu6050
 from sim_hal.mpu_emulator import ConstantGyro, MpuEmulator, SineGyro
+from tests.support.clocks import ManualClock as Clock
 from tests.support.repo import REPO
 
 DEG = math.pi / 180.0
 BY_NAME = {p.name: p for p in MPU_PARTS}
-
-
-class Clock:
-    def __init__(self) -> None:
-        self.t = 0.0
-
-    def __call__(self) -> float:
-        return self.t
 
 
 def test_the_table_holds_each_parts_datasheet_facts() -> None:
