@@ -12,9 +12,8 @@ import sys
 
 import pytest
 
-from ddrt.core.pose_fix import POSE_BOUND_M as CORE_POSE_BOUND_M
 from ddrt.service.commands import (
-    COMMANDS, DECLARED, NEVER_REFUSED, POSE_BOUND_M, PRIORITY, STREAMS, CommandError, Request, parse, payload,
+    COMMANDS, DECLARED, NEVER_REFUSED, PRIORITY, STREAMS, CommandError, Request, parse, payload,
 )
 from ddrt.service.handlers import HANDLERS, command_table
 from tests.support.repo import REPO
@@ -49,7 +48,6 @@ def test_the_server_rules_are_read_off_the_declarations() -> None:
     assert PRIORITY == {"stop": ("follow", "drive", "resume"), "estop": ("follow", "reset", "drive", "resume", "pose")}
     assert NEVER_REFUSED == ("estop",) and STREAMS == ("stream",)
     assert COMMANDS == tuple(DECLARED) and all(DECLARED[n].name == n for n in DECLARED)
-    assert POSE_BOUND_M == CORE_POSE_BOUND_M
 
 
 def test_a_request_becomes_its_typed_form_with_defaults() -> None:

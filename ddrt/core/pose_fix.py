@@ -28,8 +28,8 @@ import numpy as np
 from ddrt.errors import DdrtError
 from ddrt.core.uncertainty import N, Tracker, phi, propagate
 from ddrt.core.wrap import wrap_angle
+from ddrt.params.numbers import POSE_BOUND_M
 
-POSE_BOUND_M = 1e6  # |x|, |y| beyond this is no place on a floor
 COV_BOUND = 1e6  # a variance beyond this (m^2, rad^2) says nothing
 SYMMETRY_TOL = 1e-9  # relative: cov[i][j] and cov[j][i] may differ by this much of the largest entry
 FIELDS = ("x", "y", "theta", "cov", "stamp")

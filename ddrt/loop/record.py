@@ -85,9 +85,7 @@ ADAPTER_COLUMNS = (
 )
 
 # Written every tick, after the adapter's (a column is only ever added at the end of the
-# header). `battery_v`: the supply voltage the motor model uses (V; measured and filtered, or
-# robot.motor.supply_v when not measured: ddrt/loop/power.py); `hw_estop`: 1 while the
-# hardware emergency-stop input is open.
+# header; the supply's, ddrt/loop/power.py).
 LATER_COLUMNS = (
     Column("battery_v", "loop.power.v", "V",
            "the supply voltage the motor model uses (measured and filtered, or robot.motor.supply_v)"),

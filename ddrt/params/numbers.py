@@ -10,6 +10,9 @@ import math
 from dataclasses import fields
 from typing import Any, Mapping, TypeVar
 
+# |x|, |y| of a pose from outside (a socket request, a fix) beyond this is no place on a floor.
+POSE_BOUND_M = 1e6
+
 T = TypeVar("T")
 
 

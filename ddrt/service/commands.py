@@ -19,11 +19,11 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 from ddrt.errors import DdrtError
+from ddrt.params.numbers import POSE_BOUND_M
 
 __all__ = ["Field", "Command", "Request", "CommandError", "DECLARED", "COMMANDS", "PRIORITY", "NEVER_REFUSED",
            "STREAMS", "parse", "payload", "ctl_commands", "ctl_epilog", "ctl_number", "reference_markdown"]
 
-POSE_BOUND_M = 1e6  # |x|, |y| beyond this is no place on a floor (ddrt/core/pose_fix.py holds the same)
 STREAM_MAX_RATE_HZ = 500.0
 STREAM_MAX_ADDRESS = 100
 TEXT_MAX = 4096  # a file name, a label: the content of a path file is bounded by paths.max_file_bytes instead
@@ -95,7 +95,7 @@ class Command:
     never_refused: bool = False  # no rate limit, no shared queue bound
     stream: bool = False  # for processes, not people: `ddrt ctl` does not offer it
     passes_on: str = ""  # other keys are not refused here but handed on to this reader (follow: a path spec)
-    ctl: str = ""  # `ddrt ctl`'s usage after the command name ("" for none); None-like "-" when not offered
+    ctl: str = ""  # `ddrt ctl`'s usage after the command name; "(...)": not offered, sent by another command
 
     def field(self, name: str) -> Field:
         return next(f for f in self.fields if f.name == name)
