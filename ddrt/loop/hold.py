@@ -108,11 +108,15 @@ class HoldMachine:
     """The hold in progress (`active`), the counters, and the rules that start and end it."""
 
     def __init__(self, bounds: HoldBounds) -> None:
-        self.bounds = bounds  # replaced whole on a reload
+        self.bounds = bounds  # replaced whole on a reload (rebound)
         self.counters = RecoveryCounters()
         self.active: ActiveHold | None = None
         self.read_error = ""  # the HAL's timeout, while reads keep timing out (the loop sets it)
         self._starts: deque[float] = deque()  # sample times at which holds on the sensors' account began
+
+    def rebound(self, bounds: HoldBounds) -> None:
+        """A reload's bounds, in force from the next check."""
+        self.bounds = bounds
 
     # ------------------------------------------------------------------ outside a hold
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import math
+from dataclasses import replace
 from typing import Callable
 
 from ddrt.config import Config
@@ -24,7 +25,7 @@ from ddrt.config.sections import LimitsConfig
 from ddrt.core.adapt import DynamicsAdapter
 from ddrt.core.control import Command, DynamicController, KinematicController, make_controller
 from ddrt.core.drive import DriveReference, check_command
-from ddrt.core.envelope import resolve_limits
+from ddrt.core.envelope import ResolvedLimits, resolve_limits
 from ddrt.core.estimator import Estimator, calibrate_gyro
 from ddrt.core.model import Dynamics
 from ddrt.core.motor import Motor
@@ -34,7 +35,7 @@ from ddrt.loop.hold import HoldBounds, HoldMachine, RecoveryCounters
 from ddrt.loop.modes import NOTHING_TO_RESUME, Event, ModeMachine, Transition
 from ddrt.loop.power import Power
 from ddrt.loop.record import COLUMNS, fill_row
-from ddrt.loop.reload import drive_limits, reconfigure
+from ddrt.loop.reload import Reprofile, drive_limits, limits_plan, prepare_reload, reprofile
 from ddrt.loop.states import MOVING, LoopState
 from ddrt.path import Path
 from ddrt.path.reference import PathReference
@@ -111,10 +112,46 @@ class ControlLoop(ModeMachine):
         return self.holds.counters
 
     def reconfigure(self, cfg: Config) -> None:
-        """Put a config in force between two ticks (ddrt/loop/reload.py)."""
+        """Put a config in force between two ticks: every part that holds a copy gets it. All
+        that is new is built first (ddrt/loop/reload.py), so a part that refuses leaves all as
+        it was."""
         t = self.allow(Event.RELOAD)
-        reconfigure(self, cfg)
+        m = (plan := prepare_reload(cfg, self.cfg, self.period, self.adapter is not None)).model
+        # Swap (nothing below raises for values that passed validation).
+        self.estimator.reconfigure(cfg.estimator, cfg.robot.r_3, self.estimator.dyn if m is None else m.dyn,
+                                   self.motor if m is None else m.motor)
+        self.controller.retune(cfg.controller, self.put_limits(plan.limits, cfg))
+        if m is not None:
+            self.dyn, self.seed_dyn, self.motor = m.dyn, m.seed_dyn, m.motor
+            self.controller.set_model(m.seed_dyn if cfg.controller.mode == "seed" else m.dyn, m.motor)
+            self.adapter, self.adapt_active = m.adapter, False  # what it learnt was about the old robot
+        self.cfg = cfg
+        self.holds.rebound(HoldBounds.of(cfg, self.hal.info.drive_timeout_s, self.period))
+        self.power.reconfigure(self, cfg)  # the measured supply into the new motor model and limits
+        if m is not None:
+            self._reprofile()
         self.enter(t)
+
+    def put_limits(self, limits: ResolvedLimits, cfg: Config | None = None) -> LimitsConfig:
+        """Make `limits` (of `cfg`, the loop's by default) the loop's, the velocity mode's ramp
+        included; returns the limits the controller takes now (the caller sets them)."""
+        plan = limits_plan(limits, self.reference, cfg or self.cfg)
+        self.limits, self.limits_after_braking = limits, plan.after_braking
+        return plan.now
+
+    def _reprofile(self) -> None:
+        """A new robot model: the rest of the path being followed re-profiled when it asks more
+        than the new motors give (ddrt/loop/reload.py); what was done goes in `reprofiled`."""
+        ref = self.reference
+        r = (reprofile(ref, self.path, self.dyn, replace(self.motor.params, supply_v=self.power.limits_v))
+             if self.state == FOLLOWING else Reprofile())
+        self.reprofiled = r.note
+        if r.path is not None and isinstance(ref, PathReference):
+            ref.reprofiled(r.path)
+            self.path = r.path
+            log.info("reload: %s", r.note)
+        elif r.note:
+            log.warning("reload: %s", r.note)
 
     # ------------------------------------------------------------------ start-up
 
@@ -163,7 +200,9 @@ class ControlLoop(ModeMachine):
         to in place first (or refused, with `pursuit.start_turn: refuse`), and a start off
         the path or off its heading is joined at no more than the path's speed."""
         self._check_start(path, pose)  # refused before any work
-        path = self.power.fit_path(self, path)  # under the motors at the measured supply
+        path, note = self.power.fit_path(path)  # under the motors at the measured supply
+        if note:
+            self.reprofiled = note
         p = self.cfg.pursuit
         ref: PathReference | StartReference = PathReference(
             path, p.lookahead_m, p.search_window_m, self.period,
