@@ -38,6 +38,7 @@ from ddrt.loop.record import COLUMNS, fill_row
 from ddrt.loop.reload import Reprofile, drive_limits, limits_plan, prepare_reload, reprofile
 from ddrt.loop.states import MOVING, LoopState
 from ddrt.path import Path
+from ddrt.path.frame import Transform, in_map
 from ddrt.path.reference import PathReference
 from ddrt.path.start import JOIN_APPROACH_RAD, StartReference, needs_join, start_heading_offset
 from hal.base import Hal, HalError, HalTimeoutError, Sample
@@ -192,8 +193,11 @@ class ControlLoop(ModeMachine):
 
     # ------------------------------------------------------------------ commands
 
-    def follow(self, path: Path, pose: tuple[float, float, float] | None = None) -> None:
-        """Start following `path`; `pose` (if given) resets the dead-reckoned pose.
+    def follow(self, path: Path, pose: tuple[float, float, float] | None = None,
+               built: Transform | None = None) -> None:
+        """Start following `path`; `pose` (if given) resets the dead-reckoned pose; `built`
+        (a path in map, built in odom as the correction map -> odom stood then) steers it in
+        odom as the map frame moves (ddrt/path/frame.py).
 
         A start the robot cannot make as it stands is made a start it can (ddrt/path/start.py):
         a start heading more than `pursuit.max_start_heading_deg` from the robot's is turned
@@ -220,7 +224,11 @@ class ControlLoop(ModeMachine):
             outer = self.cfg.controller.outer
             ref = StartReference(ref, (x, y, theta), path.limits, self.period, turn=turn, join=join,
                                  y_cap=outer.k_theta * math.sin(JOIN_APPROACH_RAD) / outer.k_y)
-        self.follow_reference(ref, pose, path)
+        if built is None:
+            self.follow_reference(ref, pose, path)
+        else:
+            self.follow_reference(in_map(ref, self.estimator.frame, built, self.cfg.estimator.map_blend_s,
+                                         self.period), pose, path)
 
     def follow_reference(self, reference: Reference, pose: tuple[float, float, float] | None = None,
                          path: Path | None = None) -> None:
