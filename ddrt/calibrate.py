@@ -202,7 +202,7 @@ def identify(cfg: Config, hal: Hal, width: float, height: float, max_s: float = 
             adapter.update(lp.estimator.v, lp.estimator.yaw.w, prev[0], prev[1])
         prev[0], prev[1] = lp.duty_l, lp.duty_r
 
-    loop.on_tick = feed
+    loop.each_tick(feed)
     loop.follow(path, path.start_pose)
     run_until_stopped(loop, clock, path.duration + 15.0)
     return fit(adapter.recorder, path.duration, (width, height))

@@ -101,11 +101,16 @@ class ControlLoop(ModeMachine):
             self.adapter = DynamicsAdapter(self.dyn, self.motor, cfg.controller.adaptation, self.period)
         self.adapt_active = False  # the adapter's model is in use
         self.reprofiled = ""  # what the last reload did to the path being followed
-        self.on_tick: Callable[["ControlLoop"], None] | None = None
+        self._on_tick: Callable[["ControlLoop"], None] | None = None  # each_tick
         self.holds = HoldMachine(HoldBounds.of(cfg, hal.info.drive_timeout_s, self.period))
         # A reload's lower top speeds for the controller, once a drive has braked within them.
         self.limits_after_braking: LimitsConfig | None = None
         self.power = Power(cfg, hal.info, self.period)  # the supply voltage, the hardware estop
+
+    def each_tick(self, callback: Callable[["ControlLoop"], None] | None) -> None:
+        """Call `callback(loop)` at the end of every tick from now on (None: no more); a tool
+        that records or identifies along a run (calibration, commissioning) watches it so."""
+        self._on_tick = callback
 
     @property
     def recovery(self) -> RecoveryCounters:
@@ -455,8 +460,8 @@ class ControlLoop(ModeMachine):
         stamp()
         fill_row(self.row, self, sample.t)
         stamp()
-        if self.on_tick is not None:
-            self.on_tick(self)
+        if self._on_tick is not None:
+            self._on_tick(self)
 
     def steer(self, ref: Reference, stamp: Callable[[], None] = _no_stamp) -> None:
         """Reference -> control -> checks -> write, for a robot that moves along its reference."""
