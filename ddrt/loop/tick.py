@@ -408,9 +408,9 @@ class ControlLoop(ModeMachine):
         self.ticks += 1
         stamp()
         holds = self.holds
+        read_error = ""  # the HAL's timeout this tick: a transient fault until it persists
         try:
             sample = self.hal.read()
-            holds.read_error = ""
         except HalTimeoutError as exc:
             # The device stopped answering within its bound: a transient fault until it
             # persists. The estimator dead-reckons through a stale copy of the last sample.
@@ -418,7 +418,7 @@ class ControlLoop(ModeMachine):
                 self.enter_fault(f"sensor read failed: {exc}")
                 fill_row(self.row, self, 0.0)
                 return
-            holds.read_error = str(exc)
+            read_error = str(exc)
             last = self.sample
             sample = Sample(t=last.t + self.period, encoder_count=last.encoder_count,
                             gyro_z_raw=last.gyro_z_raw, fresh=False, faults="read_timeout")
@@ -442,10 +442,10 @@ class ControlLoop(ModeMachine):
         if state != FAULT and state != ESTOP:
             if est.health.fault:
                 self.enter_fault(est.health.fault)
-            elif est.blind_s or est.gap_s or holds.read_error:  # a sample missed or late: the hold's rules
-                if why := holds.persistent(est):
+            elif est.blind_s or est.gap_s or read_error:  # a sample missed or late: the hold's rules
+                if why := holds.persistent(est, read_error):
                     self.enter_fault(why)
-                elif state in MOVING and (why := holds.transient(est)):
+                elif state in MOVING and (why := holds.transient(est, read_error)):
                     holds.enter(self, why, sample.t, stall=est.stall_s > 0.0)
             state = self.state
         ref = self.reference
