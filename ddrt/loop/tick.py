@@ -122,7 +122,8 @@ class ControlLoop(ModeMachine):
         that is new is built first (ddrt/loop/reload.py), so a part that refuses leaves all as
         it was."""
         t = self.allow(Event.RELOAD)
-        m = (plan := prepare_reload(cfg, self.cfg, self.period, self.adapter is not None)).model
+        plan = prepare_reload(cfg, self.cfg, self.period, self.adapter is not None)
+        m = plan.model
         # Swap (nothing below raises for values that passed validation).
         self.estimator.reconfigure(cfg.estimator, cfg.robot.r_3, self.estimator.dyn if m is None else m.dyn,
                                    self.motor if m is None else m.motor)
