@@ -437,7 +437,8 @@ def param_writes(root: Path = REPO, folders: tuple[str, ...] = ("ddrt", "hal", "
                     continue
                 a = fn.args
                 params = {p.arg for p in [*a.posonlyargs, *a.args, *a.kwonlyargs, a.vararg, a.kwarg]
-                          if p is not None and p.arg not in ("self", "cls") and not _annotation_names(p.annotation) & exempt}
+                          if p is not None and p.arg not in ("self", "cls")
+                          and not _annotation_names(p.annotation) & exempt}
                 for node in ast.walk(fn):
                     if not isinstance(node, (ast.Assign, ast.AugAssign, ast.AnnAssign)):
                         continue

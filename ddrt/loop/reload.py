@@ -116,8 +116,9 @@ def reprofile(ref: Reference | None, path: Path | None, dyn: Dynamics, motor: Mo
     if left < 2:
         return Reprofile()
     if left > REPROFILE_MAX_SAMPLES:
-        return Reprofile(None, f"the path being followed has {left} samples left, more than {REPROFILE_MAX_SAMPLES} "
-                               "to re-profile between two ticks: it keeps its profile; the next path uses the new model")
+        return Reprofile(None, f"the path being followed has {left} samples left, more than "
+                               f"{REPROFILE_MAX_SAMPLES} to re-profile between two ticks: it keeps its profile; "
+                               "the next path uses the new model")
     excess = path.envelope_excess(env, first)
     if excess <= 1e-9:
         return Reprofile()
