@@ -9,7 +9,7 @@ into the robot's config; nothing is written into an existing config.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -202,7 +202,7 @@ def identify(cfg: Config, hal: Hal, width: float, height: float, max_s: float = 
             adapter.update(lp.estimator.v, lp.estimator.yaw.w, prev[0], prev[1])
         prev[0], prev[1] = lp.duty_l, lp.duty_r
 
-    loop.on_tick = feed
+    loop.each_tick(feed)
     loop.follow(path, path.start_pose)
     run_until_stopped(loop, clock, path.duration + 15.0)
     return fit(adapter.recorder, path.duration, (width, height))
@@ -258,7 +258,9 @@ def identify_fragment(cfg: Config, res: IdentifyResult) -> str:
     """robot: keys for the identified platform and motor friction, with a comment of the fit."""
     split = platform_split(cfg, res)
     coulomb = max(0.0, cfg.robot_motor.coulomb_nm + 0.5 * (split.friction["fric_l"] + split.friction["fric_r"]))
-    motor = {f: getattr(cfg.robot_motor, f) for f in ("supply_v", "resistance_ohm", "k_nm_per_a", "viscous_nms")}
+    m = cfg.robot_motor
+    motor = {"supply_v": m.supply_v, "resistance_ohm": m.resistance_ohm, "k_nm_per_a": m.k_nm_per_a,
+             "viscous_nms": m.viscous_nms}
     motor["coulomb_nm"] = round(coulomb, 5)
     robot = {k: float(f"{v:.6g}") for k, v in split.platform.items()}
     robot["motor"] = motor
@@ -431,10 +433,11 @@ def odometry_correction(cfg: Config, run: OdometryRun, measured_distance: float,
 
 def odometry_fragment(cfg: Config, run: OdometryRun, corr: OdometryCorrection, measured_distance: float,
                       measured_turn_rad: float, source: str) -> str:
+    before = asdict(cfg.robot)
     head = (f"# ddrt calibrate odometry ({source}): drove {run.distance_cmd_m:g} m, encoder said "
             f"{run.est_distance_m:.4f} m, measured {measured_distance:.4f} m; turned, gyro said "
             f"{run.est_turn_rad / DEG:.2f} deg, measured {measured_turn_rad / DEG:.2f} deg.\n"
-            f"# {', '.join(f'{k} {getattr(cfg.robot, k):.5f} -> {v:.5f} m' for k, v in corr.radii.items())}, "
+            f"# {', '.join(f'{k} {before[k]:.5f} -> {v:.5f} m' for k, v in corr.radii.items())}, "
             f"gyro_scale {cfg.estimator.gyro_scale:.5f} -> {corr.gyro_scale:.5f}\n")
     body = {"robot": {k: float(f"{v:.6g}") for k, v in corr.radii.items()},
             "estimator": {"gyro_scale": float(f"{corr.gyro_scale:.6g}")}}

@@ -55,6 +55,9 @@ class TrueMotion(Protocol):
     def velocity(self) -> tuple[float, float]:
         """(v, omega): the true forward speed (m/s) and yaw rate (rad/s)."""
 
+    def truth(self) -> list[float]:
+        """[x, y, theta, v, omega]: `pose` and `velocity` in one call (`ddrt sim`'s telemetry)."""
+
 
 class Hal(ABC):
     """A robot as the controller sees it: sensors to read, two motors to drive.

@@ -173,8 +173,9 @@ class Bridge:
         import serial  # lazy: only the real backend needs pyserial
 
         self._serial_mod = serial
+        self._port: Any = None  # until it opens
         try:
-            self._port: Any = serial.serial_for_url(
+            self._port = serial.serial_for_url(
                 url, baudrate=baudrate, timeout=0, write_timeout=write_timeout_s)
         except (serial.SerialException, OSError, ValueError) as e:
             raise HalInitError(f"{url}: cannot open serial port: {e}") from e
@@ -321,7 +322,7 @@ class Bridge:
         if self._closed:
             return
         self._closed = True
-        port = getattr(self, "_port", None)
+        port = self._port
         if port is None:
             return
         try:

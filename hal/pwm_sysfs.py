@@ -89,6 +89,7 @@ class PwmSysfsMotors:
         self._duty_ns = [0, 0]
         self._forward = [True, True]
         self._dirs: list[Path] = []
+        self._direction: DirectionWriter | None = None  # set once the outputs are at zero; close() releases it
         chip_dir = Path(root) / "class" / "pwm" / f"pwmchip{chip}"
         if not chip_dir.is_dir():
             raise HalInitError(f"{chip_dir}: no such PWM chip (is the overlay enabled?)")
@@ -149,9 +150,8 @@ class PwmSysfsMotors:
                 except HalIOError:
                     pass
             self._duty_ns[i] = 0
-        direction = getattr(self, "_direction", None)
-        if direction is not None:
-            direction.close()
+        if self._direction is not None:
+            self._direction.close()
 
     def _set_ns(self, i: int, ns: int) -> None:
         _write(self._dirs[i] / "duty_cycle", ns)

@@ -73,9 +73,7 @@ class WiredHal(Hal):
         self.inner.stop()
 
     def _close(self) -> None:
-        inner = getattr(self, "inner", None)  # None on a half-built object
-        if inner is not None:
-            inner.close()
+        self.inner.close()  # set before anything in the constructor can fail
 
     @property
     def fault_counters(self) -> dict[str, int] | None:

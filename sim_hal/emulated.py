@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import replace
-from typing import Any
+from typing import Any, Callable
 
 from ddrt.config import Config
-from ddrt.params.mpu_parts import part_by_name
+from ddrt.params.mpu_parts import MpuPart, part_by_name
 from hal.base import Hal, Sample
 from hal.wire import PROTOCOL_V1, PROTOCOL_VERSION
 from hal.mpu_watch import NOISE_FLOOR_DPS_RTHZ
@@ -48,11 +48,17 @@ class _PlantGyro:
 
     def __init__(self, robot: SimRobot) -> None:
         self.robot = robot
-        if robot.gyro_fifo:  # the plant's own FIFO (sensors.gyro_fifo): the emulator's FIFO takes every sample once
-            self.gyro_fifo_samples = robot.read_gyro_fifo
 
     def gyro_z_rad_s(self) -> float:
         return self.robot.read_gyro_raw() / self.robot.gyro_lsb_per_rad_s
+
+
+def plant_mpu(robot: SimRobot, part: MpuPart, *, clock: Callable[[], float] | None = None, clock_ppm: float = 0.0,
+              temperature_c: Callable[[], float] | None = None) -> MpuEmulator:
+    """The emulated MPU on the simulated robot's gyro; with the plant's own FIFO
+    (sensors.gyro_fifo) the emulator's FIFO takes each of its samples once."""
+    return MpuEmulator(_PlantGyro(robot), part=part, clock=clock, clock_ppm=clock_ppm, temperature_c=temperature_c,
+                       fifo_samples=robot.read_gyro_fifo if robot.gyro_fifo else None)
 
 
 class EmulatedDevices:
@@ -90,9 +96,8 @@ class EmulatedDevices:
         self.link = protocol_ddrtsim.register(self.name, self.mcu, self.mcu_time(self.robot.t))
         robot = self.robot
         g = cfg.sim.gyro
-        self.mpu = MpuEmulator(_PlantGyro(robot), part=part_by_name(g.part),
-                               clock=(lambda: robot.t) if g.register_hold else None,
-                               clock_ppm=g.clock_ppm, temperature_c=lambda: robot.gyro_die_temp_c)
+        self.mpu = plant_mpu(robot, part_by_name(g.part), clock=(lambda: robot.t) if g.register_hold else None,
+                             clock_ppm=g.clock_ppm, temperature_c=lambda: robot.gyro_die_temp_c)
         self.i2c = FaultyI2cBus(self.mpu)  # the bus the driver is given: faults injectable (sim_hal/faults.py)
         self.time = SimTime(lambda: robot.t, self._advance, paced)  # the real drivers' Clock
         self.link.pump(self.mcu_time(robot.t))
@@ -155,13 +160,11 @@ class EmulatedRealHal(Hal):
         return self.real.fault_counters
 
     def _close(self) -> None:
-        real, devices = getattr(self, "real", None), getattr(self, "devices", None)
+        # Both are set before anything in the constructor can fail.
         try:
-            if real is not None:
-                real.close()
+            self.real.close()
         finally:
-            if devices is not None:
-                devices.close()
+            self.devices.close()
 
 
 def real_hal_on(cfg: Config, devices: Any) -> RealHal:

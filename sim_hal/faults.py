@@ -16,7 +16,7 @@ import errno
 import random
 from typing import Any
 
-from sim_hal.mcu_emulator import McuEmulator, _Link
+from sim_hal.mcu_emulator import Link, McuEmulator
 from sim_hal.mpu_emulator import MpuEmulator
 
 __all__ = ["GYRO_FAULTS", "FaultyI2cBus", "SerialFaults", "inject_gyro_fault", "reset_mcu"]
@@ -143,10 +143,10 @@ def inject_gyro_fault(kind: str, part: MpuEmulator, bus: FaultyI2cBus) -> None:
         raise ValueError(f"gyro fault: expected one of {', '.join(GYRO_FAULTS)}, got {kind!r}")
 
 
-def reset_mcu(target: McuEmulator | _Link, now: float | None = None) -> None:
+def reset_mcu(target: McuEmulator | Link, now: float | None = None) -> None:
     """Reboot the emulated MCU at `now` (default: the link's clock). Given a link, this runs
     under its lock so it does not race the pump thread."""
-    if isinstance(target, _Link):
+    if isinstance(target, Link):
         with target.lock:
             target.mcu.reset(target.clock() if now is None else now)
     else:

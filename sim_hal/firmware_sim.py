@@ -47,10 +47,9 @@ from hal.base import HalInitError, HalIOError
 from sim_hal import firmware_build
 from sim_hal.serial_urls import protocol_simavr
 from ddrt.params.mpu_parts import part_by_name
-from sim_hal.emulated import EmulatedRealHal, _PlantGyro, real_hal_on
+from sim_hal.emulated import EmulatedRealHal, plant_mpu, real_hal_on
 from sim_hal.faults import FaultyI2cBus
 from sim_hal.factory import plant_config
-from sim_hal.mpu_emulator import MpuEmulator
 from sim_hal.plant import SimRobot
 from sim_hal.simtime import SimTime
 
@@ -381,7 +380,7 @@ class FirmwareSimDevices:
         else:
             self.counts = protocol_simavr.register(self.name, self.sim.pty)
             self.url = f"simavr://{self.name}"
-        self.mpu = MpuEmulator(_PlantGyro(self.robot), part=part_by_name(cfg.sim.gyro.part))
+        self.mpu = plant_mpu(self.robot, part_by_name(cfg.sim.gyro.part))
         self.i2c = FaultyI2cBus(self.mpu)  # as EmulatedDevices: faults injectable (sim_hal/faults.py)
         robot = self.robot
         self._t0 = robot.t

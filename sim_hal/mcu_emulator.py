@@ -274,7 +274,7 @@ class McuEmulator:
         self._seq = (self._seq + 1) & 0xFF
 
 
-class _Link:
+class Link:
     """Moves bytes between a McuEmulator and one byte stream; optional fault filters sit on
     each direction (sim_hal/faults.py). `lock` serialises pump() with a test's interventions."""
 
@@ -311,7 +311,7 @@ class _Link:
             if out:
                 self._send(out)
 
-    def start(self, period_s: float = 0.0005) -> "_Link":
+    def start(self, period_s: float = 0.0005) -> "Link":
         """Pump from a daemon thread every `period_s` (and whenever host bytes arrive)."""
         if self._thread is not None:
             return self
@@ -347,7 +347,7 @@ class _Link:
             self._closed = True
             self._close_fds()
 
-    def __enter__(self) -> "_Link":
+    def __enter__(self) -> "Link":
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -370,7 +370,7 @@ class _Link:
     def _close_fds(self) -> None: raise NotImplementedError
 
 
-class PtyLink(_Link):
+class PtyLink(Link):
     """The MCU behind a pseudo-terminal: open `url` (the slave's /dev/pts path) with pyserial.
 
     The slave is put in raw mode at once (no echo, no line editing) and kept open here, so the
@@ -425,7 +425,7 @@ class PtyLink(_Link):
                 pass
 
 
-class TcpLink(_Link):
+class TcpLink(Link):
     """The MCU behind a TCP socket on 127.0.0.1 (ephemeral port): `socket://127.0.0.1:PORT`.
 
     One host at a time; bytes sent while no host is connected are lost, like a UART's.

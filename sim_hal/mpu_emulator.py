@@ -17,7 +17,7 @@ refreshes; without one, every read samples anew. TEMP_OUT reports the die temper
 The FIFO (USER_CTRL's FIFO_EN, FIFO_EN's ZG_FIFO_EN, FIFO_COUNT, FIFO_R_W): each gyro z sample
 2 bytes big-endian; full, the oldest sample is overwritten and INT_STATUS's FIFO_OFLOW_INT set
 (cleared when INT_STATUS is read). Where the samples come from: a source with its own FIFO
-(`gyro_fifo_samples()`, the simulated robot's every sample, exactly once); else with a clock,
+(`fifo_samples()`, the simulated robot's every sample, exactly once); else with a clock,
 the source's rate at each sample instant passed (the rate now, for every instant since the last
 access: exact for a constant rate); else one sample per FIFO_COUNT read.
 
@@ -102,8 +102,10 @@ class MpuEmulator:
     def __init__(self, source: GyroSource, address: int = 0x68,
                  who_am_i: int | None = None, *, part: MpuPart = MPU_6050,
                  clock: Callable[[], float] | None = None,
-                 clock_ppm: float = 0.0, temperature_c: Callable[[], float] | None = None) -> None:
+                 clock_ppm: float = 0.0, temperature_c: Callable[[], float] | None = None,
+                 fifo_samples: Callable[[], tuple[list[int], int]] | None = None) -> None:
         self.source = source
+        self.fifo_samples = fifo_samples  # the source's own FIFO: (raw samples since the last call, lost)
         self.address = address
         self.part = part
         self._who_am_i = part.who_am_i if who_am_i is None else who_am_i
@@ -219,7 +221,7 @@ class MpuEmulator:
 
     def _fill_fifo(self, on_count_read: bool) -> None:
         """Bring the FIFO up to now (module doc); samples are dropped while it does not run."""
-        drain = getattr(self.source, "gyro_fifo_samples", None)
+        drain = self.fifo_samples
         if drain is not None:
             samples, lost = drain()
             if self.fifo_running and self.output != "stalled":

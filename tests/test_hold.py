@@ -62,8 +62,7 @@ def test_fresh_samples_on_time_are_no_reason_to_hold_or_latch() -> None:
 ])
 def test_each_transient_cause_is_named(gaps: Gaps, read_error: str, expected: str) -> None:
     m = HoldMachine(bounds())
-    m.read_error = read_error
-    assert expected in m.transient(gaps)
+    assert expected in m.transient(gaps, read_error)
 
 
 def test_stale_ticks_alone_are_a_transient_fault() -> None:
@@ -82,8 +81,7 @@ def test_blind_for_fault_latch_s_latches_and_counts() -> None:
     why = m.persistent(Gaps(blind_s=0.5))
     assert why.startswith("sensors stale for 0 ticks: 0.500 s without a fresh sample")
     assert "estimator.fault_latch_s = 0.5 s" in why and m.counters.latched == 1
-    m.read_error = "I2C timeout"
-    assert m.persistent(Gaps(blind_s=0.7)).startswith("sensor read timed out (I2C timeout): 0.700 s")
+    assert m.persistent(Gaps(blind_s=0.7), "I2C timeout").startswith("sensor read timed out (I2C timeout): 0.700 s")
     assert m.counters.latched == 2
 
 

@@ -322,11 +322,12 @@ def test_the_gyro_margin_holds_for_every_path(tmp_path: Path) -> None:
 
 class _FakeLoop:
     state = LoopState.IDLE
+    path = None
 
     def __init__(self) -> None:
         self.followed: list[Any] = []
 
-    def follow(self, path: Any, pose: Any = None) -> None:
+    def follow(self, path: Any, pose: Any = None, built: Any = None) -> None:
         self.followed.append((path, pose))
         self.state = LoopState.FOLLOWING
 

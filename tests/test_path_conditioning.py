@@ -388,8 +388,9 @@ def test_ddrt_sim_and_a_follow_reply_report_the_deviation(tmp_path, capsys) -> N
 
     class _Loop:
         state = LoopState.IDLE
+        path = None
 
-        def follow(self, path, pose=None) -> None:
+        def follow(self, path, pose=None, built=None) -> None:
             self.path = path
 
     cfg = tmp_path / "d.yaml"

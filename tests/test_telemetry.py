@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from ddrt.service.telemetry import (
+    DdrtLogHandler,
     JournalFormatter,
     RotatingCsvWriter,
     TelemetryLogger,
@@ -246,7 +247,7 @@ def root_logging():
     saved = (list(root.handlers), root.level)
     yield
     for h in list(root.handlers):
-        if getattr(h, "_ddrt", False):
+        if isinstance(h, DdrtLogHandler):
             root.removeHandler(h)
     root.handlers[:], root.level = saved[0], saved[1]
 
@@ -292,7 +293,7 @@ def test_configure_twice_keeps_one_handler(root_logging: None) -> None:
     configure_logging("info", sd_prefix=False)
     configure_logging("warning", sd_prefix=False)
     root = logging.getLogger()
-    assert sum(getattr(h, "_ddrt", False) for h in root.handlers) == 1
+    assert sum(isinstance(h, DdrtLogHandler) for h in root.handlers) == 1
     assert root.level == logging.WARNING
 
 

@@ -46,7 +46,7 @@ def run(session: Session, cfg: Config) -> dict[str, Any]:
             if n % 10 == 0:
                 trace.append((sp.x_d, sp.y_d, x, y, tx, ty, n * lp.period))
 
-        loop.on_tick = record
+        loop.each_tick(record)
         follow_to_end(loop, clock, path, start, "check")
         p1 = truth.pose if truth is not None else None
     out: dict[str, Any] = {"path_s": path.duration, "path_m": path.length,

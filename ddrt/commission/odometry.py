@@ -21,6 +21,7 @@ tape and a protractor (`--measurement-noise MM,DEG`, default 2 mm and 0.5 deg, o
 from __future__ import annotations
 
 import math
+from dataclasses import asdict
 from typing import Any
 
 from ddrt.commission.session import CommissionError, Session
@@ -109,7 +110,8 @@ def run(session: Session) -> dict[str, Any]:
     from ddrt.calibrate import corrected_radii
 
     radii = corrected_radii(cfg, d_ratio, run_["wheel_delta"])
-    radii_before = {k: getattr(cfg.robot, k) for k in radii}
+    robot = asdict(cfg.robot)
+    radii_before = {k: robot[k] for k in radii}
     scale = cfg.estimator.gyro_scale * t_ratio
     scale_rel = math.radians(prot_deg) / turn
     umb = None

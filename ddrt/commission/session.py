@@ -108,14 +108,12 @@ def explicit_robot(cfg: Config) -> dict[str, Any]:
     plant keys that default to robot:'s."""
     from dataclasses import asdict
 
-    from ddrt.params.robot import RobotParams
-
     data = dict(cfg.raw)
     robot = {k: v for k, v in dict(data.get("robot") or {}).items() if k != "estimate"}
-    robot.update({name: float(f"{getattr(cfg.robot, name):.6g}") for name in RobotParams.names()})
+    robot.update({name: float(f"{value:.6g}") for name, value in asdict(cfg.robot).items()})
     data["robot"] = robot
     if cfg.hal.backend == "sim" or "plant" in data:
-        plant: dict[str, Any] = {name: getattr(cfg.plant, name) for name in RobotParams.names()}
+        plant: dict[str, Any] = asdict(cfg.plant)
         plant["motor_l"] = asdict(cfg.plant_motor_l)
         plant["motor_r"] = asdict(cfg.plant_motor_r)
         data["plant"] = plant

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import copy
 import os
+from dataclasses import asdict
 from pathlib import Path as FsPath
 from typing import Any, Callable, Mapping
 
@@ -120,7 +121,7 @@ def _explicit(section: Any, where: str) -> Any:
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
     out = {k: v for k, v in section.items() if k != "estimate"}
-    out.update({name: getattr(derived, name) for name in RobotParams.names()})
+    out.update(asdict(derived))
     return out
 
 

@@ -80,7 +80,8 @@ class AdaptedDynamics(Dynamics):
 
 def theta_of(dyn: Dynamics) -> list[float]:
     """The parameter vector of a model (friction 0 unless it is an AdaptedDynamics)."""
-    return [dyn.m_k, dyn.mbar, dyn.I, dyn.m_x, getattr(dyn, "fric_l", 0.0), getattr(dyn, "fric_r", 0.0)]
+    fric_l, fric_r = (dyn.fric_l, dyn.fric_r) if isinstance(dyn, AdaptedDynamics) else (0.0, 0.0)
+    return [dyn.m_k, dyn.mbar, dyn.I, dyn.m_x, fric_l, fric_r]
 
 
 def regressor(dyn: Dynamics, v: float, w: float, ww: float, vw: float, sl: float, sr: float,

@@ -45,9 +45,8 @@ def check_command(v: object, omega: object, limits: LimitsConfig) -> tuple[float
     field for anything that is not a plausible velocity."""
     out = []
     clamped = []
-    for value, (name, unit, key) in zip((v, omega), FIELDS):
+    for value, (name, unit, key), lim in zip((v, omega), FIELDS, (limits.v_max, limits.omega_max)):
         x = finite_float(value, name, unit=unit)
-        lim = getattr(limits, key)
         if abs(x) > REFUSE_FACTOR * lim:
             raise ValueError(f"{name}: {x:g} {unit} is more than {REFUSE_FACTOR:g} x limits.{key} "
                              f"({lim:g} {unit}): refused as a likely unit error (up to that it is clamped)")

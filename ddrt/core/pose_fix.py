@@ -188,9 +188,9 @@ class MapFrame:
     def step(self, track: Tracker, t: float, dt: float, ds: float, dth: float,
              xo: float, yo: float, tho: float) -> None:
         """One tick of the odometry (distance ds, turn dth over dt, ending at (xo, yo, tho))."""
-        if track.bias_shrink != 1.0:  # the estimator re-learnt the bias at rest
-            self.b *= track.bias_shrink
-            track.bias_shrink = 1.0
+        shrink = track.take_bias_shrink()
+        if shrink != 1.0:  # the estimator re-learnt the bias at rest
+            self.b *= shrink
         dthm = dth * (1.0 + self.g) + self.b * dt
         dsm = ds * (1.0 + self.s)
         half = self.th + 0.5 * dthm
@@ -264,15 +264,13 @@ class MapFrame:
         gain = pf[:, :3] @ s_inv  # K at the fix's time
         delta_f = gain @ y  # the error state's correction then
         m_f = gain @ pf[:3, :]  # and what it takes off the covariance: K H P
-        for i, ks in enumerate(track.saved_k):
-            if ks < 0 or ks < h.oldest or h.t[h.slot(ks)] < fix.stamp:
-                continue
+
+        def corrected(ks: int, saved_p: list[float]) -> list[float]:
             ph = _phi_matrix(phi(a_f, h.state(ks))[0])
-            p = np.array(track.saved_p[i]).reshape(N, N) - ph @ m_f @ ph.T
-            track.saved_p[i][:] = (0.5 * (p + p.T)).ravel().tolist()
-            if ks == now_k:
-                track.p_map[:] = track.saved_p[i]
-        track._publish()
+            p = np.array(saved_p).reshape(N, N) - ph @ m_f @ ph.T
+            return (0.5 * (p + p.T)).ravel().tolist()
+
+        track.correct_saved(fix.stamp, now_k, corrected)
         delta = self._shift_history(h, a_f, k_f, delta_f)
         self.x, self.y, self.th = h.x[h.head], h.y[h.head], h.th[h.head]
         self.s += float(delta_f[3])

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 from ddrt.config import EstimatorConfig
 
@@ -305,6 +306,24 @@ class Tracker:
             condition_bias(self.p_odom, self.at_rest_var)
             self.at_rest_var = math.inf
         self._save()
+        self._publish()
+
+    def take_bias_shrink(self) -> float:
+        """How much the bias's variance shrank at rest since the last call (1.0: not at all),
+        for the map frame's learnt bias (ddrt/core/pose_fix.py)."""
+        shrink, self.bias_shrink = self.bias_shrink, 1.0
+        return shrink
+
+    def correct_saved(self, stamp: float, now_k: int, correct: Callable[[int, list[float]], list[float]]) -> None:
+        """A fix at `stamp` corrected the map's estimate: each covariance saved at its time or
+        later becomes `correct(tick, covariance)`, the map's own with the one saved now."""
+        h = self.hist
+        for i, ks in enumerate(self.saved_k):
+            if ks < 0 or ks < h.oldest or h.t[h.slot(ks)] < stamp:
+                continue
+            self.saved_p[i][:] = correct(ks, self.saved_p[i])
+            if ks == now_k:
+                self.p_map[:] = self.saved_p[i]
         self._publish()
 
     def _advance(self, p: list[float], k0: int, k1: int, c: float, s: float) -> None:

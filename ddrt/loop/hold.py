@@ -108,31 +108,35 @@ class HoldMachine:
     """The hold in progress (`active`), the counters, and the rules that start and end it."""
 
     def __init__(self, bounds: HoldBounds) -> None:
-        self.bounds = bounds  # replaced whole on a reload
+        self.bounds = bounds  # replaced whole on a reload (rebound)
         self.counters = RecoveryCounters()
         self.active: ActiveHold | None = None
-        self.read_error = ""  # the HAL's timeout, while reads keep timing out (the loop sets it)
         self._starts: deque[float] = deque()  # sample times at which holds on the sensors' account began
+
+    def rebound(self, bounds: HoldBounds) -> None:
+        """A reload's bounds, in force from the next check."""
+        self.bounds = bounds
 
     # ------------------------------------------------------------------ outside a hold
 
-    def persistent(self, gaps: SensorGaps) -> str:
+    def persistent(self, gaps: SensorGaps, read_error: str = "") -> str:
         """Why the fault latches now (blind for estimator.fault_latch_s), counted; else ''.
-        (Never while blind_s is 0: fault_latch_s > max_gap_s > 0, ddrt.config.)"""
+        (Never while blind_s is 0: fault_latch_s > max_gap_s > 0, ddrt.config.) `read_error`:
+        the HAL's timeout this tick, while reads keep timing out."""
         if not gaps.blind_s >= self.bounds.latch_s:
             return ""
         self.counters.latched += 1
-        what = (f"sensor read timed out ({self.read_error})" if self.read_error
+        what = (f"sensor read timed out ({read_error})" if read_error
                 else f"sensors stale for {gaps.health.stale_ticks} ticks")
         return (f"{what}: {gaps.blind_s:.3f} s without a fresh sample "
                 f"(estimator.fault_latch_s = {self.bounds.latch_s:g} s)")
 
-    def transient(self, gaps: SensorGaps) -> str:
+    def transient(self, gaps: SensorGaps, read_error: str = "") -> str:
         """Why the sensors cannot be trusted this tick (a hold while moving), or ''."""
-        if not (gaps.blind_s or gaps.gap_s or self.read_error):
+        if not (gaps.blind_s or gaps.gap_s or read_error):
             return ""
-        if self.read_error:
-            return f"sensor read timed out: {self.read_error}"
+        if read_error:
+            return f"sensor read timed out: {read_error}"
         if gaps.gap_s > gaps.max_gap:
             stalled = " (the loop did not run)" if gaps.stall_s > 0.0 else ""
             return f"sensor gap of {gaps.gap_s * 1000:.1f} ms{stalled}"

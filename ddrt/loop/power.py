@@ -46,7 +46,7 @@ from ddrt.config import Config
 from ddrt.core.envelope import resolve_limits
 from ddrt.core.reference import Reference
 from ddrt.core.types import HalInfo, Sample
-from ddrt.loop.reload import REPROFILE_MAX_SAMPLES, put_limits
+from ddrt.loop.reload import REPROFILE_MAX_SAMPLES
 from ddrt.loop.states import LoopState
 
 if TYPE_CHECKING:
@@ -169,7 +169,7 @@ class Power:
             self._limits_failed = True
             return
         self._limits_failed = False
-        loop.controller.set_limits(put_limits(loop, limits, cfg))
+        loop.controller.set_limits(loop.put_limits(limits))
 
     def reconfigure(self, loop: ControlLoop, cfg: Config) -> None:
         """A reload: the new config's supply, bounds and minimum; a new motor model and new
@@ -185,28 +185,29 @@ class Power:
         if self.min_v is None:
             self.reason = ""
 
-    def fit_path(self, loop: ControlLoop, path: Path) -> Path:
+    def fit_path(self, path: Path) -> tuple[Path, str]:
         """`path`, re-profiled under the motors' envelope at the measured supply when that is
-        lower than the one it was profiled for and the path asks more than it gives."""
+        lower than the one it was profiled for and the path asks more than it gives; and what
+        was done, for `ControlLoop.reprofiled` ('' when nothing was)."""
         env = path.limits.envelope
         if not self.good or env is None or self.v_slow >= env.motor.supply_v:
-            return path
+            return path, ""
         if len(path.sigma) > REPROFILE_MAX_SAMPLES:
-            loop.reprofiled = (f"the path has {len(path.sigma)} samples, more than {REPROFILE_MAX_SAMPLES} to re-profile "
-                               f"between two ticks: it keeps its profile for {env.motor.supply_v:g} V "
-                               f"(measured {self.v_slow:.2f} V)")
-            log.warning("follow: %s", loop.reprofiled)
-            return path
+            note = (f"the path has {len(path.sigma)} samples, more than {REPROFILE_MAX_SAMPLES} to re-profile "
+                    f"between two ticks: it keeps its profile for {env.motor.supply_v:g} V "
+                    f"(measured {self.v_slow:.2f} V)")
+            log.warning("follow: %s", note)
+            return path, note
         env_v = replace(env, motor=replace(env.motor, supply_v=self.v_slow))
         excess = path.envelope_excess(env_v)
         if excess <= 1e-9:
-            return path
+            return path, ""
         new = path.reprofiled(replace(path.limits, envelope=env_v), 0)
-        loop.reprofiled = (f"the path asked up to {excess:.1%} beyond the motors at the measured {self.v_slow:.2f} V "
-                           f"(profiled for {env.motor.supply_v:g} V): re-profiled ({path.duration:.2f} -> "
-                           f"{new.duration:.2f} s)")
-        log.info("follow: %s", loop.reprofiled)
-        return new
+        note = (f"the path asked up to {excess:.1%} beyond the motors at the measured {self.v_slow:.2f} V "
+                f"(profiled for {env.motor.supply_v:g} V): re-profiled ({path.duration:.2f} -> "
+                f"{new.duration:.2f} s)")
+        log.info("follow: %s", note)
+        return new, note
 
     # ------------------------------------------------------------------ commands
 

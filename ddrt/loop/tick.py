@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import math
+from dataclasses import replace
 from typing import Callable
 
 from ddrt.config import Config
@@ -24,7 +25,7 @@ from ddrt.config.sections import LimitsConfig
 from ddrt.core.adapt import DynamicsAdapter
 from ddrt.core.control import Command, DynamicController, KinematicController, make_controller
 from ddrt.core.drive import DriveReference, check_command
-from ddrt.core.envelope import resolve_limits
+from ddrt.core.envelope import ResolvedLimits, resolve_limits
 from ddrt.core.estimator import Estimator, calibrate_gyro
 from ddrt.core.model import Dynamics
 from ddrt.core.motor import Motor
@@ -34,9 +35,10 @@ from ddrt.loop.hold import HoldBounds, HoldMachine, RecoveryCounters
 from ddrt.loop.modes import NOTHING_TO_RESUME, Event, ModeMachine, Transition
 from ddrt.loop.power import Power
 from ddrt.loop.record import COLUMNS, fill_row
-from ddrt.loop.reload import drive_limits, reconfigure
+from ddrt.loop.reload import Reprofile, drive_limits, limits_plan, prepare_reload, reprofile
 from ddrt.loop.states import MOVING, LoopState
 from ddrt.path import Path
+from ddrt.path.frame import Transform, in_map
 from ddrt.path.reference import PathReference
 from ddrt.path.start import JOIN_APPROACH_RAD, StartReference, needs_join, start_heading_offset
 from hal.base import Hal, HalError, HalTimeoutError, Sample
@@ -99,11 +101,16 @@ class ControlLoop(ModeMachine):
             self.adapter = DynamicsAdapter(self.dyn, self.motor, cfg.controller.adaptation, self.period)
         self.adapt_active = False  # the adapter's model is in use
         self.reprofiled = ""  # what the last reload did to the path being followed
-        self.on_tick: Callable[["ControlLoop"], None] | None = None
+        self._on_tick: Callable[["ControlLoop"], None] | None = None  # each_tick
         self.holds = HoldMachine(HoldBounds.of(cfg, hal.info.drive_timeout_s, self.period))
         # A reload's lower top speeds for the controller, once a drive has braked within them.
         self.limits_after_braking: LimitsConfig | None = None
         self.power = Power(cfg, hal.info, self.period)  # the supply voltage, the hardware estop
+
+    def each_tick(self, callback: Callable[["ControlLoop"], None] | None) -> None:
+        """Call `callback(loop)` at the end of every tick from now on (None: no more); a tool
+        that records or identifies along a run (calibration, commissioning) watches it so."""
+        self._on_tick = callback
 
     @property
     def recovery(self) -> RecoveryCounters:
@@ -111,10 +118,47 @@ class ControlLoop(ModeMachine):
         return self.holds.counters
 
     def reconfigure(self, cfg: Config) -> None:
-        """Put a config in force between two ticks (ddrt/loop/reload.py)."""
+        """Put a config in force between two ticks: every part that holds a copy gets it. All
+        that is new is built first (ddrt/loop/reload.py), so a part that refuses leaves all as
+        it was."""
         t = self.allow(Event.RELOAD)
-        reconfigure(self, cfg)
+        plan = prepare_reload(cfg, self.cfg, self.period, self.adapter is not None)
+        m = plan.model
+        # Swap (nothing below raises for values that passed validation).
+        self.estimator.reconfigure(cfg.estimator, cfg.robot.r_3, self.estimator.dyn if m is None else m.dyn,
+                                   self.motor if m is None else m.motor)
+        self.controller.retune(cfg.controller, self.put_limits(plan.limits, cfg))
+        if m is not None:
+            self.dyn, self.seed_dyn, self.motor = m.dyn, m.seed_dyn, m.motor
+            self.controller.set_model(m.seed_dyn if cfg.controller.mode == "seed" else m.dyn, m.motor)
+            self.adapter, self.adapt_active = m.adapter, False  # what it learnt was about the old robot
+        self.cfg = cfg
+        self.holds.rebound(HoldBounds.of(cfg, self.hal.info.drive_timeout_s, self.period))
+        self.power.reconfigure(self, cfg)  # the measured supply into the new motor model and limits
+        if m is not None:
+            self._reprofile()
         self.enter(t)
+
+    def put_limits(self, limits: ResolvedLimits, cfg: Config | None = None) -> LimitsConfig:
+        """Make `limits` (of `cfg`, the loop's by default) the loop's, the velocity mode's ramp
+        included; returns the limits the controller takes now (the caller sets them)."""
+        plan = limits_plan(limits, self.reference, cfg or self.cfg)
+        self.limits, self.limits_after_braking = limits, plan.after_braking
+        return plan.now
+
+    def _reprofile(self) -> None:
+        """A new robot model: the rest of the path being followed re-profiled when it asks more
+        than the new motors give (ddrt/loop/reload.py); what was done goes in `reprofiled`."""
+        ref = self.reference
+        r = (reprofile(ref, self.path, self.dyn, replace(self.motor.params, supply_v=self.power.limits_v))
+             if self.state == FOLLOWING else Reprofile())
+        self.reprofiled = r.note
+        if r.path is not None and isinstance(ref, PathReference):
+            ref.reprofiled(r.path)
+            self.path = r.path
+            log.info("reload: %s", r.note)
+        elif r.note:
+            log.warning("reload: %s", r.note)
 
     # ------------------------------------------------------------------ start-up
 
@@ -155,15 +199,20 @@ class ControlLoop(ModeMachine):
 
     # ------------------------------------------------------------------ commands
 
-    def follow(self, path: Path, pose: tuple[float, float, float] | None = None) -> None:
-        """Start following `path`; `pose` (if given) resets the dead-reckoned pose.
+    def follow(self, path: Path, pose: tuple[float, float, float] | None = None,
+               built: Transform | None = None) -> None:
+        """Start following `path`; `pose` (if given) resets the dead-reckoned pose; `built`
+        (a path in map, built in odom as the correction map -> odom stood then) steers it in
+        odom as the map frame moves (ddrt/path/frame.py).
 
         A start the robot cannot make as it stands is made a start it can (ddrt/path/start.py):
         a start heading more than `pursuit.max_start_heading_deg` from the robot's is turned
         to in place first (or refused, with `pursuit.start_turn: refuse`), and a start off
         the path or off its heading is joined at no more than the path's speed."""
         self._check_start(path, pose)  # refused before any work
-        path = self.power.fit_path(self, path)  # under the motors at the measured supply
+        path, note = self.power.fit_path(path)  # under the motors at the measured supply
+        if note:
+            self.reprofiled = note
         p = self.cfg.pursuit
         ref: PathReference | StartReference = PathReference(
             path, p.lookahead_m, p.search_window_m, self.period,
@@ -181,7 +230,11 @@ class ControlLoop(ModeMachine):
             outer = self.cfg.controller.outer
             ref = StartReference(ref, (x, y, theta), path.limits, self.period, turn=turn, join=join,
                                  y_cap=outer.k_theta * math.sin(JOIN_APPROACH_RAD) / outer.k_y)
-        self.follow_reference(ref, pose, path)
+        if built is None:
+            self.follow_reference(ref, pose, path)
+        else:
+            self.follow_reference(in_map(ref, self.estimator.frame, built, self.cfg.estimator.map_blend_s,
+                                         self.period), pose, path)
 
     def follow_reference(self, reference: Reference, pose: tuple[float, float, float] | None = None,
                          path: Path | None = None) -> None:
@@ -356,9 +409,9 @@ class ControlLoop(ModeMachine):
         self.ticks += 1
         stamp()
         holds = self.holds
+        read_error = ""  # the HAL's timeout this tick: a transient fault until it persists
         try:
             sample = self.hal.read()
-            holds.read_error = ""
         except HalTimeoutError as exc:
             # The device stopped answering within its bound: a transient fault until it
             # persists. The estimator dead-reckons through a stale copy of the last sample.
@@ -366,7 +419,7 @@ class ControlLoop(ModeMachine):
                 self.enter_fault(f"sensor read failed: {exc}")
                 fill_row(self.row, self, 0.0)
                 return
-            holds.read_error = str(exc)
+            read_error = str(exc)
             last = self.sample
             sample = Sample(t=last.t + self.period, encoder_count=last.encoder_count,
                             gyro_z_raw=last.gyro_z_raw, fresh=False, faults="read_timeout")
@@ -390,10 +443,10 @@ class ControlLoop(ModeMachine):
         if state != FAULT and state != ESTOP:
             if est.health.fault:
                 self.enter_fault(est.health.fault)
-            elif est.blind_s or est.gap_s or holds.read_error:  # a sample missed or late: the hold's rules
-                if why := holds.persistent(est):
+            elif est.blind_s or est.gap_s or read_error:  # a sample missed or late: the hold's rules
+                if why := holds.persistent(est, read_error):
                     self.enter_fault(why)
-                elif state in MOVING and (why := holds.transient(est)):
+                elif state in MOVING and (why := holds.transient(est, read_error)):
                     holds.enter(self, why, sample.t, stall=est.stall_s > 0.0)
             state = self.state
         ref = self.reference
@@ -408,8 +461,8 @@ class ControlLoop(ModeMachine):
         stamp()
         fill_row(self.row, self, sample.t)
         stamp()
-        if self.on_tick is not None:
-            self.on_tick(self)
+        if self._on_tick is not None:
+            self._on_tick(self)
 
     def steer(self, ref: Reference, stamp: Callable[[], None] = _no_stamp) -> None:
         """Reference -> control -> checks -> write, for a robot that moves along its reference."""

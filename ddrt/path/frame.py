@@ -21,9 +21,11 @@ from __future__ import annotations
 import math
 from typing import Protocol
 
-from ddrt.core.reference import Reference
 from ddrt.core.types import Setpoint
 from ddrt.core.wrap import wrap_angle
+from ddrt.path.reference import PathReference
+from ddrt.path.sampled import Path
+from ddrt.path.start import StartReference
 
 Transform = tuple[float, float, float]  # (x, y, theta): p_map = (x, y) + R(theta) p_odom
 
@@ -48,7 +50,8 @@ class _Frame(Protocol):
 class MapReference:
     """A reference stage in `map` coordinates seen from `odom` (a ddrt.core.reference.Reference)."""
 
-    def __init__(self, inner: Reference, built: Transform, frame: _Frame, blend_s: float, period_s: float) -> None:
+    def __init__(self, inner: PathReference | StartReference, built: Transform, frame: _Frame, blend_s: float,
+                 period_s: float) -> None:
         self.inner = inner
         self.built_inv = inverse(built)
         self.frame = frame
@@ -88,8 +91,8 @@ class MapReference:
         return self.inner.resumable
 
     @property
-    def path(self) -> object:
-        return getattr(self.inner, "path", None)
+    def path(self) -> Path:
+        return self.inner.path
 
     def request_stop(self, decel: float) -> None:
         self.inner.request_stop(decel)
@@ -140,7 +143,8 @@ class MapReference:
         return jump
 
 
-def in_map(reference: Reference, frame: _Frame, built: Transform, blend_s: float, period_s: float) -> MapReference:
+def in_map(reference: PathReference | StartReference, frame: _Frame, built: Transform, blend_s: float,
+           period_s: float) -> MapReference:
     """`reference` (built in odom at the correction `built`) followed in map as `frame` (the
     estimator's MapFrame) moves: what a follow with frame: map puts in the loop."""
     return MapReference(reference, built, frame, blend_s, period_s)

@@ -127,6 +127,11 @@ class PurePursuit:
         self._s = s
         self._i = self.path.index(s)
 
+    def reprofiled(self, path: Path) -> None:
+        """Go on along `path`, this path's samples under a new speed profile (a reload's new
+        model): where it stands, an index into the same samples, stays valid."""
+        self.path = path
+
     def _settle(self, s: float) -> None:
         """Store progress s and move the interval index forward to the one that holds it."""
         p = self.path

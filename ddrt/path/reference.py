@@ -104,6 +104,17 @@ class PathReference:
         self.done = False
         self.t_sched = self._time_at(near.sigma)
 
+    def reprofiled(self, path: Path) -> None:
+        """Go on along `path`, this path's samples under a new speed profile (a reload's new
+        model, ddrt/loop/reload.py): the schedule's time and progress carry over."""
+        self.pursuit.reprofiled(path)
+        self.path = path
+
+    def lead_at_most(self, max_lead_m: float) -> None:
+        """How far the schedule may lead the robot's progress from now on (a start's join holds
+        it shorter, ddrt/path/start.py)."""
+        self.max_lead = max_lead_m
+
     @property
     def resuming(self) -> bool:
         """True while the schedule is ramping up after `resume`."""

@@ -145,8 +145,8 @@ class Path:
                 if gap > 1e-6:
                     raise AssertionError(f"pieces do not join ({gap:.3g} m)")
             cols["s"].append(base + pc.s[sl])
-            for k in ("x", "y", "theta", "kappa"):
-                cols[k].append(getattr(pc, k)[sl])
+            for k, col in (("x", pc.x), ("y", pc.y), ("theta", pc.theta), ("kappa", pc.kappa)):
+                cols[k].append(col[sl])
             n = len(pc.s) - 1
             seg_pivot += [pc.pivot] * n
             direction += [-1.0 if pc.reverse and not pc.pivot else 1.0] * n

@@ -143,7 +143,7 @@ class StartReference:
         self._cap = 0.0
         self.phase = "turn" if turn and self.turn.span > 0.0 else ("join" if self.join else "follow")
         if self.phase == "join":
-            inner.max_lead = min(self._lead, JOIN_LEAD_M)
+            inner.lead_at_most(min(self._lead, JOIN_LEAD_M))
 
     # -- PathReference's interface --------------------------------------------------------------
     @property
@@ -197,7 +197,7 @@ class StartReference:
             # Lined up: the path's reference from this tick on.
             self.phase = "join" if self.join else "follow"
             if self.join:
-                self.inner.max_lead = min(self._lead, JOIN_LEAD_M)
+                self.inner.lead_at_most(min(self._lead, JOIN_LEAD_M))
             sp.v_cap = sp.omega_cap = sp.y_cap = math.inf
         self.inner.update(x, y, theta, sp, dt)
         if self.phase == "join":
@@ -217,7 +217,7 @@ class StartReference:
             self._release_v += RELEASE_ACCEL_FRACTION * accel * step
             if self._release_v >= self.limits.v_max:
                 self.phase = "follow"
-                self.inner.max_lead = self._lead
+                self.inner.lead_at_most(self._lead)
                 sp.v_cap = math.inf
             else:
                 self._cap = min(abs(sp.v_d) + self._release_v, self._cap + accel * step)

@@ -13,9 +13,17 @@ import ctypes
 import errno
 import math
 import time
+from typing import Protocol
+
 from ddrt.core.types import Clock
 
-__all__ = ["Clock", "ManualClock", "MonotonicClock"]
+__all__ = ["Clock", "ManualClock", "MonotonicClock", "SpinClock"]
+
+
+class SpinClock(Clock, Protocol):
+    """A clock whose wake-up spin a reload sets (`daemon.spin_us`): the daemon's."""
+
+    def set_spin(self, spin_s: float) -> None: ...
 
 CLOCK_MONOTONIC = time.CLOCK_MONOTONIC  # 1 on Linux; time.monotonic() reads this clock
 TIMER_ABSTIME = 1  # flags value for clock_nanosleep (same on every Linux architecture)
@@ -57,14 +65,17 @@ class MonotonicClock:
     __slots__ = ("_nanosleep", "_ts", "_ts_ref", "spin_s")
 
     def __init__(self, use_libc: bool = True, spin_s: float = 0.0) -> None:
-        if not (isinstance(spin_s, (int, float)) and 0.0 <= spin_s < 0.01):
-            raise ValueError(f"MonotonicClock.spin_s: expected seconds in [0, 0.01), got {spin_s!r}")
-        # Sleep until `spin_s` before the deadline, then poll the clock: trades that much CPU
-        # per tick for a wake-up that does not depend on the kernel's timer latency.
-        self.spin_s = float(spin_s)
+        self.set_spin(spin_s)
         self._nanosleep = _load_clock_nanosleep() if use_libc else None
         self._ts = _Timespec()
         self._ts_ref = ctypes.byref(self._ts)
+
+    def set_spin(self, spin_s: float) -> None:
+        """Sleep until `spin_s` before each deadline, then poll the clock: trades that much CPU
+        per tick for a wake-up that does not depend on the kernel's timer latency."""
+        if not (isinstance(spin_s, (int, float)) and 0.0 <= spin_s < 0.01):
+            raise ValueError(f"MonotonicClock.spin_s: expected seconds in [0, 0.01), got {spin_s!r}")
+        self.spin_s = float(spin_s)
 
     @property
     def uses_clock_nanosleep(self) -> bool:
@@ -125,6 +136,9 @@ class ManualClock:
 
     def now(self) -> float:
         return self.t
+
+    def set_spin(self, spin_s: float) -> None:
+        """Nothing: it jumps to each deadline, so there is no wake-up to spin for."""
 
     def advance(self, seconds: float) -> float:
         if not math.isfinite(seconds) or seconds < 0:

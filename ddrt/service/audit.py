@@ -21,6 +21,7 @@ import logging
 import time
 from typing import TYPE_CHECKING
 
+from ddrt.core.drive import DriveReference
 from ddrt.loop import LoopState
 
 if TYPE_CHECKING:
@@ -105,7 +106,7 @@ def inferred_cause(loop: ControlLoop, prev: LoopState, state: LoopState) -> str:
         return "the hold ended stopped (daemon.on_recover: wait): send resume or follow"
     if state is LoopState.STOPPED:
         if prev is LoopState.DRIVING:
-            braking = getattr(ref, "braking", "")
+            braking = ref.braking if isinstance(ref, DriveReference) else ""
             if braking == "timeout":
                 return "drive timeout: no command within daemon.command_timeout_s, braked to rest"
             return f"drive ended ({braking or 'stopped'}), at rest"

@@ -33,6 +33,7 @@ class Client(Protocol):
     """A connection as the loop sees it: its requests waiting, with their arrival numbers."""
 
     queue: deque[tuple[int, dict[str, Any]]]
+    peer: str  # who it is ("pid P, uid U"), for the log's audit lines
 
 
 class Deferred:

@@ -213,7 +213,7 @@ class ControlServer:
     def peer(self) -> str:
         """Who sent the request being answered ("pid P, uid U"), '' outside a handler."""
         conn = self._queue.serving
-        return getattr(conn, "peer", "") if conn is not None else ""
+        return conn.peer if conn is not None else ""
 
     @property
     def queued(self) -> int:

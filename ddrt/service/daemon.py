@@ -36,7 +36,7 @@ from ddrt.loop import COLUMNS, ControlLoop, LoopState
 from ddrt.path import PathError
 from ddrt.path.spec import config_path_error, path_source, speed_limits
 from ddrt.runtime import rt
-from ddrt.runtime.clock import MonotonicClock
+from ddrt.runtime.clock import MonotonicClock, SpinClock
 from ddrt.service.audit import StateLog
 from ddrt.service.commands import COMMANDS, NEVER_REFUSED, PRIORITY, CommandError, Request, parse
 from ddrt.service.ctlqueue import Deferred
@@ -92,7 +92,7 @@ class Daemon:
         self.ring: TelemetryRing | None = None
         self.loop: ControlLoop | None = None
         self.hal: Any = None
-        self.clock: Any = None
+        self.clock: SpinClock | None = None
         # Reloads are planned there and put in force by _apply, between two ticks.
         self.reloader = Reloader(config_path, self.notifier, lambda: self.cfg, self._apply,
                                  lambda: self.cfg.daemon.rt_priority or 0)
@@ -223,6 +223,13 @@ class Daemon:
                 if self.lock is not None:
                     self.lock.release()
         return code
+
+    def fail(self, error: str, exit_code: int) -> None:
+        """Stop for `error`, exiting `exit_code`: a bad start-up input found once the loop runs
+        (the --follow path that does not load)."""
+        self.error = error
+        self.exit_code = exit_code
+        self.stop_requested = True
 
     def _fail(self, message: str) -> None:
         """One clear line in the log; the reason in --stats-json."""
@@ -461,8 +468,8 @@ class Daemon:
         spin_s = d.spin_us * 1e-6
         if self.loop is not None:
             self.loop.reconfigure(cfg)
-        if self.clock is not None and hasattr(self.clock, "spin_s"):
-            self.clock.spin_s = spin_s
+        if self.clock is not None:
+            self.clock.set_spin(spin_s)
         if self.telemetry is not None:
             self.telemetry.writer.set_rotation(d.telemetry_max_bytes, d.telemetry_max_files)
         if self.viz is not None:

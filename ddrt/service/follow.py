@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ddrt.path import PathError
-from ddrt.path.frame import in_map, inverse
+from ddrt.path.frame import inverse
 from ddrt.path.spec import config_path_error, speed_limits
 from ddrt.service.audit import peer_text
 from ddrt.service.commands import Request
@@ -145,7 +145,7 @@ def start_follow(d: Daemon, req: Request) -> dict[str, Any] | Deferred:
         # A Daemon that is not running (tests, tools): no loop to protect, build here.
         build = Build(job)
         try:
-            build._finish(path=build_path(job))
+            build.finish(path=build_path(job))
         except (PathError, ValueError, TypeError, OSError) as exc:
             return {"ok": False, "error": f"follow: {exc}"}
         return switch(d, PendingFollow(build, pose, None, what, d.stats.missed, who, built), build)
@@ -175,23 +175,18 @@ def follow_step(d: Daemon, late_s: float) -> None:
         p.reply.complete(reply)
     elif build.error:
         # The start path (--follow) does not load: a bad start-up input like a bad config.
-        d.error = config_path_error(d.cfg, build.error)  # names the config file and `path:`
-        d.exit_code = 2
-        d.stop_requested = True
+        d.fail(config_path_error(d.cfg, build.error), 2)  # names the config file and `path:`
 
 
 def switch(d: Daemon, p: PendingFollow, build: Build) -> dict[str, Any]:
     """The loop takes the built path (between two ticks); the last one is freed off the loop."""
     loop = d.loop
     assert loop is not None
-    path, build.path = build.path, None
-    old = getattr(loop, "path", None)
+    path = build.take()
+    old = loop.path
     try:
         d.audit.note(f"follow of {p.what} {p.who or 'at start-up (--follow)'}", always=False)
-        loop.follow(path, p.pose)
-        if p.built is not None:  # a path in map, steered in odom (ddrt/path/frame.py)
-            loop.reference = in_map(loop.reference, loop.estimator.frame, p.built, d.cfg.estimator.map_blend_s,
-                                    loop.period)
+        loop.follow(path, p.pose, p.built)  # built: a path in map, steered in odom (ddrt/path/frame.py)
     except (ValueError, RuntimeError) as exc:  # ModeRefused among them: its message says it all
         if d.paths is not None:
             d.paths.dispose(path)

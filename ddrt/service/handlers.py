@@ -12,6 +12,7 @@ once its path is built).
 from __future__ import annotations
 
 import logging
+from dataclasses import asdict
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping
 
 from ddrt.service.audit import peer_text
@@ -73,18 +74,14 @@ def who(d: Daemon) -> str:
     return peer_text(d.server.peer if d.server is not None else "")
 
 
-def vars_of(obj: Any) -> dict[str, Any]:
-    return {k: getattr(obj, k) for k in obj.__dataclass_fields__}
-
-
 def _status(d: Daemon, req: Request) -> dict[str, Any]:
     return {"ok": True, "status": d.status()}
 
 
 def _gains(d: Daemon, req: Request) -> dict[str, Any]:
     c = d.cfg.controller
-    return {"ok": True, "mode": c.mode, "outer": vars_of(c.outer), "inner": vars_of(c.inner),
-            "wheel_pid": vars_of(c.wheel_pid), "heading_gain": c.heading_gain}
+    return {"ok": True, "mode": c.mode, "outer": asdict(c.outer), "inner": asdict(c.inner),
+            "wheel_pid": asdict(c.wheel_pid), "heading_gain": c.heading_gain}
 
 
 def _version(d: Daemon, req: Request) -> dict[str, Any]:

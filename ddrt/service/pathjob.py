@@ -88,11 +88,26 @@ class Build:
     cancelled: bool = False
     phase: str = "queued"  # queued, starting, building, receiving, done
 
-    def _finish(self, path: Any = None, error: str = "") -> None:
+    def advance(self, phase: str) -> None:
+        """The builder's progress, for status (it runs on another thread than the loop's)."""
+        self.phase = phase
+
+    def finish(self, path: Any = None, error: str = "") -> None:
+        """The builder's result: the path, or why there is none."""
         self.path = path
         self.error = error
         self.phase = "done"
         self.done = True  # last: the loop thread reads `done` first
+
+    def take(self) -> Any:
+        """The built path, handed over once (the build holds it no longer)."""
+        path, self.path = self.path, None
+        return path
+
+    def cancel(self) -> Any:
+        """The result is no longer wanted: a path already built is handed back to be freed."""
+        self.cancelled = True
+        return self.take() if self.done else None
 
     @property
     def elapsed_s(self) -> float:

@@ -43,10 +43,13 @@ import sys
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ddrt.errors import DdrtError
 from ddrt.service.pathjob import Build, BuildJob, build_path
+
+if TYPE_CHECKING:
+    from ddrt.path import Path
 
 log = logging.getLogger("ddrt.service.pathworker")
 
@@ -245,15 +248,12 @@ class PathWorker:
 
     def cancel(self, build: Build) -> None:
         """The result is no longer wanted: the worker is stopped, a finished path freed here."""
-        build.cancelled = True
-        if build.done and build.path is not None:
-            self.dispose(build.path)
-            build.path = None
+        self.dispose(build.cancel())
 
-    def dispose(self, obj: Any) -> None:
-        """Free a (large) object on the helper thread, in pieces, not on the caller's."""
-        if obj is not None:
-            self._queue.put(_Dispose(obj))
+    def dispose(self, path: Path | None) -> None:
+        """Free a (large) path on the helper thread, in pieces, not on the caller's."""
+        if path is not None:
+            self._queue.put(_Dispose(path))
 
     def close(self, timeout: float = 5.0) -> None:
         if self._closed:
@@ -289,13 +289,13 @@ class PathWorker:
                 break
             try:
                 if isinstance(item, _Dispose):
-                    _free(item.obj)
+                    _free(item.path)
                     continue
                 self._do(item)
             except Exception:  # noqa: BLE001 - a bug here must not end path building
                 log.exception("path worker failed")
                 if isinstance(item, Build) and not item.done:
-                    item._finish(error="the path worker failed (see the log)")
+                    item.finish(error="the path worker failed (see the log)")
         for proc in (self._active, self._standby):
             _kill(proc)
 
@@ -313,9 +313,9 @@ class PathWorker:
 
     def _do(self, build: Build) -> None:
         if build.cancelled:
-            build._finish(error="cancelled")
+            build.finish(error="cancelled")
             return
-        build.phase = "starting"
+        build.advance("starting")
         proc, self._standby = self._standby, None
         try:
             if proc is None or proc.poll() is not None:
@@ -323,19 +323,19 @@ class PathWorker:
                 try:
                     proc = self._spawn()
                 except OSError as exc:
-                    build._finish(error=f"cannot start the path worker: {exc}")
+                    build.finish(error=f"cannot start the path worker: {exc}")
                     return
             self._active = proc
             try:
                 path = self._exchange(proc, build)
             except _Stop as exc:
-                build._finish(error=str(exc))
+                build.finish(error=str(exc))
             else:
                 if build.cancelled:
-                    build._finish(error="cancelled")
+                    build.finish(error="cancelled")
                     _free(path)
                 else:
-                    build._finish(path=path)
+                    build.finish(path=path)
         finally:
             self._active = None
             _kill(proc)
@@ -347,7 +347,7 @@ class PathWorker:
                 except OSError as exc:
                     log.error("cannot start the path worker: %s", exc)
 
-    def _exchange(self, proc: subprocess.Popen[bytes], build: Build) -> Any:
+    def _exchange(self, proc: subprocess.Popen[bytes], build: Build) -> Path:
         job = build.job
         data = pickle.dumps(job, protocol=pickle.HIGHEST_PROTOCOL)
         assert proc.stdin is not None and proc.stdout is not None
@@ -361,7 +361,7 @@ class PathWorker:
             proc.stdin.close()
         except OSError:
             raise _Stop(self._died(proc)) from None
-        build.phase = "building"
+        build.advance("building")
         reader = _Reader(proc.stdout.fileno(), deadline, build, job.paths.build_timeout_s, self, proc)
         n = _LEN.unpack(reader.read_bytes(_LEN.size))[0]
         if n > MAX_HEADER_BYTES:
@@ -369,7 +369,7 @@ class PathWorker:
         header = pickle.loads(reader.read_bytes(n))
         if not header.get("ok"):
             raise _Stop(str(header.get("error", "the path worker failed")))
-        build.phase = "receiving"
+        build.advance("receiving")
         return _unpack(header, reader)
 
     def _died(self, proc: subprocess.Popen[bytes]) -> str:
@@ -386,7 +386,7 @@ class PathWorker:
 
 @dataclass
 class _Dispose:
-    obj: Any
+    path: Path
 
 
 class _Reader:
@@ -433,7 +433,7 @@ class _Reader:
         return bytes(out)
 
 
-def _unpack(header: dict[str, Any], reader: _Reader) -> Any:
+def _unpack(header: dict[str, Any], reader: _Reader) -> Path:
     import numpy as np
 
     from ddrt.path.sampled import Path
@@ -459,12 +459,10 @@ def _unpack(header: dict[str, Any], reader: _Reader) -> Any:
     return obj
 
 
-def _free(obj: Any) -> None:
+def _free(path: Path) -> None:
     """Drop a Path's buffers one by one, with a pause between (freeing a few hundred MB of
     pages costs milliseconds: not on the loop thread, and not in one go)."""
-    state = getattr(obj, "__dict__", None)
-    if state is None:
-        return
+    state = path.__dict__
     for key in list(state):
         value = state.pop(key)
         if isinstance(value, dict):

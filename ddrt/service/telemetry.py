@@ -262,6 +262,10 @@ def stderr_is_journal() -> bool:
     return st.st_dev == dev and st.st_ino == ino
 
 
+class DdrtLogHandler(logging.StreamHandler):  # type: ignore[type-arg]
+    """ddrt's handler on the root logger: the one configure_logging replaces."""
+
+
 def configure_logging(level: int | str = "INFO", sd_prefix: bool | None = None) -> logging.Handler:
     """Send log records to stderr with no timestamps; sd_prefix=None means "if journald".
 
@@ -278,11 +282,10 @@ def configure_logging(level: int | str = "INFO", sd_prefix: bool | None = None) 
         sd_prefix = stderr_is_journal()
     root = logging.getLogger()
     for h in list(root.handlers):
-        if getattr(h, "_ddrt", False):
+        if isinstance(h, DdrtLogHandler):
             root.removeHandler(h)
-    handler = logging.StreamHandler(sys.stderr)
+    handler = DdrtLogHandler(sys.stderr)
     handler.setFormatter(JournalFormatter(sd_prefix))
-    handler._ddrt = True  # type: ignore[attr-defined]
     root.addHandler(handler)
     root.setLevel(level)
     return handler

@@ -28,8 +28,7 @@ class StderrProgress:
 
     def __post_init__(self) -> None:
         if self.tty is None:
-            isatty = getattr(self.stream, "isatty", None)
-            self.tty = bool(isatty and isatty())
+            self.tty = self.stream.isatty()
 
     def __call__(self, t: float, expected: float) -> None:
         text = f"  simulated {t:7.1f} s of {expected:.1f} s"

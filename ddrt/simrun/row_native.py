@@ -26,15 +26,22 @@ CFLAGS = ("-O2", "-shared", "-fPIC", "-ffp-contract=off", "-fno-fast-math")
 MAX_LEN = 24  # row_format.c: bytes reserved per value
 ENV = "DDRT_ROWFMT"  # DDRT_ROWFMT=python: the Python formatter
 
-_local = threading.local()  # each thread's output buffer (the C runs without the GIL), grown and reused
+class _Buffer(threading.local):
+    """Each thread's output buffer (the C runs without the GIL), grown and reused."""
+
+    def __init__(self) -> None:
+        self.out = bytearray()
+
+
+_local = _Buffer()
 
 
 def _declare(lib: ctypes.CDLL) -> None:
     lib.format_rows.restype = ctypes.c_int64
     lib.format_rows.argtypes = [ctypes.c_void_p, ctypes.c_int64, ctypes.c_int64, ctypes.c_void_p]
-    for name in ("g9", "g9_fast"):  # one value; g9_fast: -1 where snprintf is needed (tests)
-        getattr(lib, name).restype = ctypes.c_int
-        getattr(lib, name).argtypes = [ctypes.c_double, ctypes.c_char_p]
+    # One value; g9_fast: -1 where snprintf is needed (tests).
+    lib.g9.restype = lib.g9_fast.restype = ctypes.c_int
+    lib.g9.argtypes = lib.g9_fast.argtypes = [ctypes.c_double, ctypes.c_char_p]
 
 
 def library() -> Any:
@@ -52,8 +59,8 @@ def format_rows(arr: np.ndarray) -> str | None:
         return "\r\n" * n if ncols == 0 else ""
     arr = np.ascontiguousarray(arr)
     need = n * (ncols * MAX_LEN + 2)
-    out = getattr(_local, "out", None)
-    if out is None or len(out) < need:
+    out = _local.out
+    if len(out) < need:
         out = _local.out = bytearray(need)
     buf = (ctypes.c_char * len(out)).from_buffer(out)
     size = lib.format_rows(arr.ctypes.data, n, ncols, ctypes.addressof(buf))

@@ -236,10 +236,7 @@ def run_sim(cfg: Config, path: Path, *, duration: float | None = None, seed: int
             buf = stream.buf
             size = len(buf)
             sleep_until, tick, r = hal.sleep_until, loop.tick, loop.row
-            truth = getattr(robot, "truth", None)  # SimRobot's [x, y, theta, v, omega] in one call
-            if truth is None:
-                def truth() -> list[float]:
-                    return [*robot.pose, *robot.velocity]
+            truth = robot.truth  # [x, y, theta, v, omega] in one call
             ended = (LoopState.STOPPED, LoopState.FAULT)
             # Each tick appends the truth and the loop's row to one flat array of doubles (two
             # calls, no list a row); a full chunk goes into the buffer in SIM_COLUMNS' order

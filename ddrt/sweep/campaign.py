@@ -118,7 +118,8 @@ def file_kind(p: FsPath) -> str:
     except FileNotFoundError:
         return "missing"
     except (OSError, ValueError) as exc:  # ValueError: a name with a NUL byte
-        return f"unreadable ({' '.join(str(getattr(exc, 'strerror', None) or exc).split())})"
+        why = (exc.strerror if isinstance(exc, OSError) else None) or exc
+        return f"unreadable ({' '.join(str(why).split())})"
     return mode_kind(mode)
 
 

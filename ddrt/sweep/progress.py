@@ -33,7 +33,7 @@ class Progress:
         self.failed = 0
         self._drawn_at = -1.0
         self._tenth = -1
-        self._tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self._tty = self.stream.isatty()
 
     def start(self) -> None:
         """Count the rate from now (after the cluster is up, so its start-up is not in the ETA)."""
