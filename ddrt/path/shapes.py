@@ -14,7 +14,7 @@ from typing import Any, ClassVar, Literal
 
 import numpy as np
 
-from ddrt.config.schema import ConfigError, non_negative, positive
+from ddrt.config.schema import ConfigError, Section, non_negative, positive
 from ddrt.config.sections import MAX_TOLERANCE_M, MIN_PATH_SIZE_M
 from ddrt.path.geometry import (
     TWO_PI, Curve, Geometry, GeometryOptions, arc_piece, line_piece, parametric_piece, polyline_geometry,
@@ -37,7 +37,7 @@ def _pivot_samples(opt: GeometryOptions, turn: float) -> float:
 
 
 @dataclass(frozen=True, kw_only=True)
-class PathCommon:
+class PathCommon(Section):
     """Keys every kind of path takes: its own (lower) limits, sampling options, start pose."""
 
     speed: float | None = None  # m/s, at most limits.v_max
