@@ -110,15 +110,24 @@ class Decl:
             return None
         if self.choices:
             return None if value in self.choices else f"must be one of {', '.join(map(str, self.choices))}, got {value!r}"
-        ok = ((self.ge is None or value >= self.ge) and (self.gt is None or value > self.gt)
-              and (self.le is None or value <= self.le) and (self.lt is None or value < self.lt))
-        if ok:
+        low = self._side(value, self.ge, self.gt, ">=", ">", lambda v, b: v >= b, lambda v, b: v > b)
+        high = self._side(value, self.le, self.lt, "<=", "<", lambda v, b: v <= b, lambda v, b: v < b)
+        broken = [words for words, ok in (low, high) if words and not ok]
+        if not broken:
             return None
-        words = self.bounds()
-        if words[0] in "[(":
-            words = f"in {words}"
-        unit = f" {self.unit}" if self.unit and self.unit not in ("-", "1") else ""
-        return f"must be {words}{unit}, got {value!r}"
+        other = [words for words, ok in (low, high) if words and ok]
+        unit = f" {self.unit}" if self.unit else ""
+        return f"must be {broken[0]}{unit}{f' (and {other[0]})' if other else ''}, got {value!r}"
+
+    @staticmethod
+    def _side(value: float, inclusive: float | None, strict: float | None, inc_words: str, strict_words: str,
+              inc_ok: Any, strict_ok: Any) -> tuple[str, bool]:
+        """One side's bound in words ('>= 0.5') and whether `value` keeps it; ('', True) without one."""
+        if inclusive is not None:
+            return f"{inc_words} {_g(inclusive)}", inc_ok(value, inclusive)
+        if strict is not None:
+            return f"{strict_words} {_g(strict)}", strict_ok(value, strict)
+        return "", True
 
     def check(self, value: Any, where: str) -> str | None:
         """The first refusal in `value` or in each item of a list of it, with the key it is at."""
