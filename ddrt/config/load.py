@@ -12,7 +12,7 @@ from pathlib import Path as FsPath
 from typing import Any, Callable, Mapping
 
 from ddrt.config.filekind import CONFIG, PATH, not_a
-from ddrt.config.schema import RESTART, ConfigError, Decl, build, convert
+from ddrt.config.schema import RESTART, ConfigError, Decl, build, convert, field_items
 from ddrt.config.sections import (
     Config, ControllerConfig, DaemonConfig, DriveConfig, EstimatorConfig, HalConfig, LimitsConfig, PathsConfig,
     PursuitConfig, SensorsConfig, SimConfig,
@@ -127,7 +127,7 @@ def _explicit(section: Any, where: str) -> Any:
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
     out = {k: v for k, v in section.items() if k != "estimate"}
-    out.update({name: getattr(derived, name) for name in RobotParams.names()})
+    out.update({f.name: value for f, value in field_items(derived)})
     return out
 
 

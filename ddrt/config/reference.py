@@ -39,7 +39,7 @@ def type_words(hint: Any) -> str:
             inner = type_words(args[0])
             return "list of sections" if inner == "section" else f"list of {inner}"
         return "[" + ", ".join(type_words(a) for a in args) + "]"
-    return _NAMES.get(hint, getattr(hint, "__name__", str(hint)))
+    return _NAMES.get(hint, str(hint))
 
 
 def default_words(value: Any) -> str:
