@@ -152,7 +152,7 @@ BAD = [
     ("base: BASE\naxes: {controller.mode: [dynamic, flying]}\n",
      ["case 1 (controller.mode=flying): controller.mode: must be one of"]),
     ("base: BASE\naxes: {controller.outer: [1]}\n", ["case 0 (controller.outer=1): controller.outer"]),
-    ("base: BASE\npaths: {p: {shape: circle, radius: -1}}\n", ["case 0 (path=p): path: key 'radius': must be > 0"]),
+    ("base: BASE\npaths: {p: {shape: circle, radius: -1}}\n", ["case 0 (path=p): path: key 'radius': must be >= 0.001 m"]),
     ("base: BASE\nvariants: {a: {controller: {mode: kinematic}}, b: {controller: {mode: kinematic}}}\n",
      ["case 1 (variant=b): the same run as case 0"]),
     ("base: BASE\noverrides: {hal: {backend: real, imu: {bus: 1}, bridge: {url: /dev/ttyACM0}}}\n",

@@ -120,10 +120,8 @@ def _convert(tp: Any, value: Any, where: str, default: Any = None) -> Any:
     raise TypeError(f"schema: unsupported type {tp!r} at {where}")
 
 
-def _field_default(f: dataclasses.Field, base: Any) -> Any:
-    """What field `f` is when its key is missing: `base`'s value, else its own default (None if it has none)."""
-    if base is not None:
-        return dict(field_items(base))[f]
+def _field_default(f: dataclasses.Field) -> Any:
+    """What field `f` is when its key is missing: its own default (None if it has none)."""
     if f.default is not dataclasses.MISSING:
         return f.default
     if f.default_factory is not dataclasses.MISSING:
@@ -142,9 +140,11 @@ def build(cls: type[T], mapping: Any, where: str = "", *, ignore: Collection[str
     """Build dataclass `cls` from `mapping`, rejecting unknown keys and bad values.
 
     Missing keys take the field's default; a field without default is required. A section
-    inside a section starts from its field's default instead (`base`: one class, such as
-    PidGains, serves two sections with two default sets), so its missing keys take that. After the
-    fields are set, a `validate(where)` method on the class (if any) checks cross-field rules.
+    inside a section starts from its field's default instead (`base`), so its missing keys take
+    that; `base` also gives a section defaults of the moment (SensorsConfig.for_backend). Each
+    value given is checked against its field's declaration (`setting`: bounds, choices, the
+    shape of a text) and the error names the key and the value. After the fields are set, a
+    Section's `validate(where)` checks the rules between them.
     Keys in `ignore` are allowed in `mapping` and left to the caller (e.g. robot.motor). A
     class may name keys it no longer takes in `MOVED: ClassVar[dict[str, str]]`, key -> what
     to write instead; such a key is an error that says so.
@@ -170,7 +170,8 @@ def build(cls: type[T], mapping: Any, where: str = "", *, ignore: Collection[str
             continue
         key = _join(where, f.name)
         if f.name in mapping:
-            value = _convert(hints[f.name], mapping[f.name], key, based.get(f, _field_default(f, None)))
+            default = based[f] if f in based else _field_default(f)
+            value = _convert(hints[f.name], mapping[f.name], key, default)
             decl = decl_of(f)
             problem = None if decl is None or value is None else decl.check(value, key)
             if problem is not None:
@@ -196,20 +197,6 @@ def build(cls: type[T], mapping: Any, where: str = "", *, ignore: Collection[str
     if isinstance(obj, Section):
         obj.validate(where)
     return obj
-
-
-def positive(where: str, **values: float) -> None:
-    """Raise ConfigError naming the first of `values` that is not > 0."""
-    for key, value in values.items():
-        if not value > 0:
-            raise ConfigError(f"{_join(where, key)}: must be > 0, got {value!r}")
-
-
-def non_negative(where: str, **values: float) -> None:
-    """Raise ConfigError naming the first of `values` that is < 0."""
-    for key, value in values.items():
-        if not value >= 0:
-            raise ConfigError(f"{_join(where, key)}: must be >= 0, got {value!r}")
 
 
 def validate_tree(obj: Any, where: str = "") -> None:

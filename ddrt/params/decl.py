@@ -110,6 +110,9 @@ class Decl:
             return None
         if self.choices:
             return None if value in self.choices else f"must be one of {', '.join(map(str, self.choices))}, got {value!r}"
+        if ((self.ge is None or value >= self.ge) and (self.gt is None or value > self.gt)
+                and (self.le is None or value <= self.le) and (self.lt is None or value < self.lt)):
+            return None
         low = self._side(value, self.ge, self.gt, ">=", ">", lambda v, b: v >= b, lambda v, b: v > b)
         high = self._side(value, self.le, self.lt, "<=", "<", lambda v, b: v <= b, lambda v, b: v < b)
         broken = [words for words, ok in (low, high) if words and not ok]
