@@ -56,12 +56,12 @@ def default_words(value: Any) -> str:
 _LINK = re.compile(r"\]\((?![a-z]+:|/|#|\.\./)([^)]+)\)")
 
 
-def _cell(text: str) -> str:
+def cell(text: str) -> str:
     return _LINK.sub(r"](../\1)", text).replace("|", "\\|")
 
 
 def _row(key: str, type_text: str, unit: str, bounds: str, default: str, mode: str, doc: str) -> str:
-    return f"| `{key}` | {_cell(type_text)} | {_cell(unit)} | {_cell(bounds)} | {default} | {mode} | {_cell(doc)} |"
+    return f"| `{key}` | {cell(type_text)} | {cell(unit)} | {cell(bounds)} | {default} | {mode} | {cell(doc)} |"
 
 
 HEADER = ["| key | type | unit | bounds | default | reload | description |", "|---|---|---|---|---|---|---|"]
