@@ -15,11 +15,14 @@ import typing
 from typing import Any, Collection, Literal, Mapping, TypeVar, get_args, get_origin, get_type_hints
 
 from ddrt.errors import DdrtError
-from ddrt.params.decl import (  # noqa: F401  (the config's names for them)
+from ddrt.params.decl import (
     APPLY_MODES, LIVE, NEXT_PATH, RESTART, Decl, Section, decl_of, field_items, setting,
 )
 from ddrt.params.numbers import finite_float
 from ddrt.config.yamlio import shorten
+
+__all__ = ["APPLY_MODES", "LIVE", "NEXT_PATH", "RESTART", "ConfigError", "Decl", "Section", "build", "convert",
+           "decl_of", "field_items", "field_types", "setting", "validate_tree", "FLOAT_MAX", "FLOAT_MIN", "INT_LIMIT"]
 
 T = TypeVar("T")
 

@@ -13,7 +13,7 @@ gives no datasheet figures; these are assumptions, written down so they can be r
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any, Mapping
 
 from ddrt.params.decl import Section, check_declared, field_items, setting

@@ -32,7 +32,7 @@ from ddrt.config.yamlio import read_yaml, shorten
 from ddrt.config.textfile import mode_kind
 from ddrt.sweep.columns import KNOWN_METRICS, NUMERIC_METRICS, TEXT_METRICS
 from ddrt.sweep.criteria import Criterion, parse_criterion
-from ddrt.sweep.ranges import axis_values, finite
+from ddrt.sweep.ranges import axis_values
 
 T = TypeVar("T")
 
