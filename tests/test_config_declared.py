@@ -119,7 +119,8 @@ def _junk(k: Key) -> st.SearchStrategy[Any]:
         if refused:
             pool.append(st.sampled_from(refused))
     if _takes(k, str):
-        pool.append(st.sampled_from([3, 2.5, True, [1]]))
+        pool.append(st.sampled_from([[1]] + [v for v, kind in ((3, int), (2.5, float), (True, bool))
+                                              if not _takes(k, kind)]))
     return st.one_of(pool)
 
 
@@ -243,3 +244,39 @@ def test_bounded_keys_are_most_numeric_keys() -> None:
     """The bounds test covers every key that declares a bound; most numbers declare one."""
     numeric = [k for k in KEYS if k.section is None and (_takes(k, float) or _takes(k, int)) and not _takes(k, bool)]
     assert len(BOUNDED) > 0.8 * len(numeric), sorted(k.key for k in numeric if k not in BOUNDED)
+
+
+# A valid spec of each path kind, so one key of it can be pushed to its bounds.
+PATH_BASES: dict[str, dict[str, Any]] = {
+    "line": {"length": 1.0}, "circle": {"radius": 1.0}, "rectangle": {"width": 1.0, "height": 1.0},
+    "ellipse": {"a": 1.0, "b": 0.5}, "figure_eight": {"size": 1.0}, "s_curve": {"length": 1.0, "offset": 0.2},
+    "points": {"points": [[0.0, 0.0], [1.0, 0.0]]}, "file": {"file": "p.csv"},
+}
+
+
+def _path_keys() -> list[tuple[str, Key]]:
+    from ddrt.path.shapes import KINDS, SHAPES
+    return [(kind, k) for kind, cls in {**SHAPES, **KINDS}.items() for k in declared_keys(cls)
+            if k.section is None and _edges(k) and k.key not in ("width", "height")]  # figure_eight: size given
+
+
+@pytest.mark.parametrize(("kind", "k"), _path_keys(), ids=lambda v: v if isinstance(v, str) else v.key)
+def test_every_path_key_bound_refuses_just_outside_and_takes_just_inside(kind: str, k: Key) -> None:
+    """Path specs declare their keys as config keys do: the same walker holds them to their bounds."""
+    from ddrt.path.shapes import KINDS, SHAPES
+    cls = {**SHAPES, **KINDS}[kind]
+    for outside, inside, which in _edges(k):
+        with pytest.raises(ConfigError, match=rf"^{k.key}: must be "):
+            build(cls, {**PATH_BASES[kind], k.key: outside})
+        try:
+            build(cls, {**PATH_BASES[kind], k.key: inside})
+        except ConfigError as exc:  # only a rule between keys may refuse it, never the bound
+            assert not re.search(r": must be [<>]", str(exc)), (which, str(exc))
+
+
+def test_a_campaigns_declared_sections_refuse_their_bounds(tmp_path: Any) -> None:
+    from ddrt.sweep.campaign import CampaignError, campaign_from_mapping
+    base = str(SIM_YAML)
+    for section, key, bad in (("population", "robots", 0), ("run", "timeout_s", 0.0), ("run", "duration_s", -1.0)):
+        with pytest.raises(CampaignError, match=rf"^c\.yaml: {section}\.{key}: must be "):
+            campaign_from_mapping({"base": base, section: {key: bad}}, source="c.yaml", folder=tmp_path)

@@ -144,7 +144,7 @@ class RectangleSpec(PathCommon):
     width: float = setting(unit="m", ge=MIN_PATH_SIZE_M, doc="Its side along x.")
     height: float = setting(unit="m", ge=MIN_PATH_SIZE_M, doc="Its side along y.")
     direction: Literal["cw", "ccw"] = setting("ccw", doc="`ccw` (counter-clockwise, turning left) or `cw`.")
-    laps: float = setting(1.0, gt=0, doc="How many times the path goes round: a whole number.")
+    laps: float = setting(1.0, ge=1, doc="How many times the path goes round: a whole number.")
 
     SIZE_KEY: ClassVar[str] = "width"
 
