@@ -81,12 +81,8 @@ class Decl:
     def upper(self) -> float | None:
         return self.lt if self.lt is not None else self.le
 
-    @property
-    def bounded(self) -> bool:
-        return self.lower is not None or self.upper is not None or bool(self.choices) or self.text is not None
-
     def bounds(self) -> str:
-        """The bounds in words: '> 0', '[0, 50]', '(0, 1]', 'at most 5', 'one of 250, 500'."""
+        """The bounds in words: '> 0', '[0, 50]', '(0, 1]', '<= 5', 'one of 250, 500', a text's shape."""
         if self.choices:
             return "one of " + ", ".join(map(str, self.choices))
         if self.text is not None:
@@ -110,27 +106,16 @@ class Decl:
             return None
         if self.choices:
             return None if value in self.choices else f"must be one of {', '.join(map(str, self.choices))}, got {value!r}"
-        if ((self.ge is None or value >= self.ge) and (self.gt is None or value > self.gt)
-                and (self.le is None or value <= self.le) and (self.lt is None or value < self.lt)):
-            return None
-        low = self._side(value, self.ge, self.gt, ">=", ">", lambda v, b: v >= b, lambda v, b: v > b)
-        high = self._side(value, self.le, self.lt, "<=", "<", lambda v, b: v <= b, lambda v, b: v < b)
-        broken = [words for words, ok in (low, high) if words and not ok]
+        sides = [(f">= {_g(self.ge)}", value >= self.ge) if self.ge is not None else
+                 (f"> {_g(self.gt)}", value > self.gt) if self.gt is not None else None,
+                 (f"<= {_g(self.le)}", value <= self.le) if self.le is not None else
+                 (f"< {_g(self.lt)}", value < self.lt) if self.lt is not None else None]
+        broken = [words for words, ok in filter(None, sides) if not ok]
         if not broken:
             return None
-        other = [words for words, ok in (low, high) if words and ok]
+        kept = [words for words, ok in filter(None, sides) if ok]
         unit = f" {self.unit}" if self.unit else ""
-        return f"must be {broken[0]}{unit}{f' (and {other[0]})' if other else ''}, got {value!r}"
-
-    @staticmethod
-    def _side(value: float, inclusive: float | None, strict: float | None, inc_words: str, strict_words: str,
-              inc_ok: Any, strict_ok: Any) -> tuple[str, bool]:
-        """One side's bound in words ('>= 0.5') and whether `value` keeps it; ('', True) without one."""
-        if inclusive is not None:
-            return f"{inc_words} {_g(inclusive)}", inc_ok(value, inclusive)
-        if strict is not None:
-            return f"{strict_words} {_g(strict)}", strict_ok(value, strict)
-        return "", True
+        return f"must be {broken[0]}{unit}{f' (and {kept[0]})' if kept else ''}, got {value!r}"
 
     def check(self, value: Any, where: str) -> str | None:
         """The first refusal in `value` or in each item of a list of it, with the key it is at."""
