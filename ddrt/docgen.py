@@ -4,7 +4,9 @@ docs/reference/commands.md comes from the control socket's declarations
 (ddrt/service/commands.py: each command's fields, priority and reply) and
 docs/reference/telemetry.md from the telemetry row's (ddrt/loop/record.py's columns, the loop's
 states, and the simulated robot's truth that `ddrt sim` puts first), and docs/reference/modes.md
-from the loop's mode machine (ddrt/loop/modes.py: its states, transitions and refusals). Nobody edits those files by
+from the loop's mode machine (ddrt/loop/modes.py: its states, transitions and refusals), and
+docs/reference/config.md and paths.md from the config keys' and the path specs' declarations
+(ddrt/config/reference.py, ddrt/path/spec_reference.py). Nobody edits those files by
 hand: tests/test_docgen.py checks that the committed files are what this writes, so a command
 or a column cannot change without its reference.
 """
@@ -16,7 +18,9 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
+from ddrt.config.reference import config_md
 from ddrt.loop.modes import modes_md
+from ddrt.path.spec_reference import paths_md
 from ddrt.loop.record import ADAPTER_COLUMNS, LATER_COLUMNS, TICK_COLUMNS, Column
 from ddrt.loop.states import LoopState
 from ddrt.service.commands import reference_markdown
@@ -77,7 +81,8 @@ def telemetry_md() -> str:
     return "\n".join(lines) + "\n"
 
 
-PAGES = {"commands.md": commands_md, "telemetry.md": telemetry_md, "modes.md": modes_md}
+PAGES = {"commands.md": commands_md, "telemetry.md": telemetry_md, "modes.md": modes_md, "config.md": config_md,
+         "paths.md": paths_md}
 
 
 def stale(out: Path) -> list[str]:

@@ -1,4 +1,4 @@
-"""ddrt.config: the seed configs, plant defaults, error messages, docs/config.md coverage,
+"""ddrt.config: the seed configs, plant defaults, error messages, the generated reference's coverage,
 and which changes need a restart."""
 
 from __future__ import annotations
@@ -19,11 +19,13 @@ import yaml
 from ddrt.config import load as config_mod
 from ddrt.config import (
     AdaptationConfig, BridgeConfig, Config, ControllerConfig, DaemonConfig, EstimatorConfig, GyroTruth,
-    HalConfig, ImuConfig, LimitsConfig, OuterGains, PathsConfig, PidGains, PursuitConfig, PwmSysfsConfig,
+    HalConfig, ImuConfig, LimitsConfig, OuterGains, PathsConfig, PursuitConfig, PwmSysfsConfig,
     SensorsConfig, SimConfig, SlipConfig, config_from_mapping, load_config,
     with_overrides,
 )
-from ddrt.config.sections import INNER_PID, WHEEL_PID
+from ddrt.config.sections import INNER_PID, WHEEL_PID, InnerPid, WheelPid
+from ddrt.config.sim_truth import FloorPatch, PayloadEvent
+from ddrt.params.decl import decl_of
 from ddrt.params.robot import RobotParams
 from ddrt.params.motor import MotorParams
 from ddrt.config.schema import ConfigError
@@ -31,6 +33,7 @@ from tests.support.repo import REPO, SIM_YAML
 
 OFFSET = REPO / "configs" / "sim-offset-mass.yaml"
 DOC = REPO / "docs" / "config.md"
+REFERENCE = REPO / "docs" / "reference" / "config.md"
 REAL_HAL = REPO / "hal" / "real.py"
 
 # The seed's Table 5.1 "estimate" column in SI (mm -> m, kg mm^2 -> 1e-6 kg m^2). r_3 is left
@@ -297,35 +300,52 @@ def test_overrides_are_validated_with_the_file_name() -> None:
     assert cfg.limits.duty_max == 1.0  # the original is untouched
 
 
-# --------------------------------------------------------------------------- docs/config.md
+# --------------------------------------------------------------------------- the generated reference
 
-_ROW = re.compile(r"^\|\s*`([^`]+)`\s*\|([^|]*)\|([^|]*)\|(.*)\|\s*$")
+_ROW = re.compile(r"^\|\s*`([^`]+)`\s*\|" + r"([^|]*)\|" * 5 + r"(.*)\|\s*$")
+_KEYS_AS = re.compile(r"\(keys as `([^`]+)`\)")
 
 # Config fields whose keys live elsewhere in the file: plant: takes robot:'s keys.
-_CONFIG_FIELD_KEY = {"robot_motor": "robot.motor", "plant": "robot", "plant_motor_l": "robot.motor",
-                     "plant_motor_r": "robot.motor"}
+_CONFIG_FIELD_KEY = {"robot_motor": "robot.motor", "plant": "plant", "plant_motor_l": "plant.motor_l",
+                     "plant_motor_r": "plant.motor_r"}
 # The real backend's device sub-sections.
 _BACKEND_SECTIONS = ("hal.imu.", "hal.bridge.", "hal.pwm_sysfs.")
 
 
-def _doc_rows() -> list[tuple[str, str, str, str]]:
-    rows = []
-    for line in DOC.read_text(encoding="utf-8").splitlines():
+class _Row(typing.NamedTuple):
+    type: str
+    unit: str
+    bounds: str
+    default: str
+    reload: str
+    meaning: str
+
+
+def _reference_rows() -> dict[str, _Row]:
+    """docs/reference/config.md's rows by key (each key once: a repeat fails here)."""
+    rows: dict[str, _Row] = {}
+    for line in REFERENCE.read_text(encoding="utf-8").splitlines():
         m = _ROW.match(line)
         if m:
-            rows.append(tuple(s.strip() for s in m.groups()))  # type: ignore[arg-type]
+            key, *cells = (s.strip() for s in m.groups())
+            assert key not in rows, f"documented more than once: {key}"
+            rows[key] = _Row(*cells)
     return rows
 
 
-def _dataclass_in(tp: Any) -> type | None:
-    """The dataclass a field's type holds (directly or as Optional), else None."""
+def _dataclass_in(tp: Any) -> tuple[type | None, str]:
+    """The dataclass a field's type holds (directly, as Optional, or as each item of a list:
+    then the key's suffix is '[]'), else None."""
     if dataclasses.is_dataclass(tp):
-        return tp
+        return tp, ""
     if typing.get_origin(tp) in (typing.Union, types.UnionType):
         for arg in typing.get_args(tp):
             if dataclasses.is_dataclass(arg):
-                return arg
-    return None
+                return arg, ""
+    args = typing.get_args(tp)
+    if typing.get_origin(tp) is tuple and len(args) == 2 and args[1] is Ellipsis and dataclasses.is_dataclass(args[0]):
+        return args[0], "[]"
+    return None, ""
 
 
 def _walk(cls: type, prefix: str, out: dict[str, tuple[type, dataclasses.Field]]) -> None:
@@ -335,48 +355,72 @@ def _walk(cls: type, prefix: str, out: dict[str, tuple[type, dataclasses.Field]]
             continue
         key = f"{prefix}.{f.name}"
         out[key] = (cls, f)
-        sub = _dataclass_in(hints[f.name])
+        sub, suffix = _dataclass_in(hints[f.name])
         if sub is not None:
-            _walk(sub, key, out)
+            _walk(sub, key + suffix, out)
 
 
 def _schema_keys() -> dict[str, tuple[type, dataclasses.Field]]:
-    """Every dotted key the config's dataclasses define, found from Config's own fields."""
+    """Every dotted key the config's dataclasses define, found from Config's own fields (a walk
+    of this test's own, so that it checks ddrt/config/keys.py's too)."""
     out: dict[str, tuple[type, dataclasses.Field]] = {}
     hints = typing.get_type_hints(Config)
     for f in dataclasses.fields(Config):
-        cls = _dataclass_in(hints[f.name])
+        if not f.compare:
+            continue
+        key = _CONFIG_FIELD_KEY.get(f.name, f.name)
+        out[key] = (Config, f)
+        cls, _ = _dataclass_in(hints[f.name])
         if cls is not None:
-            _walk(cls, _CONFIG_FIELD_KEY.get(f.name, f.name), out)
+            _walk(cls, key, out)
     return out
+
+
+def _row_of(rows: dict[str, _Row], key: str) -> _Row:
+    """The row that documents `key`: its own, or the same key of the section whose keys a
+    section takes (plant.m_p is robot.m_p's row; sim.wheels.scale.mean sim.encoder.slip.mean's)."""
+    if key in rows:
+        return rows[key]
+    for head, row in sorted(rows.items(), key=lambda kv: -len(kv[0])):
+        m = _KEYS_AS.search(row.type)
+        if m and key.startswith(head + "."):
+            return _row_of(rows, m.group(1) + key[len(head):])
+    raise KeyError(key)
 
 
 def test_schema_walk_reaches_every_section_class() -> None:
     reached = {cls for cls, _ in _schema_keys().values()}
     for cls in (SimConfig, SlipConfig, GyroTruth, SensorsConfig, HalConfig, ImuConfig, BridgeConfig,
-                PwmSysfsConfig, ControllerConfig, OuterGains, PidGains, AdaptationConfig,
+                PwmSysfsConfig, ControllerConfig, OuterGains, InnerPid, WheelPid, AdaptationConfig,
                 EstimatorConfig, PursuitConfig, LimitsConfig, DaemonConfig, PathsConfig, RobotParams,
-                MotorParams):
+                MotorParams, PayloadEvent, FloorPatch):
         assert cls in reached, cls.__name__
 
 
-def test_docs_document_each_key_once() -> None:
-    keys = [r[0] for r in _doc_rows()]
-    assert len(keys) > 100
-    dupes = sorted({k for k in keys if keys.count(k) > 1})
-    assert not dupes, f"documented more than once: {dupes}"
+def test_every_config_key_declares_a_description() -> None:
+    """A field without a declaration, or with an empty description, fails here (and the
+    reference could not be written)."""
+    lacking = [key for key, (_cls, f) in _schema_keys().items()
+               if decl_of(f) is None or len(decl_of(f).doc.strip()) < 10]  # type: ignore[union-attr]
+    assert not lacking, f"no description: {lacking}"
 
 
-def test_docs_cover_every_config_field() -> None:
-    documented = {r[0] for r in _doc_rows()}
-    missing = sorted(set(_schema_keys()) - documented)
-    assert not missing, f"docs/config.md lacks: {missing}"
+def test_the_reference_documents_every_config_field() -> None:
+    rows = _reference_rows()
+    assert len(rows) > 250
+    missing = []
+    for key in _schema_keys():
+        try:
+            _row_of(rows, key)
+        except KeyError:
+            missing.append(key)
+    assert not missing, f"docs/reference/config.md lacks: {missing}"
 
 
-def test_docs_cover_every_top_level_key() -> None:
-    documented = {r[0] for r in _doc_rows()}
-    missing = [k for k in config_mod.TOP_KEYS if k not in documented]
-    assert not missing, f"docs/config.md lacks: {missing}"
+def test_the_reference_documents_every_top_level_key() -> None:
+    rows = _reference_rows()
+    missing = [k for k in config_mod.TOP_KEYS if k not in rows]
+    assert not missing, f"docs/reference/config.md lacks: {missing}"
 
 
 def _estimate_keys() -> set[str]:
@@ -387,22 +431,35 @@ def _estimate_keys() -> set[str]:
     return out | {f"robot.estimate.body.{k}" for k in estimate.BODY_KEYS}
 
 
-def test_docs_document_no_key_that_does_not_exist() -> None:
-    known = (set(_schema_keys()) | set(config_mod.TOP_KEYS) | set(_CONFIG_FIELD_KEY.values())
-             | {"plant.motor_l", "plant.motor_r"} | _estimate_keys())
-    stale = [k for k in (r[0] for r in _doc_rows()) if k not in known]
-    assert not stale, f"docs/config.md documents unknown keys: {stale}"
+def test_the_reference_documents_no_key_that_does_not_exist() -> None:
+    known = set(_schema_keys()) | set(config_mod.TOP_KEYS)
+    stale = [k for k in _reference_rows() if k not in known]
+    assert not stale, f"docs/reference/config.md documents unknown keys: {stale}"
 
 
-def test_every_row_has_unit_default_and_meaning() -> None:
-    for key, unit, default, meaning in _doc_rows():
-        assert unit and default and len(meaning) > 10, key
+def test_config_md_documents_the_estimate_keys() -> None:
+    """robot.estimate: is read by ddrt/params/estimate.py, not the walker: its table stays in
+    docs/config.md, with the explanation of its assumptions, and names each of its keys."""
+    text = DOC.read_text(encoding="utf-8")
+    documented = set()
+    for m in re.finditer(r"^\| `(robot\.estimate\.[^`]+)`(?:, `([^`]+)`)?", text, re.M):
+        documented.add(m.group(1))
+        if m.group(2):
+            documented.add(m.group(1).rpartition(".")[0] + "." + m.group(2))
+    groups = {"robot.estimate.encoder_wheel", "robot.estimate.body"}  # documented by their keys
+    assert documented == _estimate_keys() - groups
+
+
+def test_every_row_has_a_type_default_reload_and_meaning() -> None:
+    for key, row in _reference_rows().items():
+        assert row.type and len(row.meaning) > 10, key
+        assert row.reload in ("live", "next path", "restart", "-"), key
+        assert row.default or row.type.startswith("section"), key
 
 
 def _key_default(keys: dict[str, tuple[type, dataclasses.Field]], key: str) -> Any:
     """The default a key takes, as the walker gives it: the value in its enclosing section's
-    default (one class serves controller.inner and controller.wheel_pid with two default
-    sets), else its field's own; MISSING if it has none."""
+    default, else its field's own; MISSING if it has none."""
     f = keys[key][1]
     parent = key.rpartition(".")[0]
     if parent in keys:
@@ -416,32 +473,53 @@ def _key_default(keys: dict[str, tuple[type, dataclasses.Field]], key: str) -> A
     return dataclasses.MISSING
 
 
-def test_docs_defaults_match_the_dataclasses() -> None:
-    rows = {r[0]: r for r in _doc_rows()}
-    checked = 0
+def _documented_value(text: str) -> Any:
+    """A default as the reference writes it: `0.3`, `true`, `null`, `"MPU-6050"`, `[]`."""
+    return json.loads(text.strip().strip("`"))
+
+
+def test_the_references_defaults_are_the_schemas() -> None:
+    """The default column says what the walker gives a missing key (a default changed in code
+    and not in the reference fails here, through tests/test_docgen.py's equality too)."""
+    rows = _reference_rows()
     keys = _schema_keys()
+    checked, wrong = 0, []
     for key in keys:
-        default_cell = rows[key][2]
+        if key not in rows:
+            continue  # a key of a section that takes another's keys: that row is checked
         value = _key_default(keys, key)
+        cell = rows[key].default
         if value is dataclasses.MISSING:
-            assert default_cell == "required", key
+            if cell not in ("required", "") and not cell.endswith("'s"):
+                wrong.append(f"{key}: no default, the reference says {cell}")
             continue
         if dataclasses.is_dataclass(value):
             continue  # a sub-section: its own keys carry the defaults
-        assert default_cell.startswith("`") and default_cell.endswith("`"), (key, default_cell)
-        doc_value = yaml.safe_load(default_cell.strip("`"))
-        if isinstance(value, tuple):
-            value = list(value)
-        assert doc_value == value and type(doc_value) is type(value) or (
-            isinstance(value, float) and isinstance(doc_value, float) and math.isclose(doc_value, value)), \
-            (key, doc_value, value)
+        doc = _documented_value(cell)
+        value = list(value) if isinstance(value, tuple) else value
+        numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (value, doc))
+        if not (math.isclose(value, doc, rel_tol=1e-12) if numbers else value == doc and type(value) is type(doc)):
+            wrong.append(f"{key}: the reference says {cell}, the schema {value!r}")
         checked += 1
-    assert checked > 60
+    assert checked > 200 and not wrong, wrong
+
+
+def test_every_default_is_within_its_declared_bounds() -> None:
+    keys = _schema_keys()
+    wrong = []
+    for key, (_cls, f) in keys.items():
+        value, decl = _key_default(keys, key), decl_of(f)
+        if decl is None or value is dataclasses.MISSING or value is None or dataclasses.is_dataclass(value):
+            continue
+        problem = decl.check(value, key)
+        if problem is not None:
+            wrong.append(problem)
+    assert not wrong, wrong
 
 
 def test_a_pid_section_missing_keys_take_that_sections_defaults() -> None:
-    """controller.inner and controller.wheel_pid are one class (PidGains) with two default
-    sets: a key one of them leaves out takes its own section's default, not the other's."""
+    """controller.inner and controller.wheel_pid are two sections of one PID (InnerPid, WheelPid)
+    with two default sets: a key one of them leaves out takes its own section's default."""
     data = _minimal()
     data["controller"] = {"inner": {"kp": 30.0}, "wheel_pid": {"kp": 0.2}}
     c = config_from_mapping(data).controller
@@ -453,46 +531,13 @@ def test_a_pid_section_missing_keys_take_that_sections_defaults() -> None:
         config_from_mapping(data)
 
 
-def test_docs_cover_the_real_backends_keys() -> None:
-    """hal.imu/bridge/pwm_sysfs are typed sections now: the real backend reads nothing else
+def test_the_reference_covers_the_real_backends_keys() -> None:
+    """hal.imu/bridge/pwm_sysfs are typed sections: the real backend reads nothing else
     (no raw mapping, no reader of its own), and every one of their keys is documented."""
     source = REAL_HAL.read_text(encoding="utf-8")
     assert "_ConfigReader" not in source and ".raw" not in source
     keys = {k for k in _schema_keys() if k.startswith(_BACKEND_SECTIONS)}
     assert {"hal.imu.bus", "hal.bridge.url", "hal.pwm_sysfs.root", "hal.pwm_sysfs.direction_gpios"} <= keys
     assert "hal.imu.gyro_range_dps" not in keys  # one gyro range: sensors.gyro_range_dps
-    documented = {r[0] for r in _doc_rows() if r[0].startswith(_BACKEND_SECTIONS)}
+    documented = {k for k in _reference_rows() if k.startswith(_BACKEND_SECTIONS)}
     assert keys == documented
-
-
-
-
-def _documented_value(text: str) -> Any:
-    """A default as docs/config.md writes it: `0.3`, `true`, `null`, `"MPU-6050"`, `[]`, `0x68`."""
-    text = text.strip().strip("`")
-    if text.startswith("0x"):
-        return int(text, 16)
-    try:
-        return json.loads(text)
-    except ValueError:
-        return text
-
-
-def test_every_documented_default_is_the_schemas() -> None:
-    """The reference's default column says what the dataclass gives (a default changed in code
-    and not in the docs fails here)."""
-    rows = {r[0]: r for r in _doc_rows()}
-    checked, wrong = 0, []
-    for key, (_cls, f) in _schema_keys().items():
-        if key not in rows or (f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING):
-            continue
-        value = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
-        if dataclasses.is_dataclass(value):
-            continue  # a section: its keys have rows of their own
-        doc = _documented_value(rows[key][2])
-        value = list(value) if isinstance(value, tuple) else value
-        numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (value, doc))
-        if not (math.isclose(value, doc, rel_tol=1e-12) if numbers else value == doc or str(value) == str(doc)):
-            wrong.append(f"{key}: docs say {rows[key][2]}, the schema {value!r}")
-        checked += 1
-    assert checked > 150 and not wrong, wrong

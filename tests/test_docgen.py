@@ -53,3 +53,62 @@ def test_the_telemetry_page_lists_the_columns_in_the_order_they_are_written() ->
     assert [n for n in names if n not in TRUTH_COLUMNS] == list(COLUMNS)  # the daemon's CSV
     for c in TICK_COLUMNS + ADAPTER_COLUMNS + LATER_COLUMNS + docgen.TRUTH:
         assert c.unit.strip() and len(c.about) > 10, c.name
+
+
+def test_the_config_page_has_a_row_for_every_declared_key_with_its_declaration() -> None:
+    from ddrt.config.keys import declared_keys
+    from ddrt.config.reference import MODE_WORDS
+    from ddrt.config.sections import Config
+    page = docgen.config_md()
+    rows = {m.group(1): m.group(0) for m in re.finditer(r"^\| `([^`]+)` \|.*\|$", page, re.M)}
+    for k in declared_keys(Config):
+        row = rows.get(k.key)
+        if row is None:  # under a section that takes another's keys (plant: robot:'s)
+            assert any(k.key.startswith(head + ".") and "(keys as `" in r for head, r in rows.items()), k.key
+            continue
+        assert f"| {MODE_WORDS[k.mode]} |" in row and k.decl.doc.replace("|", "\\|") in row.replace("](../", "]("), k.key
+        assert k.decl.bounds() in row, k.key
+
+
+def test_the_paths_page_lists_every_kind_and_key() -> None:
+    import dataclasses
+    from ddrt.path.shapes import KINDS, SHAPES, PathCommon
+    page = docgen.PAGES["paths.md"]()
+    assert re.findall(r"^## `(?:shape: )?([a-z_]+):?`$", page, re.M) == list(SHAPES) + list(KINDS)
+    for cls in (PathCommon, *SHAPES.values(), *KINDS.values()):
+        for f in dataclasses.fields(cls):
+            assert f"| `{f.name}` |" in page, (cls.__name__, f.name)
+
+
+def test_the_references_links_resolve() -> None:
+    """Every relative link of a generated page names a file that exists, and a heading there
+    when it names one (GitHub's anchors: lower case, punctuation dropped, spaces to '-')."""
+    def anchors(md: Path) -> set[str]:
+        heads = re.findall(r"^#+ (.+)$", md.read_text(encoding="utf-8"), re.M)
+        return {re.sub(r"[^\w\- ]", "", h.strip().lower()).replace(" ", "-") for h in heads}
+    for name, make in docgen.PAGES.items():
+        for target, anchor in re.findall(r"\]\((?![a-z]+:)([^)#]+\.md)(?:#([^)]+))?\)", make()):
+            md = (REFERENCE / target).resolve()
+            assert md.is_file(), (name, target)
+            if anchor:
+                assert anchor in anchors(md), (name, target, anchor)
+
+
+def _anchors(md: Path) -> set[str]:
+    heads = re.findall(r"^#+ (.+)$", md.read_text(encoding="utf-8"), re.M)
+    return {re.sub(r"[^\w\- ]", "", h.strip().lower()).replace(" ", "-") for h in heads}
+
+
+def test_links_into_the_config_pages_resolve() -> None:
+    """A link from any doc to config.md or a reference page names a heading that is there (the
+    key tables moved to the generated reference; the explanation's headings stayed)."""
+    docs = [REPO / "README.md", *sorted((REPO / "docs").rglob("*.md"))]
+    checked = 0
+    for doc in docs:
+        text = doc.read_text(encoding="utf-8")
+        for target, anchor in re.findall(r"\]\(((?:[\w./-]*/)?(?:config|paths|commands|telemetry|modes)\.md)#([^)]+)\)", text):
+            md = (doc.parent / target).resolve()
+            assert md.is_file(), (doc.name, target)
+            assert anchor in _anchors(md), (doc.name, target, anchor)
+            checked += 1
+    assert checked > 10

@@ -17,9 +17,10 @@ from typing import Any
 import pytest
 
 from ddrt.config import ConfigError, load_config
+from ddrt.config.policy import value_at
 from ddrt.loop import COLUMNS
 from ddrt.viz import optional
-from ddrt.viz.params import gain_keys, plan_for
+from ddrt.viz.params import gain_declarations, gain_keys, plan_for
 from ddrt.viz.ring import EXTRA, VizRing
 from ddrt.viz.teleop import parse_twist
 from tests.support.repo import REPO, SIM_YAML
@@ -65,18 +66,23 @@ def test_teleop_twist_gives_linear_x_and_angular_z() -> None:
 
 
 def test_gain_parameters_are_the_live_numeric_controller_keys() -> None:
-    keys = gain_keys(load_config(SIM_YAML))
+    keys = gain_keys()
     for k in ("controller.inner.kp", "controller.inner.ki", "controller.outer.k_y", "controller.outer.k_theta",
               "controller.wheel_pid.kp", "controller.heading_gain"):
         assert k in keys
     assert "controller.rate_hz" not in keys and "controller.mode" not in keys  # restart
     assert not any(k.startswith("controller.adaptation") for k in keys)  # restart
     assert not any(not k.startswith("controller.") for k in keys)
+    # Each is a number the running config holds, with a unit or bounds and a meaning declared.
+    cfg = load_config(SIM_YAML)
+    for k in gain_declarations():
+        assert isinstance(value_at(cfg, k.key), float) and len(k.decl.doc) > 10, k.key
+    assert {k.key: k.decl.unit for k in gain_declarations()}["controller.outer.k_y"] == "1/m^2"
 
 
 def test_a_parameter_set_is_planned_as_a_reload_and_refused_whole() -> None:
     cfg = load_config(SIM_YAML)
-    keys = gain_keys(cfg)
+    keys = gain_keys()
     plan = plan_for(cfg, {"controller.inner.kp": 33, "controller.outer.k_y": 300.0}, keys)
     assert set(plan.live) == {"controller.inner.kp", "controller.outer.k_y"}
     assert plan.in_force.controller.inner.kp == 33.0

@@ -148,7 +148,7 @@ EXPECTED = {
     "coordinates of 1e308": "coords.yaml: key 'points[1][0]': out of range, got 1e+308 (a number is 0 or "
                             "between 1e-12 and 1e+12 in magnitude)",
     "radius 1e-300": "tiny.yaml: key 'radius': out of range, got 1e-300",
-    "radius 1e-6": "small.yaml: key 'radius': must be at least 0.001 m, got 1e-06",
+    "radius 1e-6": "small.yaml: key 'radius': must be >= 0.001 m, got 1e-06",
     "laps 1e12": "laps.yaml: key 'laps': the path would have about 1.57e+15 samples",
     "rectangle laps 1e12": "rect.yaml: key 'laps': 1e+12 laps make 4e+12 corners, more than paths.max_points",
     "rectangle 1e6 wide": "huge_rect.yaml: key 'width': the path would have about 2e+09 samples",

@@ -294,7 +294,7 @@ def test_bad_csv_names_file_line_and_problem(tmp_path, fname, text, where, probl
 BAD_YAML = [
     ("unknown_shape.yaml", "shape: hexagon\nspeed: 0.2\n", "key 'shape'", "unknown shape"),
     ("missing_key.yaml", "shape: circle\nspeed: 0.2\n", "key 'radius'", "missing"),
-    ("negative.yaml", "shape: circle\nradius: -0.3\n", "key 'radius'", "> 0"),
+    ("negative.yaml", "shape: circle\nradius: -0.3\n", "key 'radius'", ">= 0.001 m"),
     ("bad_speed.yaml", "shape: line\nlength: 1\nspeed: -1\n", "key 'speed'", "> 0"),
     ("nan.yaml", "shape: ellipse\na: .nan\nb: 0.5\n", "key 'a'", "finite"),
     ("direction.yaml", "shape: circle\nradius: 0.3\ndirection: left\n", "key 'direction'", "cw"),

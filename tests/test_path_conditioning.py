@@ -295,7 +295,7 @@ def test_bad_points_name_file_and_line(tmp_path, text, needle) -> None:
 
 def test_bad_tolerances_name_the_key(tmp_path) -> None:
     (tmp_path / "p.csv").write_text("x,y\n0,0\n1,0\n")
-    for value, problem in (("-0.01", "must be >= 0"), ("5", "must be at most 1 m")):
+    for value, problem in (("-0.01", "must be >= 0"), ("5", "must be <= 1 m")):
         spec = tmp_path / "t.yaml"
         spec.write_text(f"file: p.csv\ntolerance: {value}\n")
         with pytest.raises(PathError, match=rf"t\.yaml: key 'tolerance': {problem}"):

@@ -8,12 +8,11 @@ from __future__ import annotations
 
 import copy
 import os
-from dataclasses import asdict
 from pathlib import Path as FsPath
 from typing import Any, Callable, Mapping
 
 from ddrt.config.filekind import CONFIG, PATH, not_a
-from ddrt.config.schema import ConfigError, build, convert
+from ddrt.config.schema import RESTART, ConfigError, Decl, build, convert, field_items
 from ddrt.config.sections import (
     Config, ControllerConfig, DaemonConfig, DriveConfig, EstimatorConfig, HalConfig, LimitsConfig, PathsConfig,
     PursuitConfig, SensorsConfig, SimConfig,
@@ -25,7 +24,14 @@ from ddrt.params.motor import MotorParams
 
 # --------------------------------------------------------------------------- loading
 
-# The keys a config file may hold at its top level (docs/config.md documents each).
+# The file's own keys, beside Config's sections: how it is read and what it is called.
+OWN_KEYS = {
+    "extends": Decl(unit="file name", doc="Base file this one is deep-merged over, relative to this file's folder "
+                                          "([config.md](config.md#how-a-file-is-read)).", reload=RESTART),
+    "name": Decl(doc="Short label of the config; not interpreted.", reload=RESTART),
+    "description": Decl(doc="Free text; not interpreted.", reload=RESTART),
+}
+# The keys a config file may hold at its top level (docs/reference/config.md documents each).
 TOP_KEYS = ("extends", "robot", "plant", "sim", "sensors", "hal", "controller", "estimator",
              "pursuit", "limits", "daemon", "drive", "paths", "path", "start", "name", "description")
 
@@ -121,7 +127,7 @@ def _explicit(section: Any, where: str) -> Any:
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
     out = {k: v for k, v in section.items() if k != "estimate"}
-    out.update(asdict(derived))
+    out.update({f.name: value for f, value in field_items(derived)})
     return out
 
 

@@ -1,5 +1,5 @@
-"""The reload policy, derived from the declarations beside each field (ddrt.config.schema:
-`APPLY` on a section, `applies(...)` on a field), never listed by hand.
+"""The reload policy, derived from the declarations beside each field (`APPLY` on a section,
+`setting(..., reload=...)` on a field; ddrt/params/decl.py), never listed by hand.
 
 `plan_reload(running, new)` compares two validated configs leaf by leaf and returns the
 config to put in force (the new values of live and next-path fields, the running values of
@@ -13,10 +13,9 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, Iterator
 
-from ddrt.config.schema import APPLY_MODES, LIVE, NEXT_PATH, RESTART, ConfigError, validate_tree
+from ddrt.config.keys import ROOT_MODE, is_section, key_of, mode_of, section_mode
+from ddrt.config.schema import APPLY_MODES, LIVE, NEXT_PATH, RESTART, ConfigError, field_items, validate_tree
 from ddrt.config.sections import Config
-
-ROOT_MODE = RESTART  # a field that declares nothing, anywhere up its chain, waits for a restart
 
 
 @dataclass(frozen=True)
@@ -52,32 +51,15 @@ class _Walk:
     changes: dict[str, list[str]] = field(default_factory=lambda: {m: [] for m in APPLY_MODES})
 
 
-def _mode_of(f: dataclasses.Field, owner: type, inherited: str) -> str:
-    mode = f.metadata.get("apply")
-    if mode is None:
-        mode = getattr(owner, "APPLY", None) or inherited
-    return mode
-
-
-def _key(prefix: str, f: dataclasses.Field) -> str:
-    if "key" in f.metadata:
-        return f.metadata["key"]
-    return f"{prefix}.{f.name}" if prefix else f.name
-
-
-def _is_section(value: Any) -> bool:
-    return dataclasses.is_dataclass(value) and not isinstance(value, type)
-
-
 def value_at(cfg: Any, key: str) -> Any:
     """The value of the setting at dotted `key` (as leaf_modes and the reload report name it)."""
     node, parts = cfg, key.split(".")
     while parts:
-        by_key = {_key("", f): f for f in dataclasses.fields(node)}
+        by_key = {key_of("", f): value for f, value in field_items(node)}
         for n in range(len(parts), 0, -1):
-            f = by_key.get(".".join(parts[:n]))
-            if f is not None:
-                node, parts = getattr(node, f.name), parts[n:]
+            head = ".".join(parts[:n])
+            if head in by_key:
+                node, parts = by_key[head], parts[n:]
                 break
         else:
             raise KeyError(key)
@@ -90,14 +72,13 @@ def leaf_modes(cfg: Config) -> Iterator[tuple[str, str]]:
 
 
 def _leaves(obj: Any, prefix: str, inherited: str) -> Iterator[tuple[str, str]]:
-    section_mode = getattr(type(obj), "APPLY", None) or inherited
-    for f in dataclasses.fields(obj):
+    here = section_mode(type(obj), inherited)
+    for f, value in field_items(obj):
         if not f.compare:
             continue
-        key = _key(prefix, f)
-        mode = _mode_of(f, type(obj), section_mode)
-        value = getattr(obj, f.name)
-        if _is_section(value):
+        key = key_of(prefix, f)
+        mode = mode_of(f, here)
+        if is_section(value):
             yield from _leaves(value, key, mode)
         else:
             yield key, mode
@@ -105,17 +86,18 @@ def _leaves(obj: Any, prefix: str, inherited: str) -> Iterator[tuple[str, str]]:
 
 def _merge(old: Any, new: Any, prefix: str, inherited: str, walk: _Walk) -> Any:
     """`new` with every restart-mode leaf that changed put back to `old`'s value."""
-    section_mode = getattr(type(new), "APPLY", None) or inherited
+    here = section_mode(type(new), inherited)
     kept: dict[str, Any] = {}
-    for f in dataclasses.fields(new):
+    running = dict(field_items(old))
+    for f, b in field_items(new):
         if not f.compare:
             continue
-        key = _key(prefix, f)
-        mode = _mode_of(f, type(new), section_mode)
-        a, b = getattr(old, f.name), getattr(new, f.name)
+        key = key_of(prefix, f)
+        mode = mode_of(f, here)
+        a = running[f]
         if a == b:
             continue
-        if _is_section(a) and _is_section(b) and type(a) is type(b):
+        if is_section(a) and is_section(b) and type(a) is type(b):
             merged = _merge(a, b, key, mode, walk)
             if merged is not b:
                 kept[f.name] = merged

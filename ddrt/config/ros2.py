@@ -1,47 +1,54 @@
-"""`daemon.ros2`: the ROS 2 bridge's section (docs/config.md, docs/ros2.md). A module of its
-own so that the shared sections.py only names it."""
+"""`daemon.ros2`: the ROS 2 bridge's section (docs/ros2.md). A module of its own so that the
+shared sections.py only names it."""
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
-from ddrt.config.schema import ConfigError, positive
+from ddrt.params.decl import Text
+from ddrt.config.schema import Section, setting
+
+# A ROS name: letters, digits, _ and /, not starting with a digit; a namespace may be empty.
+ROS_NAME = Text(r"(?:[^\W\d]|/)[\w/]*", "a ROS name (letters, digits, _ and /, not starting with a digit)")
+ROS_NAMESPACE = Text(r"[\w/]*", "a ROS namespace (letters, digits, _ and /)")
+MAX_RATE_HZ = 500.0  # the state stream's rate: a topic cannot be fresher
 
 
 @dataclass(frozen=True)
-class Ros2Config:
+class Ros2Config(Section):
     """The ROS 2 bridge (docs/ros2.md): a process of its own, started and supervised by the
     daemon when enabled; needs `pip install 'ddrt[ros2]'`."""
 
-    enabled: bool = False
-    domain_id: int = 0  # ROS_DOMAIN_ID
-    namespace: str = ""  # the node's namespace; topics are relative to it
-    node_name: str = "ddrt"
-    odom_frame: str = "odom"
-    base_frame: str = "base_link"
-    map_frame: str = "map"
-    imu_frame: str = "imu_link"
-    imu_xyz: tuple[float, ...] = (0.0, 0.0, 0.0)  # m: imu_frame's origin in base_frame (/tf_static)
-    odom_rate_hz: float = 50.0  # /odom and /tf (diff_drive_controller's publish_rate)
-    imu_rate_hz: float = 100.0  # /imu/data_raw
-    diagnostics_rate_hz: float = 1.0  # /diagnostics and /battery_state
-    path_topic: str = "plan"  # nav_msgs/Path to follow
-    pose_topic: str = "pose"  # a localiser's PoseWithCovarianceStamped, taken as pose fixes
-
-    def validate(self, where: str) -> None:
-        if not 0 <= self.domain_id <= 232:
-            raise ConfigError(f"{where}.domain_id: must be 0..232, got {self.domain_id}")
-        for key in ("node_name", "odom_frame", "base_frame", "map_frame", "imu_frame", "path_topic", "pose_topic"):
-            value = getattr(self, key)
-            if not value or not all(c.isalnum() or c in "_/" for c in value) or value[0].isdigit():
-                raise ConfigError(f"{where}.{key}: expected a ROS name (letters, digits, _ and /), got {value!r}")
-        if self.namespace and not all(c.isalnum() or c in "_/" for c in self.namespace):
-            raise ConfigError(f"{where}.namespace: expected a ROS namespace, got {self.namespace!r}")
-        if len(self.imu_xyz) != 3 or not all(math.isfinite(v) and abs(v) < 10.0 for v in self.imu_xyz):
-            raise ConfigError(f"{where}.imu_xyz: expected [x, y, z] in metres, each within 10 m, got {list(self.imu_xyz)}")
-        positive(where, odom_rate_hz=self.odom_rate_hz, imu_rate_hz=self.imu_rate_hz,
-                 diagnostics_rate_hz=self.diagnostics_rate_hz)
-        for key in ("odom_rate_hz", "imu_rate_hz", "diagnostics_rate_hz"):
-            if getattr(self, key) > 500.0:
-                raise ConfigError(f"{where}.{key}: at most 500 Hz (the state stream's rate), got {getattr(self, key):g}")
+    enabled: bool = setting(
+        False,
+        doc="Start the bridge (`python -m ddrt.ros2`). `ddrt ros2 --socket ...` runs the same bridge by hand "
+            "against a running daemon.")
+    domain_id: int = setting(0, ge=0, le=232, doc="ROS_DOMAIN_ID.")
+    namespace: str = setting(
+        "", text=ROS_NAMESPACE,
+        doc="The node's namespace; relative topics (`odom`, `cmd_vel`, ...) are in it, `/tf`, `/tf_static` and "
+            "`/diagnostics` are not.")
+    node_name: str = setting("ddrt", text=ROS_NAME, doc="The node's name (`ros2 node list`).")
+    odom_frame: str = setting(
+        "odom", text=ROS_NAME, doc="The odometry frame (REP-105): /odom's header, the parent of `base_frame` in /tf.")
+    base_frame: str = setting(
+        "base_link", text=ROS_NAME, doc="The robot's frame: /odom's child frame, at the rear axle's midpoint A.")
+    map_frame: str = setting(
+        "map", text=ROS_NAME,
+        doc="The frame pose fixes are in: `map -> odom` in /tf; a path whose header names it is followed in it.")
+    imu_frame: str = setting(
+        "imu_link", text=ROS_NAME, doc="/imu/data_raw's frame; /tf_static places it in `base_frame`.")
+    imu_xyz: tuple[float, float, float] = setting(
+        (0.0, 0.0, 0.0), unit="m", gt=-10.0, lt=10.0,
+        doc="Where the gyro sits in `base_frame` (x forward, y left, z up): /tf_static's "
+            "`base_frame -> imu_frame`.")
+    odom_rate_hz: float = setting(
+        50.0, unit="Hz", gt=0, le=MAX_RATE_HZ, doc="/odom and /tf (diff_drive_controller's publish_rate).")
+    imu_rate_hz: float = setting(100.0, unit="Hz", gt=0, le=MAX_RATE_HZ, doc="/imu/data_raw.")
+    diagnostics_rate_hz: float = setting(
+        1.0, unit="Hz", gt=0, le=MAX_RATE_HZ, doc="/diagnostics and /battery_state.")
+    path_topic: str = setting(
+        "plan", text=ROS_NAME, doc="nav_msgs/Path to follow (Nav2's planner publishes `plan`).")
+    pose_topic: str = setting(
+        "pose", text=ROS_NAME,
+        doc="A localiser's geometry_msgs/PoseWithCovarianceStamped, taken as pose fixes (`/initialpose` too).")

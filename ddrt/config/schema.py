@@ -1,8 +1,9 @@
 """Turn a plain mapping (parsed YAML) into typed, frozen dataclasses, or say exactly what is wrong.
 
-One small walker serves every config section: the dataclass's field types are the schema.
-Errors name the dotted key ("controller.inner.kp: expected a number, got 'abc'") so the
-caller only has to prefix the file name.
+One small walker serves every config section: the dataclass's field types and each field's
+declaration (`setting(...)`, ddrt/params/decl.py: unit, bounds, reload mode, description)
+are the schema. Errors name the dotted key and the value ("controller.inner.kp: must be >= 0,
+got -1.0") so the caller only has to prefix the file name.
 """
 
 from __future__ import annotations
@@ -14,8 +15,14 @@ import typing
 from typing import Any, Collection, Literal, Mapping, TypeVar, get_args, get_origin, get_type_hints
 
 from ddrt.errors import DdrtError
+from ddrt.params.decl import (
+    APPLY_MODES, LIVE, NEXT_PATH, RESTART, Decl, Section, decl_of, field_items, setting,
+)
 from ddrt.params.numbers import finite_float
 from ddrt.config.yamlio import shorten
+
+__all__ = ["APPLY_MODES", "LIVE", "NEXT_PATH", "RESTART", "ConfigError", "Decl", "Section", "build", "convert",
+           "decl_of", "field_items", "field_types", "setting", "validate_tree", "FLOAT_MAX", "FLOAT_MIN", "INT_LIMIT"]
 
 T = TypeVar("T")
 
@@ -116,10 +123,8 @@ def _convert(tp: Any, value: Any, where: str, default: Any = None) -> Any:
     raise TypeError(f"schema: unsupported type {tp!r} at {where}")
 
 
-def _field_default(f: dataclasses.Field, base: Any) -> Any:
-    """What field `f` is when its key is missing: `base`'s value, else its own default (None if it has none)."""
-    if base is not None:
-        return getattr(base, f.name)
+def _field_default(f: dataclasses.Field) -> Any:
+    """What field `f` is when its key is missing: its own default (None if it has none)."""
     if f.default is not dataclasses.MISSING:
         return f.default
     if f.default_factory is not dataclasses.MISSING:
@@ -128,7 +133,7 @@ def _field_default(f: dataclasses.Field, base: Any) -> Any:
 
 
 @functools.cache
-def _type_hints(cls: type) -> dict[str, Any]:
+def field_types(cls: type) -> dict[str, Any]:
     """A section class's field types, resolved once: typing.get_type_hints compiles every
     string annotation again on each call (40 % of loading a config)."""
     return get_type_hints(cls)
@@ -138,18 +143,20 @@ def build(cls: type[T], mapping: Any, where: str = "", *, ignore: Collection[str
     """Build dataclass `cls` from `mapping`, rejecting unknown keys and bad values.
 
     Missing keys take the field's default; a field without default is required. A section
-    inside a section starts from its field's default instead (`base`: one class, such as
-    PidGains, serves two sections with two default sets), so its missing keys take that. After the
-    fields are set, a `validate(where)` method on the class (if any) checks cross-field rules.
+    inside a section starts from its field's default instead (`base`), so its missing keys take
+    that; `base` also gives a section defaults of the moment (SensorsConfig.for_backend). Each
+    value given is checked against its field's declaration (`setting`: bounds, choices, the
+    shape of a text) and the error names the key and the value. After the fields are set, a
+    Section's `validate(where)` checks the rules between them.
     Keys in `ignore` are allowed in `mapping` and left to the caller (e.g. robot.motor). A
     class may name keys it no longer takes in `MOVED: ClassVar[dict[str, str]]`, key -> what
     to write instead; such a key is an error that says so.
     """
     if not isinstance(mapping, Mapping):
         raise ConfigError(f"{where or 'config'}: expected a mapping, got {shorten(mapping)}")
-    hints = _type_hints(cls)
+    hints = field_types(cls)
     names = {f.name for f in dataclasses.fields(cls) if f.init}
-    moved: Mapping[str, str] = getattr(cls, "MOVED", {})
+    moved: Mapping[str, str] = cls.MOVED if issubclass(cls, Section) else {}
     for key in mapping:
         if key in moved:
             raise ConfigError(f"{_join(where, key)}: no longer a key: {moved[key]}")
@@ -158,6 +165,7 @@ def build(cls: type[T], mapping: Any, where: str = "", *, ignore: Collection[str
     if unknown:
         known = ", ".join(sorted(names | set(ignore)))
         raise ConfigError(f"{_join(where, unknown[0])}: unknown key (known: {known})")
+    based = dict(field_items(base)) if base is not None else {}
     kwargs: dict[str, Any] = {}
     missing: list[str] = []  # all of them in one error: a section is not filled in one run per key
     for f in dataclasses.fields(cls):
@@ -165,9 +173,15 @@ def build(cls: type[T], mapping: Any, where: str = "", *, ignore: Collection[str
             continue
         key = _join(where, f.name)
         if f.name in mapping:
-            kwargs[f.name] = _convert(hints[f.name], mapping[f.name], key, _field_default(f, base))
+            default = based[f] if f in based else _field_default(f)
+            value = _convert(hints[f.name], mapping[f.name], key, default)
+            decl = decl_of(f)
+            problem = None if decl is None or value is None else decl.check(value, key)
+            if problem is not None:
+                raise ConfigError(problem)
+            kwargs[f.name] = value
         elif base is not None:
-            kwargs[f.name] = getattr(base, f.name)
+            kwargs[f.name] = based[f]
         elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
             missing.append(key)
     if missing:
@@ -183,61 +197,15 @@ def build(cls: type[T], mapping: Any, where: str = "", *, ignore: Collection[str
         if sep and head.startswith(cls.__name__ + "."):
             raise ConfigError(f"{_join(where, head[len(cls.__name__) + 1:])}: {reason}") from None
         raise ConfigError(f"{where or cls.__name__}: {text}") from None
-    check = getattr(obj, "validate", None)
-    if callable(check):
-        check(where)
+    if isinstance(obj, Section):
+        obj.validate(where)
     return obj
 
 
-def positive(where: str, **values: float) -> None:
-    """Raise ConfigError naming the first of `values` that is not > 0."""
-    for key, value in values.items():
-        if not value > 0:
-            raise ConfigError(f"{_join(where, key)}: must be > 0, got {value!r}")
-
-
-def non_negative(where: str, **values: float) -> None:
-    """Raise ConfigError naming the first of `values` that is < 0."""
-    for key, value in values.items():
-        if not value >= 0:
-            raise ConfigError(f"{_join(where, key)}: must be >= 0, got {value!r}")
-
-
-# --------------------------------------------------------------------------- reload policy
-# How a changed value takes effect in a running daemon, declared beside the field it is about
-# (ddrt.config.policy derives the reload report and the config in force from these):
-#   live       handed to the running parts between two ticks
-#   next_path  used from the next path the robot is given (the current one keeps its profile)
-#   restart    read when the daemon starts; a change waits for a restart
-LIVE, NEXT_PATH, RESTART = "live", "next_path", "restart"
-APPLY_MODES = (LIVE, NEXT_PATH, RESTART)
-
-
-def applies(mode: str, default: Any = dataclasses.MISSING, *, factory: Any = dataclasses.MISSING,
-            key: str | None = None, **kwargs: Any) -> Any:
-    """A dataclass field whose reload mode is `mode` (and whose YAML key is `key`, when it differs)."""
-    if mode not in APPLY_MODES:
-        raise ValueError(f"applies: unknown mode {mode!r}")
-    metadata = {"apply": mode, **({"key": key} if key else {})}
-    return dataclasses.field(default=default, default_factory=factory, metadata=metadata, **kwargs)
-
-
-def restart(default: Any = dataclasses.MISSING, *, factory: Any = dataclasses.MISSING) -> Any:
-    """A field read only at start-up."""
-    return applies(RESTART, default, factory=factory)
-
-
-def next_path(default: Any = dataclasses.MISSING, *, factory: Any = dataclasses.MISSING) -> Any:
-    """A field that shapes paths: a change applies from the next path."""
-    return applies(NEXT_PATH, default, factory=factory)
-
-
 def validate_tree(obj: Any, where: str = "") -> None:
-    """Run every `validate(where)` in a tree of built dataclasses, innermost first."""
-    for f in dataclasses.fields(obj):
-        value = getattr(obj, f.name)
+    """Run every section's `validate(where)` in a tree of built dataclasses, innermost first."""
+    for f, value in field_items(obj):
         if dataclasses.is_dataclass(value) and not isinstance(value, type):
             validate_tree(value, _join(where, f.name))
-    check = getattr(obj, "validate", None)
-    if callable(check):
-        check(where)
+    if isinstance(obj, Section):
+        obj.validate(where)

@@ -7,18 +7,28 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
+from ddrt.params.decl import Section, setting
+
 
 @dataclass(frozen=True)
-class WiringConfig:
+class WiringConfig(Section):
     """How the robot's motors and sensors are wired, fixed in software (hal/wiring.py applies
     it to every backend's reads and writes); `ddrt commission` measures it. The defaults are
     a robot wired as documented (docs/hardware.md)."""
 
-    motor_left_inverted: bool = False  # the left wheel's motor turns backwards for a forward duty
-    motor_right_inverted: bool = False
-    motors_swapped: bool = False  # the left wheel's motor is on the right output
-    encoder_sign: Literal[1, -1] = 1  # -1: the front encoder counts down going forward
-    gyro_sign: Literal[1, -1] = 1  # -1: the gyro is mounted upside down (z axis down)
+    motor_left_inverted: bool = setting(
+        False, doc="The left wheel's motor turns backwards for a forward duty: its duty is negated.")
+    motor_right_inverted: bool = setting(
+        False, doc="The right wheel's motor turns backwards for a forward duty: its duty is negated.")
+    motors_swapped: bool = setting(
+        False,
+        doc="The left wheel's motor is on the right output and the other way round: the two duties are "
+            "exchanged (after the inversions, which belong to the wheels).")
+    encoder_sign: Literal[1, -1] = setting(
+        1, doc="`-1`: the front encoder counts down going forward (its count is negated, wrapping as a signed "
+               "32-bit counter).")
+    gyro_sign: Literal[1, -1] = setting(
+        1, doc="`-1`: the gyro is mounted upside down (its raw yaw rate is negated).")
 
     @property
     def identity(self) -> bool:
@@ -28,12 +38,15 @@ class WiringConfig:
 
 
 @dataclass(frozen=True)
-class SimWiring:
+class SimWiring(Section):
     """Fault injection: the simulated robot wired wrongly (what `ddrt commission` finds and
-    fixes in hal.wiring). All false: wired right (today's robot)."""
+    fixes in hal.wiring). All false: wired right."""
 
-    left_motor_reversed: bool = False  # the left motor turns backwards for a forward duty
-    right_motor_reversed: bool = False
-    motors_swapped: bool = False  # the left duty drives the right motor and the other way
-    encoder_reversed: bool = False  # the front encoder counts down going forward
-    gyro_upside_down: bool = False  # the gyro's z axis points down: yaw rate reads negated
+    left_motor_reversed: bool = setting(False, doc="The left motor turns backwards for a forward duty.")
+    right_motor_reversed: bool = setting(False, doc="The right motor turns backwards for a forward duty.")
+    motors_swapped: bool = setting(
+        False,
+        doc="The left output drives the right motor and the right output the left one (reversals apply to the "
+            "motors, after the swap).")
+    encoder_reversed: bool = setting(False, doc="The front encoder counts down going forward.")
+    gyro_upside_down: bool = setting(False, doc="The gyro's z axis points down: its yaw rate reads negated.")

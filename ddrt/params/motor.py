@@ -13,42 +13,43 @@ gives no datasheet figures; these are assumptions, written down so they can be r
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any, Mapping
 
+from ddrt.params.decl import Section, check_declared, field_items, setting
 from ddrt.params.numbers import from_known_keys
 
 
 # Magnitudes no gearmotor of a wheeled robot reaches (SI units, at the wheel): they catch a
 # typo or a unit slip before the model feeds it forward.
-_BOUNDS = {"supply_v": 1000.0, "resistance_ohm": 1000.0, "k_nm_per_a": 100.0, "viscous_nms": 10.0,
-           "coulomb_nm": 100.0, "coulomb_smoothing_rad_s": 100.0}
-
-
 @dataclass(frozen=True)
-class MotorParams:
+class MotorParams(Section):
     """One gearmotor and its driver, referred to the wheel shaft (SI units)."""
 
-    supply_v: float = 12.0  # driver supply voltage (V)
-    resistance_ohm: float = 3.82  # armature resistance R_a
-    k_nm_per_a: float = 0.382  # torque constant at the wheel = back-EMF constant (V s/rad)
-    viscous_nms: float = 0.00086  # viscous friction b at the wheel (N m s/rad)
-    coulomb_nm: float = 0.03  # Coulomb friction tau_c at the wheel (N m)
-    coulomb_smoothing_rad_s: float = 0.02  # w_s: speed over which Coulomb friction builds up
+    supply_v: float = setting(
+        12.0, unit="V", gt=0, le=1000.0,
+        doc="Driver supply voltage: duty 1 puts this across the armature. When the hardware measures the "
+            "supply (a protocol-v2 MCU, the simulator), the measured, filtered voltage replaces it in the motor "
+            "model, the controller's limits and a starting path's profile (ddrt/loop/power.py); this value is "
+            "used until the first reading, and readings outside 0.25 to 2 times it are rejected as implausible.")
+    resistance_ohm: float = setting(3.82, unit="ohm", gt=0, le=1000.0, doc="Armature resistance R_a.")
+    k_nm_per_a: float = setting(
+        0.382, unit="N m/A (= V s/rad)", gt=0, le=100.0,
+        doc="Torque constant at the wheel, equal to the back-EMF constant.")
+    viscous_nms: float = setting(0.00086, unit="N m s/rad", ge=0, le=10.0, doc="Viscous friction b at the wheel.")
+    coulomb_nm: float = setting(0.03, unit="N m", ge=0, le=100.0, doc="Coulomb (dry) friction tau_c at the wheel.")
+    coulomb_smoothing_rad_s: float = setting(
+        0.02, unit="rad/s", gt=0, le=100.0,
+        doc="Wheel speed over which Coulomb friction builds up (tanh), so the integrator does not chatter at "
+            "rest.")
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            value = getattr(self, f.name)
+        # Also built in code (identification, tests): checked against the declarations here too.
+        for f, value in field_items(self):
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise ValueError(f"MotorParams.{f.name}: expected a finite number, got {value!r}")
-            if f.name in ("supply_v", "resistance_ohm", "k_nm_per_a", "coulomb_smoothing_rad_s") and value <= 0:
-                raise ValueError(f"MotorParams.{f.name}: must be > 0, got {value!r}")
-            if value < 0:
-                raise ValueError(f"MotorParams.{f.name}: must be >= 0, got {value!r}")
-            if value > _BOUNDS[f.name]:
-                raise ValueError(f"MotorParams.{f.name}: {value!r} is beyond any gearmotor this controller is "
-                                 f"for (at most {_BOUNDS[f.name]:g})")
             object.__setattr__(self, f.name, float(value))
+        check_declared(self, "MotorParams")
 
     @classmethod
     def from_mapping(cls, mapping: Mapping[str, Any]) -> "MotorParams":

@@ -10,17 +10,14 @@ import math
 from dataclasses import dataclass, fields
 from typing import Any, Mapping
 
-# Fields that must be strictly positive; d_xc and d_yc may take any finite value.
+from ddrt.params.decl import Section, check_declared, field_items, setting
+
 # Magnitudes no wheeled robot of this kind reaches: metres, wheel radii, kilograms, kg m^2.
-_BOUNDS = {"length": 10.0, "r": 1.0, "m": 1000.0, "I": 1000.0}
-_POSITIVE = (
-    "H", "L", "R", "r_L", "r_R", "r_3", "m_p", "m_L", "m_R", "m_3",
-    "I_p", "I_L", "I_R", "I_3", "I_wL", "I_wR", "I_w3",
-)
+LENGTH_M, RADIUS_M, MASS_KG, INERTIA_KGM2 = 10.0, 1.0, 1000.0, 1000.0
 
 
 @dataclass(frozen=True)
-class RobotParams:
+class RobotParams(Section):
     """Geometry and mass properties of the robot, SI units, names as in the seed report.
 
     Body frame: origin A mid rear axle, x forward, y left. Left wheel at (0, +L), right at
@@ -29,40 +26,45 @@ class RobotParams:
     centre; I_wL, I_wR, I_w3 are spin inertias about the axles.
     """
 
-    H: float
-    L: float
-    R: float
-    r_L: float
-    r_R: float
-    r_3: float
-    d_xc: float
-    d_yc: float
-    m_p: float
-    m_L: float
-    m_R: float
-    m_3: float
-    I_p: float
-    I_L: float
-    I_R: float
-    I_3: float
-    I_wL: float
-    I_wR: float
-    I_w3: float
+    H: float = setting(unit="m", gt=0, le=LENGTH_M, doc="Distance along x from A to the front omni-wheel.")
+    L: float = setting(unit="m", gt=0, le=LENGTH_M, doc="Distance from A to the left wheel's centre (at y = +L).")
+    R: float = setting(unit="m", gt=0, le=LENGTH_M, doc="Distance from A to the right wheel's centre (at y = -R).")
+    r_L: float = setting(unit="m", gt=0, le=RADIUS_M, doc="Left wheel radius.")
+    r_R: float = setting(unit="m", gt=0, le=RADIUS_M, doc="Right wheel radius.")
+    r_3: float = setting(
+        unit="m", gt=0, le=RADIUS_M,
+        doc="Front omni-wheel radius; the encoder is on this wheel, so odometry scales with it.")
+    d_xc: float = setting(
+        unit="m", ge=-LENGTH_M, le=LENGTH_M,
+        doc="x of the platform's centre of mass, within twice the robot's wheelbase and track of A.")
+    d_yc: float = setting(
+        unit="m", ge=-LENGTH_M, le=LENGTH_M, doc="y of the platform's centre of mass, within twice the half track.")
+    m_p: float = setting(unit="kg", gt=0, le=MASS_KG, doc="Platform mass (wheels excluded).")
+    m_L: float = setting(unit="kg", gt=0, le=MASS_KG, doc="Left wheel assembly mass.")
+    m_R: float = setting(unit="kg", gt=0, le=MASS_KG, doc="Right wheel assembly mass.")
+    m_3: float = setting(unit="kg", gt=0, le=MASS_KG, doc="Front omni-wheel assembly mass.")
+    I_p: float = setting(
+        unit="kg m^2", gt=0, le=INERTIA_KGM2, doc="Platform yaw inertia about its own centre of mass.")
+    I_L: float = setting(
+        unit="kg m^2", gt=0, le=INERTIA_KGM2, doc="Left wheel assembly's yaw inertia about its own centre.")
+    I_R: float = setting(
+        unit="kg m^2", gt=0, le=INERTIA_KGM2, doc="Right wheel assembly's yaw inertia about its own centre.")
+    I_3: float = setting(
+        unit="kg m^2", gt=0, le=INERTIA_KGM2, doc="Front wheel assembly's yaw inertia about its own centre.")
+    I_wL: float = setting(unit="kg m^2", gt=0, le=INERTIA_KGM2, doc="Left wheel's spin inertia about its axle.")
+    I_wR: float = setting(unit="kg m^2", gt=0, le=INERTIA_KGM2, doc="Right wheel's spin inertia about its axle.")
+    I_w3: float = setting(unit="kg m^2", gt=0, le=INERTIA_KGM2, doc="Front wheel's spin inertia about its axle.")
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            value = getattr(self, f.name)
+        # Parameters are also built in code (identification, the estimate, tests), not only read
+        # by the config's walker: each is checked against its declaration here too.
+        for f, value in field_items(self):
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise ValueError(f"RobotParams.{f.name}: expected a number, got {value!r}")
             if not math.isfinite(value):
                 raise ValueError(f"RobotParams.{f.name}: must be finite, got {value!r}")
-            if f.name in _POSITIVE and value <= 0.0:
-                raise ValueError(f"RobotParams.{f.name}: must be > 0, got {value!r}")
-            bound = _BOUNDS[f.name[0] if f.name[0] in "mI" else ("r" if f.name.startswith("r_") else "length")]
-            if abs(value) > bound:
-                raise ValueError(f"RobotParams.{f.name}: {value!r} is beyond any wheeled robot this controller "
-                                 f"is for (at most {bound:g} in SI units)")
             object.__setattr__(self, f.name, float(value))
+        check_declared(self, "RobotParams")
         # The platform's centre of mass lies over the robot (generously: within twice its
         # wheelbase and track), not metres beside it.
         half_track = max(self.L, self.R)

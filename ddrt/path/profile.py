@@ -33,11 +33,12 @@ the passes are the closed-form running minima of `_limited_rise`.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
+from ddrt.params.decl import field_items
 from ddrt.path.envelope_profile import Constraints, envelope_passes
 
 if TYPE_CHECKING:
@@ -64,8 +65,7 @@ class SpeedLimits:
     notes: tuple[str, ...] = field(default=(), compare=False)
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            value = getattr(self, f.name)
+        for f, value in field_items(self):
             if f.name in ("envelope", "notes") or (value is None and f.name == "decel"):
                 continue
             unbounded = f.name in ("accel", "decel") and value == math.inf

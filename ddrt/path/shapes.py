@@ -1,5 +1,7 @@
 """The path spec's schema: one frozen dataclass per kind of path, built by the config's walker
-(`ddrt.config.schema.build`), so a path's errors come from the same code as a config's.
+(`ddrt.config.schema.build`), so a path's errors come from the same code as a config's. Each key
+declares its unit, bounds and meaning (`setting`), as a config key does; docs/reference/paths.md
+is written from them.
 
 Each kind knows how many samples it will have (`samples(opt)`, checked against
 paths.max_samples before anything is allocated) and builds its geometry (`geometry(opt)`).
@@ -14,7 +16,7 @@ from typing import Any, ClassVar, Literal
 
 import numpy as np
 
-from ddrt.config.schema import ConfigError, non_negative, positive
+from ddrt.config.schema import ConfigError, Section, field_items, setting
 from ddrt.config.sections import MAX_TOLERANCE_M, MIN_PATH_SIZE_M
 from ddrt.path.geometry import (
     TWO_PI, Curve, Geometry, GeometryOptions, arc_piece, line_piece, parametric_piece, polyline_geometry,
@@ -23,46 +25,45 @@ from ddrt.path.geometry import (
 LIMIT_KEYS = ("accel", "decel", "lateral_accel", "omega_max", "alpha_max")
 
 
-def _sizes(where: str, **values: float | None) -> None:
-    """Lengths of a shape: > 0 and at least MIN_PATH_SIZE_M."""
-    given = {k: v for k, v in values.items() if v is not None}
-    positive(where, **given)
-    for key, value in given.items():
-        if value < MIN_PATH_SIZE_M:
-            raise ConfigError(f"{where + '.' if where else ''}{key}: must be at least {MIN_PATH_SIZE_M} m, got {value!r}")
-
-
 def _pivot_samples(opt: GeometryOptions, turn: float) -> float:
     return max(2.0, opt.pivot_radius * abs(turn) / opt.step)
 
 
 @dataclass(frozen=True, kw_only=True)
-class PathCommon:
+class PathCommon(Section):
     """Keys every kind of path takes: its own (lower) limits, sampling options, start pose."""
 
-    speed: float | None = None  # m/s, at most limits.v_max
-    accel: float | None = None
-    decel: float | None = None
-    lateral_accel: float | None = None
-    omega_max: float | None = None
-    alpha_max: float | None = None
-    pivot_radius: float | None = None  # default paths.pivot_radius_m
-    corner_pivot_deg: float | None = None  # default paths.corner_pivot_deg
-    blend_max: float | None = None  # default paths.blend_max_m
-    start_pose: tuple[float, float, float] | None = None
-    start: tuple[float, ...] | None = None  # [x, y, theta]; a line also takes [x, y] (its origin)
-    name: str | None = None
-    description: str | None = None
-    reverse: bool = False  # the whole path driven backwards (points/file: as if every v were negated)
+    speed: float | None = setting(
+        None, unit="m/s", gt=0, doc="Top speed along the path; above `limits.v_max` it is clamped to it.")
+    accel: float | None = setting(
+        None, unit="m/s^2", gt=0, doc="Forward acceleration; above `limits.accel` it is clamped to it.")
+    decel: float | None = setting(
+        None, unit="m/s^2", gt=0, doc="Braking; above `limits.accel` (which bounds both) it is clamped to it.")
+    lateral_accel: float | None = setting(
+        None, unit="m/s^2", gt=0, doc="Centripetal acceleration in curves; at most `limits.lateral_accel`.")
+    omega_max: float | None = setting(None, unit="rad/s", gt=0, doc="Yaw rate; at most `limits.omega_max`.")
+    alpha_max: float | None = setting(
+        None, unit="rad/s^2", gt=0, doc="Yaw acceleration; at most `limits.alpha_max`.")
+    pivot_radius: float | None = setting(
+        None, unit="m", ge=MIN_PATH_SIZE_M, doc="Replaces `paths.pivot_radius_m` for this path.")
+    corner_pivot_deg: float | None = setting(
+        None, unit="deg", ge=0, doc="Replaces `paths.corner_pivot_deg` for this path.")
+    blend_max: float | None = setting(
+        None, unit="m", ge=MIN_PATH_SIZE_M, doc="Replaces `paths.blend_max_m` for this path.")
+    start_pose: tuple[float, float, float] | None = setting(
+        None, unit="[m, m, rad]", doc="Where the robot starts, `[x, y, theta]`; wins over `start`.")
+    start: tuple[float, ...] | None = setting(
+        None, unit="[m, m, rad]", doc="`[x, y, theta]`, the robot's start pose; a line also takes `[x, y]`, its origin.")
+    name: str | None = setting(None, doc="Short label of the path; not interpreted.")
+    description: str | None = setting(None, doc="Free text; not interpreted.")
+    reverse: bool = setting(
+        False,
+        doc="The whole path driven backwards (for `points` and `file`: as if every point's `v` were negated).")
 
     START_SIZES: ClassVar[tuple[int, ...]] = (3,)
     SIZE_KEY: ClassVar[str] = "length"  # the key a too-large path is blamed on
 
     def validate(self, where: str) -> None:
-        positive(where, **{k: getattr(self, k) for k in ("speed", *LIMIT_KEYS) if getattr(self, k) is not None})
-        _sizes(where, pivot_radius=self.pivot_radius, blend_max=self.blend_max)
-        if self.corner_pivot_deg is not None:
-            non_negative(where, corner_pivot_deg=self.corner_pivot_deg)
         if self.start is not None and len(self.start) not in self.START_SIZES:
             shown = "[x, y] (the line's origin) or " if 2 in self.START_SIZES else ""
             raise ConfigError(f"start: expected {shown}[x, y, theta] (theta in rad), got {list(self.start)}")
@@ -77,16 +78,12 @@ class PathCommon:
 
     def positions(self) -> list[tuple[str, tuple[float, ...]]]:
         """(key, (x, y, ...)) of every position the spec names, for the workspace bound."""
-        out = [(k, v) for k in ("start_pose", "start") if (v := getattr(self, k)) is not None]
-        for key in ("center", "origin"):
-            value = getattr(self, key, None)
-            if value is not None:
-                out.append((key, value))
-        return out
+        return [(f.name, v) for f, v in field_items(self)
+                if f.name in ("start_pose", "start", "center", "origin") and v is not None]
 
     def blame(self) -> str:
         """The key to name when the path is too large: laps when there are several."""
-        laps = getattr(self, "laps", 1.0)
+        laps = next((v for f, v in field_items(self) if f.name == "laps"), 1.0)
         return "laps" if laps > 1.0 else self.SIZE_KEY
 
     # Each kind: samples(opt) -> float (an estimate, never below the real count by much) and
@@ -99,15 +96,14 @@ def _direction(value: str) -> float:
 
 @dataclass(frozen=True, kw_only=True)
 class LineSpec(PathCommon):
-    length: float
-    heading_deg: float = 0.0
-    origin: tuple[float, float] | None = None
+    """`shape: line`: a straight segment."""
+
+    length: float = setting(unit="m", ge=MIN_PATH_SIZE_M, doc="The segment's length.")
+    heading_deg: float = setting(0.0, unit="deg", doc="Its direction from +x, counter-clockwise.")
+    origin: tuple[float, float] | None = setting(
+        None, unit="[m, m]", doc="Where it starts; default: `start`'s x, y, else the origin.")
 
     START_SIZES: ClassVar[tuple[int, ...]] = (2, 3)
-
-    def validate(self, where: str) -> None:
-        super().validate(where)
-        _sizes(where, length=self.length)
 
     def samples(self, opt: GeometryOptions) -> float:
         return self.length / opt.step
@@ -121,17 +117,15 @@ class LineSpec(PathCommon):
 
 @dataclass(frozen=True, kw_only=True)
 class CircleSpec(PathCommon):
-    radius: float
-    direction: Literal["cw", "ccw"] = "ccw"
-    center: tuple[float, float] | None = None
-    laps: float = 1.0
+    """`shape: circle`, started heading +x."""
+
+    radius: float = setting(unit="m", ge=MIN_PATH_SIZE_M, doc="The circle's radius.")
+    direction: Literal["cw", "ccw"] = setting("ccw", doc="`ccw` (counter-clockwise, turning left) or `cw`.")
+    center: tuple[float, float] | None = setting(
+        None, unit="[m, m]", doc="The centre; default: the start at the origin heading +x.")
+    laps: float = setting(1.0, gt=0, doc="How many times the path goes round.")
 
     SIZE_KEY: ClassVar[str] = "radius"
-
-    def validate(self, where: str) -> None:
-        super().validate(where)
-        _sizes(where, radius=self.radius)
-        positive(where, laps=self.laps)
 
     def samples(self, opt: GeometryOptions) -> float:
         return TWO_PI * self.radius * self.laps / opt.step
@@ -145,17 +139,17 @@ class CircleSpec(PathCommon):
 
 @dataclass(frozen=True, kw_only=True)
 class RectangleSpec(PathCommon):
-    width: float
-    height: float
-    direction: Literal["cw", "ccw"] = "ccw"
-    laps: float = 1.0
+    """`shape: rectangle` from the origin heading +x, a turn in place at each corner."""
+
+    width: float = setting(unit="m", ge=MIN_PATH_SIZE_M, doc="Its side along x.")
+    height: float = setting(unit="m", ge=MIN_PATH_SIZE_M, doc="Its side along y.")
+    direction: Literal["cw", "ccw"] = setting("ccw", doc="`ccw` (counter-clockwise, turning left) or `cw`.")
+    laps: float = setting(1.0, ge=1, doc="How many times the path goes round: a whole number.")
 
     SIZE_KEY: ClassVar[str] = "width"
 
     def validate(self, where: str) -> None:
         super().validate(where)
-        _sizes(where, width=self.width, height=self.height)
-        positive(where, laps=self.laps)
         if self.laps != int(self.laps):
             raise ConfigError(f"laps: a rectangle needs a whole number of laps, got {self.laps!r}")
 
@@ -181,18 +175,16 @@ def _curve_length(dr: Curve, u1: float) -> float:
 
 @dataclass(frozen=True, kw_only=True)
 class EllipseSpec(PathCommon):
-    a: float
-    b: float
-    direction: Literal["cw", "ccw"] = "ccw"
-    center: tuple[float, float] | None = None
-    laps: float = 1.0
+    """`shape: ellipse`, started at the end of its y semi-axis heading +x."""
+
+    a: float = setting(unit="m", ge=MIN_PATH_SIZE_M, doc="The semi-axis along x.")
+    b: float = setting(unit="m", ge=MIN_PATH_SIZE_M, doc="The semi-axis along y.")
+    direction: Literal["cw", "ccw"] = setting("ccw", doc="`ccw` (counter-clockwise, turning left) or `cw`.")
+    center: tuple[float, float] | None = setting(
+        None, unit="[m, m]", doc="The centre; default: the start at the origin heading +x.")
+    laps: float = setting(1.0, gt=0, doc="How many times the path goes round.")
 
     SIZE_KEY: ClassVar[str] = "a"
-
-    def validate(self, where: str) -> None:
-        super().validate(where)
-        _sizes(where, a=self.a, b=self.b)
-        positive(where, laps=self.laps)
 
     def _curve(self) -> tuple[Curve, Curve, Curve]:
         a, b, sign = self.a, self.b, _direction(self.direction)
@@ -215,11 +207,14 @@ class EllipseSpec(PathCommon):
 
 @dataclass(frozen=True, kw_only=True)
 class FigureEightSpec(PathCommon):
-    width: float | None = None
-    height: float | None = None
-    size: float | None = None  # width = size, height = size / 2
-    center: tuple[float, float] = (0.0, 0.0)
-    laps: float = 1.0
+    """`shape: figure_eight`: Gerono's lemniscate, crossing itself at its centre."""
+
+    width: float | None = setting(None, unit="m", ge=MIN_PATH_SIZE_M, doc="Its extent along x (or give `size`).")
+    height: float | None = setting(None, unit="m", ge=MIN_PATH_SIZE_M, doc="Its extent along y (or give `size`).")
+    size: float | None = setting(
+        None, unit="m", ge=MIN_PATH_SIZE_M, doc="Instead of width and height: width = size, height = size / 2.")
+    center: tuple[float, float] = setting((0.0, 0.0), unit="[m, m]", doc="Where it crosses itself.")
+    laps: float = setting(1.0, gt=0, doc="How many times the path goes round.")
 
     SIZE_KEY: ClassVar[str] = "width"
 
@@ -228,11 +223,9 @@ class FigureEightSpec(PathCommon):
         if self.size is not None and (self.width is not None or self.height is not None):
             raise ConfigError("size: give either size or width/height, not both")
         if self.size is None:
-            for key in ("width", "height"):
-                if getattr(self, key) is None:
+            for key, value in (("width", self.width), ("height", self.height)):
+                if value is None:
                     raise ConfigError(f"{key}: missing (required, or give size)")
-        _sizes(where, width=self.width, height=self.height, size=self.size)
-        positive(where, laps=self.laps)
 
     def _curve(self) -> tuple[Curve, Curve, Curve]:
         w = self.size if self.size is not None else self.width
@@ -260,12 +253,10 @@ class FigureEightSpec(PathCommon):
 
 @dataclass(frozen=True, kw_only=True)
 class SCurveSpec(PathCommon):
-    length: float
-    offset: float
+    """`shape: s_curve`: along x, shifted sideways by `offset`, heading +x at both ends."""
 
-    def validate(self, where: str) -> None:
-        super().validate(where)
-        _sizes(where, length=self.length)
+    length: float = setting(unit="m", ge=MIN_PATH_SIZE_M, doc="Its extent along x.")
+    offset: float = setting(unit="m", doc="The sideways shift from start to end (+: to the left).")
 
     def samples(self, opt: GeometryOptions) -> float:
         return (self.length + 2.0 * abs(self.offset)) / opt.step  # the arc is at most this long
@@ -281,25 +272,24 @@ class SCurveSpec(PathCommon):
             0.0, length, opt.step)])
 
 
-def _check_tolerance(where: str, tolerance: float | str | None) -> None:
-    if tolerance is not None and tolerance != "auto":
-        non_negative(where, tolerance=tolerance)
-        if tolerance > MAX_TOLERANCE_M:
-            raise ConfigError(f"{where + '.' if where else ''}tolerance: must be at most {MAX_TOLERANCE_M:g} m, "
-                              f"got {tolerance!r}")
+TOLERANCE_DOC = ("Replaces `paths.tolerance_m` for this path: how close the reference stays to the points, "
+                 "m, or `auto`; 0: every point a waypoint.")
+UNITS_DOC = "The unit of the points' x and y; unstated: metres, checked against `paths.workspace_m`."
 
 
 @dataclass(frozen=True, kw_only=True)
 class PointsSpec(PathCommon):
-    points: tuple[tuple[float, ...], ...]  # [x, y] or [x, y, v] (v: speed cap, m/s)
-    tolerance: float | Literal["auto"] | None = None  # m or auto; default paths.tolerance_m (0: waypoints)
-    units: Literal["m", "cm", "mm", "in", "ft"] | None = None  # of the points' x, y; unstated: metres, checked
+    """`points:`: a polyline given inline."""
+
+    points: tuple[tuple[float, ...], ...] = setting(
+        doc="`[x, y]` or `[x, y, v]` each: v a speed cap (m/s), negative where the point is reached in reverse.")
+    tolerance: float | Literal["auto"] | None = setting(None, unit="m", ge=0.0, le=MAX_TOLERANCE_M, doc=TOLERANCE_DOC)
+    units: Literal["m", "cm", "mm", "in", "ft"] | None = setting(None, doc=UNITS_DOC)
 
     SIZE_KEY: ClassVar[str] = "points"
 
     def validate(self, where: str) -> None:
         super().validate(where)
-        _check_tolerance(where, self.tolerance)
         for j, item in enumerate(self.points):
             if len(item) not in (2, 3):
                 raise ConfigError(f"points[{j}]: expected [x, y] or [x, y, v], got {list(item)}")
@@ -310,15 +300,14 @@ class PointsSpec(PathCommon):
 
 @dataclass(frozen=True, kw_only=True)
 class FileSpec(PathCommon):
-    file: str  # a .csv of waypoints, relative to the spec's folder
-    tolerance: float | Literal["auto"] | None = None  # m or auto; default paths.tolerance_m (0: waypoints)
-    units: Literal["m", "cm", "mm", "in", "ft"] | None = None  # of the file's x, y unless its header says
+    """`file:`: a polyline in a CSV file."""
+
+    file: str = setting(doc="A .csv of points (`x,y` or `x,y,v` rows), relative to the spec's folder.")
+    tolerance: float | Literal["auto"] | None = setting(None, unit="m", ge=0.0, le=MAX_TOLERANCE_M, doc=TOLERANCE_DOC)
+    units: Literal["m", "cm", "mm", "in", "ft"] | None = setting(
+        None, doc="The unit of the file's x and y unless its header says; unstated: metres, checked.")
 
     SIZE_KEY: ClassVar[str] = "file"
-
-    def validate(self, where: str) -> None:
-        super().validate(where)
-        _check_tolerance(where, self.tolerance)
 
 
 SHAPES: dict[str, type[PathCommon]] = {

@@ -22,7 +22,7 @@ import numpy as np
 
 from ddrt.config.filekind import PATH, not_a
 from ddrt.errors import DdrtError
-from ddrt.config.schema import ConfigError, build
+from ddrt.config.schema import ConfigError, build, field_items
 from ddrt.config.sections import PathsConfig
 from ddrt.config.yamlio import read_text, read_yaml, shorten
 from ddrt.path.condition import WAYPOINTS, ConditionError, ConditionOptions, Conditioning, classify, condition_polyline
@@ -262,8 +262,9 @@ def _clamped_limits(spec: PathCommon, limits: SpeedLimits, where: str,
                "lateral_accel": limits.lateral_accel, "omega_max": limits.omega_max,
                "alpha_max": limits.alpha_max}
     chosen: dict[str, float] = {}
+    given = {f.name: value for f, value in field_items(spec)}
     for key in ("speed", *LIMIT_KEYS):
-        asked = getattr(spec, key)
+        asked = given[key]
         if asked is None:
             continue
         if asked > allowed[key]:

@@ -23,16 +23,18 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path as FsPath
-from typing import Any, Mapping
+from typing import Any, Mapping, TypeVar
 
 from ddrt.config.filekind import CAMPAIGN, not_a
 from ddrt.errors import DdrtError
-from ddrt.config.schema import INT_LIMIT
+from ddrt.config.schema import INT_LIMIT, ConfigError, Section, build, setting
 from ddrt.config.yamlio import read_yaml, shorten
 from ddrt.config.textfile import mode_kind
 from ddrt.sweep.columns import KNOWN_METRICS, NUMERIC_METRICS, TEXT_METRICS
 from ddrt.sweep.criteria import Criterion, parse_criterion
-from ddrt.sweep.ranges import axis_values, finite
+from ddrt.sweep.ranges import axis_values
+
+T = TypeVar("T")
 
 KEYS = ("name", "description", "base", "overrides", "variants", "population", "paths", "axes", "seeds", "run",
         "metrics", "pass", "summary")
@@ -57,12 +59,22 @@ class Axis:
 
 
 @dataclass(frozen=True)
-class PopulationSpec:
-    """`robots` robots drawn from `seed` by ddrt/sweep/population.py."""
+class PopulationSpec(Section):
+    """`population:`: `robots` robots drawn from `seed` by ddrt/sweep/population.py."""
 
-    robots: int
-    seed: int
-    path_speed: bool = True  # each robot's path at its drawn speed
+    robots: int = setting(ge=1, doc="How many robots are drawn (an axis `robot`).")
+    seed: int = setting(20261201, doc="The seed they are drawn from: the same seed, the same robots.")
+    path_speed: bool = setting(True, doc="Each robot follows its path at its own drawn speed.")
+
+
+@dataclass(frozen=True)
+class RunSpec(Section):
+    """`run:`: how long each case may run."""
+
+    duration_s: float | None = setting(
+        None, unit="s", gt=0, doc="Simulated time each case runs, as `ddrt sim --duration`; null: to the path's end.")
+    timeout_s: float | None = setting(
+        DEFAULT_TIMEOUT_S, unit="s", gt=0, doc="Wall time after which a case is stopped (status `timeout`); null: none.")
 
 
 @dataclass(frozen=True)
@@ -224,20 +236,14 @@ class _Reader:
     def population(self, value: Any) -> PopulationSpec | None:
         if value is None:
             return None
-        m = self.mapping(value, "population")
-        for key in m:
-            if key not in ("robots", "seed", "path_speed"):
-                raise self.fail(f"population.{key}", "unknown key (known: robots, seed, path_speed)")
-        robots = m.get("robots")
-        if isinstance(robots, bool) or not isinstance(robots, int) or robots < 1:
-            raise self.fail("population.robots", f"expected a whole number of robots >= 1, got {shorten(robots)}")
-        seed = m.get("seed", 20261201)
-        if isinstance(seed, bool) or not isinstance(seed, int):
-            raise self.fail("population.seed", f"expected a whole number, got {shorten(seed)}")
-        speed = m.get("path_speed", True)
-        if not isinstance(speed, bool):
-            raise self.fail("population.path_speed", f"expected true or false, got {shorten(speed)}")
-        return PopulationSpec(robots, seed, speed)
+        return self.section(PopulationSpec, value, "population")
+
+    def section(self, cls: type[T], value: Any, key: str) -> T:
+        """A section of the campaign read by the config's walker: its fields' declarations check it."""
+        try:
+            return build(cls, value, key)
+        except ConfigError as exc:
+            raise CampaignError(f"{self.source}: {exc}") from None
 
     def variants(self, value: Any) -> dict[str, dict[str, Any]]:
         m = self.mapping(value, "variants")
@@ -298,22 +304,11 @@ class _Reader:
         return tuple(value)
 
     def run(self, value: Any, metrics: tuple[str, ...], criteria: tuple[Criterion, ...]) -> RunSettings:
-        m = self.mapping(value, "run")
-        for key in m:
-            if key not in ("duration_s", "timeout_s"):
-                raise self.fail(f"run.{key}", "unknown key (known: duration_s, timeout_s)")
-        duration = self.seconds(m.get("duration_s"), "run.duration_s")
-        timeout = self.seconds(m.get("timeout_s", DEFAULT_TIMEOUT_S), "run.timeout_s")
+        times = self.section(RunSpec, {} if value is None else value, "run")
+        duration, timeout = times.duration_s, times.timeout_s
         if not criteria:  # as `ddrt sim`'s exit status: the path completed, or ran its duration without a fault
             criteria = (parse_criterion("fault == ''" if duration else "completed == true", "pass"),)
         return RunSettings(duration, timeout, metrics, criteria)
-
-    def seconds(self, value: Any, key: str) -> float | None:
-        if value is None:
-            return None
-        if not finite(value) or value <= 0:
-            raise self.fail(key, f"expected seconds > 0, got {shorten(value)}")
-        return float(value)
 
     def names(self, value: Any, key: str) -> tuple[str, ...]:
         if not isinstance(value, list) or not value:

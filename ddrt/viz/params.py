@@ -1,10 +1,13 @@
-"""The gains as Foxglove parameters: named by their config keys, derived from the schema.
+"""The gains as Foxglove parameters: named by their config keys, read off the keys' declarations.
 
-A parameter is every numeric leaf under `controller.` that the reload policy applies live
-(ddrt.config.policy.leaf_modes), so a gain added to the config is a parameter without a
-list to keep. Setting parameters is a reload of those keys: `plan_for` builds the config
-with them and plans it exactly as a reload would (ddrt.config.policy.plan_reload), so an
-invalid value, a wrong type or an unknown name refuses the whole set.
+A parameter is every number under `controller.` whose declaration (or its section's) applies
+live (ddrt.config.keys.declared_keys: the same walk the reference and the reload policy read),
+so a gain added to the config is a parameter without a list to keep. Foxglove's parameter
+carries a name, a type and a value only; a gain's unit, bounds and meaning are its
+declaration's (`gain_declarations`, and the key's row in docs/reference/config.md). Setting
+parameters is a reload of those keys: `plan_for` builds the config with them and plans it
+exactly as a reload would (ddrt.config.policy.plan_reload), so an invalid value (outside its
+declared bounds too), a wrong type or an unknown name refuses the whole set.
 """
 
 from __future__ import annotations
@@ -12,20 +15,22 @@ from __future__ import annotations
 from typing import Any, Mapping
 
 from ddrt.config import Config, ConfigError, with_overrides
-from ddrt.config.policy import ReloadPlan, leaf_modes, plan_reload, value_at
+from ddrt.config.keys import Key, declared_keys
+from ddrt.config.policy import ReloadPlan, plan_reload, value_at
 from ddrt.config.schema import LIVE
 
 PREFIX = "controller."
 
 
-def gain_keys(cfg: Config) -> tuple[str, ...]:
-    """Every live, numeric controller setting (dotted config keys)."""
-    return tuple(key for key, mode in leaf_modes(cfg)
-                 if mode == LIVE and key.startswith(PREFIX) and _number(value_at(cfg, key)))
+def gain_declarations() -> tuple[Key, ...]:
+    """Every live number under `controller.`, with its declaration (unit, bounds, description)."""
+    return tuple(k for k in declared_keys(Config)
+                 if k.mode == LIVE and k.key.startswith(PREFIX) and k.hint in (float, int))
 
 
-def _number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
+def gain_keys() -> tuple[str, ...]:
+    """The parameters' names: the gains' dotted config keys."""
+    return tuple(k.key for k in gain_declarations())
 
 
 def values(cfg: Config, keys: tuple[str, ...]) -> dict[str, float]:

@@ -118,7 +118,7 @@ class VizService:
         self.ring = VizRing(width)
         self.context = fg.Context()
         self.channels = Channels(fg, self.context, truth=truth, timing=True)
-        self.keys = gains.gain_keys(cfg)
+        self.keys = gains.gain_keys()
         self._offset = time.time() - time.monotonic()  # monotonic tick time -> epoch for Foxglove
         self._paths: deque[tuple[Any, Any]] = deque(maxlen=2)
         self._last_path: tuple[Any, Any] | None = None
