@@ -359,21 +359,13 @@ FOREIGN_PROBES: dict[str, tuple[int, str]] = {
     "hal/wiring.py": (1, "WiredHal.__getattr__ forwards the inner backend's own members (its clock, fault "
                          "injection): a proxy of whatever backend it wraps"),
     "ddrt/config/yamlio.py": (1, "PyYAML's C loader, there only when PyYAML was built with libyaml"),
+    "ddrt/params/decl.py": (1, "field_items: the one walker that reads a declared dataclass's fields by name"),
 }
 MAX_FOREIGN_PROBES = 15
 
 # Probes still being replaced by a declaration; the list only shrinks (lower a count that fell).
 KNOWN_PROBES: dict[str, int] = {
-    "ddrt/config/policy.py": 7,  # the config walkers (the schema's work)
-    "ddrt/config/ros2.py": 3,
-    "ddrt/config/schema.py": 6,
-    "ddrt/config/sections.py": 6,
-    "ddrt/params/motor.py": 1,
-    "ddrt/params/robot.py": 1,
-    "ddrt/path/profile.py": 1,
-    "ddrt/path/shapes.py": 6,
-    "ddrt/path/spec.py": 1,
-    "hal/wire.py": 1,  # a message's dataclass fields for struct.pack: the shared field walker's job
+    "hal/wire.py": 1,  # a message's dataclass fields for struct.pack, on the serial path
     "ddrt/core/gyro_bias.py": 1,  # the sensors' work
     "hal/real.py": 10,
     "sim_hal/plant.py": 1,  # the plant's work

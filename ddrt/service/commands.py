@@ -138,7 +138,7 @@ DECLARED: dict[str, Command] = {c.name: c for c in (
                       default=False),
                 Field("frame", "choice", "the frame the path is in", choices=("odom", "map"), default="odom"),
             ),
-            passes_on="an inline path spec: points: [[x, y], ...] or shape: with its keys (docs/config.md)",
+            passes_on="an inline path spec: points: [[x, y], ...] or shape: with its keys (docs/reference/paths.md)",
             reply="ok, once the path is built and the loop follows it; id, length, duration, clamped limits",
             ctl="FILE [--here] [--frame odom|map]"),
     Command("drive", "velocity mode: hold (v, omega) until the next drive, a stop or daemon.command_timeout_s",
