@@ -1,6 +1,8 @@
-/* The simulated robot's RK4 step (sim_hal/plant.py's SimRobot._run) in C, for `ddrt sim` speed.
+/* The simulated robot's RK4 step (sim_hal/plant.py's SimRobot._step) in C, for `ddrt sim` speed.
  *
- * Same formulas in the same order as the Python, compiled without FMA contraction or
+ * It carries the options Realism.python_only does not name: the gyro's bias model (warm-up,
+ * drift, step) and the driver's deadband. Same formulas in the same order as the Python
+ * step, compiled without FMA contraction or
  * fast-math and calling the same libm (tanh, sin, cos, log, sqrt) as CPython's math module,
  * so every result is bit-identical. The noise uses CPython's MT19937 (random.random's
  * 53-bit draw) and random.gauss's Box-Muller with its pair cache, on the generators' state
@@ -63,7 +65,7 @@ static double gauss_z(rng_t *r, double two_pi) {
     return z;
 }
 
-/* Indices into the state array s[] and the constants c[] (plant.py: _STATE, _constants). */
+/* Indices into the state array s[] (plant.py's _native_setup); c[] is plant.py's _Consts. */
 enum { X, Y, TH, V, W, PHL, PHR, PH3, DL, DR, WEM, WFR, WSLIP, GF, TL, TR, NSTATE };
 
 /* What plant_run works on, in one struct so a call passes one pointer (ctypes' cost is per
@@ -82,6 +84,8 @@ typedef struct {
     double *ring_phl, *ring_phr;  /* the drive wheels' angles, for their encoders */
 } plant_t;
 
+static double dead(double d, double db) { return fabs(d) < db ? 0.0 : d; }
+
 void plant_run(int64_t n_steps, plant_t *p) {
     int64_t *kp = p->kp, *q = p->q;
     double *s = p->s, *ring_phi3 = p->ring_phi3, *ring_gyro = p->ring_gyro;
@@ -96,10 +100,14 @@ void plant_run(int64_t n_steps, plant_t *p) {
     const int slip_on = c[22] != 0.0;
     const double slip_p = c[23], slip_frac = c[24], slip_sig = c[25];
     const double g_a = c[26], g_sig = c[27], g_scale = c[28], g_bias = c[29], two_pi = c[30];
+    const double db = c[31];
+    const int bias_varies = c[32] != 0.0;
+    const double g_per_c = c[33], g_t0 = c[34], g_rise = c[35], g_tau = c[36], g_drift = c[37];
+    const double g_step = c[38], g_step_at = c[39];
     double x = s[X], y = s[Y], th = s[TH], v = s[V], w = s[W];
     double phi_l = s[PHL], phi_r = s[PHR], phi_3 = s[PH3];
     double dl = s[DL], dr = s[DR];
-    double cdl = cl * dl, cdr = cr * dr;
+    double cdl = cl * dead(dl, db), cdr = cr * dead(dr, db);
     int64_t head = q[0];
     const int64_t tail = q[1], cap = q[2];
     double w_em = s[WEM], w_fr = s[WFR], w_slip = s[WSLIP], gf = s[GF];
@@ -112,80 +120,74 @@ void plant_run(int64_t n_steps, plant_t *p) {
                 dr = q_duty[2 * (head % cap) + 1];
                 head++;
             }
-            cdl = cl * dl;
-            cdr = cr * dr;
+            cdl = cl * dead(dl, db);
+            cdr = cr * dead(dr, db);
         }
-        double wl = (v - big_l * w) * irl, wr = (v + big_r * w) * irr;
-        double eml = cdl - el * wl, emr = cdr - er * wr;
-        double frl = bl * wl + tcl * tanh(wl * iwsl), frr = br * wr + tcr * tanh(wr * iwsr);
-        tl = eml - frl;
-        tr = emr - frr;
+        /* Four stages: _wheel_torques (the seed's motors), slip fixed at stage 1, _accel. */
+        double vk = v, wk = w, thk = th;
+        double dvs[4], dws[4], vs[4], ws[4], ths[4], pem[4], pfr[4];
         double sl = 0.0, sr = 0.0;
-        if (slip_on) {
-            if (rnd(slip) < slip_p) {
-                double z = gauss_z(slip, two_pi);
-                sl = slip_frac * tl + z * slip_sig;
-                if (rnd(slip) < 0.5) sl = -sl;
+        for (int st = 0; st < 4; st++) {
+            if (st > 0) {
+                double hh = st < 3 ? h2 : h;
+                vk = v + hh * dvs[st - 1];
+                wk = w + hh * dws[st - 1];
+                thk = th + hh * ws[st - 1];
             }
-            if (rnd(slip) < slip_p) {
-                double z = gauss_z(slip, two_pi);
-                sr = slip_frac * tr + z * slip_sig;
-                if (rnd(slip) < 0.5) sr = -sr;
+            double wl = (vk - big_l * wk) * irl, wr = (vk + big_r * wk) * irr;
+            double fl = bl * wl + tcl * tanh(wl * iwsl), fr = br * wr + tcr * tanh(wr * iwsr);
+            double eml = cdl - el * wl, emr = cdr - er * wr;
+            double tl0 = eml - fl, tr0 = emr - fr;
+            if (st == 0 && slip_on) {
+                if (rnd(slip) < slip_p) {
+                    sl = slip_frac * tl0 + gauss_z(slip, two_pi) * slip_sig;
+                    if (rnd(slip) < 0.5) sl = -sl;
+                }
+                if (rnd(slip) < slip_p) {
+                    sr = slip_frac * tr0 + gauss_z(slip, two_pi) * slip_sig;
+                    if (rnd(slip) < 0.5) sr = -sr;
+                }
             }
-            tl += sl;
-            tr += sr;
-        }
-        double ul = tl * irl, ur = tr * irr;
-        double fv = ul + ur + mx * w * w, fw = big_r * ur - big_l * ul - mx * v * w;
-        double dv1 = a11 * fv + a12 * fw, dw1 = a12 * fv + a22 * fw;
-        double pem = eml * wl + emr * wr, pfr = frl * wl + frr * wr;
-        double v1 = v, w1 = w, th1 = th;
-        double dv[3], dw[3], vs[3], ws[3], ths[3];
-        double dvp = dv1, dwp = dw1, wp = w1;
-        for (int st = 0; st < 3; st++) {  /* stages 2, 3, 4 */
-            double hh = st < 2 ? h2 : h;
-            double vk = v + hh * dvp, wk = w + hh * dwp, thk = th + hh * wp;
-            wl = (vk - big_l * wk) * irl;
-            wr = (vk + big_r * wk) * irr;
-            eml = cdl - el * wl;
-            emr = cdr - er * wr;
-            frl = bl * wl + tcl * tanh(wl * iwsl);
-            frr = br * wr + tcr * tanh(wr * iwsr);
-            ul = (eml - frl + sl) * irl;
-            ur = (emr - frr + sr) * irr;
-            fv = ul + ur + mx * wk * wk;
-            fw = big_r * ur - big_l * ul - mx * vk * wk;
-            dv[st] = a11 * fv + a12 * fw;
-            dw[st] = a12 * fv + a22 * fw;
-            if (st < 2) {
-                pem += 2.0 * (eml * wl + emr * wr);
-                pfr += 2.0 * (frl * wl + frr * wr);
-            } else {
-                pem += eml * wl + emr * wr;
-                pfr += frl * wl + frr * wr;
+            double tlk = tl0 + sl, trk = tr0 + sr;
+            if (st == 0) {
+                tl = tlk;
+                tr = trk;
             }
+            double ul = tlk * irl, ur = trk * irr;
+            double fv = ul + ur + mx * wk * wk, fw = big_r * ur - big_l * ul - mx * vk * wk;
+            dvs[st] = a11 * fv + a12 * fw;
+            dws[st] = a12 * fv + a22 * fw;
+            pem[st] = eml * wl + emr * wr;
+            pfr[st] = fl * wl + fr * wr;
             vs[st] = vk; ws[st] = wk; ths[st] = thk;
-            dvp = dv[st]; dwp = dw[st]; wp = wk;
         }
-        double v2 = vs[0], v3 = vs[1], v4 = vs[2], w2 = ws[0], w3 = ws[1], w4 = ws[2];
-        double th2 = ths[0], th3 = ths[1], th4 = ths[2];
-        double ds = h6 * (v1 + 2.0 * (v2 + v3) + v4);
-        double dth = h6 * (w1 + 2.0 * (w2 + w3) + w4);
-        x += h6 * (v1 * cos(th1) + 2.0 * (v2 * cos(th2) + v3 * cos(th3)) + v4 * cos(th4));
-        y += h6 * (v1 * sin(th1) + 2.0 * (v2 * sin(th2) + v3 * sin(th3)) + v4 * sin(th4));
-        th += dth;
-        v += h6 * (dv1 + 2.0 * (dv[0] + dv[1]) + dv[2]);
-        w += h6 * (dw1 + 2.0 * (dw[0] + dw[1]) + dw[2]);
+        double v2 = vs[1], v3 = vs[2], v4 = vs[3], w2 = ws[1], w3 = ws[2], w4 = ws[3];
+        double th2 = ths[1], th3 = ths[2], th4 = ths[3];
+        double ds = h6 * (v + 2.0 * (v2 + v3) + v4);
+        double dth = h6 * (w + 2.0 * (w2 + w3) + w4);
+        x += h6 * (v * cos(th) + 2.0 * (v2 * cos(th2) + v3 * cos(th3)) + v4 * cos(th4));
+        y += h6 * (v * sin(th) + 2.0 * (v2 * sin(th2) + v3 * sin(th3)) + v4 * sin(th4));
+        th = th + dth;
+        v = v + h6 * (dvs[0] + 2.0 * (dvs[1] + dvs[2]) + dvs[3]);
+        w = w + h6 * (dws[0] + 2.0 * (dws[1] + dws[2]) + dws[3]);
         double dphi_l = (ds - big_l * dth) * irl, dphi_r = (ds + big_r * dth) * irr;
         phi_l += dphi_l;
         phi_r += dphi_r;
         phi_3 += ds * ir3;
-        w_em += h6 * pem;
-        w_fr += h6 * pfr;
+        w_em += h6 * (pem[0] + 2.0 * (pem[1] + pem[2]) + pem[3]);
+        w_fr += h6 * (pfr[0] + 2.0 * (pfr[1] + pfr[2]) + pfr[3]);
         w_slip += sl * dphi_l + sr * dphi_r;
         k += 1;
+        /* _sense: the gyro's low-pass at the plant rate, its bias as gyro_bias_dps_at. */
+        double bias = g_bias;
+        if (bias_varies) {
+            double t = k * h;
+            double temp = g_t0 + g_rise * (1.0 - exp(-t / g_tau));
+            bias = g_bias + g_per_c * (temp - g_t0) + g_drift * t;
+            if (g_step != 0.0 && t >= g_step_at) bias += g_step;
+        }
         double z = gauss_z(gyro, two_pi);
-        gf += g_a * (g_scale * w + g_bias + (0.0 + z * g_sig) - gf);
+        gf += g_a * (g_scale * w + bias + (0.0 + z * g_sig) - gf);
         int64_t i = k % n_ring;
         ring_phi3[i] = phi_3;
         ring_gyro[i] = gf;
