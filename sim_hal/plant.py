@@ -12,8 +12,8 @@ have: a battery that sags under load, the gyro's die warm-up, drift and register
 FIFO, the driver's deadband, gearbox backlash, encoder slip, payloads and floor patches. Each
 is part of the same step below (`_step`), the readable reference integrator.
 
-The compiled kernel (sim_hal/plant_kernel.c, plant_native.py) is the fast path: the same step
-for the options it carries, bit for bit. `Realism.python_only` declares the options it does
+The compiled kernel (sim_hal/plant_kernel.c, plant_native.py) is the fast path: the same step,
+bit for bit, for every option but backlash. `Realism.python_only` declares the options it does
 not carry; with any of those on, or without a C compiler, the Python step integrates.
 """
 
@@ -26,6 +26,7 @@ from collections import deque
 from dataclasses import replace
 from typing import Any, NamedTuple
 
+from ddrt.config.sim_truth import LI_ION_CELL_OCV
 from ddrt.core.model import Dynamics
 from ddrt.params.robot import RobotParams
 from ddrt.params.motor import MotorParams
@@ -41,6 +42,11 @@ _DEG_PER_RAD = 180.0 / math.pi
 _TWO_PI = 2.0 * math.pi  # random.TWOPI: the kernel's gauss must match random.gauss bit for bit
 _EPS_T = 1e-12  # times closer than this count as equal (float rounding of k * step)
 _FIFO_CHUNK = 32  # with a FIFO, it is filled at least every this many steps (the rings hold them)
+
+
+# Indices into the kernel's state buffer (plant_kernel.c's enum).
+(_X, _Y, _TH, _V, _W, _PHL, _PHR, _PH3, _DL, _DR, _WEM, _WFR, _WSLIP, _GF, _TL, _TR,
+ _SOC, _CHG, _SRC, _INT, _ARM, _FREE, _CUR, _VT, _C3, _CL, _CR, _OU3, _OUL, _OUR) = range(plant_native.NSTATE)
 
 
 class _Consts(NamedTuple):
@@ -241,7 +247,7 @@ class SimRobot:
                 n -= m
             return
         kernel = self._kernel
-        if kernel is not None:  # _run_native, inline: this runs every controller tick
+        if kernel is not None and not self._payloads:  # _run, inline: this runs every controller tick
             kernel(n, self._plant_addr)
             self._k = self._kbuf.value
         else:
@@ -340,11 +346,18 @@ class SimRobot:
         """Terminal voltage at the motor driver now (V): the battery's under load when
         `realism.battery` is set, else the motors' supply_v (their mean when per-wheel motors
         were given two), a source with no internal resistance."""
-        return self._terminal_v
+        st = self._st
+        return self._terminal_v if st is None else st[_VT]
 
     @property
     def supply(self) -> SupplyLedger:
         """The battery's state and energy (see SupplyLedger)."""
+        st = self._st
+        if st is not None:
+            soc = st[_SOC]
+            bat = self.options.battery
+            ocv = bat.ocv_v(soc) if bat is not None else st[_VT]
+            return SupplyLedger(ocv, st[_VT], st[_CUR], soc, st[_CHG], st[_SRC], st[_INT], st[_ARM], st[_FREE])
         return SupplyLedger(self._ocv_v(), self._terminal_v, self._current_a, self._soc, self._charge_c,
                             self._source_j, self._internal_j, self._armature_j, self._free_motor_j)
 
@@ -481,13 +494,27 @@ class SimRobot:
         )
 
     def _run(self, n_steps: int) -> None:
-        """Take `n_steps` RK4 steps: the kernel's, or the Python step's."""
-        if self._kernel is not None:
-            self._kernel(n_steps, self._plant_addr)
-            self._k = self._kbuf.value
+        """Take `n_steps` RK4 steps: the kernel's, or the Python step's. The kernel stops at
+        each payload's step, where the body and its constants change as `_step` changes them."""
+        if self._kernel is None:
+            for _ in range(n_steps):
+                self._step()
             return
-        for _ in range(n_steps):
-            self._step()
+        end = self._k + n_steps
+        while self._k < end:
+            stop = end
+            if self._payloads:  # the first step whose start time is at or after the payload's
+                at = self._payloads[0].at_s
+                j = self._k
+                while j * self._h + _EPS_T < at:
+                    j += 1
+                if j == self._k:
+                    pl = self._payloads.pop(0)
+                    self._set_body(with_payload(self._body, pl.mass_kg, pl.inertia_kgm2, pl.x_m, pl.y_m))
+                    continue
+                stop = min(end, j)
+            self._kernel(stop - self._k, self._plant_addr)
+            self._k = self._kbuf.value
 
     def _ocv_v(self) -> float:
         bat = self.options.battery
@@ -679,10 +706,13 @@ class SimRobot:
         self._ring_phr[i] = cr
 
     def _set_body(self, p: RobotParams) -> None:
-        """A payload merged: the dynamics and the step's constants follow the new body."""
+        """A payload merged: the dynamics and the step's constants (the kernel's copy too)
+        follow the new body."""
         self._body = p
         self.dynamics = Dynamics.from_params(p)
         self._pyc = self._constants()
+        if self._st is not None:
+            self._cbuf[:len(self._pyc)] = [float(x) for x in self._pyc]
 
     # --- gearbox backlash -----------------------------------------------------------------
 
@@ -728,15 +758,41 @@ class SimRobot:
 
     # --- the compiled kernel ----------------------------------------------------------------
 
+    def _kernel_constants(self) -> list[float]:
+        """The kernel's c[]: _Consts, the options' constants, the battery's OCV table and the
+        floor patches (plant_kernel.c's layout after NC)."""
+        o, ml, mr = self.options, self.motor_l, self.motor_r
+        bat = o.battery
+        table: tuple[tuple[float, float], ...] = ()
+        ocv_mul = 1.0
+        if bat is not None:
+            table = bat.ocv_table or LI_ION_CELL_OCV
+            ocv_mul = 1.0 if bat.ocv_table else float(bat.cells)
+        extra = [
+            float(bat is not None), bat.resistance_ohm if bat is not None else 0.0,
+            ml.k_nm_per_a, ml.resistance_ohm, mr.k_nm_per_a, mr.resistance_ohm,
+            bat.start_soc if bat is not None else 1.0, bat.capacity_ah if bat is not None else 1.0, ocv_mul,
+            float(self._counts_slip), o.wheels.slip_per_nm,
+            *(x for ou in (self._ou3, self._ou_l, self._ou_r) for x in (ou.mean, ou.a, ou.k)),
+            float(len(table)), float(len(o.events.floor)),
+        ]
+        tables = [float(x) for pair in table for x in pair]
+        tables += [float(x) for f in o.events.floor for x in (f.x_min, f.y_min, f.x_max, f.y_max, f.friction_scale)]
+        return [float(x) for x in self._pyc] + extra + tables
+
     def _native_setup(self) -> None:
         """Move the state, constants, generators and sensor rings into the C kernel's buffers;
         from here on those buffers hold them (the state attributes are no longer updated)."""
         c_double = ctypes.c_double
         self._st = (c_double * plant_native.NSTATE)(
             self._x, self._y, self._th, self._v, self._w, self._phi_l, self._phi_r, self._phi_3,
-            self._duty_l, self._duty_r, self._w_em, self._w_fr, self._w_slip, self._gyro_f, self._tau_l, self._tau_r)
-        self._cbuf = (c_double * len(self._pyc))(*(float(x) for x in self._pyc))
-        self._rngs = (plant_native.Rng.from_random(self._slip_rng), plant_native.Rng.from_random(self._gyro_rng))
+            self._duty_l, self._duty_r, self._w_em, self._w_fr, self._w_slip, self._gyro_f, self._tau_l, self._tau_r,
+            self._soc, self._charge_c, self._source_j, self._internal_j, self._armature_j, self._free_motor_j,
+            self._current_a, self._terminal_v, self._c3, self._cl, self._cr, self._ou3.s, self._ou_l.s, self._ou_r.s)
+        consts = self._kernel_constants()
+        self._cbuf = (c_double * len(consts))(*consts)
+        self._rngs = (plant_native.Rng.from_random(self._slip_rng), plant_native.Rng.from_random(self._gyro_rng),
+                      plant_native.Rng.from_random(self._real_rng))
         n = self._n_ring
         self._ring_phi3 = (c_double * n)(*self._ring_phi3)
         self._ring_gyro = (c_double * n)(*self._ring_gyro)
@@ -767,5 +823,5 @@ class SimRobot:
         self._plant = plant_native.Plant(a(self._kbuf), a(self._st), a(self._cbuf), a(self._rngs[0]), a(self._rngs[1]),
                                          a(self._ring_phi3), a(self._ring_gyro), self._n_ring,
                                          a(self._q), a(self._q_step), a(self._q_duty),
-                                         a(self._ring_phl), a(self._ring_phr))
+                                         a(self._ring_phl), a(self._ring_phr), a(self._rngs[2]))
         self._plant_addr = a(self._plant)

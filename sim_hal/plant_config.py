@@ -136,25 +136,9 @@ class Realism:
     @property
     def python_only(self) -> tuple[str, ...]:
         """The options that are on and that the compiled kernel does not carry (empty: the
-        kernel integrates this plant). The kernel carries the gyro's bias model (warm-up,
-        drift, step), its register timing and FIFO (read from the plant's rings in Python
-        either way) and the driver's deadband; the battery, backlash, encoder slip and the
-        events change the dynamics or the counts in ways only the Python integrator models."""
-        ideal = Realism()
-        out = []
-        if self.battery is not None:
-            out.append("battery")
-        if self.encoder_slip != ideal.encoder_slip:
-            out.append("encoder_slip")
-        if self.wheels != ideal.wheels:
-            out.append("wheels")
-        if self.actuators.backlash_deg != 0.0:
-            out.append("actuators.backlash_deg")
-        if self.events.payloads:
-            out.append("events.payloads")
-        if self.events.floor:
-            out.append("events.floor")
-        return tuple(out)
+        kernel integrates this plant). It carries every option but the gearboxes' backlash,
+        whose motors turn free across the play with a state of their own."""
+        return ("actuators.backlash_deg",) if self.actuators.backlash_deg != 0.0 else ()
 
     @classmethod
     def from_sim(cls, sim: Any, sample_rate_div: int = 4, gyro_fifo: bool = False) -> "Realism":

@@ -1,8 +1,9 @@
 /* The simulated robot's RK4 step (sim_hal/plant.py's SimRobot._step) in C, for `ddrt sim` speed.
  *
- * It carries the options Realism.python_only does not name: the gyro's bias model (warm-up,
- * drift, step) and the driver's deadband. Same formulas in the same order as the Python
- * step, compiled without FMA contraction or
+ * It carries the options Realism.python_only does not name: the battery, the gyro's bias
+ * model (warm-up, drift, step), the driver's deadband, the encoders' slip and the floor
+ * patches (payloads: the caller stops the kernel at each and updates c[]). Same formulas in
+ * the same order as the Python step, compiled without FMA contraction or
  * fast-math and calling the same libm (tanh, sin, cos, log, sqrt) as CPython's math module,
  * so every result is bit-identical. The noise uses CPython's MT19937 (random.random's
  * 53-bit draw) and random.gauss's Box-Muller with its pair cache, on the generators' state
@@ -65,8 +66,16 @@ static double gauss_z(rng_t *r, double two_pi) {
     return z;
 }
 
-/* Indices into the state array s[] (plant.py's _native_setup); c[] is plant.py's _Consts. */
-enum { X, Y, TH, V, W, PHL, PHR, PH3, DL, DR, WEM, WFR, WSLIP, GF, TL, TR, NSTATE };
+/* Indices into the state array s[] (plant.py's _S). */
+enum { X, Y, TH, V, W, PHL, PHR, PH3, DL, DR, WEM, WFR, WSLIP, GF, TL, TR,
+       SOC, CHG, SRC, INTL, ARM, FREE, CUR, VT, C3, CL, CR, OU3, OUL, OUR, NSTATE };
+
+/* c[]: plant.py's _Consts (NC of them), then the options' constants from index NC (plant.py's
+ * _kernel_constants), then the battery's OCV table (n_ocv (soc, volts) pairs) and the floor
+ * patches (n_floor of x_min, y_min, x_max, y_max, friction scale). */
+#define NC 40
+enum { BAT = NC, RI, KL, RL, KR, RR, SOC0, CAP, OCV_MUL, COUNTS, SPN, OU3_M, OU3_A, OU3_K, OUL_M, OUL_A,
+       OUL_K, OUR_M, OUR_A, OUR_K, N_OCV, N_FLOOR, TABLES };
 
 /* What plant_run works on, in one struct so a call passes one pointer (ctypes' cost is per
  * argument). Commands waiting for their latency are a ring of (step at which the duties reach
@@ -81,10 +90,31 @@ typedef struct {
     int64_t *q;
     const int64_t *q_step;
     const double *q_duty;
-    double *ring_phl, *ring_phr;  /* the drive wheels' angles, for their encoders */
+    double *ring_phl, *ring_phr;  /* the drive wheels' counted angles, for their encoders */
+    rng_t *real;  /* the options' own draws (the encoders' wandering scales) */
 } plant_t;
 
 static double dead(double d, double db) { return fabs(d) < db ? 0.0 : d; }
+
+/* ddrt/config/sim_truth.py's _interp: piecewise linear through (x, y) pairs, flat beyond. */
+static double interp(const double *tab, int64_t n, double x) {
+    if (x <= tab[0]) return tab[1];
+    for (int64_t i = 0; i + 1 < n; i++) {
+        double x0 = tab[2 * i], y0 = tab[2 * i + 1], x1 = tab[2 * i + 2], y1 = tab[2 * i + 3];
+        if (x <= x1) return y0 + (y1 - y0) * (x - x0) / (x1 - x0);
+    }
+    return tab[2 * n - 1];
+}
+
+/* plant.py's _pack_v: the pack's terminal voltage with duties (dl, dr) on motors at (ml, mr). */
+static double pack_v(const double *c, double ocv, double dl, double dr, double ml, double mr) {
+    double num = ocv, den = 1.0;
+    num += c[RI] * dl * c[KL] * ml / c[RL];
+    den += c[RI] * dl * dl / c[RL];
+    num += c[RI] * dr * c[KR] * mr / c[RR];
+    den += c[RI] * dr * dr / c[RR];
+    return num / den;
+}
 
 void plant_run(int64_t n_steps, plant_t *p) {
     int64_t *kp = p->kp, *q = p->q;
@@ -92,7 +122,7 @@ void plant_run(int64_t n_steps, plant_t *p) {
     double *ring_phl = p->ring_phl, *ring_phr = p->ring_phr;
     const double *c = p->c, *q_duty = p->q_duty;
     const int64_t *q_step = p->q_step, n_ring = p->n_ring;
-    rng_t *slip = p->slip, *gyro = p->gyro;
+    rng_t *slip = p->slip, *gyro = p->gyro, *real = p->real;
     const double h = c[0], h2 = c[1], h6 = c[2], a11 = c[3], a12 = c[4], a22 = c[5], mx = c[6];
     const double big_l = c[7], big_r = c[8], irl = c[9], irr = c[10], ir3 = c[11];
     const double cl = c[12], el = c[13], bl = c[14], tcl = c[15], iwsl = c[16];
@@ -104,10 +134,14 @@ void plant_run(int64_t n_steps, plant_t *p) {
     const int bias_varies = c[32] != 0.0;
     const double g_per_c = c[33], g_t0 = c[34], g_rise = c[35], g_tau = c[36], g_drift = c[37];
     const double g_step = c[38], g_step_at = c[39];
+    const int battery = c[BAT] != 0.0, counts = c[COUNTS] != 0.0;
+    const int64_t n_ocv = (int64_t)c[N_OCV], n_floor = (int64_t)c[N_FLOOR];
+    const double *ocv_tab = c + TABLES, *floor_tab = c + TABLES + 2 * n_ocv;
     double x = s[X], y = s[Y], th = s[TH], v = s[V], w = s[W];
     double phi_l = s[PHL], phi_r = s[PHR], phi_3 = s[PH3];
     double dl = s[DL], dr = s[DR];
-    double cdl = cl * dead(dl, db), cdr = cr * dead(dr, db);
+    double ddl = dead(dl, db), ddr = dead(dr, db);
+    double cdl = cl * ddl, cdr = cr * ddr;
     int64_t head = q[0];
     const int64_t tail = q[1], cap = q[2];
     double w_em = s[WEM], w_fr = s[WFR], w_slip = s[WSLIP], gf = s[GF];
@@ -120,12 +154,23 @@ void plant_run(int64_t n_steps, plant_t *p) {
                 dr = q_duty[2 * (head % cap) + 1];
                 head++;
             }
-            cdl = cl * dead(dl, db);
-            cdr = cr * dead(dr, db);
+            ddl = dead(dl, db);
+            ddr = dead(dr, db);
+            cdl = cl * ddl;
+            cdr = cr * ddr;
         }
-        /* Four stages: _wheel_torques (the seed's motors), slip fixed at stage 1, _accel. */
+        double fs = 1.0;  /* _floor_scale: the first patch A is in */
+        for (int64_t i = 0; i < n_floor; i++) {
+            const double *f = floor_tab + 5 * i;
+            if (f[0] <= x && x <= f[2] && f[1] <= y && y <= f[3]) {
+                fs = f[4];
+                break;
+            }
+        }
+        const double ocv = battery ? c[OCV_MUL] * interp(ocv_tab, n_ocv, s[SOC]) : 0.0;
+        /* Four stages: _wheel_torques, slip fixed at stage 1, _accel. */
         double vk = v, wk = w, thk = th;
-        double dvs[4], dws[4], vs[4], ws[4], ths[4], pem[4], pfr[4];
+        double dvs[4], dws[4], vs[4], ws[4], ths[4], pem[4], pfr[4], psrc[4], pint[4], parm[4], pib[4];
         double sl = 0.0, sr = 0.0;
         for (int st = 0; st < 4; st++) {
             if (st > 0) {
@@ -135,8 +180,23 @@ void plant_run(int64_t n_steps, plant_t *p) {
                 thk = th + hh * ws[st - 1];
             }
             double wl = (vk - big_l * wk) * irl, wr = (vk + big_r * wk) * irr;
-            double fl = bl * wl + tcl * tanh(wl * iwsl), fr = br * wr + tcr * tanh(wr * iwsr);
-            double eml = cdl - el * wl, emr = cdr - er * wr;
+            double fl = fs * (bl * wl + tcl * tanh(wl * iwsl)), fr = fs * (br * wr + tcr * tanh(wr * iwsr));
+            double eml, emr;
+            psrc[st] = pint[st] = parm[st] = pib[st] = 0.0;
+            if (battery) {
+                double vt = pack_v(c, ocv, ddl, ddr, wl, wr);
+                double cur_l = (ddl * vt - c[KL] * wl) / c[RL], cur_r = (ddr * vt - c[KR] * wr) / c[RR];
+                eml = c[KL] * cur_l;
+                emr = c[KR] * cur_r;
+                double ib = ddl * cur_l + ddr * cur_r;
+                parm[st] = c[RL] * cur_l * cur_l + c[RR] * cur_r * cur_r;
+                psrc[st] = ocv * ib;
+                pint[st] = c[RI] * ib * ib;
+                pib[st] = ib;
+            } else {
+                eml = cdl - el * wl;
+                emr = cdr - er * wr;
+            }
             double tl0 = eml - fl, tr0 = emr - fr;
             if (st == 0 && slip_on) {
                 if (rnd(slip) < slip_p) {
@@ -161,6 +221,7 @@ void plant_run(int64_t n_steps, plant_t *p) {
             pfr[st] = fl * wl + fr * wr;
             vs[st] = vk; ws[st] = wk; ths[st] = thk;
         }
+#define RK(a) (h6 * ((a)[0] + 2.0 * ((a)[1] + (a)[2]) + (a)[3]))
         double v2 = vs[1], v3 = vs[2], v4 = vs[3], w2 = ws[1], w3 = ws[2], w4 = ws[3];
         double th2 = ths[1], th3 = ths[2], th4 = ths[3];
         double ds = h6 * (v + 2.0 * (v2 + v3) + v4);
@@ -168,17 +229,44 @@ void plant_run(int64_t n_steps, plant_t *p) {
         x += h6 * (v * cos(th) + 2.0 * (v2 * cos(th2) + v3 * cos(th3)) + v4 * cos(th4));
         y += h6 * (v * sin(th) + 2.0 * (v2 * sin(th2) + v3 * sin(th3)) + v4 * sin(th4));
         th = th + dth;
-        v = v + h6 * (dvs[0] + 2.0 * (dvs[1] + dvs[2]) + dvs[3]);
-        w = w + h6 * (dws[0] + 2.0 * (dws[1] + dws[2]) + dws[3]);
-        double dphi_l = (ds - big_l * dth) * irl, dphi_r = (ds + big_r * dth) * irr;
+        v = v + RK(dvs);
+        w = w + RK(dws);
+        double dphi_l = (ds - big_l * dth) * irl, dphi_r = (ds + big_r * dth) * irr, dphi_3 = ds * ir3;
         phi_l += dphi_l;
         phi_r += dphi_r;
-        phi_3 += ds * ir3;
-        w_em += h6 * (pem[0] + 2.0 * (pem[1] + pem[2]) + pem[3]);
-        w_fr += h6 * (pfr[0] + 2.0 * (pfr[1] + pfr[2]) + pfr[3]);
+        phi_3 += dphi_3;
+        w_em += RK(pem);
+        w_fr += RK(pfr);
         w_slip += sl * dphi_l + sr * dphi_r;
+        if (battery) {
+            s[SRC] += RK(psrc);
+            s[INTL] += RK(pint);
+            s[ARM] += RK(parm);
+            s[CHG] += RK(pib);
+            double soc = c[SOC0] - s[CHG] / (3600.0 * c[CAP]);
+            soc = soc > 0.0 ? soc : 0.0;
+            s[SOC] = soc < 1.0 ? soc : 1.0;
+            double wl = (v - big_l * w) * irl + 0.0, wr = (v + big_r * w) * irr + 0.0;
+            double vt = pack_v(c, c[OCV_MUL] * interp(ocv_tab, n_ocv, s[SOC]), ddl, ddr, wl, wr);
+            s[VT] = vt;
+            s[CUR] = ddl * (ddl * vt - c[KL] * wl) / c[RL] + ddr * (ddr * vt - c[KR] * wr) / c[RR];
+        }
+#undef RK
         k += 1;
-        /* _sense: the gyro's low-pass at the plant rate, its bias as gyro_bias_dps_at. */
+        /* _sense: the counted angles, then the gyro's low-pass at the plant rate, its bias as
+         * gyro_bias_dps_at. */
+        double c3 = phi_3, cnt_l = phi_l, cnt_r = phi_r;
+        if (counts) {
+            s[C3] += dphi_3 * (1.0 + c[OU3_M] + s[OU3]);
+            s[CL] += dphi_l * (1.0 + c[OUL_M] + s[OUL]) + c[SPN] * tl * fabs(dphi_l);
+            s[CR] += dphi_r * (1.0 + c[OUR_M] + s[OUR]) + c[SPN] * tr * fabs(dphi_r);
+            if (c[OU3_K] != 0.0) s[OU3] = c[OU3_A] * s[OU3] + c[OU3_K] * (0.0 + gauss_z(real, two_pi) * 1.0);
+            if (c[OUL_K] != 0.0) s[OUL] = c[OUL_A] * s[OUL] + c[OUL_K] * (0.0 + gauss_z(real, two_pi) * 1.0);
+            if (c[OUR_K] != 0.0) s[OUR] = c[OUR_A] * s[OUR] + c[OUR_K] * (0.0 + gauss_z(real, two_pi) * 1.0);
+            c3 = s[C3];
+            cnt_l = s[CL];
+            cnt_r = s[CR];
+        }
         double bias = g_bias;
         if (bias_varies) {
             double t = k * h;
@@ -189,10 +277,10 @@ void plant_run(int64_t n_steps, plant_t *p) {
         double z = gauss_z(gyro, two_pi);
         gf += g_a * (g_scale * w + bias + (0.0 + z * g_sig) - gf);
         int64_t i = k % n_ring;
-        ring_phi3[i] = phi_3;
+        ring_phi3[i] = c3;
         ring_gyro[i] = gf;
-        ring_phl[i] = phi_l;
-        ring_phr[i] = phi_r;
+        ring_phl[i] = cnt_l;
+        ring_phr[i] = cnt_r;
     }
     s[X] = x; s[Y] = y; s[TH] = th; s[V] = v; s[W] = w;
     s[PHL] = phi_l; s[PHR] = phi_r; s[PH3] = phi_3;

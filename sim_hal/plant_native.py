@@ -21,7 +21,7 @@ from ddrt.runtime.cbuild import load_library
 
 SOURCE = Path(__file__).with_name("plant_kernel.c")
 CFLAGS = ("-O2", "-shared", "-fPIC", "-ffp-contract=off", "-fno-fast-math", "-fno-builtin")
-NSTATE = 16  # plant_kernel.c: X .. TR
+NSTATE = 30  # plant_kernel.c: X .. OUR
 
 
 class Rng(ctypes.Structure):
@@ -48,7 +48,7 @@ class Plant(ctypes.Structure):
                 ("slip", ctypes.c_void_p), ("gyro", ctypes.c_void_p), ("ring_phi3", ctypes.c_void_p),
                 ("ring_gyro", ctypes.c_void_p), ("n_ring", ctypes.c_int64), ("q", ctypes.c_void_p),
                 ("q_step", ctypes.c_void_p), ("q_duty", ctypes.c_void_p), ("ring_phl", ctypes.c_void_p),
-                ("ring_phr", ctypes.c_void_p)]
+                ("ring_phr", ctypes.c_void_p), ("real", ctypes.c_void_p)]
 
 
 def _declare(lib: ctypes.CDLL) -> None:

@@ -86,7 +86,7 @@ def python_only(monkeypatch: pytest.MonkeyPatch) -> None:
 
 def test_options_declare_the_integrator() -> None:
     """Each option alone: the kernel where `python_only` does not name it, else the Python step."""
-    carried = {"warm-up", "drift", "bias step", "register hold", "deadband"}
+    carried = set(ALONE) - {"backlash"}
     for name, (opt, _) in ALONE.items():
         assert bool(opt.python_only) == (name not in carried), name
         if plant_native.kernel() is not None:
@@ -97,7 +97,15 @@ def test_options_declare_the_integrator() -> None:
 @pytest.mark.parametrize("realism", [Realism(), *(opt for opt, _ in ALONE.values() if not opt.python_only),
                                      Realism(gyro_warmup_rise_c=6.0, gyro_bias_per_c_dps=-0.2, gyro_drift_dps_per_s=0.01,
                                              gyro_bias_step_dps=-0.3, gyro_bias_step_at_s=0.7, gyro_odr_hz=250.0,
-                                             gyro_fifo=True, actuators=ActuatorTruth(deadband=0.05))])
+                                             gyro_fifo=True, actuators=ActuatorTruth(deadband=0.05),
+                                             battery=BatteryTruth(cells=2, ocv_table=((0.0, 6.0), (0.6, 7.4), (1.0, 8.4)),
+                                                                  resistance_ohm=0.4, start_soc=0.62, capacity_ah=0.01),
+                                             encoder_slip=WanderingScale(mean=0.01, sigma=0.01, tau_s=0.2),
+                                             wheels=WheelsTruth(slip_per_nm=0.02, scale=WanderingScale(sigma=0.003, tau_s=1.0)),
+                                             events=EventsTruth(payloads=(PayloadEvent(at_s=0.4, mass_kg=0.5, y_m=0.03),
+                                                                          PayloadEvent(at_s=2.2, mass_kg=1.0, x_m=-0.02)),
+                                                                floor=(FloorPatch(x_min=-1, y_min=-1, x_max=0.02, y_max=1,
+                                                                                  friction_scale=4.0),)))])
 def test_kernel_and_python_step_agree_on_a_random_drive(realism: Realism, monkeypatch: pytest.MonkeyPatch) -> None:
     """Every option off, and the options the kernel carries: the two integrators give the same
     numbers (to the bit; asserted to 1e-12), slip and gyro noise on, on a random drive."""
@@ -112,13 +120,27 @@ def test_kernel_and_python_step_agree_on_a_random_drive(realism: Realism, monkey
     moved = False
     for ra, rb in zip(a, b):
         assert ra["motion"] == pytest.approx(rb["motion"], rel=1e-12, abs=1e-15)
-        assert (ra["front"], ra["wheels"], ra["gyro"]) == (rb["front"], rb["wheels"], rb["gyro"])
-        moved = moved or abs(ra["motion"][0]) > 0.05
+        assert (ra["front"], ra["wheels"], ra["gyro"], ra["supply"]) == (rb["front"], rb["wheels"], rb["gyro"],
+                                                                        rb["supply"])
+        moved = moved or math.hypot(ra["motion"][0], ra["motion"][1]) > 0.02 or abs(ra["motion"][2]) > 0.3
     assert moved
-    assert fast.gyro_die_temp_c == ref.gyro_die_temp_c
+    assert fast.gyro_die_temp_c == ref.gyro_die_temp_c and fast.supply == ref.supply
     if realism.gyro_fifo:
         fa, fb = fast.read_gyro_fifo(), ref.read_gyro_fifo()
         assert fa == fb and len(fa[0]) == 512 < fast.fifo_pushed and fa[1]  # 3 s at 250 Hz: it overflowed
+
+
+def test_the_kernel_reads_the_constants_in_the_python_steps_order() -> None:
+    """plant_kernel.c's NC (where the options' constants start in c[]) is the number of the
+    Python step's constants, and its state enum has plant_native.NSTATE entries."""
+    import re
+
+    from sim_hal.plant import _Consts
+
+    src = plant_native.SOURCE.read_text(encoding="utf-8")
+    assert int(re.search(r"#define NC (\d+)", src).group(1)) == len(_Consts._fields)
+    enum = re.search(r"enum \{ (X, .*?), NSTATE \};", src, re.S).group(1)
+    assert len([n for n in enum.replace("\n", " ").split(",") if n.strip()]) == plant_native.NSTATE
 
 
 # --- each option alone ----------------------------------------------------------------------------

@@ -46,16 +46,21 @@ def ke(p: RobotParams, v: float, w: float) -> float:
 # --- the choice of integrator ---------------------------------------------------------------
 
 
-def test_realistic_keys_choose_the_python_integrator_and_it_agrees_with_the_kernel() -> None:
-    """An option the kernel does not carry, set so that it has no effect (an encoder slip that
-    neither offsets nor wanders), takes the Python step, and drives the same robot as the
-    kernel: same slip draws, same gyro noise, same counts."""
-    quiet_slip = Realism(encoder_slip=WanderingScale(tau_s=3.0))
-    assert not Realism().active and quiet_slip.active and quiet_slip.python_only == ("encoder_slip",)
+def test_realistic_keys_choose_the_python_integrator_and_it_agrees_with_the_kernel(monkeypatch) -> None:
+    """An option the kernel carries, set so that it has no effect (the start temperature: the
+    bias depends on the warming), runs in the kernel when there is one, and drives the same
+    robot as the Python step (forced): same slip draws, same gyro noise, same counts. An
+    option it does not carry (backlash) chooses the Python step."""
+    warm = Realism(gyro_temp_start_c=30.0)
+    assert not Realism().active and warm.active and warm.python_only == ()
+    assert Realism(actuators=ActuatorTruth(backlash_deg=0.5)).python_only == ("actuators.backlash_deg",)
+    assert bot(realism=Realism(actuators=ActuatorTruth(backlash_deg=0.5))).integrator == "python"
     runs = []
-    for realism in (Realism(), quiet_slip):
-        sim = bot(TABLE_5_2, realism=realism, seed=7, slip_probability=0.5, wheel_counts_per_rev=2048)
-        assert sim.integrator == ("python" if realism.python_only or plant_native.kernel() is None else "kernel")
+    for mode in ("fast", "python"):
+        if mode == "python":
+            monkeypatch.setattr(plant_native, "kernel", lambda: None)
+        sim = bot(TABLE_5_2, realism=warm, seed=7, slip_probability=0.5, wheel_counts_per_rev=2048)
+        assert sim.integrator == ("python" if mode == "python" or plant_native.kernel() is None else "kernel")
         drive, trace, t = random.Random(3), [], 0.0
         for _ in range(300):
             sim.command(drive.uniform(-1.0, 1.0), drive.uniform(-1.0, 1.0))
