@@ -13,8 +13,8 @@ FIFO, the driver's deadband, gearbox backlash, encoder slip, payloads and floor 
 is part of the same step below (`_step`), the readable reference integrator.
 
 The compiled kernel (sim_hal/plant_kernel.c, plant_native.py) is the fast path: the same step,
-bit for bit, for every option but backlash. `Realism.python_only` declares the options it does
-not carry; with any of those on, or without a C compiler, the Python step integrates.
+every option included, bit for bit. Without a C compiler (or with DDRT_PLANT=python) the
+Python step integrates.
 """
 
 from __future__ import annotations
@@ -46,7 +46,8 @@ _FIFO_CHUNK = 32  # with a FIFO, it is filled at least every this many steps (th
 
 # Indices into the kernel's state buffer (plant_kernel.c's enum).
 (_X, _Y, _TH, _V, _W, _PHL, _PHR, _PH3, _DL, _DR, _WEM, _WFR, _WSLIP, _GF, _TL, _TR,
- _SOC, _CHG, _SRC, _INT, _ARM, _FREE, _CUR, _VT, _C3, _CL, _CR, _OU3, _OUL, _OUR) = range(plant_native.NSTATE)
+ _SOC, _CHG, _SRC, _INT, _ARM, _FREE, _CUR, _VT, _C3, _CL, _CR, _OU3, _OUL, _OUR,
+ _SDL, _SDR, _GPL, _GPR, _GRL, _GRR) = range(plant_native.NSTATE)
 
 
 class _Consts(NamedTuple):
@@ -172,11 +173,11 @@ class SimRobot:
         self._ring_phr: Any = [0.0] * n
 
         self._pyc = self._constants()  # the step's constants (the kernel's copy: `_cbuf`)
-        # The compiled kernel where it carries every option on, else None: the Python step.
+        # The compiled kernel, else None (no C compiler, or DDRT_PLANT=python): the Python step.
         # With the kernel, the state lives in its buffer `_st` (the properties read it).
         self._st: Any = None
         self._q: Any = None
-        self._kernel = plant_native.kernel() if not opt.python_only else None
+        self._kernel = plant_native.kernel()
         if self._kernel is not None:
             self._native_setup()
 
@@ -193,8 +194,7 @@ class SimRobot:
 
     @property
     def integrator(self) -> str:
-        """"kernel" (compiled) or "python" (the reference step): `Realism.python_only` and the
-        presence of a C compiler (or DDRT_PLANT=python) choose."""
+        """"kernel" (compiled) or "python" (the reference step: no C compiler, or DDRT_PLANT=python)."""
         return "python" if self._kernel is None else "kernel"
 
     def command(self, duty_l: float, duty_r: float) -> None:
@@ -364,6 +364,9 @@ class SimRobot:
     @property
     def backlash_side(self) -> tuple[int, int]:
         """Each gearbox's motor: on its front (1) or back (-1) flank, or free in the play (0)."""
+        st = self._st
+        if st is not None:
+            return int(st[_SDL]), int(st[_SDR])
         return self._side[0], self._side[1]
 
     @property
@@ -774,6 +777,7 @@ class SimRobot:
             bat.start_soc if bat is not None else 1.0, bat.capacity_ah if bat is not None else 1.0, ocv_mul,
             float(self._counts_slip), o.wheels.slip_per_nm,
             *(x for ou in (self._ou3, self._ou_l, self._ou_r) for x in (ou.mean, ou.a, ou.k)),
+            self._half_play, o.actuators.motor_inertia_kgm2, ml.supply_v, mr.supply_v,
             float(len(table)), float(len(o.events.floor)),
         ]
         tables = [float(x) for pair in table for x in pair]
@@ -788,7 +792,8 @@ class SimRobot:
             self._x, self._y, self._th, self._v, self._w, self._phi_l, self._phi_r, self._phi_3,
             self._duty_l, self._duty_r, self._w_em, self._w_fr, self._w_slip, self._gyro_f, self._tau_l, self._tau_r,
             self._soc, self._charge_c, self._source_j, self._internal_j, self._armature_j, self._free_motor_j,
-            self._current_a, self._terminal_v, self._c3, self._cl, self._cr, self._ou3.s, self._ou_l.s, self._ou_r.s)
+            self._current_a, self._terminal_v, self._c3, self._cl, self._cr, self._ou3.s, self._ou_l.s, self._ou_r.s,
+            *self._side, *self._gap, *self._gap_rate)
         consts = self._kernel_constants()
         self._cbuf = (c_double * len(consts))(*consts)
         self._rngs = (plant_native.Rng.from_random(self._slip_rng), plant_native.Rng.from_random(self._gyro_rng),

@@ -2,9 +2,7 @@
 
 `PlantConfig` holds the plant's flat settings; `Realism` holds its options (battery, gyro
 warm-up and register timing, encoder slip, deadband, backlash, events), whose defaults leave
-the plant ideal. Each number's bounds are declared with its field (`Bound`), and `Realism`
-declares which options the compiled kernel carries: a plant with any other option on
-integrates in Python (`Realism.python_only`).
+the plant ideal. Each number's bounds are declared with its field (`Bound`).
 """
 
 from __future__ import annotations
@@ -132,13 +130,6 @@ class Realism:
         """The zero-rate bias changes with time (warm-up, drift or a step)."""
         return (self.gyro_bias_per_c_dps * self.gyro_warmup_rise_c != 0.0 or self.gyro_drift_dps_per_s != 0.0
                 or self.gyro_bias_step_dps != 0.0)
-
-    @property
-    def python_only(self) -> tuple[str, ...]:
-        """The options that are on and that the compiled kernel does not carry (empty: the
-        kernel integrates this plant). It carries every option but the gearboxes' backlash,
-        whose motors turn free across the play with a state of their own."""
-        return ("actuators.backlash_deg",) if self.actuators.backlash_deg != 0.0 else ()
 
     @classmethod
     def from_sim(cls, sim: Any, sample_rate_div: int = 4, gyro_fifo: bool = False) -> "Realism":

@@ -1,7 +1,7 @@
 /* The simulated robot's RK4 step (sim_hal/plant.py's SimRobot._step) in C, for `ddrt sim` speed.
  *
- * It carries the options Realism.python_only does not name: the battery, the gyro's bias
- * model (warm-up, drift, step), the driver's deadband, the encoders' slip and the floor
+ * It carries every option of the plant: the battery, the gyro's bias model (warm-up, drift,
+ * step), the driver's deadband, the gearboxes' backlash, the encoders' slip and the floor
  * patches (payloads: the caller stops the kernel at each and updates c[]). Same formulas in
  * the same order as the Python step, compiled without FMA contraction or
  * fast-math and calling the same libm (tanh, sin, cos, log, sqrt) as CPython's math module,
@@ -68,14 +68,15 @@ static double gauss_z(rng_t *r, double two_pi) {
 
 /* Indices into the state array s[] (plant.py's _S). */
 enum { X, Y, TH, V, W, PHL, PHR, PH3, DL, DR, WEM, WFR, WSLIP, GF, TL, TR,
-       SOC, CHG, SRC, INTL, ARM, FREE, CUR, VT, C3, CL, CR, OU3, OUL, OUR, NSTATE };
+       SOC, CHG, SRC, INTL, ARM, FREE, CUR, VT, C3, CL, CR, OU3, OUL, OUR,
+       SDL, SDR, GPL, GPR, GRL, GRR, NSTATE };  /* backlash: side (+-1 on a flank, 0 free), gap, gap rate */
 
 /* c[]: plant.py's _Consts (NC of them), then the options' constants from index NC (plant.py's
  * _kernel_constants), then the battery's OCV table (n_ocv (soc, volts) pairs) and the floor
  * patches (n_floor of x_min, y_min, x_max, y_max, friction scale). */
 #define NC 40
 enum { BAT = NC, RI, KL, RL, KR, RR, SOC0, CAP, OCV_MUL, COUNTS, SPN, OU3_M, OU3_A, OU3_K, OUL_M, OUL_A,
-       OUL_K, OUR_M, OUR_A, OUR_K, N_OCV, N_FLOOR, TABLES };
+       OUL_K, OUR_M, OUR_A, OUR_K, HALF, JM, VL, VR, N_OCV, N_FLOOR, TABLES };
 
 /* What plant_run works on, in one struct so a call passes one pointer (ctypes' cost is per
  * argument). Commands waiting for their latency are a ring of (step at which the duties reach
@@ -135,6 +136,7 @@ void plant_run(int64_t n_steps, plant_t *p) {
     const double g_per_c = c[33], g_t0 = c[34], g_rise = c[35], g_tau = c[36], g_drift = c[37];
     const double g_step = c[38], g_step_at = c[39];
     const int battery = c[BAT] != 0.0, counts = c[COUNTS] != 0.0;
+    const double half = c[HALF];
     const int64_t n_ocv = (int64_t)c[N_OCV], n_floor = (int64_t)c[N_FLOOR];
     const double *ocv_tab = c + TABLES, *floor_tab = c + TABLES + 2 * n_ocv;
     double x = s[X], y = s[Y], th = s[TH], v = s[V], w = s[W];
@@ -167,10 +169,23 @@ void plant_run(int64_t n_steps, plant_t *p) {
                 break;
             }
         }
-        const double ocv = battery ? c[OCV_MUL] * interp(ocv_tab, n_ocv, s[SOC]) : 0.0;
+        const double ocv = battery ? c[OCV_MUL] * interp(ocv_tab, n_ocv, s[SOC]) : s[VT];
+        if (half > 0.0) {  /* _release: a motor whose torque turns away from its flank leaves it */
+            double wl = (v - big_l * w) * irl, wr = (v + big_r * w) * irr;
+            double vt = battery ? pack_v(c, ocv, ddl, ddr, wl, wr) : 0.0;
+            if (s[SDL] != 0.0) {
+                double em = c[KL] * (ddl * (battery ? vt : c[VL]) - c[KL] * wl) / c[RL];
+                if (s[SDL] * em <= 0.0) { s[SDL] = 0.0; s[GRL] = 0.0; }
+            }
+            if (s[SDR] != 0.0) {
+                double em = c[KR] * (ddr * (battery ? vt : c[VR]) - c[KR] * wr) / c[RR];
+                if (s[SDR] * em <= 0.0) { s[SDR] = 0.0; s[GRR] = 0.0; }
+            }
+        }
+        const double side_l = s[SDL], side_r = s[SDR], gr_l = s[GRL], gr_r = s[GRR];
         /* Four stages: _wheel_torques, slip fixed at stage 1, _accel. */
         double vk = v, wk = w, thk = th;
-        double dvs[4], dws[4], vs[4], ws[4], ths[4], pem[4], pfr[4], psrc[4], pint[4], parm[4], pib[4];
+        double dvs[4], dws[4], vs[4], ws[4], ths[4], pem[4], pfr[4], psrc[4], pint[4], parm[4], pfree[4], pib[4];
         double sl = 0.0, sr = 0.0;
         for (int st = 0; st < 4; st++) {
             if (st > 0) {
@@ -181,23 +196,39 @@ void plant_run(int64_t n_steps, plant_t *p) {
             }
             double wl = (vk - big_l * wk) * irl, wr = (vk + big_r * wk) * irr;
             double fl = fs * (bl * wl + tcl * tanh(wl * iwsl)), fr = fs * (br * wr + tcr * tanh(wr * iwsr));
-            double eml, emr;
-            psrc[st] = pint[st] = parm[st] = pib[st] = 0.0;
-            if (battery) {
-                double vt = pack_v(c, ocv, ddl, ddr, wl, wr);
-                double cur_l = (ddl * vt - c[KL] * wl) / c[RL], cur_r = (ddr * vt - c[KR] * wr) / c[RR];
-                eml = c[KL] * cur_l;
-                emr = c[KR] * cur_r;
+            double tl0, tr0;
+            psrc[st] = pint[st] = parm[st] = pfree[st] = pib[st] = 0.0;
+            if (!battery && side_l != 0.0 && side_r != 0.0) {  /* the seed's motors, both driving */
+                double eml = cdl - el * wl, emr = cdr - er * wr;
+                tl0 = eml - fl;
+                tr0 = emr - fr;
+                pem[st] = eml * wl + emr * wr;
+            } else {  /* the pack's voltage, or a motor free in the play */
+                double ml = side_l != 0.0 ? wl : wl + gr_l, mr = side_r != 0.0 ? wr : wr + gr_r;
+                double eml, emr, cur_l, cur_r;
+                if (!battery) {
+                    eml = cl * ddl - el * ml;
+                    emr = cr * ddr - er * mr;
+                    cur_l = (ddl * c[VL] - c[KL] * ml) / c[RL];
+                    cur_r = (ddr * c[VR] - c[KR] * mr) / c[RR];
+                } else {
+                    double vt = pack_v(c, ocv, ddl, ddr, ml, mr);
+                    cur_l = (ddl * vt - c[KL] * ml) / c[RL];
+                    cur_r = (ddr * vt - c[KR] * mr) / c[RR];
+                    eml = c[KL] * cur_l;
+                    emr = c[KR] * cur_r;
+                }
+                double pe = 0.0, pf = 0.0;
+                if (side_l != 0.0) { tl0 = eml - fl; pe = eml * wl; } else { tl0 = -fl; pf = eml * ml; }
+                if (side_r != 0.0) { tr0 = emr - fr; pe = pe + emr * wr; } else { tr0 = -fr; pf = pf + emr * mr; }
                 double ib = ddl * cur_l + ddr * cur_r;
+                pem[st] = pe;
+                pfree[st] = pf;
                 parm[st] = c[RL] * cur_l * cur_l + c[RR] * cur_r * cur_r;
                 psrc[st] = ocv * ib;
                 pint[st] = c[RI] * ib * ib;
                 pib[st] = ib;
-            } else {
-                eml = cdl - el * wl;
-                emr = cdr - er * wr;
             }
-            double tl0 = eml - fl, tr0 = emr - fr;
             if (st == 0 && slip_on) {
                 if (rnd(slip) < slip_p) {
                     sl = slip_frac * tl0 + gauss_z(slip, two_pi) * slip_sig;
@@ -217,7 +248,6 @@ void plant_run(int64_t n_steps, plant_t *p) {
             double fv = ul + ur + mx * wk * wk, fw = big_r * ur - big_l * ul - mx * vk * wk;
             dvs[st] = a11 * fv + a12 * fw;
             dws[st] = a12 * fv + a22 * fw;
-            pem[st] = eml * wl + emr * wr;
             pfr[st] = fl * wl + fr * wr;
             vs[st] = vk; ws[st] = wk; ths[st] = thk;
         }
@@ -229,8 +259,32 @@ void plant_run(int64_t n_steps, plant_t *p) {
         x += h6 * (v * cos(th) + 2.0 * (v2 * cos(th2) + v3 * cos(th3)) + v4 * cos(th4));
         y += h6 * (v * sin(th) + 2.0 * (v2 * sin(th2) + v3 * sin(th3)) + v4 * sin(th4));
         th = th + dth;
-        v = v + RK(dvs);
-        w = w + RK(dws);
+        const double v_new = v + RK(dvs), w_new = w + RK(dws);
+        if (half > 0.0) {  /* _free_motors: exact for the step's voltage, inelastic at the flank */
+            double wl_old = (v - big_l * w) * irl, wr_old = (v + big_r * w) * irr;
+            double ww_new[2] = {(v_new - big_l * w_new) * irl, (v_new + big_r * w_new) * irr};
+            double wm[2] = {wl_old + s[GRL], wr_old + s[GRR]};
+            double vt = battery ? pack_v(c, ocv, ddl, ddr, wm[0], wm[1]) : 0.0;
+            const int sides[2] = {SDL, SDR}, gaps[2] = {GPL, GPR}, rates[2] = {GRL, GRR}, ks[2] = {KL, KR};
+            const int rs[2] = {RL, RR}, vs_[2] = {VL, VR};
+            const double ds_[2] = {ddl, ddr};
+            for (int i = 0; i < 2; i++) {
+                if (s[sides[i]] != 0.0) continue;
+                double supply = battery ? vt : c[vs_[i]];
+                double rate = pow(c[ks[i]], 2.0) / (c[rs[i]] * c[JM]);
+                double settled = ds_[i] * supply / c[ks[i]];
+                double nw = settled + (wm[i] - settled) * exp(-rate * h);
+                s[rates[i]] = nw - ww_new[i];
+                s[gaps[i]] += h * s[rates[i]];
+                if (fabs(s[gaps[i]]) >= half) {
+                    s[sides[i]] = s[gaps[i]] > 0 ? 1.0 : -1.0;
+                    s[gaps[i]] = copysign(half, s[gaps[i]]);
+                    s[rates[i]] = 0.0;
+                }
+            }
+        }
+        v = v_new;
+        w = w_new;
         double dphi_l = (ds - big_l * dth) * irl, dphi_r = (ds + big_r * dth) * irr, dphi_3 = ds * ir3;
         phi_l += dphi_l;
         phi_r += dphi_r;
@@ -238,15 +292,19 @@ void plant_run(int64_t n_steps, plant_t *p) {
         w_em += RK(pem);
         w_fr += RK(pfr);
         w_slip += sl * dphi_l + sr * dphi_r;
-        if (battery) {
+        if (battery || half > 0.0) {
             s[SRC] += RK(psrc);
             s[INTL] += RK(pint);
             s[ARM] += RK(parm);
+            s[FREE] += RK(pfree);
             s[CHG] += RK(pib);
+        }
+        if (battery) {
             double soc = c[SOC0] - s[CHG] / (3600.0 * c[CAP]);
             soc = soc > 0.0 ? soc : 0.0;
             s[SOC] = soc < 1.0 ? soc : 1.0;
-            double wl = (v - big_l * w) * irl + 0.0, wr = (v + big_r * w) * irr + 0.0;
+            double wl = (v - big_l * w) * irl + (s[SDL] != 0.0 ? 0.0 : s[GRL]);
+            double wr = (v + big_r * w) * irr + (s[SDR] != 0.0 ? 0.0 : s[GRR]);
             double vt = pack_v(c, c[OCV_MUL] * interp(ocv_tab, n_ocv, s[SOC]), ddl, ddr, wl, wr);
             s[VT] = vt;
             s[CUR] = ddl * (ddl * vt - c[KL] * wl) / c[RL] + ddr * (ddr * vt - c[KR] * wr) / c[RR];

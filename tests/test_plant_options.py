@@ -77,27 +77,27 @@ def random_drive(sims: list[SimRobot], seconds: float, seed: int, mirror: bool =
     return out
 
 
-def python_only(monkeypatch: pytest.MonkeyPatch) -> None:
+def force_python(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(plant_native, "kernel", lambda: None)
 
 
 # --- the kernel and the reference step ------------------------------------------------------------
 
 
-def test_options_declare_the_integrator() -> None:
-    """Each option alone: the kernel where `python_only` does not name it, else the Python step."""
-    carried = set(ALONE) - {"backlash"}
+def test_every_option_runs_in_the_kernel_when_there_is_one(monkeypatch: pytest.MonkeyPatch) -> None:
+    """No option needs the Python step: each alone runs in the kernel (where a C compiler is),
+    and DDRT_PLANT=python's path (no kernel) takes the Python step whatever the options."""
+    have = plant_native.kernel() is not None
     for name, (opt, _) in ALONE.items():
-        assert bool(opt.python_only) == (name not in carried), name
-        if plant_native.kernel() is not None:
-            assert bot(opt).integrator == ("kernel" if name in carried else "python"), name
-    assert Realism().python_only == ()
+        assert bot(opt).integrator == ("kernel" if have else "python"), name
+    force_python(monkeypatch)
+    assert {bot(opt).integrator for opt, _ in ALONE.values()} == {"python"}
 
 
-@pytest.mark.parametrize("realism", [Realism(), *(opt for opt, _ in ALONE.values() if not opt.python_only),
+@pytest.mark.parametrize("realism", [Realism(), *(opt for opt, _ in ALONE.values()),
                                      Realism(gyro_warmup_rise_c=6.0, gyro_bias_per_c_dps=-0.2, gyro_drift_dps_per_s=0.01,
                                              gyro_bias_step_dps=-0.3, gyro_bias_step_at_s=0.7, gyro_odr_hz=250.0,
-                                             gyro_fifo=True, actuators=ActuatorTruth(deadband=0.05),
+                                             gyro_fifo=True, actuators=ActuatorTruth(deadband=0.05, backlash_deg=1.2),
                                              battery=BatteryTruth(cells=2, ocv_table=((0.0, 6.0), (0.6, 7.4), (1.0, 8.4)),
                                                                   resistance_ohm=0.4, start_soc=0.62, capacity_ah=0.01),
                                              encoder_slip=WanderingScale(mean=0.01, sigma=0.01, tau_s=0.2),
@@ -107,13 +107,13 @@ def test_options_declare_the_integrator() -> None:
                                                                 floor=(FloorPatch(x_min=-1, y_min=-1, x_max=0.02, y_max=1,
                                                                                   friction_scale=4.0),)))])
 def test_kernel_and_python_step_agree_on_a_random_drive(realism: Realism, monkeypatch: pytest.MonkeyPatch) -> None:
-    """Every option off, and the options the kernel carries: the two integrators give the same
-    numbers (to the bit; asserted to 1e-12), slip and gyro noise on, on a random drive."""
+    """Every option off, each option alone, and all of them together: the two integrators give
+    the same numbers (to the bit; asserted to 1e-12), slip and gyro noise on, on a random drive."""
     if plant_native.kernel() is None:
         pytest.skip("no C compiler: the plant runs in Python only")
     kw = dict(seed=11, slip_probability=0.4, wheel_counts_per_rev=2048)
     fast = bot(realism, **kw)
-    python_only(monkeypatch)
+    force_python(monkeypatch)
     ref = bot(realism, **kw)
     assert (fast.integrator, ref.integrator) == ("kernel", "python")
     a, b = random_drive([fast, ref], 3.0, seed=4)
@@ -125,6 +125,7 @@ def test_kernel_and_python_step_agree_on_a_random_drive(realism: Realism, monkey
         moved = moved or math.hypot(ra["motion"][0], ra["motion"][1]) > 0.02 or abs(ra["motion"][2]) > 0.3
     assert moved
     assert fast.gyro_die_temp_c == ref.gyro_die_temp_c and fast.supply == ref.supply
+    assert fast.backlash_side == ref.backlash_side
     if realism.gyro_fifo:
         fa, fb = fast.read_gyro_fifo(), ref.read_gyro_fifo()
         assert fa == fb and len(fa[0]) == 512 < fast.fifo_pushed and fa[1]  # 3 s at 250 Hz: it overflowed

@@ -47,14 +47,11 @@ def ke(p: RobotParams, v: float, w: float) -> float:
 
 
 def test_realistic_keys_choose_the_python_integrator_and_it_agrees_with_the_kernel(monkeypatch) -> None:
-    """An option the kernel carries, set so that it has no effect (the start temperature: the
-    bias depends on the warming), runs in the kernel when there is one, and drives the same
-    robot as the Python step (forced): same slip draws, same gyro noise, same counts. An
-    option it does not carry (backlash) chooses the Python step."""
+    """An option set so that it has no effect (the start temperature: the bias depends on the
+    warming) runs in the kernel when there is one, and drives the same robot as the Python step
+    (forced): same slip draws, same gyro noise, same counts."""
     warm = Realism(gyro_temp_start_c=30.0)
-    assert not Realism().active and warm.active and warm.python_only == ()
-    assert Realism(actuators=ActuatorTruth(backlash_deg=0.5)).python_only == ("actuators.backlash_deg",)
-    assert bot(realism=Realism(actuators=ActuatorTruth(backlash_deg=0.5))).integrator == "python"
+    assert not Realism().active and warm.active
     runs = []
     for mode in ("fast", "python"):
         if mode == "python":
@@ -76,7 +73,7 @@ def test_realistic_keys_choose_the_python_integrator_and_it_agrees_with_the_kern
 
 def test_default_plant_keeps_the_kernel_and_ideal_readings() -> None:
     sim = bot(seed=1, wheel_counts_per_rev=4096, sensor_latency_s=0.002)
-    assert sim.battery_v == MotorParams().supply_v and not sim.options.python_only
+    assert sim.battery_v == MotorParams().supply_v and not sim.options.active
     sim.command(0.5, -0.3)
     sim.advance_to(0.5)
     phl, phr, _ = sim.wheel_angles
