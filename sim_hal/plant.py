@@ -506,11 +506,8 @@ class SimRobot:
         end = self._k + n_steps
         while self._k < end:
             stop = end
-            if self._payloads:  # the first step whose start time is at or after the payload's
-                at = self._payloads[0].at_s
-                j = self._k
-                while j * self._h + _EPS_T < at:
-                    j += 1
+            if self._payloads:
+                j = max(self._k, self._first_step_at(self._payloads[0].at_s))
                 if j == self._k:
                     pl = self._payloads.pop(0)
                     self._set_body(with_payload(self._body, pl.mass_kg, pl.inertia_kgm2, pl.x_m, pl.y_m))
@@ -518,6 +515,17 @@ class SimRobot:
                 stop = min(end, j)
             self._kernel(stop - self._k, self._plant_addr)
             self._k = self._kbuf.value
+
+    def _first_step_at(self, t: float) -> int:
+        """The first step whose start time k * h is at or after t (within _EPS_T): where `_step`
+        applies what happens at t."""
+        h = self._h
+        j = max(0, math.ceil((t - _EPS_T) / h))
+        while j > 0 and (j - 1) * h + _EPS_T >= t:
+            j -= 1
+        while j * h + _EPS_T < t:
+            j += 1
+        return j
 
     def _ocv_v(self) -> float:
         bat = self.options.battery

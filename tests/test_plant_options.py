@@ -297,3 +297,18 @@ def test_each_bound_refuses_outside_and_accepts_inside_naming_the_field(cls: typ
     with pytest.raises(ValueError, match=f"{cls.__name__}.{field}"):
         cls(**{field: bad})
     cls(**{field: good})
+
+
+@pytest.mark.parametrize("at_s", [0.0, 0.0005, 0.001, 0.0123, 0.7, 1.0 / 3.0, 2.9999999999999])
+def test_a_payload_lands_on_the_same_step_in_both_integrators(at_s: float, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Payload times on, between and a rounding error off the plant's steps, advanced in uneven
+    stretches: the kernel stops where the Python step applies the payload (the same motion)."""
+    opt = Realism(events=EventsTruth(payloads=(PayloadEvent(at_s=at_s, mass_kg=3.0, x_m=0.1),)))
+    fast = bot(opt, **QUIET)
+    force_python(monkeypatch)
+    ref = bot(opt, **QUIET)
+    for s in (fast, ref):
+        s.command(0.9, 0.7)
+    a, b = random_drive([fast, ref], 3.2, seed=round(at_s * 1e4))
+    assert [r["motion"] for r in a] == [r["motion"] for r in b]
+    assert fast.dynamics == ref.dynamics != Dynamics.from_params(RobotParams(**TABLE_5_2))
