@@ -70,6 +70,7 @@ def _check_declared(obj: Any) -> None:
 
 
 _POSITIVE = Bound(low=0.0, open_low=True)
+_MPU_MIN_ODR_HZ = 1000.0 / 256  # SMPLRT_DIV 255 with the DLPF on: the MPU's slowest sample clock
 _NON_NEGATIVE = Bound(low=0.0)
 
 
@@ -93,7 +94,7 @@ class Realism:
     gyro_warmup_tau_s: float = _f(120.0, _POSITIVE)
     gyro_bias_per_c_dps: float = _f(0.0)
     gyro_drift_dps_per_s: float = _f(0.0)
-    gyro_odr_hz: float = _f(0.0, _NON_NEGATIVE)
+    gyro_odr_hz: float = _f(0.0, Bound(low=0.0, high=8000.0))  # the MPU-6050 samples at most at 8 kHz
     gyro_clock_ppm: float = _f(0.0, Bound(low=-1e6, high=1e6, open_low=True, open_high=True))
     gyro_bias_step_dps: float = _f(0.0)  # added to the bias from gyro_bias_step_at_s on
     gyro_bias_step_at_s: float = _f(0.0)
@@ -105,6 +106,9 @@ class Realism:
 
     def __post_init__(self) -> None:
         _check_declared(self)
+        if 0.0 < self.gyro_odr_hz < _MPU_MIN_ODR_HZ:
+            raise ValueError(f"Realism.gyro_odr_hz: 0 (read at the tick) or {_MPU_MIN_ODR_HZ:g} to 8000 Hz "
+                             f"(the part's sample rates), got {self.gyro_odr_hz!r}")
         if self.gyro_fifo and self.gyro_odr_hz == 0.0:
             raise ValueError("Realism.gyro_fifo: the FIFO needs the gyro's sample clock (gyro_odr_hz > 0)")
         # The config's sections validate themselves when read from YAML; built here directly
@@ -149,6 +153,7 @@ class Realism:
 
 
 _INT = Bound(kind=int)
+_LATENCY = Bound(low=0.0, high=1.0)  # a second: far beyond any bus, and the sensor rings' length stays small
 _COUNTS = Bound(kind=int, low=0)  # 0: that encoder is not there
 
 
@@ -160,11 +165,11 @@ class PlantConfig:
     friction: bool = _f(True, Bound(kind=bool))  # False zeroes the motors' viscous and Coulomb friction
     slip: bool = _f(True, Bound(kind=bool))  # the seed's random slip torque
     slip_probability: float = _f(0.25, Bound(low=0.0, high=1.0))  # chance per wheel per step of a slip term
-    slip_fraction: float = _f(0.01, _NON_NEGATIVE)  # slip size ~ N(slip_fraction * tau, slip_sigma_nm)
-    slip_sigma_nm: float = _f(0.01, _NON_NEGATIVE)
+    slip_fraction: float = _f(0.01, Bound(low=0.0, high=1.0))  # slip size ~ N(slip_fraction * tau, slip_sigma_nm)
+    slip_sigma_nm: float = _f(0.01, Bound(low=0.0, high=100.0))  # beyond, the slip alone throws the robot about
     seed: int | None = _f(0, Bound(kind=int, optional=True))  # None: a different run every time
-    command_latency_s: float = _f(0.0015, _NON_NEGATIVE)  # duty command -> motor voltage
-    sensor_latency_s: float = _f(0.001, _NON_NEGATIVE)  # age of the state a reading reports
+    command_latency_s: float = _f(0.0015, _LATENCY)  # duty command -> motor voltage
+    sensor_latency_s: float = _f(0.001, _LATENCY)  # age of the state a reading reports (the rings hold it)
     encoder_counts_per_rev: int = _f(8192, _COUNTS)  # front wheel, lines x 4
     encoder_offset_counts: int = _f(0, _INT)  # counter value at start (a counter need not start at 0)
     gyro_range_dps: int = _f(250, _INT)  # one of the part's ranges (checked below)

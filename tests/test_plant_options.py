@@ -288,9 +288,10 @@ def test_mirrored_duties_give_a_mirrored_trajectory_with_options_on() -> None:
     (PlantConfig, "step_hz", 0.0, 1e-3), (PlantConfig, "slip_probability", 1.0001, 1.0),
     (PlantConfig, "gyro_scale_error", -1.0, -0.999), (PlantConfig, "wheel_counts_per_rev", -1, 0),
     (PlantConfig, "seed", 1.5, None), (PlantConfig, "slip", 1, False), (PlantConfig, "command_latency_s", math.inf, 0.0),
-    (Realism, "gyro_warmup_tau_s", 0.0, 1e-6), (Realism, "gyro_odr_hz", -0.1, 0.0),
+    (Realism, "gyro_warmup_tau_s", 0.0, 1e-6), (Realism, "gyro_odr_hz", -0.1, 0.0), (Realism, "gyro_odr_hz", 8000.5, 8000),
     (Realism, "gyro_clock_ppm", -1e6, -999999.0), (Realism, "gyro_fifo", "yes", False),
-    (Realism, "gyro_bias_per_c_dps", math.nan, -0.5),
+    (Realism, "gyro_bias_per_c_dps", math.nan, -0.5), (Realism, "gyro_odr_hz", 3.0, 3.91),
+    (PlantConfig, "sensor_latency_s", 1.01, 1.0), (PlantConfig, "command_latency_s", 2.0, 0.5),
 ])
 def test_each_bound_refuses_outside_and_accepts_inside_naming_the_field(cls: type, field: str, bad: Any,
                                                                         good: Any) -> None:
@@ -312,3 +313,44 @@ def test_a_payload_lands_on_the_same_step_in_both_integrators(at_s: float, monke
     a, b = random_drive([fast, ref], 3.2, seed=round(at_s * 1e4))
     assert [r["motion"] for r in a] == [r["motion"] for r in b]
     assert fast.dynamics == ref.dynamics != Dynamics.from_params(RobotParams(**TABLE_5_2))
+
+
+def test_fuzzed_settings_are_refused_by_name_or_give_a_finite_plant() -> None:
+    """Random values (in and out of range, wrong types) for the plant's declared fields: each
+    either raises ValueError naming the field, or builds a plant whose random drive stays finite."""
+    from dataclasses import fields
+
+    rng = random.Random(31)
+    candidates = (-1e9, -2.0, -1.0, -0.5, 0.0, 1e-6, 0.3, 1.0, 2.0, 250, 1000, 9000.0, 1e6, 1e12,
+                  math.nan, math.inf, -math.inf, True, False, None, "1", 7)
+    declared = [(cls, f.name) for cls in (PlantConfig, Realism) for f in fields(cls) if "bound" in f.metadata]
+    built = refused = 0
+    for _ in range(300):
+        cls, name = rng.choice(declared)
+        value = rng.choice(candidates)
+        try:
+            made = cls(**{name: value})
+        except ValueError as e:
+            assert f"{cls.__name__}.{name}" in str(e) or name == "gyro_range_dps" or "gyro_fifo" in str(e), (name, value, e)
+            refused += 1
+            continue
+        cfg = made if cls is PlantConfig else PlantConfig(realism=made)
+        if cfg.step_hz < 10.0 or cfg.step_hz > 1e5:
+            continue  # a valid but absurd step: too slow or too long to drive here
+        sim = SimRobot(RobotParams(**TABLE_5_1), MotorParams(), MotorParams(), cfg)
+        random_drive([sim], 0.2, seed=built)
+        assert all(math.isfinite(x) for x in (*sim.pose, *sim.velocity)), (name, value)
+        built += 1
+    assert built > 50 and refused > 50
+
+
+def test_a_config_value_the_plant_refuses_is_named_by_its_key() -> None:
+    """sim.slip.sigma_nm passes the config's own check (>= 0) but not the plant's bound: the
+    error names the config key, not the plant's field."""
+    from ddrt.config.load import config_from_mapping
+    from sim_hal.factory import plant_config
+
+    base = {"hal": {"backend": "sim"}, "robot": dict(TABLE_5_1)}
+    assert plant_config(config_from_mapping(dict(base, sim={"slip": {"sigma_nm": 100.0}}))).slip_sigma_nm == 100.0
+    with pytest.raises(ValueError, match=r"^sim\.slip\.sigma_nm: must be <= 100, got 1000\.0$"):
+        plant_config(config_from_mapping(dict(base, sim={"slip": {"sigma_nm": 1000.0}})))
