@@ -11,25 +11,34 @@ from sim_hal.wiring import WiringFaults
 
 
 def plant_config(cfg: Config, seed: int | None = None) -> PlantConfig:
-    """The plant's settings from the config's sim: and sensors: sections."""
+    """The plant's settings from the config's sim: and sensors: sections; a value the plant
+    refuses is named by its config key."""
     s = cfg.sim
-    return PlantConfig(
-        step_hz=s.step_hz,
-        friction=s.friction,
-        slip_probability=s.slip.probability,
-        slip_sigma_nm=s.slip.sigma_nm,
-        seed=s.seed if seed is None else seed,
-        command_latency_s=s.command_latency_s,
-        sensor_latency_s=s.sensor_latency_s,
-        encoder_counts_per_rev=cfg.sensors.encoder_counts_per_rev,
-        gyro_range_dps=cfg.sensors.gyro_range_dps,
-        gyro_bias_dps=s.gyro.bias_dps,
-        gyro_noise_dps_rthz=s.gyro.noise_dps_rthz,
-        gyro_scale_error=s.gyro.scale_error,
-        gyro_dlpf_hz=s.gyro.dlpf_hz,
-        wheel_counts_per_rev=cfg.sensors.wheel_counts_per_rev,
-        realism=Realism.from_sim(s, cfg.hal.imu.sample_rate_div, cfg.sensors.gyro_fifo),
-    )
+    keys = {  # PlantConfig field: (the config key it comes from, its value)
+        "step_hz": ("sim.step_hz", s.step_hz),
+        "friction": ("sim.friction", s.friction),
+        "slip_probability": ("sim.slip.probability", s.slip.probability),
+        "slip_sigma_nm": ("sim.slip.sigma_nm", s.slip.sigma_nm),
+        "seed": ("sim.seed", s.seed if seed is None else seed),
+        "command_latency_s": ("sim.command_latency_s", s.command_latency_s),
+        "sensor_latency_s": ("sim.sensor_latency_s", s.sensor_latency_s),
+        "encoder_counts_per_rev": ("sensors.encoder_counts_per_rev", cfg.sensors.encoder_counts_per_rev),
+        "gyro_range_dps": ("sensors.gyro_range_dps", cfg.sensors.gyro_range_dps),
+        "gyro_bias_dps": ("sim.gyro.bias_dps", s.gyro.bias_dps),
+        "gyro_noise_dps_rthz": ("sim.gyro.noise_dps_rthz", s.gyro.noise_dps_rthz),
+        "gyro_scale_error": ("sim.gyro.scale_error", s.gyro.scale_error),
+        "gyro_dlpf_hz": ("sim.gyro.dlpf_hz", s.gyro.dlpf_hz),
+        "wheel_counts_per_rev": ("sensors.wheel_counts_per_rev", cfg.sensors.wheel_counts_per_rev),
+    }
+    try:
+        return PlantConfig(**{f: v for f, (_, v) in keys.items()},
+                           realism=Realism.from_sim(s, cfg.hal.imu.sample_rate_div, cfg.sensors.gyro_fifo))
+    except ValueError as e:
+        msg = str(e)
+        for f, (key, _) in keys.items():
+            if msg.startswith(f"PlantConfig.{f}:"):
+                raise ValueError(f"{key}{msg[len(f'PlantConfig.{f}'):]}") from None
+        raise
 
 
 def open_sim_hal(cfg: Config, start: tuple[float, float, float] = (0.0, 0.0, 0.0),

@@ -1,12 +1,12 @@
 """The plant's RK4 kernel compiled from plant_kernel.c, for `ddrt sim` speed (simulator only).
 
 Why compiled: the plant integrates at 1 kHz, five RK4 steps per 200 Hz controller tick, and
-in pure Python those steps alone cost about 20 us a tick: more than the whole 25 us budget of
-200x real time. The C kernel does the same arithmetic in the same order (no FMA contraction,
-no fast-math, CPython's libm, MT19937 and gauss), so runs are bit-identical to the Python
-integrator, which stays the reference and the fallback: without a C compiler, or with
-DDRT_PLANT=python, SimRobot integrates in Python. The library is built once per source
-version into the user's cache (~/.cache/ddrt, or $XDG_CACHE_HOME/ddrt; ddrt/runtime/cbuild.py).
+in Python those steps alone cost about 35 us a tick: more than the whole 25 us budget of 200x
+real time. The C kernel does the same arithmetic in the same order (no FMA contraction, no
+fast-math, CPython's libm, MT19937 and gauss), so runs are bit-identical to SimRobot's Python
+step, the reference and the fallback: without a C compiler, or with DDRT_PLANT=python,
+SimRobot integrates in Python. The library is built once per source version into the user's
+cache (~/.cache/ddrt, or $XDG_CACHE_HOME/ddrt; ddrt/runtime/cbuild.py).
 """
 
 from __future__ import annotations
@@ -20,8 +20,7 @@ from ddrt.runtime.cbuild import load_library
 
 SOURCE = Path(__file__).with_name("plant_kernel.c")
 CFLAGS = ("-O2", "-shared", "-fPIC", "-ffp-contract=off", "-fno-fast-math", "-fno-builtin")
-NSTATE = 16  # plant_kernel.c: X .. TR
-
+NSTATE = 36  # plant_kernel.c: X .. GRR
 
 
 class Rng(ctypes.Structure):
@@ -48,7 +47,7 @@ class Plant(ctypes.Structure):
                 ("slip", ctypes.c_void_p), ("gyro", ctypes.c_void_p), ("ring_phi3", ctypes.c_void_p),
                 ("ring_gyro", ctypes.c_void_p), ("n_ring", ctypes.c_int64), ("q", ctypes.c_void_p),
                 ("q_step", ctypes.c_void_p), ("q_duty", ctypes.c_void_p), ("ring_phl", ctypes.c_void_p),
-                ("ring_phr", ctypes.c_void_p)]
+                ("ring_phr", ctypes.c_void_p), ("real", ctypes.c_void_p)]
 
 
 def _declare(lib: ctypes.CDLL) -> None:

@@ -1,5 +1,5 @@
 """The MPU-6050's FIFO: the driver (hal/mpu6050.py read_gyro_fifo), the emulated part
-(sim_hal/mpu_emulator.py), the simulated robot's FIFO (sim_hal/plant_real.py) and the two
+(sim_hal/mpu_emulator.py), the simulated robot's FIFO (sim_hal/plant.py) and the two
 backends that deliver it (SimHal, RealHal on the emulated devices): every sample once, and a
 full, garbled or failing FIFO reset and flagged, never a traceback (issue 23, sensors.gyro_fifo)."""
 
@@ -21,7 +21,7 @@ from sim_hal.mpu_emulator import FIFO_OFLOW_INT, INT_STATUS, ConstantGyro, MpuEm
 from tests.support.fake_bridge import FakeEncoder
 from sim_hal.plant import PlantConfig
 from sim_hal.plant_config import Realism
-from sim_hal.plant_real import FIFO_SAMPLES
+from sim_hal.plant_effects import FIFO_SAMPLES
 from ddrt.params.motor import MotorParams
 from ddrt.params.robot import RobotParams
 from tests.support.seed_robot import TABLE_5_1

@@ -1,4 +1,4 @@
-"""The realistic plant (issue 23, sim_hal/plant_real.py): battery, deadband, backlash, gyro
+"""The plant's options (sim_hal/plant.py, `Realism`): battery, deadband, backlash, gyro
 warm-up and register timing, encoder slip, drive-wheel counts, events, MCU crystal drift.
 Physics checked by physics: energy balance, closed-form sag, symmetry, independent formulas."""
 
@@ -20,10 +20,11 @@ from ddrt.core.model import Dynamics
 from ddrt.params.motor import MotorParams
 from ddrt.params.robot import RobotParams
 from hal.wire import FrameDecoder, State
+from sim_hal import plant_native
 from sim_hal.factory import plant_config
 from sim_hal.mpu_emulator import TEMP_OUT_H, MpuEmulator, SineGyro, temp_out_c, temp_out_raw
 from sim_hal.plant import PlantConfig, Realism, SimRobot
-from sim_hal.plant_real import _with_payload
+from sim_hal.plant_effects import Wanderer, with_payload
 from sim_hal.raw_readings import encoder_count
 from tests.support.repo import REPO
 from tests.support.seed_robot import TABLE_5_1, TABLE_5_2
@@ -45,15 +46,18 @@ def ke(p: RobotParams, v: float, w: float) -> float:
 # --- the choice of integrator ---------------------------------------------------------------
 
 
-def test_realistic_keys_choose_the_python_integrator_and_it_agrees_with_the_kernel() -> None:
-    """A Realism whose only change has no effect (the start temperature: the bias depends on
-    the warming) takes the Python path, and drives the same robot as the default path: same
-    slip draws, same gyro noise, same counts."""
-    assert not Realism().active and Realism(gyro_temp_start_c=30.0).active
+def test_realistic_keys_choose_the_python_integrator_and_it_agrees_with_the_kernel(monkeypatch) -> None:
+    """An option set so that it has no effect (the start temperature: the bias depends on the
+    warming) runs in the kernel when there is one, and drives the same robot as the Python step
+    (forced): same slip draws, same gyro noise, same counts."""
+    warm = Realism(gyro_temp_start_c=30.0)
+    assert not Realism().active and warm.active
     runs = []
-    for realism in (Realism(), Realism(gyro_temp_start_c=30.0)):
-        sim = bot(TABLE_5_2, realism=realism, seed=7, slip_probability=0.5, wheel_counts_per_rev=2048)
-        assert (sim._real is None) == (realism == Realism())
+    for mode in ("fast", "python"):
+        if mode == "python":
+            monkeypatch.setattr(plant_native, "kernel", lambda: None)
+        sim = bot(TABLE_5_2, realism=warm, seed=7, slip_probability=0.5, wheel_counts_per_rev=2048)
+        assert sim.integrator == ("python" if mode == "python" or plant_native.kernel() is None else "kernel")
         drive, trace, t = random.Random(3), [], 0.0
         for _ in range(300):
             sim.command(drive.uniform(-1.0, 1.0), drive.uniform(-1.0, 1.0))
@@ -69,7 +73,7 @@ def test_realistic_keys_choose_the_python_integrator_and_it_agrees_with_the_kern
 
 def test_default_plant_keeps_the_kernel_and_ideal_readings() -> None:
     sim = bot(seed=1, wheel_counts_per_rev=4096, sensor_latency_s=0.002)
-    assert sim._real is None and sim.battery_v == MotorParams().supply_v
+    assert sim.battery_v == MotorParams().supply_v and not sim.options.active
     sim.command(0.5, -0.3)
     sim.advance_to(0.5)
     phl, phr, _ = sim.wheel_angles
@@ -113,11 +117,11 @@ def test_sag_is_current_times_resistance_and_slows_the_robot() -> None:
     vt = sim.battery_v
     current = sum(di * (di * vt - m.k_nm_per_a * wi) / m.resistance_ohm for di, wi in zip(d, wheels))
     assert current > 0.5
-    ocv = sim._real.ocv_v()  # 10.5 V less the little charge drawn
+    ocv = sim.supply.ocv_v  # 10.5 V less the little charge drawn
     assert ocv == pytest.approx(10.5, abs=1e-6)
     assert vt == pytest.approx(ocv - 0.25 * current, rel=1e-12)
     assert 9.0 < vt < 10.4
-    assert sim._real.current_a == pytest.approx(current, rel=1e-9)
+    assert sim.supply.current_a == pytest.approx(current, rel=1e-9)
     assert sim.velocity[0] < stiff.velocity[0]
     for s in (sim, stiff):
         s.advance_to(3.0)
@@ -133,7 +137,7 @@ def test_energy_from_the_source_is_resistances_plus_friction_plus_kinetic_energy
     for k in range(1, 41):
         sim.command(rng.uniform(-1, 1), rng.uniform(-1, 1))
         sim.advance_to(k * 0.05)
-    real = sim._real
+    real = sim.supply
     dke = ke(sim.params, *sim.velocity) - ke0
     out = real.internal_j + real.armature_j + sim.energy.friction_loss_j + dke
     assert real.internal_j > 0.05 and real.armature_j > 0.5 and sim.energy.friction_loss_j > 0.1
@@ -175,7 +179,7 @@ def test_no_wheel_torque_while_the_motor_crosses_the_play() -> None:
     expect = math.sqrt(2.0 * math.radians(0.75) * 2e-4 / tau)
     assert free * sim.step_s == pytest.approx(expect, rel=0.3)
     assert all(tq == (0.0, 0.0) for tq in torques[:free]) and sim.pose[0] > 0.0
-    assert sim._real.side == [1, 1]
+    assert sim.backlash_side == (1, 1)
     # Reversing: the motor leaves the front flank and crosses to the back one; meanwhile the
     # rolling wheel feels only its own friction (gearbox and bearings), none of the motor's torque.
     sim.command(-0.3, -0.3)
@@ -203,9 +207,9 @@ def test_a_strong_gearmotor_crosses_the_play_and_drives_its_wheel(k: float) -> N
     while sim.t < 0.3 - 1e-9:
         sim.advance_to(sim.t + sim.step_s)
         steps += 1
-        if engaged_at is None and sim._real.side[0] != 0:
+        if engaged_at is None and sim.backlash_side[0] != 0:
             engaged_at = steps * sim.step_s
-    assert engaged_at is not None and sim._real.side[0] == 1
+    assert engaged_at is not None and sim.backlash_side[0] == 1
     # From rest: w(t) = w_inf (1 - exp(-a t)), a = k^2 / (R J), w_inf = duty V / k; the play's
     # half is crossed when the angle w_inf (t - (1 - exp(-a t)) / a) reaches it.
     a, w_inf, half = k * k / (4.0 * 2e-4), duty * m.supply_v / k, math.radians(0.75)
@@ -286,7 +290,7 @@ def test_plant_gyro_register_is_0_to_one_period_old_and_differs_per_tick() -> No
         assert min(ages) == pytest.approx(lag, abs=2e-4)
         spans[odr] = max(ages) - min(ages)
         if odr:
-            assert sim._real.odr_period == pytest.approx(period)
+            assert sim.gyro_hold_s == pytest.approx(period)
             assert max(ages) <= lag + period + 2e-4
             assert len({round(a, 4) for a in ages}) >= 10  # differs from tick to tick
     assert spans[0.0] < 2e-4 and spans[200.0] > 0.8 * period
@@ -331,11 +335,11 @@ def test_omni_wheel_slip_scales_its_count_only() -> None:
 
 
 def test_wandering_scale_has_its_sigma_and_time_constant() -> None:
-    sim = bot(realism=Realism(encoder_slip=WanderingScale(sigma=0.01, tau_s=0.05)), seed=5, **QUIET)
-    ou = sim._real.ou3
+    ou = Wanderer(WanderingScale(sigma=0.01, tau_s=0.05), 0.001)
+    rng = random.Random(5)
     xs = []
     for _ in range(200000):  # 4000 time constants
-        ou.step(sim._real.rng.gauss)
+        ou.step(rng.gauss)
         xs.append(ou.s)
     assert statistics.pstdev(xs) == pytest.approx(0.01, rel=0.1)
     lag = 50  # one time constant at 1 kHz: correlation exp(-1)
@@ -361,7 +365,7 @@ def test_drive_wheels_slip_under_traction_and_the_omni_wheel_does_not() -> None:
 
 def test_payload_merges_into_the_platform_as_a_rigid_body() -> None:
     p = RobotParams(**TABLE_5_1)
-    q = _with_payload(p, 1.0, 0.002, 0.05, 0.02)
+    q = with_payload(p, 1.0, 0.002, 0.05, 0.02)
     d0, d1 = Dynamics.from_params(p), Dynamics.from_params(q)
     assert d1.m_k == pytest.approx(d0.m_k + 1.0)
     assert d1.m_x == pytest.approx(d0.m_x + 1.0 * 0.05)  # first moment about A

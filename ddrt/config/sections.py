@@ -70,8 +70,8 @@ class SensorsConfig(Section):
             "to one sample period as the two clocks beat (docs/BENCHMARKS.md, \"Sensing: a warming gyro with the "
             "shipped config\"). A full, garbled or unreadable FIFO is reset and that read held, not fresh "
             "(`imu_fifo_reset`; the simulator's `imu_fifo_overflow`). The simulator then samples its gyro at "
-            "1 kHz / (1 + `hal.imu.sample_rate_div`) on the part's clock (`sim.gyro.clock_ppm`) and integrates "
-            "in Python (plant_real.py). `false`: the output register read at the tick (the simulated backend's "
+            "1 kHz / (1 + `hal.imu.sample_rate_div`) on the part's clock (`sim.gyro.clock_ppm`). "
+            "`false`: the output register read at the tick (the simulated backend's "
             "default: its default gyro has no sample clock to beat against).")
 
     # On a real MPU (the robot's, or the emulated one behind the real driver) its die warms by

@@ -1,8 +1,9 @@
 """The `sim:` keys that make the simulated robot imperfect the way real robots are.
 
 Each default leaves the plant ideal (the seed's model), so the seed scenarios stay
-reproducible; each key declares its unit, bounds and meaning (docs/reference/config.md). The plant
-(sim_hal/plant_real.py) is what uses them.
+reproducible; each key declares its unit, bounds and meaning (docs/reference/config.md). They
+are options of the one plant (sim_hal/plant.py), which its compiled kernel and its Python step
+integrate alike.
 """
 
 from __future__ import annotations
@@ -170,7 +171,7 @@ class SlipConfig(Section):
     probability: float = setting(
         0.25, ge=0.0, le=1.0, doc="Chance, per wheel and plant step, that a slip torque is added.")
     sigma_nm: float = setting(
-        0.01, unit="N m", ge=0.0, doc="Standard deviation of the slip torque, drawn from N(0.01 tau, sigma).")
+        0.01, unit="N m", ge=0.0, le=100.0, doc="Standard deviation of the slip torque, drawn from N(0.01 tau, sigma).")
 
 
 @dataclass(frozen=True)
@@ -210,8 +211,7 @@ class GyroTruth(Section):
     bias_step_dps: float = setting(
         0.0, unit="deg/s", ge=-50.0, le=50.0,
         doc="A step in the zero-rate bias at `sim.gyro.bias_step_at_s` (what tracking the bias on the move "
-            "must follow: bench/wheel_encoders.py). Nonzero: the plant integrates in Python "
-            "(sim_hal/plant_real.py).")
+            "must follow: bench/wheel_encoders.py).")
     bias_step_at_s: float = setting(
         0.0, unit="s", ge=0.0,
         doc="Sim time of that step (since the plant started: calibration and `sim.start_delay_s` included).")
@@ -274,8 +274,8 @@ class SimConfig(Section):
             "With a pack the motors see duty x terminal voltage, terminal = open-circuit voltage(state of "
             "charge) - `resistance_ohm` x pack current. Any of the realistic plant's keys away from its default "
             "(`sim.battery`, the `sim.gyro` warm-up, drift, step and clock keys, `sim.encoder`, `sim.wheels`, "
-            "`sim.actuators`, `sim.events`) makes the simulated robot integrate in Python "
-            "(sim_hal/plant_real.py, a few times slower) instead of the compiled kernel.")
+            "`sim.actuators`, `sim.events`) is an option of the one plant (sim_hal/plant.py, "
+            "[model.md](model.md)), integrated by its compiled kernel and its Python step alike.")
     encoder: EncoderTruth = setting(factory=EncoderTruth, doc="The front omni wheel's encoder.")
     wheels: WheelsTruth = setting(
         factory=WheelsTruth,
