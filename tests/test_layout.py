@@ -345,8 +345,6 @@ KNOWN_PROBES: dict[str, int] = {
     "hal/wire.py": 1,  # a message's dataclass fields for struct.pack, on the serial path
     "ddrt/core/gyro_bias.py": 1,  # the sensors' work
     "hal/real.py": 10,
-    "sim_hal/plant.py": 1,  # the plant's work
-    "sim_hal/plant_config.py": 9,
 }
 
 

@@ -345,12 +345,13 @@ def test_fuzzed_settings_are_refused_by_name_or_give_a_finite_plant() -> None:
 
 
 def test_a_config_value_the_plant_refuses_is_named_by_its_key() -> None:
-    """sim.slip.sigma_nm passes the config's own check (>= 0) but not the plant's bound: the
-    error names the config key, not the plant's field."""
+    """The plant's bound on sim.slip.sigma_nm is the config key's declared bound: a value beyond
+    it is refused when the config loads, naming the key, before any plant is built."""
     from ddrt.config.load import config_from_mapping
+    from ddrt.config.schema import ConfigError
     from sim_hal.factory import plant_config
 
     base = {"hal": {"backend": "sim"}, "robot": dict(TABLE_5_1)}
     assert plant_config(config_from_mapping(dict(base, sim={"slip": {"sigma_nm": 100.0}}))).slip_sigma_nm == 100.0
-    with pytest.raises(ValueError, match=r"^sim\.slip\.sigma_nm: must be <= 100, got 1000\.0$"):
-        plant_config(config_from_mapping(dict(base, sim={"slip": {"sigma_nm": 1000.0}})))
+    with pytest.raises(ConfigError, match=r"sim\.slip\.sigma_nm: must be <= 100 N m.*got 1000\.0$"):
+        config_from_mapping(dict(base, sim={"slip": {"sigma_nm": 1000.0}}))
