@@ -72,7 +72,7 @@ def test_the_mpu_declares_its_configuration() -> None:
         assert (imu.caps.fifo_period_s > 0.0) == fifo
 
 
-def test_the_watchdog_is_the_motor_drivers_declaration(tmp_path: Path) -> None:
+def test_the_watchdog_is_the_motor_drivers_declaration() -> None:
     enc = FakeEncoder()
     assert RealHal(FakeImu(), enc, FakeClock()).info.drive_timeout_s is None  # the fake link declares none
     assert PwmSysfsMotors.drive_timeout_s is None

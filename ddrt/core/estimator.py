@@ -113,7 +113,7 @@ class Estimator:
         self.heading = YawFilter(0.0, 0.0, 0.0)
         self.at_rest, self.rest_rate = False, math.nan  # at rest at the last fresh gyro reading, and its rate
         # The sensors' fusion steps (module doc), from what the HAL says it delivers.
-        self._front = FrontEncoder() if info.encoder_counts_per_rev > 0 else NoFront()
+        self._front: FrontEncoder | NoFront = FrontEncoder() if info.encoder_counts_per_rev > 0 else NoFront()
         self._gyro: RateStep = (FifoRate(info.gyro_fifo_period_s) if info.gyro_fifo_period_s > 0.0
                                 else GyroRegister())
         self._temperature: BiasStep = TemperatureBias(period_s, cfg) if info.gyro_temp_hz > 0.0 else StopsOnly()
@@ -136,7 +136,7 @@ class Estimator:
         self._enc_rejects_row = 0
         self._gyro_rejects_row = 0
         self._count_still_s = 0.0  # time without counts while the filter says we move
-        self._still_ticks = 0  # ticks in a row without a single encoder count
+        self._still_ticks = 0  # fresh samples in a row without a count of what gives the distance
         # Gaps: the newest fresh sample's time, how long the estimate has been blind, what
         # dead reckoning added to the pose meanwhile, and the gap that ended this update.
         self._last_fresh_t = 0.0
