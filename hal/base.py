@@ -8,12 +8,13 @@ as a `Hal`. What a backend must and may override is in `Hal`'s docstring.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from dataclasses import dataclass
 from typing import Protocol
 
 from ddrt.core.types import HalInfo, Sample
 from ddrt.errors import DdrtError
 
-__all__ = ["Hal", "HalError", "HalInfo", "HalInitError", "HalIOError", "HalTimeoutError",
+__all__ = ["GyroCaps", "Hal", "HalError", "HalInfo", "HalInitError", "HalIOError", "HalTimeoutError",
            "HalSensorFault", "HalValueError", "Sample", "TrueMotion", "check_duty"]
 
 
@@ -41,6 +42,22 @@ class HalSensorFault(HalError):
 
 class HalValueError(HalError, ValueError):
     """A value handed to the HAL is out of range or not finite (a duty of 1.5, a NaN)."""
+
+
+@dataclass(frozen=True, slots=True)
+class GyroCaps:
+    """What a gyro driver delivers, as the driver declares it (its `caps`): the HAL builds its
+    HalInfo and chooses its reads from this, and asks the driver nothing else.
+
+    `age_s`: the mean age of a reading against the encoder's (the low-pass's group delay, plus
+    half the output register's hold when the register is read at the tick). `fifo_period_s` > 0:
+    every sample is read through the part's FIFO (`read_gyro_fifo()`) at this nominal period;
+    0: the output register at the tick (`read_gyro_z_raw()`). `die_temp`: `read_temp_c()` gives
+    the die's temperature (degC)."""
+
+    age_s: float = 0.0
+    fifo_period_s: float = 0.0
+    die_temp: bool = False
 
 
 class TrueMotion(Protocol):

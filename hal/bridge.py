@@ -194,6 +194,11 @@ class Bridge:
         return self._port
 
     @property
+    def drive_timeout_s(self) -> float:
+        """The MCU's own watchdog (s): it zeroes the motors when no DRIVE arrived for this long."""
+        return self.drive_timeout_ms / 1000.0
+
+    @property
     def stats(self) -> dict[str, int]:
         """Fault and traffic counters for telemetry (copy)."""
         d = self._decoder

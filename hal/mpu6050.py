@@ -51,7 +51,7 @@ from collections import deque
 
 from ddrt.params.gyro_scale import GYRO_LSB_PER_DPS, GYRO_RANGES_DPS, gyro_lsb_per_rad_s
 from ddrt.params.mpu_parts import MPU_PARTS, MpuPart, known_parts, part_by_who_am_i
-from hal.base import HalInitError, HalIOError, HalSensorFault, HalTimeoutError, HalValueError
+from hal.base import GyroCaps, HalInitError, HalIOError, HalSensorFault, HalTimeoutError, HalValueError
 from hal.mpu_watch import ALIVE, MAX_STUCK_S, OutputWatch, StuckBound, Symptom, stuck_bound
 
 log = logging.getLogger("ddrt.hal.mpu")
@@ -230,6 +230,12 @@ class Mpu6050:
         """The nominal time between two FIFO samples (the part's clock may be 1 % off); 0
         without the FIFO."""
         return 1.0 / self.sample_rate_hz if self.fifo else 0.0
+
+    @property
+    def caps(self) -> GyroCaps:
+        """What this part delivers as configured (hal.base.GyroCaps): the age of a reading, the
+        FIFO's period when read through it, and the die temperature (every member has TEMP_OUT)."""
+        return GyroCaps(age_s=self.sample_age_s, fifo_period_s=self.fifo_period_s, die_temp=True)
 
     @property
     def sample_rate_hz(self) -> float:

@@ -71,6 +71,8 @@ class SysfsGpioDirection:
 class PwmSysfsMotors:
     """Left/right motor duties in [-1, 1] -> duty_cycle (ns) and a direction line each."""
 
+    drive_timeout_s: float | None = None  # no watchdog of its own: a duty holds until written again
+
     def __init__(self, chip: int, channels: Sequence[int], period_ns: int,
                  direction_gpios: Sequence[int] | None = None, root: str | Path = "/sys",
                  *, direction: DirectionWriter | None = None,

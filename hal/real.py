@@ -13,7 +13,10 @@ Fault reactions (the same for the emulated devices, which is how they are tested
   fault if it does not (docs/design.md). A value is never invented: with no previous value
   the error is raised at once.
 
-The gyro through its FIFO (`sensors.gyro_fifo`, an imu with `read_gyro_fifo`): every read
+Each driver declares what it delivers (the gyro its hal.base.GyroCaps, the link its stale bound
+and counters, the motors their watchdog); nothing here probes a driver for a capability.
+
+The gyro through its FIFO (`sensors.gyro_fifo`, GyroCaps.fifo_period_s > 0): every read
 drains it; the samples of a read whose Sample is not fresh (the encoder's STATE was late) are
 carried over to the next fresh one, so the estimator sees each sample once (Sample.gyro_n,
 gyro_sum_raw). A batch that lost samples (the driver reset its FIFO) is "imu_fifo_reset":
@@ -28,15 +31,15 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping, Protocol, Sequence
 from ddrt.core.types import Clock
 from ddrt.runtime.clock import MonotonicClock
 from hal.base import (
-    Hal, HalError, HalInfo, HalInitError, HalIOError, HalTimeoutError, Sample,
+    GyroCaps, Hal, HalError, HalInfo, HalInitError, HalIOError, HalTimeoutError, Sample,
 )
 from hal.bridge import Bridge
-from hal.mpu6050 import Mpu6050, gyro_scale, open_i2c_bus
+from hal.mpu6050 import FifoBatch, Mpu6050, gyro_scale, open_i2c_bus
 
 if TYPE_CHECKING:
     from ddrt.config import Config
 
-__all__ = ["EncoderReader", "Imu", "Motors", "RealHal"]
+__all__ = ["Closeable", "EncoderReader", "EncoderState", "Imu", "Motors", "RealHal"]
 
 _MISSING = object()
 # bridge counters whose growth is reported in Sample.faults, and the name used there
@@ -47,36 +50,68 @@ _WATCHED = (("lost_packets", "lost_packets"), ("crc_errors", "crc_error"),
 
 
 class Imu(Protocol):
-    """A gyro: raw z reading and its configured range. An Mpu6050 also has `register_hold_s`
-    (its output register's hold, half of which is added to the reading's age),
-    `read_temp_c()` (its die temperature, read at `temp_hz`), and with its FIFO on a
-    `fifo_period_s` > 0 and `read_gyro_fifo()` (hal.mpu6050.FifoBatch), read instead."""
+    """A gyro: raw z reading, its configured range, and what else it delivers (`caps`):
+    `read_gyro_fifo()` is called only when caps.fifo_period_s > 0, `read_temp_c()` only when
+    caps.die_temp. It holds no resource of its own (the bus it is on is a closeable)."""
 
     gyro_range_dps: int
-    gyro_delay_s: float  # group delay of its low-pass
     fault_counts: Mapping[str, int]  # what it counted of the faults it saw (status: imu.<name>)
     gyro_part: str  # which part it is, as reports print it (HalInfo.gyro_part)
 
+    @property
+    def caps(self) -> GyroCaps: ...
+
     def read_gyro_z_raw(self) -> int: ...
+    def read_gyro_fifo(self) -> FifoBatch: ...
+    def read_temp_c(self) -> float: ...
+
+
+class EncoderState(Protocol):
+    """One STATE as the link reports it (hal.bridge.BridgeState)."""
+
+    count: int
+    new: bool
+    battery_mv: int
+    count_left: int
+    count_right: int
+
+    @property
+    def hw_estop(self) -> bool: ...
+
+    def count_at(self, t: float) -> int: ...
+    def wheel_counts_at(self, t: float) -> tuple[int, int]: ...
+
+
+class Closeable(Protocol):
+    def close(self) -> None: ...
 
 
 class EncoderReader(Protocol):
-    """The encoder side of the Bridge: `state()` returns an object with `count`, `new`,
-    `resets`, and protocol v2's `battery_mv`, `hw_estop`, `count_left`, `count_right`
-    (hal.bridge.BridgeState), and raises HalTimeoutError when stale. The MCU's facts from its
-    handshake say what those carry: no wheel counts while `wheel_counts_per_rev` is 0, no
-    battery unless `battery_measured`."""
+    """The encoder side of the Bridge: `state()` returns an EncoderState, and raises
+    HalTimeoutError when the stream is older than `state_stale_s`. The MCU's facts from its
+    handshake say what a STATE carries: no wheel counts while `wheel_counts_per_rev` is 0, no
+    battery unless `battery_measured`. `stats`: its fault and traffic counters."""
 
     counts_per_rev: int
     wheel_counts_per_rev: int
     battery_measured: bool
     hw_estop_wired: bool
+    state_stale_s: float
 
-    def state(self) -> Any: ...
+    @property
+    def stats(self) -> Mapping[str, int]: ...
+
+    def state(self) -> EncoderState: ...
     def close(self) -> None: ...
 
 
 class Motors(Protocol):
+    """Two motors. `drive_timeout_s`: their driver's own watchdog (it zeroes them when no
+    command arrived for this long); None when they have none."""
+
+    @property
+    def drive_timeout_s(self) -> float | None: ...
+
     def drive(self, duty_l: float, duty_r: float) -> None: ...
     def stop(self) -> None: ...
     def close(self) -> None: ...
@@ -86,14 +121,17 @@ class RealHal(Hal):
     """`RealHal(imu, bridge, clock=...)`; the bridge also drives the motors unless `motors`
     (e.g. PwmSysfsMotors) is given. `closeables` are closed last (e.g. the SMBus)."""
 
+    _ready = False  # the constructor finished: there are devices to stop and close
+    _last_error: BaseException | None = None  # the I/O error behind the latest missing read
+
     def __init__(self, imu: Imu, bridge: EncoderReader, clock: Clock | None = None, *,
                  motors: Motors | None = None, hold_ticks: int | None = None,
-                 closeables: Sequence[Any] = (), battery_scale: float = 1.0, temp_hz: float = 0.0) -> None:
+                 closeables: Sequence[Closeable] = (), battery_scale: float = 1.0, temp_hz: float = 0.0) -> None:
         self.imu = imu
         self.encoder = bridge
         self.motors: Motors = motors if motors is not None else bridge  # type: ignore[assignment]
         self.clock = clock if clock is not None else MonotonicClock()
-        self.hold_s = hold_bound_s(bridge)
+        self.hold_s = float(bridge.state_stale_s)  # the bridge's own bound: the HAL and it agree on what is stale
         self.hold_ticks = hold_ticks  # None: hold while the value is within hold_s (derived)
         self._closeables = list(closeables)
         if int(bridge.counts_per_rev) <= 0 and int(bridge.wheel_counts_per_rev) <= 0:
@@ -102,16 +140,15 @@ class RealHal(Hal):
                                "in its HELLO_REPLY) and no drive-wheel encoders: ddrt's estimator needs one "
                                "of them to measure distance")
         lsb, full = gyro_scale(imu.gyro_range_dps)
-        fifo_s = float(getattr(imu, "fifo_period_s", 0.0))  # > 0: read through its FIFO
-        hold_s = 0.0 if fifo_s > 0.0 else 0.5 * float(getattr(imu, "register_hold_s", 0.0))
+        caps = imu.caps
         self.info = HalInfo(encoder_counts_per_rev=int(bridge.counts_per_rev),
                             gyro_lsb_per_rad_s=lsb, gyro_full_scale_rad_s=full,
-                            gyro_delay_s=float(imu.gyro_delay_s) + hold_s, gyro_fifo_period_s=fifo_s,
-                            drive_timeout_s=drive_timeout_s(self.motors),
+                            gyro_delay_s=float(caps.age_s), gyro_fifo_period_s=float(caps.fifo_period_s),
+                            drive_timeout_s=self.motors.drive_timeout_s,
                             wheel_counts_per_rev=int(bridge.wheel_counts_per_rev),
                             battery_measured=bool(bridge.battery_measured),
                             hw_estop_wired=bool(bridge.hw_estop_wired),
-                            gyro_temp_hz=float(temp_hz) if hasattr(imu, "read_temp_c") else 0.0,
+                            gyro_temp_hz=float(temp_hz) if caps.die_temp else 0.0,
                             gyro_part=imu.gyro_part)
         self._temp_next_t = -math.inf  # clock time of the next TEMP_OUT read
         # V per mV the MCU reports: its divider's calibration against a multimeter
@@ -127,13 +164,13 @@ class RealHal(Hal):
         self._enc_missing = 0
         self._gyro_missing = 0
         self._enc_new_t = self._gyro_new_t = 0.0  # clock time of each device's newest value
-        self._last_error: BaseException | None = None
         self._bridge_seen = self._bridge_stats()
         self._counters = {
             "reads": 0, "stale_reads": 0, "encoder_retries": 0, "encoder_holds": 0,
             "imu_retries": 0, "imu_holds": 0, "timeouts": 0, "write_errors": 0,
             "stop_errors": 0, "close_errors": 0, "temp_errors": 0, "imu_fifo_resets": 0,
         }
+        self._ready = True
 
     @property
     def hold_ticks(self) -> int | None:
@@ -176,7 +213,7 @@ class RealHal(Hal):
         nxt = self._temp_next_t + period
         self._temp_next_t = nxt if nxt > t else t + period  # no burst to catch up
         try:
-            return float(self.imu.read_temp_c())  # type: ignore[attr-defined]
+            return float(self.imu.read_temp_c())
         except HalError:
             self._counters["temp_errors"] += 1
             return math.nan
@@ -195,17 +232,17 @@ class RealHal(Hal):
             self._counters["stop_errors"] += 1  # the device is gone; its watchdog stops it
 
     def _close(self) -> None:
-        if not hasattr(self, "_counters"):
+        if not self._ready:
             return  # the constructor failed before any device was taken over
         self.stop()
         done: list[int] = []
-        for obj in (self.motors, self.encoder, self.imu, *self._closeables):
-            close = getattr(obj, "close", None)
-            if close is None or id(obj) in done:
+        devices: tuple[Closeable, ...] = (self.motors, self.encoder, *self._closeables)
+        for obj in devices:  # the gyro holds nothing: its bus is a closeable
+            if id(obj) in done:
                 continue
             done.append(id(obj))
             try:
-                close()
+                obj.close()
             except Exception:  # noqa: BLE001 - release everything else regardless
                 self._counters["close_errors"] += 1
 
@@ -222,8 +259,7 @@ class RealHal(Hal):
     # -- internals ------------------------------------------------------------------------
 
     def _bridge_stats(self) -> dict[str, int]:
-        stats = getattr(self.encoder, "stats", None)
-        return dict(stats) if isinstance(stats, Mapping) else {}
+        return dict(self.encoder.stats)
 
     def _retry_once(self, fn: Callable[[], Any], dev: str, faults: list[str]) -> Any:
         """Call fn; on HalIOError (not a timeout: that bound is already spent) call it again.
@@ -255,7 +291,7 @@ class RealHal(Hal):
             bound = f"{age * 1e3:.1f} ms, beyond the {self.hold_s * 1e3:.1f} ms stale bound"
         if over or not have_last:
             self._counters["timeouts"] += 1
-            cause = getattr(self, "_last_error", None)
+            cause = self._last_error
             last = f"; last error: {cause}" if cause is not None else ""
             raise HalTimeoutError(f"{dev}: no new data for {missing} tick(s) ({bound}){last}") from cause
         self._counters[f"{dev}_holds"] += 1
@@ -278,14 +314,13 @@ class RealHal(Hal):
         self._enc_missing = 0
         self._enc_new_t = self.clock.now()
         # the count as of this read: the MCU streams on its own clock, so the newest STATE's
-        # age varies from tick to tick (BridgeState.count_at; devices without it report as is)
-        count_at = getattr(st, "count_at", None)
-        count = count_at(self._read_t) if count_at is not None else st.count
+        # age varies from tick to tick (BridgeState.count_at)
+        count = st.count_at(self._read_t)
         self._count = count
         self._note_v2(st, self._read_t)
         return count, True
 
-    def _note_v2(self, st: Any, t: float | None) -> None:
+    def _note_v2(self, st: EncoderState, t: float | None) -> None:
         """Protocol v2's parts of a STATE: the supply (V; NaN when not measured), the
         hardware estop input, the drive-wheel counts (at the read time `t` when new)."""
         self._battery_v = st.battery_mv * self._v_per_mv  # NaN * anything: not measured
@@ -297,8 +332,7 @@ class RealHal(Hal):
         self._last_error = None
         fifo = self.info.gyro_fifo_period_s > 0.0
         try:
-            raw = self._retry_once(self.imu.read_gyro_fifo if fifo else self.imu.read_gyro_z_raw,  # type: ignore[attr-defined]
-                                   "imu", faults)
+            raw = self._retry_once(self.imu.read_gyro_fifo if fifo else self.imu.read_gyro_z_raw, "imu", faults)
         except HalTimeoutError as e:
             raw = _MISSING
             self._last_error = e
@@ -389,19 +423,3 @@ class RealHal(Hal):
                     pass
             raise
 
-
-def hold_bound_s(bridge: Any) -> float:
-    """How old a held value may get: the bridge's own stale bound on its STATE stream
-    (`hal.bridge.state_stale_s`), so the HAL and the bridge agree on what is stale."""
-    stale = getattr(bridge, "state_stale_s", None)
-    if isinstance(stale, (int, float)) and not isinstance(stale, bool) and 0.0 < stale < float("inf"):
-        return float(stale)
-    return 0.05  # the bridge's default
-
-
-def drive_timeout_s(motors: Any) -> float | None:
-    """The motor driver's own watchdog (s): the bridge's DRIVE timeout; None without one."""
-    ms = getattr(motors, "drive_timeout_ms", None)
-    if isinstance(ms, (int, float)) and not isinstance(ms, bool) and ms > 0:
-        return ms / 1000.0
-    return None

@@ -20,17 +20,22 @@ Uncertainty and pose fixes (docs/estimation.md): every step of the dead reckonin
 to the map frame (ddrt/core/pose_fix.py), whose history and covariances
 (ddrt/core/uncertainty.py) give the pose's 1-sigma and let a late fix be fused.
 
-Temperature: with TEMP_OUT read (HalInfo.gyro_temp_hz > 0) the bias follows the die's
-temperature between stops and is re-learnt at every stop, which also corrects the heading
-turned since the last one (ddrt/core/gyro_bias.py); without it, the bias is re-learnt at stops only.
-
-FIFO (HalInfo.gyro_fifo_period_s > 0): each fresh sample's batch is fused at its mean rate and
-the heading turns over the batch's span, so every gyro sample is integrated once
-(ddrt/core/gyro_fifo.py, `self.fifo`; None without it).
-
-Drive-wheel encoders (HalInfo.wheel_counts_per_rev > 0): ddrt/core/wheel_odometry.py gives the
-distance when there is no front encoder (encoder_counts_per_rev 0), tracks the gyro's bias on
-the move and flags wheel slip; the hooks here are `self.wheels` (None without them).
+Sensors: each is one fusion step (ddrt/core/fusion.py), composed here once from what HalInfo
+says the robot delivers; a sensor that is not there is a step that does nothing, so every tick
+runs the same calls. A fresh sample goes, in order: the drive wheels take their counts, the
+front encoder fuses the distance, the gyro's step the yaw rate, the drive wheels check the turn
+and the bias and (without a front encoder) fuse the distance; then, every tick, the temperature
+step moves the bias and the gyro's step says how far the heading turned.
+- The distance: the front encoder (ddrt/core/front_encoder.py), or the drive wheels' without one.
+- The yaw rate: the register read at the tick (ddrt/core/gyro_register.py), or through the FIFO
+  (HalInfo.gyro_fifo_period_s > 0, ddrt/core/gyro_fifo.py): each fresh sample's batch is fused
+  at its mean rate and the heading turns over its span, so every gyro sample is integrated once.
+- Temperature (HalInfo.gyro_temp_hz > 0): the bias follows the die's temperature between stops
+  and is re-learnt at every stop, which also corrects the heading turned since the last one
+  (ddrt/core/gyro_bias.py); without it, the bias is re-learnt at stops only.
+- Drive-wheel encoders (HalInfo.wheel_counts_per_rev > 0, ddrt/core/wheel_odometry.py): the
+  distance when there is no front encoder, the gyro's bias on the move, and wheel slip.
+`fifo`, `wheels` and `gyro_bias` are those steps' state for reports (None without the sensor).
 """
 
 from __future__ import annotations
@@ -39,16 +44,18 @@ import math
 from dataclasses import dataclass
 
 from ddrt.config import EstimatorConfig
-from ddrt.core.gyro_bias import CalibrationError, GyroBias, calibrate_gyro
-from ddrt.core.gyro_fifo import GyroFifo, mean_rate
+from ddrt.core.front_encoder import FrontEncoder, NoFront
+from ddrt.core.fusion import BiasStep, DistanceStep, RateStep
+from ddrt.core.gyro_bias import CalibrationError, GyroBias, StopsOnly, TemperatureBias, calibrate_gyro
+from ddrt.core.gyro_fifo import FifoRate, GyroFifo, mean_rate
+from ddrt.core.gyro_register import GyroRegister
 from ddrt.core.kalman import TravelFilter, YawFilter
 from ddrt.core.model import Dynamics
 from ddrt.core.motor import Motor
 from ddrt.core.pose_fix import MapFrame, PoseFix
 from ddrt.core.uncertainty import ErrorModel, Tracker
 from ddrt.core.types import HalInfo, Sample
-from ddrt.core.wheel_odometry import WheelOdometry, error_model
-from ddrt.core.wrap import wrap_i32
+from ddrt.core.wheel_odometry import NoWheels, WheelOdometry, error_model
 
 __all__ = ["CalibrationError", "Estimator", "EstimatorHealth", "calibrate_gyro"]  # the first and last from gyro_bias.py
 
@@ -71,6 +78,12 @@ class EstimatorHealth:
     longest_gap_s: float = 0.0
     wheel_slips: int = 0  # times the drive wheels began to slip (ddrt/core/wheel_odometry.py)
     fault: str = ""
+
+    def count_slip(self) -> None:
+        self.wheel_slips += 1
+
+    def count_resync(self) -> None:
+        self.resyncs += 1
 
     def counters(self) -> dict[str, float | int]:
         return {"gyro_rejects": self.gyro_rejects, "encoder_rejects": self.encoder_rejects,
@@ -98,32 +111,32 @@ class Estimator:
         # Likewise for yaw: `yaw` is fed back, `heading` (trusting the gyro) is integrated.
         self.yaw = YawFilter(0.0, 0.0, 0.0)
         self.heading = YawFilter(0.0, 0.0, 0.0)
-        self.gyro_bias: GyroBias | None = None  # the temperature's bias model (TEMP_OUT read)
-        self._rest, self._rest_z = False, math.nan  # at rest at the last fresh gyro reading, and its rate
-        self.fifo = GyroFifo(info.gyro_fifo_period_s) if info.gyro_fifo_period_s > 0.0 else None
-        self._gz, self._gspan = math.nan, 0.0  # this tick's FIFO batch: mean rate (rad/s), span (s)
-        self.wheels: WheelOdometry | None = None
+        self.at_rest, self.rest_rate = False, math.nan  # at rest at the last fresh gyro reading, and its rate
+        # The sensors' fusion steps (module doc), from what the HAL says it delivers.
+        self._front: FrontEncoder | NoFront = FrontEncoder() if info.encoder_counts_per_rev > 0 else NoFront()
+        self._gyro: RateStep = (FifoRate(info.gyro_fifo_period_s) if info.gyro_fifo_period_s > 0.0
+                                else GyroRegister())
+        self._temperature: BiasStep = TemperatureBias(period_s, cfg) if info.gyro_temp_hz > 0.0 else StopsOnly()
+        counted = info.wheel_counts_per_rev > 0
+        self.wheels = (WheelOdometry(info.wheel_counts_per_rev, period_s, info.encoder_counts_per_rev <= 0)
+                       if counted else None)
+        self._wheels: WheelOdometry | NoWheels = self.wheels if self.wheels is not None else NoWheels()
+        self._distance: DistanceStep = self._front if info.encoder_counts_per_rev > 0 else self._wheels
+        self.fifo: GyroFifo | None = self._gyro.fifo
         self.wheel_slip = False  # the drive wheels slip this tick (telemetry)
         self._configure(cfg, r_3)
-        if info.wheel_counts_per_rev > 0:
-            self.wheels = WheelOdometry(self, info.wheel_counts_per_rev)
         self.t_est = 0.0  # the time the estimate is for (the loop's clock)
         self.track = self._tracker(cfg)
         self.frame = MapFrame(cfg.fix_gate_chi2)
-        self._last_gyro_z: float | None = None
-        self._last_gyro_t = 0.0
-        self._travel_counts = 0  # unwrapped encoder counts since reset (or the last re-base)
+        self._last_gyro_z: float | None = None  # the previous rate fused (the lead's)
         self.health = EstimatorHealth()
         self.x = self.y = self.theta = 0.0
         self.dt = period_s  # the time step of the last update (what the reference advances by)
         self._last_t: float | None = None
-        self._last_count = 0
         self._enc_rejects_row = 0
         self._gyro_rejects_row = 0
-        self._last_raw_gyro: int | None = None
-        self._same_gyro = 0
         self._count_still_s = 0.0  # time without counts while the filter says we move
-        self._still_ticks = 0  # ticks in a row without a single encoder count
+        self._still_ticks = 0  # fresh samples in a row without a count of what gives the distance
         # Gaps: the newest fresh sample's time, how long the estimate has been blind, what
         # dead reckoning added to the pose meanwhile, and the gap that ended this update.
         self._last_fresh_t = 0.0
@@ -148,16 +161,14 @@ class Estimator:
         # The filters' noise is per step; scaled so that their bandwidth, i.e. how much they
         # trust the model, is the same at every loop rate (the configured values are per 5 ms).
         k = math.sqrt(NOISE_STEP_S / period_s)
-        enc_var = self.metres_per_count * self.metres_per_count / 12.0
         for filt, noise in ((self.travel, cfg.odometry_accel_noise), (self.speed, cfg.accel_noise)):
             filt.accel_var = (k * noise) ** 2
-            filt.meas_var = enc_var
         gyro_var = (cfg.gyro_noise_dps * DEG) ** 2
         for filt, noise in ((self.yaw, cfg.yaw_accel_noise), (self.heading, cfg.odometry_yaw_accel_noise)):
             filt.yaw_accel_var = (k * noise) ** 2
             filt.bias_walk_var = cfg.gyro_bias_walk * cfg.gyro_bias_walk
             filt.meas_var = gyro_var
-        self._gyro_var = gyro_var
+        self.gyro_var = gyro_var  # (rad/s)^2: one gyro reading's noise
         # The gyro's low-pass makes it lag the encoder; a heading that lags the distance
         # bends the dead-reckoned path. The lead z + tau dz/dt undoes a lag tau.
         self.gyro_lead = info.gyro_delay_s if cfg.gyro_delay_s is None else cfg.gyro_delay_s
@@ -165,13 +176,11 @@ class Estimator:
         # How long the estimate may go without a fresh sample while moving: ten ticks, but
         # never less than max_gap_s, so a fast loop does not stop on a host's hiccup.
         self.max_gap = max(10.0 * period_s, cfg.max_gap_s)
-        if info.gyro_temp_hz > 0.0:
-            args = (cfg.gyro_bias_per_c_dps, cfg.gyro_bias_walk, cfg.gate_sigma, cfg.calibration_max_std_dps)
-            if self.gyro_bias is None:
-                self.gyro_bias = GyroBias(period_s, *args)
-            self.gyro_bias.configure(*args)
-        if self.wheels is not None:
-            self.wheels.configure(self)
+        self._front.configure(self.metres_per_count)
+        self._temperature.configure(cfg)
+        self._wheels.configure(self)
+        # The travel filters' position noise: the quantisation of what gives the distance.
+        self.travel.meas_var = self.speed.meas_var = self._distance.position_var
 
     def _tracker(self, cfg: EstimatorConfig) -> Tracker:
         """The pose's uncertainty and history at this config (ddrt/core/uncertainty.py)."""
@@ -192,7 +201,7 @@ class Estimator:
         """
         old_lsb = self.rad_s_per_lsb
         old_cfg = self.cfg
-        travelled = self._z()
+        travelled = self._distance.z
         self.dyn = dyn
         self.motor = motor
         old_model = self.track.model
@@ -200,9 +209,8 @@ class Estimator:
         self._retrack(old_cfg, cfg, old_model)
         for f in (self.travel, self.speed):
             f.p -= travelled
-        self._travel_counts = 0
-        if self.wheels is not None:
-            self.wheels.z = 0.0
+        self._front.rebase()
+        self._wheels.rebase()
         ratio = self.rad_s_per_lsb / old_lsb
         if ratio != 1.0:
             for f in (self.yaw, self.heading):
@@ -210,8 +218,7 @@ class Estimator:
                 f.b *= ratio
             if self._last_gyro_z is not None:
                 self._last_gyro_z *= ratio
-            if self.gyro_bias is not None:
-                self.gyro_bias.rescale(ratio)
+            self._temperature.rescale(ratio)
 
     def _retrack(self, old: EstimatorConfig, cfg: EstimatorConfig, old_model: ErrorModel) -> None:
         """A reload's uncertainty figures: the scale errors' rows rescaled (so the covariance
@@ -244,21 +251,17 @@ class Estimator:
         """Start from a known pose at rest, with a calibrated gyro bias (rad/s)."""
         self.x, self.y, self.theta = pose
         self._last_t = sample.t
-        self._last_count = sample.encoder_count
-        self._travel_counts = 0
+        self._front.reset(sample)
         for f in (self.travel, self.speed):
             f.p = 0.0
             f.v = 0.0
         for f in (self.yaw, self.heading):
             f.w = 0.0
             f.b = bias
-        self._last_raw_gyro = sample.gyro_z_raw
         self._last_gyro_z = None
-        if self.wheels is not None:
-            self.wheels.reset(sample)
+        self._gyro.reset(sample)
+        self._wheels.reset(sample)
         self._last_fresh_t = sample.t
-        if self.fifo is not None:
-            self.fifo.restart(sample.t)
         self._blind_ticks = 0
         self._blind_travel = 0.0
         self._blind_moving = False
@@ -268,10 +271,7 @@ class Estimator:
         self.t_est = sample.t
         self.track.reset(sample.t, pose)
         self.frame.reset(pose, anchored=False)  # nothing says where map is yet
-        if self.gyro_bias is not None:  # a new calibration: the line starts again from it
-            c = self.cfg
-            self.gyro_bias = GyroBias(self.period, c.gyro_bias_per_c_dps, c.gyro_bias_walk, c.gate_sigma,
-                                      c.calibration_max_std_dps)
+        self._temperature.reset(self.cfg)  # a new calibration: a temperature's line starts again from it
 
     def set_pose(self, pose: tuple[float, float, float], cov: list[float] | None = None,
                  anchored: bool = True) -> None:
@@ -307,6 +307,15 @@ class Estimator:
     @property
     def bias(self) -> float:
         return self.yaw.b
+
+    @property
+    def gyro_bias(self) -> GyroBias | None:
+        """The die temperature's bias line (ddrt/core/gyro_bias.py); None when TEMP_OUT is not read."""
+        return self._temperature.line
+
+    def set_dynamics(self, dyn: Dynamics) -> None:
+        """Predict with `dyn` from the next tick on (an adapted model); nothing else changes."""
+        self.dyn = dyn
 
     # ------------------------------------------------------------------ per tick
 
@@ -363,31 +372,23 @@ class Estimator:
         self.yaw.predict(dt, alpha)
         self.heading.predict(dt, alpha)
 
-        fifo = self.fifo
-        if fresh:
-            if fifo is not None:  # the batch _fuse_gyro and _lead take (nothing new: span 0)
-                n = sample.gyro_n
-                self._gspan = fifo.span(sample.t, n) if n > 0 else 0.0
-                self._gz = sample.gyro_sum_raw / n * self.rad_s_per_lsb if n > 0 and not fifo.bad else math.nan
-            if self.wheels is None:
-                self._fuse_encoder(sample.encoder_count, dt)
-                self._fuse_gyro(sample.gyro_z_raw, sample.t, commanded_still)
-            else:
-                self.wheels.fuse(self, sample, dt, commanded_still)
+        if fresh:  # the sensors' fusion steps, in the order the module doc gives
+            wheels, front = self._wheels, self._front
+            wheels.take(sample)
+            front.fuse(self, sample, dt)
+            self._still_ticks = 0 if self._distance.moved else self._still_ticks + 1
+            self._gyro.fuse(self, sample, commanded_still)
+            self.wheel_slip = wheels.fuse(self, sample, dt, commanded_still, front.ds)
 
         # Dead reckoning of A with the odometry filters' velocities (midpoint heading), plus
         # the heading's correction when a stop re-learnt the bias (temperature model only).
-        dth = 0.0 if self.gyro_bias is None else self._temperature_bias(sample, fresh, dt)
+        dth = self._temperature.fuse(self, sample, fresh, dt)
         v = self.travel.v
         w = self.heading.w
         if dth:
             self.theta += dth
-        if fifo is None:
-            turn = w * dt
-            half = self.theta + 0.5 * w * dt
-        else:
-            turn = fifo.turn(w, dt, fresh, self._gspan if fresh else 0.0)
-            half = self.theta + 0.5 * turn
+        turn = self._gyro.turn(w, dt, fresh)
+        half = self.theta + 0.5 * turn
         ds = v * dt
         dx = ds * math.cos(half)
         dy = ds * math.sin(half)
@@ -408,18 +409,6 @@ class Estimator:
         else:
             self._blind_travel += v * dt
 
-    def _temperature_bias(self, sample: Sample, fresh: bool, dt: float) -> float:
-        """ddrt/core/gyro_bias.py's tick: the bias follows the temperature, a stop's pair
-        re-learns it; returns the heading's correction (rad)."""
-        gb = self.gyro_bias
-        assert gb is not None
-        db, dth = gb.tick(sample.t if fresh else self.t_est, dt, sample.gyro_temp_c, self._rest,
-                          self._rest_z if fresh else math.nan, self.heading.b)
-        if db:
-            self.yaw.b += db
-            self.heading.b += db
-        return dth
-
     def _reanchor(self, sample: Sample, dt: float, commanded_still: bool) -> None:
         """The first fresh sample after a gap beyond max_gap: re-sync instead of fusing.
 
@@ -432,16 +421,11 @@ class Estimator:
         """
         health = self.health
         gap = sample.t - self._last_fresh_t
-        delta = wrap_i32(sample.encoder_count - self._last_count)
-        self._last_count = sample.encoder_count
-        self._travel_counts += delta
-        measured = delta * self.metres_per_count
-        if self.wheels is not None:  # their windows restart; without a front encoder, their distance
-            ds = self.wheels.catch_up(sample)
-            measured = ds if self.wheels.gives_distance else measured
+        self._front.catch_up(sample)
+        self._wheels.catch_up(sample)  # their windows restart
+        measured = self._distance.ds
         w_now = mean_rate(sample, self.rad_s_per_lsb) - self.heading.b
-        if self.fifo is not None:  # this batch's samples are the gap's: counted from here on
-            self.fifo.restart(sample.t)
+        self._gyro.restart(sample.t)  # a FIFO batch's samples are the gap's: counted from here on
         stalled = self._blind_ticks == 0  # nothing was dead-reckoned through this gap
         # The heading turns through the time dead reckoning did not cover (all of a stall,
         # the last interval otherwise) at the mean of the rates either side of it.
@@ -456,7 +440,7 @@ class Estimator:
         self.theta += turn
         self.t_est = max(self.t_est, sample.t)
         self.frame.step(self.track, self.t_est, gap, extra, turn, self.x, self.y, self.theta)
-        z = self._z()
+        z = self._distance.z
         v_new = measured / gap if stalled and gap > 0.0 else self.travel.v
         for f in (self.travel, self.speed):
             f.p = z
@@ -469,8 +453,7 @@ class Estimator:
             f.p00 = max(f.p00, _RESYNC_W_VAR)
             f.p01 = 0.0
         self._last_gyro_z = None  # no lead across the gap
-        moved = delta != 0 if self.wheels is None or not self.wheels.gives_distance else self.wheels.moved
-        self._still_ticks = 0 if moved else 1
+        self._still_ticks = 0 if self._distance.moved else 1
         self._count_still_s = 0.0
         self._enc_rejects_row = self._gyro_rejects_row = 0
         self._last_t = sample.t
@@ -491,22 +474,15 @@ class Estimator:
         if abs(raw) >= self.gyro_full_scale * 0.999:
             health.fault = "gyro saturated"
 
-    def _z(self) -> float:
-        """The distance measured since the reset (or the last re-base): the front encoder's,
-        or the drive wheels' when there is none."""
-        if self.wheels is not None and self.wheels.gives_distance:
-            return self.wheels.z
-        return self._travel_counts * self.metres_per_count
+    # ------------------------------------------------------------------ for the fusion steps
 
-    def _fuse_encoder(self, count: int, dt: float) -> None:
-        delta = wrap_i32(count - self._last_count)
-        self._last_count = count
-        self._travel_counts += delta
-        self._still_ticks = self._still_ticks + 1 if delta == 0 else 0
-        self._fuse_travel(delta != 0, self._travel_counts * self.metres_per_count, dt)
+    def set_fault(self, text: str) -> None:
+        """A sensor's step saw a fault that must latch (the loop stops the robot)."""
+        self.health.fault = text
 
-    def _fuse_travel(self, moved: bool, z: float, dt: float) -> None:
-        """Fuse the distance `z` (m since the reset); `moved`: a count came this tick."""
+    def fuse_travel(self, moved: bool, z: float, dt: float) -> None:
+        """Fuse the distance `z` (m since the reset) into the travel filters; `moved`: a count
+        came this tick (no count for encoder_stuck_s while the filter says it moves: a fault)."""
         health = self.health
         if not moved and abs(self.speed.v) > 0.05:
             self._count_still_s += dt
@@ -520,47 +496,51 @@ class Estimator:
             health.encoder_rejects += 1
         self._enc_rejects_row = row
 
-    def _fuse_gyro(self, raw: int, t: float, commanded_still: bool) -> None:
-        """Fuse the gyro: `raw` the newest reading, or with a FIFO its batch (self._gz, self._gspan)."""
-        fifo = self.fifo is not None
-        if fifo and self._gz != self._gz:
-            self._rest_z = math.nan  # no new sample this tick (or junk)
-            return
-        health = self.health
-        if raw == self._last_raw_gyro:
-            self._same_gyro += 1
-            if self._same_gyro >= self.cfg.stuck_gyro_ticks:
-                health.fault = f"gyro stuck at raw {raw} for {self._same_gyro} samples"
-        else:
-            self._same_gyro = 0
-        self._last_raw_gyro = raw
-        z = self._gz if fifo else raw * self.rad_s_per_lsb
-        if abs(raw * self.rad_s_per_lsb) >= self.gyro_full_scale * 0.999:
-            health.fault = "gyro saturated"
-        self._rest, self._rest_z = commanded_still and self._still_ticks >= 20, z
-        if self._rest:  # ~0.1 s without a count: at rest
+    def fuse_rate(self, z: float, lead_dt: float, commanded_still: bool) -> None:
+        """Fuse a gyro rate `z` (rad/s, bias included) into the yaw filters, `lead_dt` (s) after
+        the previous one. At rest (commanded still, and no count for ~0.1 s) the filters also
+        learn that the robot does not turn, which is how the bias is learnt at a stop."""
+        self.at_rest, self.rest_rate = commanded_still and self._still_ticks >= 20, z
+        if self.at_rest:
             self.yaw.update_at_rest(1e-10)
             self.heading.update_at_rest(1e-10)
             track = self.track
             if self.heading.p11 < track.at_rest_var:
                 track.at_rest_var = self.heading.p11  # the bias is learnt: its error shrinks
-        z = self._lead(z, t)
+        z = self._lead(z, lead_dt)
         row = self._fuse_pair(self.heading, self.yaw, z, self._gyro_rejects_row)
         if row > self._gyro_rejects_row:
-            health.gyro_rejects += 1
+            self.health.gyro_rejects += 1
         self._gyro_rejects_row = row
 
-    def _lead(self, z: float, t: float) -> float:
+    def fuse_no_rate(self) -> None:
+        """A fresh sample that brought no gyro sample (an empty or junk FIFO batch)."""
+        self.rest_rate = math.nan
+
+    def fuse_bias(self, z: float, var: float) -> None:
+        """Fuse a measurement `z` of the gyro's bias itself (rad/s, variance `var`) into both yaw filters."""
+        self.yaw.update_bias(z, var)
+        self.heading.update_bias(z, var)
+
+    def widen_bias(self, var: float) -> None:
+        """Widen both yaw filters' bias variance by `var` ((rad/s)^2)."""
+        self.yaw.widen_bias(var)
+        self.heading.widen_bias(var)
+
+    def shift_bias(self, db: float) -> None:
+        """Move both yaw filters' bias by `db` (rad/s)."""
+        self.yaw.shift_bias(db)
+        self.heading.shift_bias(db)
+
+    def _lead(self, z: float, dt: float) -> float:
         """Undo the gyro's lag: z + tau (z - z_prev) / dt, with the variance that implies."""
         prev = self._last_gyro_z
-        dt = t - self._last_gyro_t if self.fifo is None else self._gspan  # the lead telescopes over spans
         self._last_gyro_z = z
-        self._last_gyro_t = t
         if prev is None or dt <= 0.0 or self.gyro_lead <= 0.0:
-            self.yaw.meas_var = self.heading.meas_var = self._gyro_var
+            self.yaw.meas_var = self.heading.meas_var = self.gyro_var
             return z
         c = self.gyro_lead / dt
-        self.yaw.meas_var = self.heading.meas_var = self._gyro_var * ((1.0 + c) * (1.0 + c) + c * c)
+        self.yaw.meas_var = self.heading.meas_var = self.gyro_var * ((1.0 + c) * (1.0 + c) + c * c)
         return z + c * (z - prev)
 
     def _fuse_pair(self, sharp: TravelFilter | YawFilter, smooth: TravelFilter | YawFilter, z: float,

@@ -19,13 +19,23 @@ integrated with the bias in use then (`b_used`), and the line learnt now, with b
 linearly in time between its values at the two pairs (the smoothed random walk), says what the
 bias was at every tick of the way. The heading moves by -(integral of (b_smoothed - b_used) dt),
 which four running sums give without a history.
+
+`TemperatureBias` is the estimator's fusion step for the die temperature's channel
+(Sample.gyro_temp_c, read when HalInfo.gyro_temp_hz > 0); `StopsOnly` the step without it, where
+the bias is re-learnt at stops only (by the yaw filters themselves).
 """
 
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
+from ddrt.config import EstimatorConfig
+from ddrt.core.types import Sample
 from ddrt.errors import DdrtError
+
+if TYPE_CHECKING:
+    from ddrt.core.estimator import Estimator
 
 DEG = math.pi / 180.0
 SLOPE_PRIOR_DPS_PER_C = 0.2  # 1 sigma of an unknown slope (deg/s per degC; the MPU-6050's +-20 deg/s over 125 degC is 0.16)
@@ -63,7 +73,6 @@ class GyroBias:
     def __init__(self, period_s: float, bias_per_c_dps: float | None, bias_walk: float, gate_sigma: float,
                  max_std_dps: float) -> None:
         self.period = period_s
-        self.configure(bias_per_c_dps, bias_walk, gate_sigma, max_std_dps)
         self.t_ref = self.temp = math.nan  # not started: no temperature read yet
         self.b0 = self.k = 0.0
         self.p00 = self.p01 = self.p11 = 0.0
@@ -73,13 +82,17 @@ class GyroBias:
         self.m1 = self.mt = self.mtemp = self.mb = 0.0  # the stretch since the last pair: sums of dt, t dt, T dt, b dt
         self.pairs = self.resyncs = self.dropped = 0
         self.last_correction = 0.0  # rad: the heading correction of the last pair
+        self._tune(bias_per_c_dps, bias_walk, gate_sigma, max_std_dps)  # the slope is taken at the start
 
     def configure(self, bias_per_c_dps: float | None, bias_walk: float, gate_sigma: float,
                   max_std_dps: float) -> None:
         """A new tuning (a reload): a commissioned slope replaces the learnt one."""
-        self.fixed_k = None if bias_per_c_dps is None else bias_per_c_dps * DEG
-        if self.fixed_k is not None and hasattr(self, "k"):
+        self._tune(bias_per_c_dps, bias_walk, gate_sigma, max_std_dps)
+        if self.fixed_k is not None:
             self.k, self.p01, self.p11 = self.fixed_k, 0.0, 0.0
+
+    def _tune(self, bias_per_c_dps: float | None, bias_walk: float, gate_sigma: float, max_std_dps: float) -> None:
+        self.fixed_k = None if bias_per_c_dps is None else bias_per_c_dps * DEG
         self.b0_walk_var = bias_walk * bias_walk
         self.gate2 = gate_sigma * gate_sigma
         self.max_std = max_std_dps * DEG
@@ -203,3 +216,57 @@ class GyroBias:
         """For status: pairs fused, re-synced and dropped; the slope (deg/s per degC); the last correction (deg)."""
         return {"bias_pairs": self.pairs, "bias_resyncs": self.resyncs, "bias_dropped": self.dropped,
                 "bias_per_c_dps": self.k / DEG, "bias_correction_deg": self.last_correction / DEG}
+
+
+def _line(period_s: float, cfg: EstimatorConfig) -> GyroBias:
+    return GyroBias(period_s, cfg.gyro_bias_per_c_dps, cfg.gyro_bias_walk, cfg.gate_sigma, cfg.calibration_max_std_dps)
+
+
+class TemperatureBias:
+    """The fusion step of the die temperature (module doc): each tick the line's change to the
+    bias goes into both yaw filters (Estimator.shift_bias), and a stop's pair returns the
+    heading's correction."""
+
+    __slots__ = ("period", "line")
+
+    def __init__(self, period_s: float, cfg: EstimatorConfig) -> None:
+        self.period = period_s
+        self.line: GyroBias = _line(period_s, cfg)
+
+    def configure(self, cfg: EstimatorConfig) -> None:
+        self.line.configure(cfg.gyro_bias_per_c_dps, cfg.gyro_bias_walk, cfg.gate_sigma, cfg.calibration_max_std_dps)
+
+    def reset(self, cfg: EstimatorConfig) -> None:
+        """A new calibration: the line starts again from it."""
+        self.line = _line(self.period, cfg)
+
+    def rescale(self, ratio: float) -> None:
+        self.line.rescale(ratio)
+
+    def fuse(self, est: "Estimator", sample: Sample, fresh: bool, dt: float) -> float:
+        """`fresh`: the sample is new (its time and its rest reading count); returns the heading's
+        correction (rad), 0.0 on most ticks."""
+        db, dth = self.line.tick(sample.t if fresh else est.t_est, dt, sample.gyro_temp_c, est.at_rest,
+                                 est.rest_rate if fresh else math.nan, est.heading.b)
+        if db:
+            est.shift_bias(db)
+        return dth
+
+
+class StopsOnly:
+    """No die temperature: the bias is re-learnt at stops only (the yaw filters at rest)."""
+
+    __slots__ = ()
+    line: GyroBias | None = None
+
+    def configure(self, cfg: EstimatorConfig) -> None:
+        pass
+
+    def reset(self, cfg: EstimatorConfig) -> None:
+        pass
+
+    def rescale(self, ratio: float) -> None:
+        pass
+
+    def fuse(self, est: "Estimator", sample: Sample, fresh: bool, dt: float) -> float:
+        return 0.0

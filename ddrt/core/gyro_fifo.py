@@ -22,11 +22,20 @@ dead-reckoned like a loss's.
 Ticks whose sample is not fresh dead-reckon the heading from the last rate (`turn`); the batch that
 follows brings their samples too (the HAL carries them over), so what they added is taken
 back then (`blind`). A fresh tick with no new sample turns nothing: the next batch covers it.
+
+`FifoRate` is the estimator's fusion step for a gyro read this way: each fresh sample's batch is
+fused at its mean rate, its span the lead's interval, and the heading turns over the span.
 """
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+from ddrt.core.gyro_register import RawWatch
 from ddrt.core.types import Sample
+
+if TYPE_CHECKING:
+    from ddrt.core.estimator import Estimator
 
 LEARN_S = 2.0  # loop time of batches before the learnt period replaces the nominal one
 MAX_OFF = 0.05  # the learnt period is kept within this fraction of the nominal one
@@ -141,3 +150,37 @@ class GyroFifo:
     def counters(self) -> dict[str, float | int]:
         """For status: the learnt sample period (ms) and the batches that lost samples."""
         return {"gyro_period_ms": self.period * 1e3, "gyro_fifo_losses": self.losses, "gyro_fifo_rejects": self.rejects}
+
+
+class FifoRate:
+    """The fusion step of a gyro read through its FIFO (module doc): `span` is the time the
+    latest fresh sample's batch covers (0: it brought no sample)."""
+
+    __slots__ = ("fifo", "watch", "span")
+
+    def __init__(self, nominal_period_s: float) -> None:
+        self.fifo = GyroFifo(nominal_period_s)
+        self.watch = RawWatch()
+        self.span = 0.0
+
+    def reset(self, sample: Sample) -> None:
+        self.watch.reset(sample.gyro_z_raw)
+        self.fifo.restart(sample.t)
+
+    def restart(self, t: float) -> None:
+        self.fifo.restart(t)
+
+    def fuse(self, est: "Estimator", sample: Sample, commanded_still: bool) -> None:
+        """Fuse the batch's mean rate; a batch with no sample (or junk) fuses nothing."""
+        n = sample.gyro_n
+        fifo = self.fifo
+        self.span = fifo.span(sample.t, n) if n > 0 else 0.0
+        if n <= 0 or fifo.bad:
+            est.fuse_no_rate()
+            return
+        self.watch.check(est, sample.gyro_z_raw)
+        est.fuse_rate(sample.gyro_sum_raw / n * est.rad_s_per_lsb, self.span, commanded_still)
+
+    def turn(self, w: float, dt: float, fresh: bool) -> float:
+        return self.fifo.turn(w, dt, fresh, self.span if fresh else 0.0)
+

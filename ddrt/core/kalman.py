@@ -111,6 +111,16 @@ class YawFilter:
         self.p01 = p01 - k0 * p01
         self.p11 = p11 - k1 * p01
 
+    def shift_bias(self, db: float) -> None:
+        """Move the bias by db (rad/s), its variance kept: a model of the bias said it moved
+        (the die temperature's line, ddrt/core/gyro_bias.py)."""
+        self.b += db
+
+    def widen_bias(self, var: float) -> None:
+        """Add var ((rad/s)^2) to the bias's variance: its random walk over a window, or a
+        re-sync's innovation."""
+        self.p11 += var
+
     def update_bias(self, z: float, var: float) -> None:
         """Fuse a measurement of the bias itself (H = [0, 1], R = var): the gyro's turn less the
         drive wheels' over a window (ddrt/core/wheel_odometry.py)."""

@@ -36,6 +36,10 @@ then barely walks (`DELTA_WALK`): it is learnt in the first metres, and a later 
 the difference goes to the bias, whose walk is much larger. Stops tell the two apart for good
 (the bias is learnt at rest). The bias is only learnt while nearly straight, where the
 gyro's scale error and the track width do not matter.
+
+As the estimator's fusion step (ddrt/core/fusion.py): `take` reads the sample's wheel counts
+before anything is fused (without a front encoder they say whether the robot moved), `fuse`
+runs after the gyro's step; a robot without them has `NoWheels`.
 """
 
 from __future__ import annotations
@@ -74,20 +78,21 @@ def error_model(cfg: EstimatorConfig, period_s: float, wheels_give_distance: boo
 
 
 class WheelOdometry:
-    """The estimator's wheel-encoder part (module doc). `gives_distance`: no front encoder, so
-    the wheels' distance `z` (m, cumulative) is the travel filters' measurement."""
+    """The estimator's wheel-encoder step (module doc). `gives_distance`: no front encoder, so
+    the wheels' distance `z` (m, cumulative) is the travel filters' measurement. Configured by
+    the estimator (`configure`), started by its reset."""
 
-    def __init__(self, est: "Estimator", counts_per_rev: int) -> None:
+    def __init__(self, counts_per_rev: int, period_s: float, gives_distance: bool) -> None:
         self.cpr = counts_per_rev
-        self.gives_distance = est.info.encoder_counts_per_rev <= 0
-        n = max(4, int(round(SLIP_WINDOW_S / est.period)))
+        self.gives_distance = gives_distance
+        n = max(4, int(round(SLIP_WINDOW_S / period_s)))
         self.n = n
         self._ring_w = [0.0] * n  # per tick: the wheels' turn, the pose's turn, the two distances
         self._ring_g = [0.0] * n
         self._ring_s = [0.0] * n
         self._ring_f = [0.0] * n
         self._ring_a = [0.0] * n  # the wheels' mean absolute travel (their scale errors act on it)
-        self.configure(est)
+        self.delta0_var = self.position_var = 0.0  # until configured
         self.reset(Sample(0.0, 0, 0))
 
     def configure(self, est: "Estimator") -> None:
@@ -103,7 +108,7 @@ class WheelOdometry:
         self.turn_q_var = (q_l2 + q_r2) / 6.0 / (self.track_w * self.track_w)
         self.dist_q_var = (self.a_l * self.a_l * q_l2 + self.a_r * self.a_r * q_r2) / 6.0
         self.front_q_var = est.metres_per_count * est.metres_per_count / 6.0
-        self.gyro_var_dt = est._gyro_var * est.period  # (rad)^2 per second of integrated gyro noise
+        self.gyro_var_dt = est.gyro_var * est.period  # (rad)^2 per second of integrated gyro noise
         self.gate2 = est.gate2
         self.scale_var = cfg.wheel_scale_std * cfg.wheel_scale_std
         self.gyro_scale_var = cfg.gyro_scale_std * cfg.gyro_scale_std
@@ -111,15 +116,14 @@ class WheelOdometry:
         self.walk_var = cfg.wheel_bias_walk * cfg.wheel_bias_walk
         self.delta0_var = 2.0 * self.scale_var
         self.max_slip_ticks = max(1, int(round(MAX_SLIP_S / est.period)))
-        if self.gives_distance:  # the travel filters' position noise: the wheels' quantisation
-            var = (self.a_l * self.a_l * q_l2 + self.a_r * self.a_r * q_r2) / 12.0
-            est.travel.meas_var = est.speed.meas_var = var
+        # as the travel filters' position measurement (no front encoder): the wheels' quantisation
+        self.position_var = (self.a_l * self.a_l * q_l2 + self.a_r * self.a_r * q_r2) / 12.0
 
     def reset(self, sample: Sample) -> None:
         """Start counting from `sample` (a reset, or the first sample after a gap)."""
         self.last_l, self.last_r = sample.count_left, sample.count_right
         self.z = 0.0
-        self.dl = self.dr = 0.0
+        self.dl = self.dr = self.ds = 0.0
         self.moved = False
         self.slip_ticks = 0
         self.delta = 0.0  # the right wheel's relative radius error less the left's (module doc)
@@ -139,48 +143,45 @@ class WheelOdometry:
         self.bias_last_y = 0.0
         self.since_bias_s = 0.0
 
+    def rebase(self) -> None:
+        """Count the distance from zero again (a reload)."""
+        self.z = 0.0
+
     # ------------------------------------------------------------------ per fresh sample
 
-    def measure(self, sample: Sample) -> None:
-        """Take the wheels' increments of this sample (before the filters are fused)."""
+    def take(self, sample: Sample) -> None:
+        """Take the wheels' increments of this sample (before the filters are fused): `moved`,
+        and `ds`, the distance at A they give as configured."""
         cl, cr = sample.count_left, sample.count_right
         dcl, dcr = wrap_i32(cl - self.last_l), wrap_i32(cr - self.last_r)
         self.last_l, self.last_r = cl, cr
         self.moved = dcl != 0 or dcr != 0
         self.dl = dcl * self.m_l
         self.dr = dcr * self.m_r
+        self.ds = self.a_l * self.dl + self.a_r * self.dr
 
-    def fuse(self, est: "Estimator", sample: Sample, dt: float, still: bool) -> None:
-        """A fresh sample's fusion (Estimator.update's hook): the gyro first, so the wheels can
-        be checked against its turn before their distance (without a front encoder) is fused,
-        down-weighted to the model's prediction where they slip."""
-        self.measure(sample)
-        front = not self.gives_distance
-        before = est._travel_counts
-        if front:
-            est._fuse_encoder(sample.encoder_count, dt)
-        else:
-            est._still_ticks = est._still_ticks + 1 if not self.moved else 0
-        est._fuse_gyro(sample.gyro_z_raw, sample.t, still)
-        front_ds = (est._travel_counts - before) * est.metres_per_count
+    def fuse(self, est: "Estimator", sample: Sample, dt: float, still: bool, front_ds: float) -> bool:
+        """After the gyro's step, so the wheels are checked against its turn before their distance
+        (without a front encoder) is fused, down-weighted to the model's prediction where they
+        slip. `front_ds`: the front encoder's distance this sample (m; 0 without one). Returns
+        True while the wheels slip (and are down-weighted)."""
         gyro_z = sample.gyro_z_raw * est.rad_s_per_lsb
-        est.wheel_slip = self.check(est, dt, front_ds, gyro_z, est.heading.w * dt, not still)
-        if not front:
+        slip = self.check(est, dt, front_ds, gyro_z, est.heading.w * dt, not still)
+        if self.gives_distance:
             # The learnt radius difference split evenly (their mean is what the config says).
             h = 0.5 * self.delta
             ds = self.a_l * self.dl * (1.0 - h) + self.a_r * self.dr * (1.0 + h)
-            self.z += est.travel.v * dt if est.wheel_slip else ds
-            est._fuse_travel(self.moved, self.z, dt)
+            self.z += est.travel.v * dt if slip else ds
+            est.fuse_travel(self.moved, self.z, dt)
+        return slip
 
-    def catch_up(self, sample: Sample) -> float:
-        """The first sample after a gap (Estimator._reanchor): the distance the wheels counted
-        over it (m); the windows restart, as nothing compares across a gap."""
-        self.measure(sample)
-        ds = self.a_l * self.dl + self.a_r * self.dr
-        self.z += ds
+    def catch_up(self, sample: Sample) -> None:
+        """The first sample after a gap (Estimator._reanchor): `ds` the distance the wheels
+        counted over it (m); the windows restart, as nothing compares across a gap."""
+        self.take(sample)
+        self.z += self.ds
         self.slip_ticks = 0
         self._clear_windows()
-        return ds
 
     def check(self, est: "Estimator", dt: float, front_ds: float, gyro_z: float, dth: float,
               moving: bool) -> bool:
@@ -189,7 +190,7 @@ class WheelOdometry:
         bias included), `dth` the pose's turn this tick. Returns True while the wheels slip
         (and are down-weighted)."""
         d_w = (self.dr - self.dl) / self.track_w
-        ds = self.a_l * self.dl + self.a_r * self.dr
+        ds = self.ds
         i = self.i
         self.sum_w += d_w - self._ring_w[i]
         self.sum_g += dth - self._ring_g[i]
@@ -217,7 +218,7 @@ class WheelOdometry:
                 slip = slip or e * e > self.gate2 * var
         if slip:
             if self.slip_ticks == 0:
-                est.health.wheel_slips += 1
+                est.health.count_slip()
             self.slip_ticks += 1
         else:
             self.slip_ticks = 0
@@ -250,9 +251,8 @@ class WheelOdometry:
         grow = self.walk_var * self.since_bias_s
         self.delta_var += DELTA_WALK * DELTA_WALK * self.since_bias_s
         self.since_bias_s = 0.0
-        yaw, heading = est.yaw, est.heading
-        for f in (yaw, heading):
-            f.p11 += grow
+        est.widen_bias(grow)
+        heading = est.heading
         b0, b0_var = heading.b, heading.p11
         z = y - self.delta * u  # the bias, the radius difference taken off
         r_b = r + self.delta_var * u * u
@@ -267,9 +267,8 @@ class WheelOdometry:
             self.bias_last_y = y
             if self.bias_rejects < BIAS_RESYNC:
                 return
-            est.health.resyncs += 1
-            for f in (yaw, heading):
-                f.p11 += y * y
+            est.health.count_resync()
+            est.widen_bias(y * y)
             self._fuse_b(est, z, r_b)
             return  # the step was the bias's, not the radii's
         else:
@@ -284,5 +283,32 @@ class WheelOdometry:
 
     def _fuse_b(self, est: "Estimator", z: float, var: float) -> None:
         self.bias_rejects = 0
-        est.yaw.update_bias(z, var)
-        est.heading.update_bias(z, var)
+        est.fuse_bias(z, var)
+
+
+class NoWheels:
+    """The drive wheels are not counted: nothing taken, fused or flagged."""
+
+    __slots__ = ()
+    moved = False
+    ds = 0.0
+    z = 0.0
+    position_var = 0.0
+
+    def configure(self, est: "Estimator") -> None:
+        pass
+
+    def reset(self, sample: Sample) -> None:
+        pass
+
+    def rebase(self) -> None:
+        pass
+
+    def take(self, sample: Sample) -> None:
+        pass
+
+    def fuse(self, est: "Estimator", sample: Sample, dt: float, still: bool, front_ds: float) -> bool:
+        return False
+
+    def catch_up(self, sample: Sample) -> None:
+        pass

@@ -520,5 +520,5 @@ class ControlLoop(ModeMachine):
                 dyn = ad.blend(10 * self.period)
                 self.controller.set_dynamics(dyn)
                 if self.cfg.controller.adaptation.update_estimator:
-                    est.dyn = dyn
+                    est.set_dynamics(dyn)
             self.adapt_active = active or ad.used != ad.theta0

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from hal.base import HalIOError
+from hal.base import GyroCaps, HalIOError
 
 
 class FakeClock:
@@ -24,6 +24,12 @@ class FakeState:
         self.count, self.new, self.resets = count, new, resets
         self.battery_mv, self.hw_estop, self.count_left, self.count_right = 0, False, 0, 0
 
+    def count_at(self, t: float) -> int:
+        return self.count  # no rate: the count as it came
+
+    def wheel_counts_at(self, t: float) -> tuple[int, int]:
+        return self.count_left, self.count_right
+
 
 class FakeEncoder:
     """A bridge whose STATEs follow `script`: "new" (10 counts more), anything else (not new),
@@ -33,9 +39,11 @@ class FakeEncoder:
     wheel_counts_per_rev = 0
     battery_measured = False
     hw_estop_wired = False
+    drive_timeout_s = None  # no watchdog of its own
+    stats: dict[str, int] = {}
 
-    def __init__(self, state_stale_s: float | None = None) -> None:
-        self.state_stale_s = state_stale_s  # None: RealHal's own bound
+    def __init__(self, state_stale_s: float = 0.05) -> None:
+        self.state_stale_s = state_stale_s
         self.script: list = []
         self.count = 0
         self.drives: list = []
@@ -64,6 +72,7 @@ class FakeImu:
     gyro_delay_s = 0.0019
     fault_counts = {"retries": 0, "errors": 0}
     gyro_part = "a fake gyro"
+    caps = GyroCaps(age_s=gyro_delay_s)  # the register at the tick, no temperature
 
     def read_gyro_z_raw(self) -> int:
         return 42
