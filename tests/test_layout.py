@@ -337,8 +337,6 @@ MAX_FOREIGN_PROBES = 15
 # Probes still being replaced by a declaration; the list only shrinks (lower a count that fell).
 KNOWN_PROBES: dict[str, int] = {
     "hal/wire.py": 1,  # a message's dataclass fields for struct.pack, on the serial path
-    "ddrt/core/gyro_bias.py": 1,  # the sensors' work
-    "hal/real.py": 10,
 }
 
 
@@ -417,14 +415,6 @@ def param_writes(root: Path = REPO, folders: tuple[str, ...] = ("ddrt", "hal", "
 
 # Writes still being taken out (the owner given a method, or the value returned); only shrinks.
 KNOWN_PARAM_WRITES = frozenset({
-    "ddrt/core/estimator.py: _fuse_pair(sharp).p00",  # the sensors' work
-    "ddrt/core/estimator.py: _fuse_pair(smooth).p00",
-    "ddrt/core/wheel_odometry.py: _bias(est).health.resyncs",
-    "ddrt/core/wheel_odometry.py: check(est).health.wheel_slips",
-    "ddrt/core/wheel_odometry.py: configure(est).speed.meas_var",
-    "ddrt/core/wheel_odometry.py: configure(est).travel.meas_var",
-    "ddrt/core/wheel_odometry.py: fuse(est)._still_ticks",
-    "ddrt/core/wheel_odometry.py: fuse(est).wheel_slip",
 })
 
 

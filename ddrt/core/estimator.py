@@ -204,9 +204,8 @@ class Estimator:
         travelled = self._distance.z
         self.dyn = dyn
         self.motor = motor
-        old_model = self.track.model
         self._configure(cfg, r_3)
-        self._retrack(old_cfg, cfg, old_model)
+        self._retrack(old_cfg, cfg)
         for f in (self.travel, self.speed):
             f.p -= travelled
         self._front.rebase()
@@ -220,30 +219,17 @@ class Estimator:
                 self._last_gyro_z *= ratio
             self._temperature.rescale(ratio)
 
-    def _retrack(self, old: EstimatorConfig, cfg: EstimatorConfig, old_model: ErrorModel) -> None:
+    def _retrack(self, old: EstimatorConfig, cfg: EstimatorConfig) -> None:
         """A reload's uncertainty figures: the scale errors' rows rescaled (so the covariance
         stays positive), a new history length takes a fresh history at the present pose."""
-        track = self.track
-        track.model = new = self._error_model(cfg)
-        for i, (a, b) in ((3, (old_model.encoder_scale_std, new.encoder_scale_std)),
-                          (4, (old_model.gyro_scale_std, new.gyro_scale_std))):
-            if a != b:
-                k = b / a if a > 0.0 else 0.0
-                for p in [track.p_map, track.p_odom] + track.saved_p:
-                    for j in range(6):
-                        p[i * 6 + j] *= k
-                        p[j * 6 + i] *= k
-                    if a == 0.0:
-                        p[i * 6 + i] = b * b
-        self.frame.gate_chi2 = cfg.fix_gate_chi2
+        self.track.rescale(self._error_model(cfg))
+        self.frame.regate(cfg.fix_gate_chi2)
         if cfg.fix_history_s != old.fix_history_s:
-            p_map, p_odom = list(track.p_map), list(track.p_odom)
-            self.track = self._tracker(cfg)
-            self.track.reset(self.t_est, self.map_pose())
-            self.track.p_map[:], self.track.p_odom[:] = p_map, p_odom
-            self.track.saved_p[0][:] = p_map
-            self.track._publish()
-            self.frame.counters.last_stamp = self.t_est
+            track = self._tracker(cfg)
+            track.reset(self.t_est, self.map_pose())
+            track.carry(self.track)
+            self.track = track
+            self.frame.history_restarted(self.t_est)
 
     # ------------------------------------------------------------------ set-up
 
@@ -480,6 +466,10 @@ class Estimator:
         """A sensor's step saw a fault that must latch (the loop stops the robot)."""
         self.health.fault = text
 
+    def clear_fault(self) -> None:
+        """The operator reset the loop: a latched sensor fault is cleared (it latches again if it persists)."""
+        self.health.fault = ""
+
     def fuse_travel(self, moved: bool, z: float, dt: float) -> None:
         """Fuse the distance `z` (m since the reset) into the travel filters; `moved`: a count
         came this tick (no count for encoder_stuck_s while the filter says it moves: a fault)."""
@@ -558,10 +548,10 @@ class Estimator:
             return row + 1
         if row >= max_rejects:
             self.health.resyncs += 1
-            sharp.p00 += y * y
+            sharp.widen(y * y)
             sharp.update(z)
             y, _ = smooth.innovation(z)
-            smooth.p00 += y * y
+            smooth.widen(y * y)
         else:
             sharp.update(z)
         smooth.update(z)

@@ -42,6 +42,10 @@ class TravelFilter:
         """(residual, its variance) for a position measurement z."""
         return z - self.p, self.p00 + self.meas_var
 
+    def widen(self, var: float) -> None:
+        """Add `var` to the first state's variance: a re-sync trusts the sensor again."""
+        self.p00 += var
+
     def update(self, z: float) -> float:
         """Fuse a position measurement; returns the normalised innovation squared."""
         y = z - self.p  # innovation(z), written out: four updates a tick
@@ -82,6 +86,10 @@ class YawFilter:
     def innovation(self, z: float) -> tuple[float, float]:
         """(residual, variance) for a gyro reading z = w + b."""
         return z - self.w - self.b, self.p00 + 2.0 * self.p01 + self.p11 + self.meas_var
+
+    def widen(self, var: float) -> None:
+        """Add `var` to the rate's variance: a re-sync trusts the gyro again."""
+        self.p00 += var
 
     def update(self, z: float) -> float:
         """Fuse a gyro reading (H = [1, 1]); returns the normalised innovation squared."""

@@ -174,6 +174,14 @@ class MapFrame:
         self.anchored = False  # does anything say where map is (a pose set, or a first fix)?
         self.counters = FixCounters()
 
+    def regate(self, gate_chi2: float) -> None:
+        """A reload's outlier gate (estimator.fix_gate_chi2)."""
+        self.gate_chi2 = gate_chi2
+
+    def history_restarted(self, t: float) -> None:
+        """The pose history starts again at `t`: a fix stamped before it cannot be placed."""
+        self.counters.last_stamp = t
+
     def reset(self, pose: tuple[float, float, float], anchored: bool = True) -> None:
         """The map and odom frames are the same again, at `pose` (a pose set or a reset).
         `anchored`: the pose is where the robot is in map (a pose set); otherwise (a start

@@ -308,6 +308,29 @@ class Tracker:
         self._save()
         self._publish()
 
+    def rescale(self, new: ErrorModel) -> None:
+        """A reload's error model: the scale errors' rows and columns of every covariance kept
+        are rescaled to the new figures (so each stays positive); a figure that was 0 starts at
+        its new variance."""
+        old, self.model = self.model, new
+        for i, (a, b) in ((3, (old.encoder_scale_std, new.encoder_scale_std)),
+                          (4, (old.gyro_scale_std, new.gyro_scale_std))):
+            if a != b:
+                k = b / a if a > 0.0 else 0.0
+                for p in [self.p_map, self.p_odom] + self.saved_p:
+                    for j in range(6):
+                        p[i * 6 + j] *= k
+                        p[j * 6 + i] *= k
+                    if a == 0.0:
+                        p[i * 6 + i] = b * b
+
+    def carry(self, old: "Tracker") -> None:
+        """Take `old`'s covariances as this fresh tracker's present ones (a new history length
+        keeps what is known of the pose, not its history)."""
+        self.p_map[:], self.p_odom[:] = old.p_map, old.p_odom
+        self.saved_p[0][:] = old.p_map
+        self._publish()
+
     def take_bias_shrink(self) -> float:
         """How much the bias's variance shrank at rest since the last call (1.0: not at all),
         for the map frame's learnt bias (ddrt/core/pose_fix.py)."""

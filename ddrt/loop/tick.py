@@ -373,7 +373,7 @@ class ControlLoop(ModeMachine):
         self.controller.reset()
         self._take_deferred_limits()
         self.reference = None
-        self.estimator.health.fault = ""
+        self.estimator.clear_fault()
         self.fault = ""
         self.holds.cancel()
         self.enter(t)
