@@ -65,7 +65,7 @@ class Axis:
 
 @dataclass(frozen=True)
 class PopulationSpec(Section):
-    """`population:`: `robots` robots drawn from `seed` by ddrt/sweep/population.py."""
+    """`robots` robots drawn from `seed` by ddrt/sweep/population.py."""
 
     robots: int = setting(ge=1, le=MAX_CASES, doc="How many robots are drawn (an axis `robot`).")
     seed: int = setting(20261201, doc="The seed they are drawn from: the same seed, the same robots.")
@@ -74,7 +74,7 @@ class PopulationSpec(Section):
 
 @dataclass(frozen=True)
 class RunSpec(Section):
-    """`run:`: how long each case may run."""
+    """How long each case may run."""
 
     duration_s: float | None = setting(
         None, unit="s", gt=0, doc="Simulated time each case runs, as `ddrt sim --duration`; null: to the path's end.")
@@ -84,7 +84,7 @@ class RunSpec(Section):
 
 @dataclass(frozen=True)
 class SummarySpec(Section):
-    """`summary:`: what the summary gives percentiles of."""
+    """What the summary gives percentiles of."""
 
     metrics: tuple[str, ...] | None = setting(
         None, text=PERCENTILE_METRIC, missing="the numbers `pass:` names, else `rms_cross_track_m`",
@@ -97,7 +97,7 @@ class CampaignKeys(Section):
 
     name: str = setting("", missing="the file's name", doc="Title of the summary.")
     description: str = setting("", doc="Not interpreted.")
-    base: tuple[str, ...] | str | None = setting(
+    base: str | tuple[str, ...] | None = setting(
         None, text=FILE_NAME, missing="required unless `population:`",
         doc="The config file every case starts from (with its `extends:`); a list of files is an axis `base`.")
     overrides: dict[str, Any] = setting(
@@ -105,14 +105,14 @@ class CampaignKeys(Section):
     variants: dict[str, Any] | None = setting(
         None, doc="Name -> config keys merged over the config; an axis `variant` (`nominal: {}` is the base as it is).")
     population: PopulationSpec | None = setting(
-        None, doc="Random robots drawn from a seed ([sweep.md](sweep.md#the-campaign-file)); an axis `robot`.")
-    paths: tuple[str, ...] | dict[str, Any] | None = setting(
+        None, doc="Random robots drawn from a seed ([sweep.md](sweep.md#populations)); an axis `robot`.")
+    paths: dict[str, Any] | tuple[str, ...] | None = setting(
         None, text=FILE_NAME, missing="the config's `path:`",
         doc="Name -> a path file or an inline spec (as a config's `path:`), or a list of files named by their "
             "stems; an axis `path`.")
     axes: dict[str, Any] | None = setting(
         None, doc="Dotted config key -> a list of values or a range (below); each is an axis of its own name.")
-    seeds: tuple[int, ...] | int | None = setting(
+    seeds: int | tuple[int, ...] | None = setting(
         None, missing="each config's `sim.seed`",
         doc=f"The simulated robot's noise seeds: N (1 to {MAX_CASES}) is seeds 1..N, or a list of distinct "
             "seeds; an axis `seed`.")
@@ -121,7 +121,7 @@ class CampaignKeys(Section):
         None, text=METRIC, missing="every number of metrics.json",
         doc="The metrics.json figures each row keeps; `state`, `fault` and what `pass:` and `summary:` read "
             "are always kept.")
-    criteria: tuple[str, ...] | str | None = setting(
+    criteria: str | tuple[str, ...] | None = setting(
         None, name="pass", text=CRITERION, missing="`completed == true` (with `run.duration_s`: `fault == ''`)",
         doc="What a passing run holds: OP is one of `< <= > >= == !=`, VALUE a number, `true`/`false` or a "
             "quoted text; every criterion must hold.")
