@@ -5,8 +5,9 @@ docs/reference/commands.md comes from the control socket's declarations
 docs/reference/telemetry.md from the telemetry row's (ddrt/loop/record.py's columns, the loop's
 states, and the simulated robot's truth that `ddrt sim` puts first), and docs/reference/modes.md
 from the loop's mode machine (ddrt/loop/modes.py: its states, transitions and refusals), and
-docs/reference/config.md and paths.md from the config keys' and the path specs' declarations
-(ddrt/config/reference.py, ddrt/path/spec_reference.py). Nobody edits those files by
+docs/reference/config.md, paths.md and campaign.md from the config keys', the path specs' and
+the campaign files' declarations (ddrt/config/reference.py, ddrt/path/spec_reference.py,
+ddrt/sweep/reference.py). Nobody edits those files by
 hand: tests/test_docgen.py checks that the committed files are what this writes, so a command
 or a column cannot change without its reference.
 """
@@ -81,8 +82,15 @@ def telemetry_md() -> str:
     return "\n".join(lines) + "\n"
 
 
+def campaign_md() -> str:
+    """The campaign file's reference. Imported here, not at the top: ddrt.sweep stays a package
+    that only `ddrt sweep` and this tool load."""
+    from ddrt.sweep.reference import campaign_md as page
+    return page()
+
+
 PAGES = {"commands.md": commands_md, "telemetry.md": telemetry_md, "modes.md": modes_md, "config.md": config_md,
-         "paths.md": paths_md}
+         "paths.md": paths_md, "campaign.md": campaign_md}
 
 
 def stale(out: Path) -> list[str]:

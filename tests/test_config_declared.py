@@ -273,10 +273,3 @@ def test_every_path_key_bound_refuses_just_outside_and_takes_just_inside(kind: s
         except ConfigError as exc:  # only a rule between keys may refuse it, never the bound
             assert not re.search(r": must be [<>]", str(exc)), (which, str(exc))
 
-
-def test_a_campaigns_declared_sections_refuse_their_bounds(tmp_path: Any) -> None:
-    from ddrt.sweep.campaign import CampaignError, campaign_from_mapping
-    base = str(SIM_YAML)
-    for section, key, bad in (("population", "robots", 0), ("run", "timeout_s", 0.0), ("run", "duration_s", -1.0)):
-        with pytest.raises(CampaignError, match=rf"^c\.yaml: {section}\.{key}: must be "):
-            campaign_from_mapping({"base": base, section: {key: bad}}, source="c.yaml", folder=tmp_path)

@@ -80,6 +80,23 @@ def test_the_paths_page_lists_every_kind_and_key() -> None:
             assert f"| `{f.name}` |" in page, (cls.__name__, f.name)
 
 
+def test_the_campaign_page_has_every_declared_key_with_its_declaration() -> None:
+    """Every key of a campaign file, its sections' and a range's, each row carrying the key's
+    bounds and description (a key added to CampaignKeys is in the page or the page is stale)."""
+    from ddrt.config.keys import declared_keys
+    from ddrt.sweep.campaign import KEYS, CampaignKeys
+    from ddrt.sweep.ranges import RangeSpec
+
+    page = docgen.PAGES["campaign.md"]()
+    rows = {m.group(1): m.group(0) for m in re.finditer(r"^\| `([^`]+)` \|.*\|$", page, re.M)}
+    keys = [*declared_keys(CampaignKeys), *declared_keys(RangeSpec, "axes.KEY")]
+    assert sorted(k.key for k in keys) == sorted(rows)  # the top level first, then each section
+    assert [k.key for k in keys if "." not in k.key] == list(KEYS)
+    for k in keys:
+        assert k.decl.bounds().replace("|", "\\|") in rows[k.key], k.key
+        assert k.decl.doc.replace("|", "\\|") in rows[k.key].replace("](../", "]("), k.key
+
+
 def test_the_references_links_resolve() -> None:
     """Every relative link of a generated page names a file that exists, and a heading there
     when it names one (GitHub's anchors: lower case, punctuation dropped, spaces to '-')."""
@@ -106,7 +123,7 @@ def test_links_into_the_config_pages_resolve() -> None:
     checked = 0
     for doc in docs:
         text = doc.read_text(encoding="utf-8")
-        for target, anchor in re.findall(r"\]\(((?:[\w./-]*/)?(?:config|paths|commands|telemetry|modes)\.md)#([^)]+)\)", text):
+        for target, anchor in re.findall(r"\]\(((?:[\w./-]*/)?(?:config|paths|commands|telemetry|modes|campaign|sweep)\.md)#([^)]+)\)", text):
             md = (doc.parent / target).resolve()
             assert md.is_file(), (doc.name, target)
             assert anchor in _anchors(md), (doc.name, target, anchor)

@@ -122,24 +122,24 @@ BAD = [
     ("base: BASE\naxes: {controller.outer.k_y: {start: 10, stop: 1, step: 1}}\n",
      ["axes.controller.outer.k_y: the range has no values"]),
     ("base: BASE\naxes: {controller.outer.k_y: {start: 1, stop: 10, num: 0}}\n",
-     ["axes.controller.outer.k_y: the range has no values"]),
+     ["axes.controller.outer.k_y.num: must be >= 1 (and <= 100000), got 0"]),
     ("base: BASE\naxes: {controller.outer.k_y: []}\n", ["axes.controller.outer.k_y: the list of values is empty"]),
     ("base: BASE\naxes: {}\n", ["campaign.yaml: axes: empty"]),
     ("base: BASE\naxes: []\n", ["campaign.yaml: axes: expected a mapping"]),
     ("base: BASE\naxes: {controller.outer.k_y: 400}\n", ["axes.controller.outer.k_y: expected a list of values or a range"]),
     ("base: BASE\naxes: {controller.outer.k_y: {start: a, stop: 3, step: 1}}\n",
-     ["axes.controller.outer.k_y.start: expected a finite number"]),
+     ["axes.controller.outer.k_y.start: expected a number, got 'a'"]),
     ("base: BASE\naxes: {controller.outer.k_y: {start: 1, stop: 3, step: 1, num: 3}}\n",
      ["exactly one of step and num"]),
-    ("base: BASE\naxes: {controller.outer.k_y: {from: 1}}\n", ["axes.controller.outer.k_y.from: unknown range key"]),
+    ("base: BASE\naxes: {controller.outer.k_y: {from: 1}}\n", ["axes.controller.outer.k_y.from: unknown key (known: num, scale, start, step, stop)"]),
     ("base: BASE\naxes: {controller.outer.k_y: [1, 2, 1]}\n", ["is listed twice"]),
-    ("base: BASE\nseeds: three\n", ["campaign.yaml: seeds: expected a count"]),
+    ("base: BASE\nseeds: three\n", ["campaign.yaml: seeds: expected a whole number, got 'three'"]),
     ("base: BASE\nseeds: [1, x]\n", ["campaign.yaml: seeds[1]: expected a whole number"]),
-    ("base: BASE\nseeds: 0\n", ["campaign.yaml: seeds: expected a count >= 1"]),
+    ("base: BASE\nseeds: 0\n", ["campaign.yaml: seeds: a count of seeds is 1 to 1000000", "got 0"]),
     ("base: BASE\nrun: {duration_s: long}\n", ["campaign.yaml: run.duration_s: expected a number, got 'long'"]),
     ("base: BASE\nrun: {laps: 2}\n", ["campaign.yaml: run.laps: unknown key"]),
     ("base: BASE\npopulation: {robots: 2.5}\n", ["population.robots: expected a whole number"]),
-    ("base: BASE\nmetrics: [rms_cross_track_m, nope]\n", ["metrics[1]: unknown metric 'nope'"]),
+    ("base: BASE\nmetrics: [rms_cross_track_m, nope]\n", ["metrics[1]: expected a metric of metrics.json: rms_cross_track_m, ", "got 'nope'"]),
     ("base: BASE\npass: 'rms < 3'\n", ["campaign.yaml: pass: unknown metric 'rms'"]),
     ("base: BASE\npass: ['completed == 1']\n", ["pass[0]: completed is true or false"]),
     ("base: BASE\npass: ['rms_cross_track_m is small']\n", ["pass[0]: expected METRIC OP VALUE"]),
@@ -159,15 +159,20 @@ BAD = [
      ["case 0: hal.backend: real"]),
     ("base: BASE\naxes: {path: [a.yaml]}\n", ["axes.path: not a config key to sweep"]),
     # Numbers beyond what a float or the table holds: refused by key, never an OverflowError
-    # or a MemoryError (seeds: 10**10 used to build the tuple first).
+    # or a MemoryError (seeds: 10**10 would build a tuple of 10**10 first). A range's numbers are
+    # held to the walker's range for every number, as a config's are.
     ("base: BASE\naxes: {controller.outer.k_y: {start: -1e308, stop: 1e308, step: 1}}\n",
-     ["axes.controller.outer.k_y: more than 100000 values"]),
+     ["axes.controller.outer.k_y.start: out of range, got -1e+308"]),
     ("base: BASE\naxes: {controller.outer.k_y: {start: 0, stop: 1, step: 1e-300}}\n",
-     ["axes.controller.outer.k_y: more than 100000 values (from 0 to 1 by 1e-300)"]),
+     ["axes.controller.outer.k_y.step: out of range, got 1e-300"]),
+    ("base: BASE\naxes: {controller.outer.k_y: {start: -1e12, stop: 1e12, step: 1}}\n",
+     ["axes.controller.outer.k_y: more than 100000 values (from -1e+12 to 1e+12 by 1"]),
+    ("base: BASE\naxes: {controller.outer.k_y: {start: 0, stop: 1, step: 1e-12}}\n",
+     ["axes.controller.outer.k_y: more than 100000 values (from 0"]),
     ("base: BASE\naxes: {controller.outer.k_y: {start: 1" + "0" * 330 + ", stop: 1, step: -1}}\n",
-     ["axes.controller.outer.k_y.start: expected a finite number, got a 331-digit integer"]),
+     ["axes.controller.outer.k_y.start: too large for a number, got a 331-digit integer"]),
     ("base: BASE\nrun: {duration_s: 1" + "0" * 330 + "}\n", ["run.duration_s: too large for a number"]),
-    ("base: BASE\nseeds: 10000000000\n", ["campaign.yaml: seeds: 10000000000 seeds, more cases than"]),
+    ("base: BASE\nseeds: 10000000000\n", ["campaign.yaml: seeds: a count of seeds is 1 to 1000000 (more cases: split the campaign), got 10000000000"]),
     ("base: BASE\nseeds: [1, 18446744073709551616]\n", ["campaign.yaml: seeds[1]: out of range"]),
     # extends: names the file a config is read over; laid over a case it would silently do nothing.
     ("base: BASE\noverrides: {extends: BASE}\n", ["campaign.yaml: overrides.extends: a case's config is read from base:"]),
@@ -425,7 +430,8 @@ def test_load_campaign_names_relative_files_from_its_folder(tmp_path: Path) -> N
 
 
 def test_only_the_command_imports_the_sweep_package_and_only_when_it_runs() -> None:
-    """docs/design.md: ddrt.sweep is a leaf of the command; dask and pyarrow stay optional."""
+    """docs/design.md: ddrt.sweep is a leaf of the command (and of the reference's generator);
+    dask and pyarrow stay optional."""
     import ast
 
     found = []
@@ -442,19 +448,28 @@ def test_only_the_command_imports_the_sweep_package_and_only_when_it_runs() -> N
                     if name.split(".")[:2] == ["ddrt", "sweep"] or name.split(".")[0] in ("dask", "distributed",
                                                                                           "pyarrow"):
                         found.append((f.relative_to(REPO).as_posix(), id(node) in top_level, name))
-    assert found and all(path == "ddrt/cli.py" and not top for path, top, _ in found), found
+    # ddrt.docgen writes the campaign reference from ddrt/sweep/reference.py, importing it when it does.
+    assert found and all(path in ("ddrt/cli.py", "ddrt/docgen.py") and not top for path, top, _ in found), found
+    assert {name for path, _, name in found if path == "ddrt/docgen.py"} == {"ddrt.sweep.reference"}
 
 
 def test_the_example_campaign_and_the_documented_keys() -> None:
-    """configs/campaigns/ expands as written; docs/sweep.md's table has every campaign key."""
+    """configs/campaigns/ expands as written, and docs/sweep.md shows it as it is; the reference
+    it links to has every campaign key."""
     from ddrt.sweep.campaign import KEYS
 
-    plan = expand(load_campaign(REPO / "configs" / "campaigns" / "gains.yaml"))
+    gains = REPO / "configs" / "campaigns" / "gains.yaml"
+    plan = expand(load_campaign(gains))
     assert plan.columns == ("variant", "controller.outer.k_y", "controller.outer.k_theta", "seed")
     assert len(plan.cases) == 2 * 5 * 3 * 3
     doc = (REPO / "docs" / "sweep.md").read_text(encoding="utf-8")
-    missing = [k for k in KEYS if f"| `{k}` |" not in doc and f"| `{k}." not in doc]
-    assert missing == []
+    shown = doc.split("```yaml\n", 1)[1].split("```", 1)[0]
+    written = [line for line in gains.read_text(encoding="utf-8").splitlines() if not line.startswith("#")]
+    assert [line.split("  #")[0].rstrip() for line in shown.splitlines()] == \
+        [line.split("  #")[0].rstrip() for line in written]
+    assert "(reference/campaign.md)" in doc
+    page = (REPO / "docs" / "reference" / "campaign.md").read_text(encoding="utf-8")
+    assert [k for k in KEYS if f"| `{k}` |" not in page] == []
 
 
 def test_leaving_on_ctrl_c_silences_the_loggers_that_print_a_cancelled_callbacks_traceback() -> None:

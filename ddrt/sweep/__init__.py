@@ -6,6 +6,7 @@ is journalled as it finishes (journal.py) and the rows become a Parquet/CSV tabl
 (table.py), a summary (summary.py) and figures (figures.py). The robot populations a
 campaign can draw come from population.py, which bench/population.py shares.
 
-Nothing outside ddrt.cli imports this package, and it imports dask and pyarrow only where
-it uses them, so `ddrt sim` never loads them.
+Nothing outside ddrt.cli and ddrt.docgen (for reference.py) imports this package, and then
+only when it is used; it imports dask and pyarrow only where it uses them, so `ddrt sim`
+never loads them.
 """

@@ -19,8 +19,10 @@ from ddrt.sweep.columns import BOOL_METRICS, KNOWN_METRICS, TEXT_METRICS
 _OPS: dict[str, Callable[[Any, Any], bool]] = {
     "<": operator.lt, "<=": operator.le, ">": operator.gt, ">=": operator.ge, "==": operator.eq, "!=": operator.ne,
 }
-_FORM = re.compile(r"^\s*([A-Za-z_][\w.]*)\s*(<=|>=|==|!=|<|>)\s*(.+?)\s*$")
-FORM_HELP = "expected METRIC OP VALUE, e.g. 'rms_cross_track_m < 0.005' or 'completed == true'"
+# The form of a criterion; a campaign's `pass:` declares its text by it (ddrt/sweep/campaign.py).
+FORM = re.compile(r"^\s*([A-Za-z_][\w.]*)\s*(<=|>=|==|!=|<|>)\s*(.+?)\s*$")
+FORM_WORDS = "METRIC OP VALUE, e.g. 'rms_cross_track_m < 0.005' or 'completed == true'"
+FORM_HELP = f"expected {FORM_WORDS}"
 
 
 @dataclass(frozen=True)
@@ -58,7 +60,7 @@ def parse_criterion(text: Any, where: str) -> Criterion:
     """`text` as a Criterion; a ValueError names `where` and what is wrong."""
     if not isinstance(text, str):
         raise ValueError(f"{where}: {FORM_HELP}, got {text!r}")
-    m = _FORM.match(text)
+    m = FORM.match(text)
     if m is None:
         raise ValueError(f"{where}: {FORM_HELP}, got {text!r}")
     metric, op, raw = m.groups()
