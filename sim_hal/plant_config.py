@@ -2,7 +2,8 @@
 
 `PlantConfig` holds the plant's flat settings; `Realism` holds its options (battery, gyro
 warm-up and register timing, encoder slip, deadband, backlash, events), whose defaults leave
-the plant ideal. Each number's bounds are declared with its field (`Bound`).
+the plant ideal. Each field declares its unit, bounds and meaning as the config's keys do
+(`setting`, ddrt/params/decl.py).
 """
 
 from __future__ import annotations
@@ -15,63 +16,55 @@ from ddrt.config.sim_truth import (
     ActuatorTruth, BatteryTruth, EncoderTruth, EventsTruth, WanderingScale, WheelsTruth,
 )
 from ddrt.params.gyro_scale import gyro_lsb_per_rad_s
+from ddrt.params.decl import check_declared, decl_of, setting
 from ddrt.params.numbers import from_known_keys
 
-__all__ = ["Bound", "EnergyLedger", "PlantConfig", "Realism", "SupplyLedger"]
+__all__ = ["EnergyLedger", "PlantConfig", "Realism", "SupplyLedger"]
 
 
-@dataclass(frozen=True)
-class Bound:
-    """What one field accepts: its type (float, int or bool), None or not, and an interval
-    whose ends are each open or closed (None: unbounded)."""
-
-    kind: type = float
-    low: float | None = None
-    high: float | None = None
-    open_low: bool = False
-    open_high: bool = False
-    optional: bool = False
-
-    def check(self, where: str, value: Any) -> Any:
-        """`value` as the field holds it (an int as float for a float field), or ValueError
-        naming `where`."""
-        if value is None and self.optional:
-            return None
-        if self.kind is bool:
-            if not isinstance(value, bool):
-                raise ValueError(f"{where}: expected true/false, got {value!r}")
-            return value
-        if self.kind is int:
-            if isinstance(value, bool) or not isinstance(value, int):
-                raise ValueError(f"{where}: expected an integer, got {value!r}")
-        elif isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise ValueError(f"{where}: expected a finite number, got {value!r}")
-        else:
-            value = float(value)
-        if self.low is not None and (value < self.low or (self.open_low and value == self.low)):
-            raise ValueError(f"{where}: must be {'>' if self.open_low else '>='} {self.low:g}, got {value!r}")
-        if self.high is not None and (value > self.high or (self.open_high and value == self.high)):
-            raise ValueError(f"{where}: must be {'<' if self.open_high else '<='} {self.high:g}, got {value!r}")
-        return value
-
-
-def _f(default: Any, bound: Bound = Bound(), **kw: Any) -> Any:
-    """A dataclass field with its bound declared."""
-    return field(default=default, metadata={"bound": bound}, **kw)
+_KINDS = {"float": float, "int": int, "bool": bool, "int | None": int}
 
 
 def _check_declared(obj: Any) -> None:
-    """Check (and normalise) every field of `obj` that declares a Bound."""
+    """Check every declared field of `obj` against its type and its declaration (the config's
+    `setting`), normalising a whole number to a float where the field is a float; ValueError
+    naming `<class>.<field>`. The plant is built in code too (tests, benches), not only from a
+    config the walker has checked."""
+    owner = type(obj).__name__
     values = vars(obj)
     for f in fields(obj):
-        bound = f.metadata.get("bound")
-        if bound is not None:
-            object.__setattr__(obj, f.name, bound.check(f"{type(obj).__name__}.{f.name}", values[f.name]))
+        decl = decl_of(f)
+        if decl is None:
+            continue
+        where, value = f"{owner}.{f.name}", values[f.name]
+        kind = _KINDS[str(f.type)]
+        if value is None and str(f.type).endswith("None"):
+            continue
+        if kind is bool:
+            if not isinstance(value, bool):
+                raise ValueError(f"{where}: expected true/false, got {value!r}")
+            continue
+        if isinstance(value, bool) or not isinstance(value, int if kind is int else (int, float)):
+            raise ValueError(f"{where}: expected {'an integer' if kind is int else 'a finite number'}, got {value!r}")
+        if kind is float:
+            if not math.isfinite(value):
+                raise ValueError(f"{where}: expected a finite number, got {value!r}")
+            object.__setattr__(obj, f.name, float(value))
+        problem = decl.check(value, where)
+        if problem is not None:
+            raise ValueError(problem)
 
 
-_POSITIVE = Bound(low=0.0, open_low=True)
+def _checked_section(section: Any, where: str) -> None:
+    """A `sim:` section built in code: its declared bounds, then its rules across fields."""
+    try:
+        check_declared(section, where)
+    except ValueError as exc:
+        raise ValueError(str(exc)) from None
+    section.validate(where)
+
+
 _MPU_MIN_ODR_HZ = 1000.0 / 256  # SMPLRT_DIV 255 with the DLPF on: the MPU's slowest sample clock
-_NON_NEGATIVE = Bound(low=0.0)
 
 
 @dataclass(frozen=True)
@@ -89,16 +82,17 @@ class Realism:
     """
 
     battery: BatteryTruth | None = None
-    gyro_temp_start_c: float = _f(25.0, Bound(low=-273.15))
-    gyro_warmup_rise_c: float = _f(0.0)
-    gyro_warmup_tau_s: float = _f(120.0, _POSITIVE)
-    gyro_bias_per_c_dps: float = _f(0.0)
-    gyro_drift_dps_per_s: float = _f(0.0)
-    gyro_odr_hz: float = _f(0.0, Bound(low=0.0, high=8000.0))  # the MPU-6050 samples at most at 8 kHz
-    gyro_clock_ppm: float = _f(0.0, Bound(low=-1e6, high=1e6, open_low=True, open_high=True))
-    gyro_bias_step_dps: float = _f(0.0)  # added to the bias from gyro_bias_step_at_s on
-    gyro_bias_step_at_s: float = _f(0.0)
-    gyro_fifo: bool = _f(False, Bound(kind=bool))
+    gyro_temp_start_c: float = setting(25.0, unit="degC", ge=-273.15, doc="Die temperature at power-on.")
+    gyro_warmup_rise_c: float = setting(0.0, unit="degC", doc="How much the die warms after power-on.")
+    gyro_warmup_tau_s: float = setting(120.0, unit="s", gt=0.0, doc="Time constant of the warm-up.")
+    gyro_bias_per_c_dps: float = setting(0.0, unit="deg/s/degC", doc="Zero-rate bias change per degree of warming.")
+    gyro_drift_dps_per_s: float = setting(0.0, unit="deg/s/s", doc="Linear drift of the zero-rate bias with time.")
+    gyro_odr_hz: float = setting(0.0, unit="Hz", ge=0.0, le=8000.0,
+                                 doc="The gyro's own sample rate (the MPU samples at most at 8 kHz); 0: read at the tick.")
+    gyro_clock_ppm: float = setting(0.0, unit="ppm", gt=-1e6, lt=1e6, doc="Error of the gyro's own oscillator.")
+    gyro_bias_step_dps: float = setting(0.0, unit="deg/s", doc="A step added to the bias from gyro_bias_step_at_s on.")
+    gyro_bias_step_at_s: float = setting(0.0, unit="s", doc="Plant time of that step.")
+    gyro_fifo: bool = setting(False, doc="Each gyro sample also goes into the part's FIFO.")
     encoder_slip: WanderingScale = field(default_factory=WanderingScale)
     wheels: WheelsTruth = field(default_factory=WheelsTruth)
     actuators: ActuatorTruth = field(default_factory=ActuatorTruth)
@@ -114,15 +108,15 @@ class Realism:
         # The config's sections validate themselves when read from YAML; built here directly
         # (tests, benches) they are checked the same way.
         if self.battery is not None:
-            self.battery.validate("Realism.battery")
-        self.encoder_slip.validate("Realism.encoder_slip")
-        self.wheels.validate("Realism.wheels")
-        self.wheels.scale.validate("Realism.wheels.scale")
-        self.actuators.validate("Realism.actuators")
+            _checked_section(self.battery, "Realism.battery")
+        _checked_section(self.encoder_slip, "Realism.encoder_slip")
+        _checked_section(self.wheels, "Realism.wheels")
+        _checked_section(self.wheels.scale, "Realism.wheels.scale")
+        _checked_section(self.actuators, "Realism.actuators")
         for i, p in enumerate(self.events.payloads):
-            p.validate(f"Realism.events.payloads[{i}]")
+            _checked_section(p, f"Realism.events.payloads[{i}]")
         for i, f in enumerate(self.events.floor):
-            f.validate(f"Realism.events.floor[{i}]")
+            _checked_section(f, f"Realism.events.floor[{i}]")
 
     @property
     def active(self) -> bool:
@@ -152,32 +146,32 @@ class Realism:
         )
 
 
-_INT = Bound(kind=int)
-_LATENCY = Bound(low=0.0, high=1.0)  # a second: far beyond any bus, and the sensor rings' length stays small
-_COUNTS = Bound(kind=int, low=0)  # 0: that encoder is not there
+_LATENCY_MAX_S = 1.0  # far beyond any bus, and the sensor rings' length stays small
 
 
 @dataclass(frozen=True)
 class PlantConfig:
     """Everything about the simulated robot that is not its geometry or its motors."""
 
-    step_hz: float = _f(1000.0, _POSITIVE)  # RK4 rate of the plant, independent of the controller's rate
-    friction: bool = _f(True, Bound(kind=bool))  # False zeroes the motors' viscous and Coulomb friction
-    slip: bool = _f(True, Bound(kind=bool))  # the seed's random slip torque
-    slip_probability: float = _f(0.25, Bound(low=0.0, high=1.0))  # chance per wheel per step of a slip term
-    slip_fraction: float = _f(0.01, Bound(low=0.0, high=1.0))  # slip size ~ N(slip_fraction * tau, slip_sigma_nm)
-    slip_sigma_nm: float = _f(0.01, Bound(low=0.0, high=100.0))  # beyond, the slip alone throws the robot about
-    seed: int | None = _f(0, Bound(kind=int, optional=True))  # None: a different run every time
-    command_latency_s: float = _f(0.0015, _LATENCY)  # duty command -> motor voltage
-    sensor_latency_s: float = _f(0.001, _LATENCY)  # age of the state a reading reports (the rings hold it)
-    encoder_counts_per_rev: int = _f(8192, _COUNTS)  # front wheel, lines x 4
-    encoder_offset_counts: int = _f(0, _INT)  # counter value at start (a counter need not start at 0)
-    gyro_range_dps: int = _f(250, _INT)  # one of the part's ranges (checked below)
-    gyro_scale_error: float = _f(0.0, Bound(low=-1.0, open_low=True))  # relative error of the sensitivity
-    gyro_bias_dps: float = _f(1.5)
-    gyro_noise_dps_rthz: float = _f(0.005, _NON_NEGATIVE)  # white noise density before the low-pass
-    gyro_dlpf_hz: float = _f(98.0, _POSITIVE)  # MPU-6050 digital low-pass (DLPF_CFG=2)
-    wheel_counts_per_rev: int = _f(0, _COUNTS)  # drive-wheel encoders, lines x 4 (0: not counted)
+    step_hz: float = setting(1000.0, unit="Hz", gt=0.0, doc="RK4 rate of the plant, independent of the controller's rate.")
+    friction: bool = setting(True, doc="False zeroes the motors' viscous and Coulomb friction.")
+    slip: bool = setting(True, doc="The seed's random slip torque.")
+    slip_probability: float = setting(0.25, ge=0.0, le=1.0, doc="Chance per wheel per step of a slip term.")
+    slip_fraction: float = setting(0.01, ge=0.0, le=1.0, doc="Slip size ~ N(slip_fraction tau, slip_sigma_nm).")
+    slip_sigma_nm: float = setting(0.01, unit="N m", ge=0.0, le=100.0,
+                                   doc="Spread of the slip torque; beyond 100, the slip alone throws the robot about.")
+    seed: int | None = setting(0, doc="Seed of the slip and sensor noise; None: a different run every time.")
+    command_latency_s: float = setting(0.0015, unit="s", ge=0.0, le=_LATENCY_MAX_S, doc="Duty command to motor voltage.")
+    sensor_latency_s: float = setting(0.001, unit="s", ge=0.0, le=_LATENCY_MAX_S,
+                                      doc="Age of the state a reading reports (the rings hold it).")
+    encoder_counts_per_rev: int = setting(8192, unit="counts/rev", ge=0, doc="Front wheel, lines x 4; 0: not there.")
+    encoder_offset_counts: int = setting(0, unit="counts", doc="Counter value at start (a counter need not start at 0).")
+    gyro_range_dps: int = setting(250, unit="deg/s", doc="One of the part's ranges (checked below).")
+    gyro_scale_error: float = setting(0.0, gt=-1.0, doc="Relative error of the sensitivity.")
+    gyro_bias_dps: float = setting(1.5, unit="deg/s", doc="Constant zero-rate bias.")
+    gyro_noise_dps_rthz: float = setting(0.005, unit="deg/s/sqrt(Hz)", ge=0.0, doc="White noise density before the low-pass.")
+    gyro_dlpf_hz: float = setting(98.0, unit="Hz", gt=0.0, doc="The part's digital low-pass (98 Hz: DLPF_CFG=2).")
+    wheel_counts_per_rev: int = setting(0, unit="counts/rev", ge=0, doc="Drive-wheel encoders, lines x 4; 0: not counted.")
     realism: Realism = field(default_factory=lambda: Realism())  # the plant's options
 
     def __post_init__(self) -> None:

@@ -323,7 +323,7 @@ def test_fuzzed_settings_are_refused_by_name_or_give_a_finite_plant() -> None:
     rng = random.Random(31)
     candidates = (-1e9, -2.0, -1.0, -0.5, 0.0, 1e-6, 0.3, 1.0, 2.0, 250, 1000, 9000.0, 1e6, 1e12,
                   math.nan, math.inf, -math.inf, True, False, None, "1", 7)
-    declared = [(cls, f.name) for cls in (PlantConfig, Realism) for f in fields(cls) if "bound" in f.metadata]
+    declared = [(cls, f.name) for cls in (PlantConfig, Realism) for f in fields(cls) if "decl" in f.metadata]
     built = refused = 0
     for _ in range(300):
         cls, name = rng.choice(declared)

@@ -7,7 +7,6 @@ extra is not installed (the supervising daemon does not retry those), 1 otherwis
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import importlib.util
 import logging
 import os
@@ -50,6 +49,7 @@ def run(args: argparse.Namespace) -> int:
         _leave_realtime()  # before the imports: they are the bridge's biggest burst of CPU
     from ddrt.config import ConfigError, load_config
     from ddrt.config.ros2 import Ros2Config
+    from ddrt.config.schema import build
 
     cfg = Ros2Config()
     rotation = (20_000_000, 5)
@@ -66,8 +66,7 @@ def run(args: argparse.Namespace) -> int:
     socket_path = socket_path or DEFAULT_SOCKET
     try:
         changes = {k: v for k, v in (("domain_id", args.domain_id), ("namespace", args.namespace)) if v is not None}
-        cfg = dataclasses.replace(cfg, **changes)
-        cfg.validate("ddrt ros2")
+        cfg = build(Ros2Config, changes, "ddrt ros2", base=cfg)  # checked as the config's keys are
     except (ConfigError, TypeError) as exc:
         log.error("%s", exc)
         return 2
