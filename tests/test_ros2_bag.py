@@ -69,6 +69,15 @@ def test_export_refuses_what_it_cannot_read_naming_the_file(tmp_path: Path, caps
     assert "notes.csv: not a ddrt telemetry CSV" in capsys.readouterr().err
     assert main(["bag", "export", str(tmp_path / "missing.csv"), str(tmp_path / "out")]) == 2
     assert "missing.csv: cannot read" in capsys.readouterr().err
+    binary = tmp_path / "photo.csv"
+    binary.write_bytes(b"t,x_est\n\xd0\xff\x00\n")
+    assert main(["bag", "export", str(binary), str(tmp_path / "out")]) == 2
+    assert "photo.csv: not a ddrt telemetry CSV" in capsys.readouterr().err
+    huge = tmp_path / "huge.csv"
+    huge.write_text(",".join(["t", "x_est", "y_est", "theta_est", "v_est", "omega_est", "gyro_bias", "state"])
+                    + "\n" + "1," + "9" * 200_000 + ",0,0,0,0,0,0\n")
+    assert main(["bag", "export", str(huge), str(tmp_path / "out")]) == 2
+    assert "huge.csv: not a ddrt telemetry CSV" in capsys.readouterr().err
 
 
 @pytest.mark.slow

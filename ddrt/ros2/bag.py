@@ -132,6 +132,25 @@ def _state(row: Mapping[str, float]) -> dict[str, float]:
     return s
 
 
+def _rows(path: Path, f: Any) -> list[dict[str, float]]:
+    """The telemetry columns the bag needs, one dict a whole row; BagError naming the line."""
+    reader = csv.reader(f)
+    header = next(reader, None)
+    missing = sorted(set(FROM_CSV) - set(header or []))
+    if header is None or missing:
+        raise BagError(f"{path}: not a ddrt telemetry CSV (no column {', '.join(missing) or 'at all'})")
+    idx = {name: header.index(name) for name in FROM_CSV}
+    rows = []
+    for lineno, cells in enumerate(reader, start=2):
+        if len(cells) != len(header):
+            continue  # a row cut short by a daemon's end
+        try:
+            rows.append({k: float(cells[i]) for k, i in idx.items()})
+        except ValueError:
+            raise BagError(f"{path}: line {lineno}: not a number in {cells[:3]}...") from None
+    return rows
+
+
 def export_csv(csv_path: str | os.PathLike[str], out_dir: str | os.PathLike[str], cfg: Ros2Config,
                epoch_s: float | None = None) -> dict[str, Any]:
     """The telemetry CSV as a rosbag2: /odom and /tf at cfg.odom_rate_hz (of the rows' time),
@@ -144,20 +163,10 @@ def export_csv(csv_path: str | os.PathLike[str], out_dir: str | os.PathLike[str]
     except OSError as exc:
         raise BagError(f"{path}: cannot read: {exc.strerror or exc}") from None
     with f:
-        reader = csv.reader(f)
-        header = next(reader, None)
-        missing = sorted(set(FROM_CSV) - set(header or []))
-        if header is None or missing:
-            raise BagError(f"{path}: not a ddrt telemetry CSV (no column {', '.join(missing) or 'at all'})")
-        idx = {name: header.index(name) for name in FROM_CSV}
-        rows = []
-        for lineno, cells in enumerate(reader, start=2):
-            if len(cells) != len(header):
-                continue  # a row cut short by a daemon's end
-            try:
-                rows.append({k: float(cells[i]) for k, i in idx.items()})
-            except ValueError:
-                raise BagError(f"{path}: line {lineno}: not a number in {cells[:3]}...") from None
+        try:
+            rows = _rows(path, f)
+        except (UnicodeDecodeError, csv.Error) as exc:
+            raise BagError(f"{path}: not a ddrt telemetry CSV ({exc})") from None
     if not rows:
         raise BagError(f"{path}: no rows")
     if epoch_s is None:
