@@ -62,7 +62,9 @@ import numpy as np
 from ddrt.errors import DdrtError
 from ddrt.path.corners import CornerPin, corner_scale, find_corners, line_turns, refine_corner
 from ddrt.path.geometry import Geometry, GeometryOptions, Piece, line_piece, pivot_piece, polyline_geometry
-from ddrt.path.gridplan import corner_pin, grid_axis, grid_cell, grid_corners, steps_back, tight_bends
+from ddrt.path.gridplan import (
+    corner_pin, grid_axis, grid_cell, grid_corners, steps_back, straightened, tight_bends,
+)
 from ddrt.path.noise import TOLERANCE_FLOOR_M, arc_parameter, auto_tolerance, estimate_noise
 from ddrt.path.smoothing import (
     CurveStops, EndPin, FitError, FitRequest, FittedLeg, ToleranceUnmet, chord_length, fit_leg, staircase_noise,
@@ -250,6 +252,7 @@ class _Plan:
     wrap: tuple[np.ndarray, np.ndarray] | None
     axis: float | None
     opt: GeometryOptions
+    fit_p: np.ndarray  # what the legs are fitted to: p, or a grid plan's straight runs put onto their lines
 
 
 def _leg_pins(ends: tuple[EndPin | None, EndPin | None],
@@ -304,7 +307,9 @@ def _plan(p: np.ndarray, mode: str, tol: float, cell: float | None, noise: float
     pinned = ends[0] is not None or ends[1] is not None
     wrap = _loop_wrap(p, knot, scale, threshold, tol, spacing) if not corners and not pinned else None
     pins = _leg_pins(ends, found)
-    return _Plan(p, mode, tol, noise, knot, scale, corners, pins, wrap, grid_axis(p) if mode == GRID else None, opt)
+    axis = grid_axis(p) if mode == GRID else None
+    fit_p = straightened(p, cell, axis) if cell is not None and axis is not None else p
+    return _Plan(p, mode, tol, noise, knot, scale, corners, pins, wrap, axis, opt, fit_p)
 
 
 class _LegStops(DdrtError):
@@ -331,8 +336,8 @@ def _fit(plan: _Plan, j: int, a: int, b: int, where: str, names: Sequence[str]) 
     tries = [(start, end)] + ([loose] if loose[0] is not start or loose[1] is not end else [])
     for n, (s0, s1) in enumerate(tries):
         try:
-            return fit_leg(FitRequest(plan.p[a:b + 1], plan.tol, plan.noise, plan.knot, plan.opt, s0, s1,
-                                      plan.wrap, plan.axis))
+            return fit_leg(FitRequest(plan.fit_p[a:b + 1], plan.tol, plan.noise, plan.knot, plan.opt, s0, s1,
+                                      plan.wrap, plan.axis, None if plan.fit_p is plan.p else plan.p[a:b + 1]))
         except CurveStops as exc:
             first = len(plan.wrap[0]) if plan.wrap is not None else 0
             raise _LegStops(a + min(max(int(exc.index) - first, 0), b - a)) from None

@@ -136,3 +136,125 @@ def corner_pin(p: np.ndarray, u: np.ndarray, k: int, scale: float) -> CornerPin:
     if into is None or out is None:
         return CornerPin(p[k].copy())
     return CornerPin(p[k].copy(), into, out)
+
+
+STRAIGHT_MARGIN_CELLS = 0.49  # a run of cells is straight when one line passes this close to each (< half a cell)
+STRAIGHT_MIN_STEPS = 3  # runs of fewer steps are left as they are (a corner's own cells)
+_LINE_ANGLES = np.radians(np.linspace(-40.0, 40.0, 321))  # lines tried about a run's chord (0.25 degree steps)
+_FINE_ANGLES = np.radians(np.linspace(-0.25, 0.25, 101))  # and then about the best of those
+
+
+def _line_fit(g: np.ndarray) -> tuple[float, np.ndarray, float]:
+    """(deviation, unit normal, offset) of the line nearest to every cell centre `g` (grid units)
+    along the grid's axes: for a line of normal n through offset o, a centre c is |n.c - o| /
+    (|n_x| + |n_y|) from it that way, so the best offset for a direction is the midrange, and
+    the direction is searched within 40 degrees of the run's chord."""
+    d = g[-1] - g[0]
+    best = math.atan2(float(d[1]), float(d[0]))
+    for angles in (_LINE_ANGLES, _FINE_ANGLES):
+        phi = best + angles
+        nx, ny = -np.sin(phi), np.cos(phi)
+        o = nx[:, None] * g[None, :, 0] + ny[:, None] * g[None, :, 1]
+        spread = 0.5 * (o.max(axis=1) - o.min(axis=1)) / (np.abs(nx) + np.abs(ny))
+        k = int(np.argmin(spread))
+        best = float(phi[k])
+    return float(spread[k]), np.array([nx[k], ny[k]]), 0.5 * float(o[k].max() + o[k].min())
+
+
+def _onto(g: np.ndarray, n: np.ndarray, off: float) -> np.ndarray:
+    """Each centre moved onto the line along a diagonal of its cell (the nearest point of the
+    line along the grid's axes)."""
+    lam = (off - g @ n) / (abs(n[0]) + abs(n[1]))
+    return g + lam[:, None] * np.sign(n)[None, :]
+
+
+def _kinds(g: np.ndarray) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
+    """(the distinct steps of cells `g`, every step) as integer pairs."""
+    steps = [(int(a), int(b)) for a, b in np.round(np.diff(g, axis=0))]
+    return sorted(set(steps)), steps
+
+
+def _staircase(g: np.ndarray) -> bool:
+    """Whether cells `g` step as a straight line's staircase does: one step, or two kinds of
+    step where the rarer one never comes twice in a row and the runs of the other between
+    them differ by at most one (the first and last may be shorter). A run of diagonals then a
+    run along an axis (a planner's detour round a corner, or its choice among equally short
+    plans) is not one, however near a line its cells lie: it is two runs and a 45 degree turn."""
+    kinds, steps = _kinds(g)
+    if len(kinds) != 2:
+        return len(kinds) == 1
+    rare = min(kinds, key=steps.count)
+    runs: list[int] = [0]
+    for a, b in zip(steps[:-1], steps[1:]):
+        if a == rare and b == rare:
+            return False
+    for st in steps:
+        if st == rare:
+            runs.append(0)
+        else:
+            runs[-1] += 1
+    inner = runs[1:-1]
+    if not inner:
+        return True
+    return max(inner) - min(inner) <= 1 and runs[0] <= max(inner) and runs[-1] <= max(inner)
+
+
+def _stepped(g: np.ndarray) -> bool:
+    """Whether cells `g` are a staircase with a whole run of the commoner step between two
+    rarer ones (a single rarer step between two runs is a jog, not a slope)."""
+    kinds, steps = _kinds(g)
+    return len(kinds) == 2 and min(steps.count(k) for k in kinds) >= 2
+
+
+def _inside(g: np.ndarray) -> bool:
+    """Whether a staircase's rarer steps all lie inside it (its first and last steps are of the
+    commoner kind): a rarer step at its end may be the first of a run of its own."""
+    kinds, steps = _kinds(g)
+    if len(kinds) != 2:
+        return True
+    rare = min(kinds, key=steps.count)
+    return steps[0] != rare and steps[-1] != rare
+
+
+def straight_runs(g: np.ndarray, margin: float = STRAIGHT_MARGIN_CELLS) -> list[tuple[int, int, np.ndarray]]:
+    """A grid plan's cells (grid units) cut, greedily from its start, into the longest runs one
+    line passes within `margin` cells of (along the axes) while the cells advance along it: the
+    staircases a planner leaves of a straight line. (first, last, the run's centres on that line)
+    for runs of at least STRAIGHT_MIN_STEPS steps; consecutive runs share their end cell."""
+    out: list[tuple[int, int, np.ndarray]] = []
+    i, n = 0, len(g)
+    while i < n - 1:
+        j, fit = i + 1, None
+        while j + 1 < n:
+            dev, nrm, off = _line_fit(g[i:j + 2])
+            on = _onto(g[i:j + 2], nrm, off)
+            along = np.diff(on, axis=0) @ np.array([nrm[1], -nrm[0]])
+            if dev > margin or not (np.all(along > 0.0) or np.all(along < 0.0)) or not _staircase(g[i:j + 2]):
+                break
+            j, fit = j + 1, on
+        while fit is not None and j - i >= STRAIGHT_MIN_STEPS and not _inside(g[i:j + 1]):
+            j -= 1  # give the rarer step at its end back to the next run
+            fit = fit[:-1]
+        if fit is not None and j - i >= STRAIGHT_MIN_STEPS and _stepped(g[i:j + 1]):
+            out.append((i, j, fit))
+        i = j
+    return out
+
+
+def straightened(p: np.ndarray, cell: float, axis: float) -> np.ndarray:
+    """A grid plan's points with each straight run's cells (`straight_runs`) moved onto its
+    line (a cell where two runs meet, midway between its places on both): what the smoothing is fitted to,
+    so a staircase becomes the straight line it stands for (fitted to the cells themselves, it
+    wiggles within them, and every wiggle is a turn slowed for, ddrt/path/turnspeed.py). The
+    corridor is still measured from the cells."""
+    c, s = math.cos(axis), math.sin(axis)
+    rot = np.array([[c, -s], [s, c]])  # grid units -> the plan's frame
+    g = ((p - p[0]) @ rot) / cell
+    total = np.zeros_like(g)
+    count = np.zeros(len(g))
+    for a, b, on in straight_runs(g):
+        total[a:b + 1] += on
+        count[a:b + 1] += 1.0
+    q = np.where(count[:, None] > 0.0, total / np.maximum(count, 1.0)[:, None], g)
+    q[0], q[-1] = g[0], g[-1]  # the plan's own ends stay
+    return p[0] + cell * (q @ rot.T)
