@@ -55,7 +55,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Callable, Sequence, TypeVar
 
 import numpy as np
 
@@ -71,9 +71,10 @@ from ddrt.path.smoothing import (
 )
 from ddrt.path.turnspeed import turn_caps
 
-__all__ = ["ConditionOptions", "Conditioning", "ConditionError", "classify", "condition_polyline", "knot_spacing",
-           "point_noise", "run_tolerance"]
+__all__ = ["ConditionOptions", "Conditioning", "ConditionError", "ascending", "classify", "condition_polyline",
+           "knot_spacing", "point_noise", "run_tolerance"]
 
+_T = TypeVar("_T")
 WAYPOINTS, SAMPLES, GRID = "waypoints", "samples", "grid"
 GRID_TOLERANCE_CELLS = 0.5  # a grid plan's tolerance, in cells: the robot stays in the planned cells
 NOISE_FLOOR_M = 2e-5  # below this the points are exact (an export): smooth to this level
@@ -270,6 +271,18 @@ def _leg_pins(ends: tuple[EndPin | None, EndPin | None],
     return list(zip(starts, stops))
 
 
+def ascending(items: Sequence[_T], key: Callable[[_T], int]) -> list[_T]:
+    """The items whose key exceeds every key kept before it: corners in order along the points,
+    no two at one point. A reversal's corner moves to its tip (corners.refine_corner), which
+    may lie past the next corner found; each is compared with the last one kept, not with the
+    one before it in the list, which may itself have been dropped."""
+    out: list[_T] = []
+    for item in items:
+        if not out or key(item) > key(out[-1]):
+            out.append(item)
+    return out
+
+
 def _plan(p: np.ndarray, mode: str, tol: float, cell: float | None, noise: float, opt: GeometryOptions,
           ends: tuple[EndPin | None, EndPin | None], forced: Sequence[int] = ()) -> _Plan:
     """Where the corners are (along the distance the points stand for, corners.py; `forced`:
@@ -301,7 +314,7 @@ def _plan(p: np.ndarray, mode: str, tol: float, cell: float | None, noise: float
     refined = [((k, t), (k, CornerPin(p[k].copy()))) if pin is None and k in forced else ((at, t), (at, pin))
                for (k, t), (at, pin) in refined]
     kept = [((at, t), pin) for (_, t), (at, pin) in refined if pin is not None and 0 < at < len(p) - 1]
-    kept = [c for i, c in enumerate(kept) if i == 0 or c[0][0] > kept[i - 1][0][0]]  # in order, no two at one point
+    kept = ascending(kept, key=lambda c: c[0][0])
     corners = [c for c, _ in kept]
     found = [pin for _, pin in kept]
     pinned = ends[0] is not None or ends[1] is not None
