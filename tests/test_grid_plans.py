@@ -35,19 +35,22 @@ def _within_bound(path: Path, speed: float) -> bool:
     return path.duration <= 1.3 * path.length / speed + 3.0
 
 
-@pytest.mark.parametrize("moves, turn, k", [
-    (["E"] * 20 + ["NW"] * 20, 135.0, 20),
-    (["E", "E", "NE"] * 8 + ["W", "NW"] * 10, 135.0, 24),  # staircases either side
-    (["E"] * 20 + ["N"] * 20, 90.0, 20),
+@pytest.mark.parametrize("moves, turn, k, centre", [
+    (["E"] * 20 + ["NW"] * 20, 135.0, 20, True),
+    (["E", "E", "NE"] * 8 + ["W", "NW"] * 10, 135.0, 24, False),  # staircases either side
+    (["E"] * 20 + ["N"] * 20, 90.0, 20, True),
 ])
-def test_a_grid_corner_turns_in_place_at_its_cell(moves, turn, k) -> None:
-    """A 135 degree corner was bent to a 9 mm radius and crawled (2.3x length / speed)."""
+def test_a_grid_corner_turns_in_place_at_its_cell(moves, turn, k, centre) -> None:
+    """A 135 degree corner was bent to a 9 mm radius and crawled (2.3x length / speed). Between
+    straight runs it turns at the corner cell's centre; between staircases, where their lines
+    meet within that cell (each staircase is driven as its line, gridplan.straightened)."""
     xy = _cells(moves)
     path = load_path({"points": xy.tolist(), "speed": 0.4}, LIM)
     corners = path.conditioning.corners
     assert len(corners) == 1 and len(pivot_runs(path)) == 1
     assert abs(math.degrees(corners[0].turn)) == pytest.approx(turn, abs=20.0)
-    assert math.hypot(corners[0].x - xy[k, 0], corners[0].y - xy[k, 1]) < 1e-9  # at the corner cell's centre
+    off = (abs(corners[0].x - xy[k, 0]), abs(corners[0].y - xy[k, 1]))
+    assert max(off) < (1e-9 if centre else 0.5 * 0.05)  # at the cell's centre, or within the cell
     assert np.abs(path.arrays()["kappa"]).max() < 1.0 / 0.05
     assert path.duration < 1.3 * path.length / 0.4  # 2.3x before
 

@@ -289,12 +289,14 @@ def _plan(p: np.ndarray, mode: str, tol: float, cell: float | None, noise: float
     points where a fit stopped and turned back, corners whatever their sides say), each leg's
     ends, and whether the polyline closes on itself."""
     u = chord_length(p) if mode == GRID else arc_parameter(p, noise)
+    axis = grid_axis(p) if mode == GRID else None
+    fit_p = straightened(p, cell, axis) if cell is not None and axis is not None else p
     spacing = float(np.median(np.diff(u)))
     knot = knot_spacing(spacing, tol, cell)
     threshold = math.radians(opt.corner_pivot_deg)
     if mode == GRID:
         assert cell is not None
-        scale, corners = grid_corners(p, u, cell, threshold)
+        scale, corners = grid_corners(fit_p, u, cell, threshold)
     else:
         scale = corner_scale(tol, noise, spacing)
         corners = find_corners(p, u, scale, threshold, noise)
@@ -307,7 +309,7 @@ def _plan(p: np.ndarray, mode: str, tol: float, cell: float | None, noise: float
     mids = [0.5 * (u[a] + u[b]) for (a, _), (b, _) in zip(corners[:-1], corners[1:])]
     bounds = list(zip([-math.inf, *mids], [*mids, math.inf]))
     if mode == GRID:  # a grid plan turns at a cell's centre: its corner is that point
-        refined = [((k, t), (k, corner_pin(p, u, k, scale))) for k, t in corners]
+        refined = [((k, t), (k, corner_pin(fit_p, u, k, scale))) for k, t in corners]
     else:
         refined = [((k, t), refine_corner(p, u, k, scale, tol, bounds[i])) for i, (k, t) in enumerate(corners)]
     # A forced corner (the fit turned back there) stays at its point whatever its sides say.
@@ -320,8 +322,6 @@ def _plan(p: np.ndarray, mode: str, tol: float, cell: float | None, noise: float
     pinned = ends[0] is not None or ends[1] is not None
     wrap = _loop_wrap(p, knot, scale, threshold, tol, spacing) if not corners and not pinned else None
     pins = _leg_pins(ends, found)
-    axis = grid_axis(p) if mode == GRID else None
-    fit_p = straightened(p, cell, axis) if cell is not None and axis is not None else p
     return _Plan(p, mode, tol, noise, knot, scale, corners, pins, wrap, axis, opt, fit_p)
 
 
@@ -412,7 +412,7 @@ def _assemble(plan: _Plan, caps: np.ndarray | None, info: Conditioning, where: s
         devs[sl] = np.maximum(devs[sl], leg.dev)
         for k, (x1, x2) in ((a, _corner_ends(plan, j)), (b, _corner_ends(plan, j + 1))):
             if x1 is not None and x2 is not None:  # a corner's own point against the corner
-                devs[k] = max(devs[k], _segment_distance(p[k], x1, x2))
+                devs[k] = max(devs[k], _segment_distance(p[k], x1, x2, plan.axis))
         if caps is not None:
             cap_s.extend((sigma + leg.sigma).tolist())
             cap_v.extend(caps[sl].tolist())
@@ -438,11 +438,17 @@ def _corner_ends(plan: _Plan, j: int) -> tuple[np.ndarray | None, np.ndarray | N
     return (None if end is None else end.point), (None if start is None else start.point)
 
 
-def _segment_distance(q: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> float:
+def _segment_distance(q: np.ndarray, x1: np.ndarray, x2: np.ndarray, axis: float | None = None) -> float:
+    """From q to its foot on the segment x1-x2; for a grid plan (`axis`), along the grid's axes
+    (the larger of the two), as its corridor is measured."""
     d = x2 - x1
     n2 = float(d @ d)
     t = min(max(float((q - x1) @ d) / n2, 0.0), 1.0) if n2 > 0.0 else 0.0
-    return float(math.hypot(*(q - x1 - t * d)))
+    e = q - x1 - t * d
+    if axis is None:
+        return float(math.hypot(*e))
+    c, s = math.cos(axis), math.sin(axis)
+    return max(abs(c * e[0] + s * e[1]), abs(c * e[1] - s * e[0]))
 
 
 def _joint(x1: np.ndarray | None, x2: np.ndarray | None, heading: float, theta0: float,

@@ -196,7 +196,7 @@ def _staircase(g: np.ndarray) -> bool:
     inner = runs[1:-1]
     if not inner:
         return True
-    return max(inner) - min(inner) <= 1 and runs[0] <= max(inner) and runs[-1] <= max(inner)
+    return max(inner) - min(inner) <= 1 and max(runs[0], runs[-1]) <= min(inner) + 1
 
 
 def _stepped(g: np.ndarray) -> bool:
@@ -206,14 +206,10 @@ def _stepped(g: np.ndarray) -> bool:
     return len(kinds) == 2 and min(steps.count(k) for k in kinds) >= 2
 
 
-def _inside(g: np.ndarray) -> bool:
-    """Whether a staircase's rarer steps all lie inside it (its first and last steps are of the
-    commoner kind): a rarer step at its end may be the first of a run of its own."""
+def _rare(g: np.ndarray) -> tuple[int, int] | None:
+    """The rarer of a staircase's two kinds of step (None for one kind)."""
     kinds, steps = _kinds(g)
-    if len(kinds) != 2:
-        return True
-    rare = min(kinds, key=steps.count)
-    return steps[0] != rare and steps[-1] != rare
+    return min(kinds, key=steps.count) if len(kinds) == 2 else None
 
 
 def straight_runs(g: np.ndarray, margin: float = STRAIGHT_MARGIN_CELLS) -> list[tuple[int, int, np.ndarray]]:
@@ -232,11 +228,16 @@ def straight_runs(g: np.ndarray, margin: float = STRAIGHT_MARGIN_CELLS) -> list[
             if dev > margin or not (np.all(along > 0.0) or np.all(along < 0.0)) or not _staircase(g[i:j + 2]):
                 break
             j, fit = j + 1, on
-        while fit is not None and j - i >= STRAIGHT_MIN_STEPS and not _inside(g[i:j + 1]):
-            j -= 1  # give the rarer step at its end back to the next run
-            fit = fit[:-1]
-        if fit is not None and j - i >= STRAIGHT_MIN_STEPS and _stepped(g[i:j + 1]):
-            out.append((i, j, fit))
+        a = i
+        if fit is not None:
+            # A rarer step at either end may be the first of a run of its own (a diagonal run
+            # after a straight one): it is left to the cells between the runs.
+            rare, steps = _rare(g[i:j + 1]), _kinds(g[i:j + 1])[1]
+            while rare is not None and j - i > STRAIGHT_MIN_STEPS and steps[j - 1 - i] == rare:
+                j -= 1
+            a = 1 if i == 0 and rare is not None and steps[0] == rare else i  # the plan's start stays
+            if j - a >= STRAIGHT_MIN_STEPS and _stepped(g[a:j + 1]):
+                out.append((a, j, fit[a - i:j - i + 1]))
         i = j
     return out
 
