@@ -140,6 +140,7 @@ def corner_pin(p: np.ndarray, u: np.ndarray, k: int, scale: float) -> CornerPin:
 
 STRAIGHT_MARGIN_CELLS = 0.49  # a run of cells is straight when one line passes this close to each (< half a cell)
 STRAIGHT_MIN_STEPS = 3  # runs of fewer steps are left as they are (a corner's own cells)
+MEET_CELLS = 0.4  # two runs' lines meeting this close to their shared cell (along the axes) meet there
 _LINE_ANGLES = np.radians(np.linspace(-40.0, 40.0, 321))  # lines tried about a run's chord (0.25 degree steps)
 _FINE_ANGLES = np.radians(np.linspace(-0.25, 0.25, 101))  # and then about the best of those
 
@@ -183,20 +184,7 @@ def _staircase(g: np.ndarray) -> bool:
     kinds, steps = _kinds(g)
     if len(kinds) != 2:
         return len(kinds) == 1
-    rare = min(kinds, key=steps.count)
-    runs: list[int] = [0]
-    for a, b in zip(steps[:-1], steps[1:]):
-        if a == rare and b == rare:
-            return False
-    for st in steps:
-        if st == rare:
-            runs.append(0)
-        else:
-            runs[-1] += 1
-    inner = runs[1:-1]
-    if not inner:
-        return True
-    return max(inner) - min(inner) <= 1 and max(runs[0], runs[-1]) <= min(inner) + 1
+    return _rare(g) is not None
 
 
 def _stepped(g: np.ndarray) -> bool:
@@ -207,9 +195,26 @@ def _stepped(g: np.ndarray) -> bool:
 
 
 def _rare(g: np.ndarray) -> tuple[int, int] | None:
-    """The rarer of a staircase's two kinds of step (None for one kind)."""
+    """The rarer of a staircase's two kinds of step: the one that never comes twice in a row,
+    between runs of the other that differ by at most one (the first and last may be shorter);
+    the less frequent where both would do. None for one kind of step or no staircase."""
     kinds, steps = _kinds(g)
-    return min(kinds, key=steps.count) if len(kinds) == 2 else None
+    if len(kinds) != 2:
+        return None
+    for rare in sorted(kinds, key=steps.count):
+        runs: list[int] = [0]
+        for k, st in enumerate(steps):
+            if st != rare:
+                runs[-1] += 1
+            elif k > 0 and steps[k - 1] == rare:
+                break  # two in a row
+            else:
+                runs.append(0)
+        else:
+            inner = runs[1:-1]
+            if not inner or (max(inner) - min(inner) <= 1 and max(runs[0], runs[-1]) <= min(inner) + 1):
+                return rare
+    return None
 
 
 def straight_runs(g: np.ndarray, margin: float = STRAIGHT_MARGIN_CELLS) -> list[tuple[int, int, np.ndarray]]:
@@ -242,20 +247,34 @@ def straight_runs(g: np.ndarray, margin: float = STRAIGHT_MARGIN_CELLS) -> list[
     return out
 
 
+def _meet(a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+    """Where the line through a[0], a[-1] meets the one through b[0], b[-1]; None if parallel."""
+    da, db = a[-1] - a[0], b[-1] - b[0]
+    den = float(da[0] * db[1] - da[1] * db[0])
+    if abs(den) < 1e-9 * float(np.hypot(*da) * np.hypot(*db)):
+        return None
+    r = b[0] - a[0]
+    return a[0] + float(r[0] * db[1] - r[1] * db[0]) / den * da
+
+
 def straightened(p: np.ndarray, cell: float, axis: float) -> np.ndarray:
     """A grid plan's points with each straight run's cells (`straight_runs`) moved onto its
-    line (a cell where two runs meet, midway between its places on both): what the smoothing is fitted to,
-    so a staircase becomes the straight line it stands for (fitted to the cells themselves, it
-    wiggles within them, and every wiggle is a turn slowed for, ddrt/path/turnspeed.py). The
-    corridor is still measured from the cells."""
+    line: what the smoothing is fitted to, so a staircase becomes the straight line it stands
+    for (fitted to the cells themselves, it wiggles within them, and every wiggle is a turn
+    slowed for, ddrt/path/turnspeed.py). A cell where two runs meet goes where their lines
+    meet if that lies within the cell (a corner turned there leaves both legs on their lines),
+    else midway between its places on both. The corridor is still measured from the cells."""
     c, s = math.cos(axis), math.sin(axis)
     rot = np.array([[c, -s], [s, c]])  # grid units -> the plan's frame
     g = ((p - p[0]) @ rot) / cell
-    total = np.zeros_like(g)
-    count = np.zeros(len(g))
-    for a, b, on in straight_runs(g):
-        total[a:b + 1] += on
-        count[a:b + 1] += 1.0
-    q = np.where(count[:, None] > 0.0, total / np.maximum(count, 1.0)[:, None], g)
+    q = g.copy()
+    runs = straight_runs(g)
+    for a, b, on in runs:
+        q[a + 1:b] = on[1:-1]
+        q[a], q[b] = (on[0], on[-1]) if a > 0 else (g[a], on[-1])
+    for (_, b0, on0), (a1, _, on1) in zip(runs[:-1], runs[1:]):
+        if b0 == a1:
+            x = _meet(on0, on1)
+            q[a1] = x if x is not None and np.max(np.abs(x - g[a1])) <= MEET_CELLS else 0.5 * (on0[-1] + on1[0])
     q[0], q[-1] = g[0], g[-1]  # the plan's own ends stay
     return p[0] + cell * (q @ rot.T)
