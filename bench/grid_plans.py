@@ -49,24 +49,30 @@ class PlanResult:
 
 
 def forced_turns(xy: np.ndarray, cell: float) -> int:
-    """Turns of FORCED_TURN_DEG or more between the plan's runs: each step's direction, a
-    staircase's steps taken along its line (gridplan.straight_runs), consecutive changes summed
-    while they turn the same way."""
+    """Turns of FORCED_TURN_DEG or more between the plan's runs: its staircases
+    (gridplan.straight_runs) and its runs of one step (at least three steps, outside any
+    staircase), each taken as its line, in order, and the steps between two runs as their chord
+    (a jog sideways is two turns)."""
     g = (xy - xy[0]) / cell  # the fuzz's grids are not rotated
-    d = np.diff(g, axis=0)
-    heading = np.arctan2(d[:, 1], d[:, 0])
-    for a, b, on in straight_runs(g):
-        e = on[-1] - on[0]
-        heading[a:b] = math.atan2(float(e[1]), float(e[0]))
-    turn = (np.diff(heading) + math.pi) % (2.0 * math.pi) - math.pi
-    count, run = 0, 0.0
-    for t in turn.tolist() + [0.0]:
-        if t != 0.0 and (run == 0.0 or (t > 0.0) == (run > 0.0)):
-            run += t
-            continue
-        count += abs(run) >= math.radians(FORCED_TURN_DEG)
-        run = t
-    return count + (abs(run) >= math.radians(FORCED_TURN_DEG))
+    runs = [(a, b, float(math.atan2(*(on[-1] - on[0])[::-1]))) for a, b, on in straight_runs(g)]
+    covered = np.zeros(len(g) - 1, dtype=bool)
+    for a, b, _ in runs:
+        covered[a:b] = True
+    d = np.round(np.diff(g, axis=0)).astype(int)
+    k = 0
+    while k < len(d):
+        m = k
+        while m + 1 < len(d) and np.array_equal(d[m + 1], d[k]) and not covered[m + 1]:
+            m += 1
+        if not covered[k] and m - k + 1 >= 3:
+            runs.append((k, m + 1, math.atan2(float(d[k, 1]), float(d[k, 0]))))
+        k = m + 1
+    runs.sort()
+    gaps = [(b, a, math.atan2(float(g[a, 1] - g[b, 1]), float(g[a, 0] - g[b, 0])))
+            for (_, b, _), (a, _, _) in zip(runs[:-1], runs[1:]) if a > b]  # a jog between runs: its chord
+    heading = [h for _, _, h in sorted(runs + gaps)]
+    turn = [abs((b - a + math.pi) % (2.0 * math.pi) - math.pi) for a, b in zip(heading[:-1], heading[1:])]
+    return sum(t >= math.radians(FORCED_TURN_DEG) for t in turn)
 
 
 def measure(seed: int, count: int) -> list[PlanResult]:

@@ -125,7 +125,7 @@ def test_a_staircase_between_turns_is_driven_as_its_line() -> None:
 
 @pytest.mark.xfail(strict=True, reason="plans whose cells force many turns for their length: 28 of 600 fuzzed "
                    "plans (seeds 11-14, python -m bench.grid_plans) and 5 of these 40 exceed the bound, every one "
-                   "with cells under 5 cm and a median of 3.7 turns of 40 degrees or more a metre (0.9 for the "
+                   "with cells under 5 cm and a median of 2.7 turns of 40 degrees or more a metre (0.7 for the "
                    "plans that hold it). Each such turn costs about 0.8 s beyond length / speed, in place (a "
                    "45 degree turn in place: 0.81 s on configs/sim.yaml, a stop, the turn, a start) or driven "
                    "within its cells at the grid turn speed (ddrt/path/turnspeed.py: at least sqrt(4 |turn| / "

@@ -10,11 +10,13 @@ A CSV or `points:` list arrives as a polyline. Three kinds are told apart (`clas
   diagonal of a common grid, a cell below the waypoint spacing). The plan says which cells
   are free, not that the robot must zig-zag through their centres: it is smoothed like
   samples with a tolerance of half a cell (or the path's own `tolerance:`) measured along
-  the grid's axes, so the corridor is each point's cell. Its corners are read from the cells
-  themselves (the staircase is exact, not noise; ddrt/path/gridplan.py): where the direction
-  of the lines through six cells either side, and three, turns by more than GRID_PIVOT_DEG
-  (90, 135 and 180 degree turns), the plan turns in place at that cell's centre; corners may
-  lie two cells apart. Staircases and 45 degree steps are smoothed within the cells. A turn
+  the grid's axes, so the corridor is each point's cell. A staircase that a straight line
+  crosses cell by cell is fitted as that line (ddrt/path/gridplan.py `straightened`; the
+  corridor still measured from the cells). Its corners are read from those cells (the
+  staircase is exact, not noise): where the direction of the lines through six cells either
+  side, and three, turns by more than GRID_PIVOT_DEG (90, 135 and 180 degree turns), the plan
+  turns in place at that cell (its centre, or where two staircases' lines meet within it);
+  corners may lie two cells apart. 45 degree steps are smoothed within the cells. A turn
   the fit still bends tighter than five cells' radius by 40 degrees or more (or tighter than a
   cell at all) is turned in place at its sharpest point too: the smoothed turns get one speed
   cap each that bounds the RMS of v^2 dkappa/ds over it (ddrt/path/turnspeed.py), so a turn

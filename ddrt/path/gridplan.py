@@ -1,24 +1,29 @@
-"""Reading a grid planner's plan: its cell, its axes, and where it turns.
+"""Reading a grid planner's plan: its cell, its axes, its straight runs and where it turns.
 
 A grid plan (every step one cell along an axis or a diagonal of one grid) is exact: its
-staircase is no noise, so its corners are read from the cells, not from a scale set by a
-noise estimate. The direction either side of a cell is the line through the cells within
-GRID_CORNER_CELLS of it (and half that): six cells, so each half-scale side holds three cells
-even along a diagonal (a side of two cells reads no direction: a 135 degree corner read so
-is no corner, and the fit bends it to a 9 mm radius, crawled at the turn speed). Turns of 90
-degrees and more turn in place at their cell's centre, a leg that runs straight into one held
-along its run; staircases and 45 degree steps are smoothed (condition.py). A bend the fit
-still makes tighter than GRID_TIGHT_CELLS cells of radius while turning GRID_TIGHT_TURN_DEG or
-more there, or tighter than one cell at all, is turned in place too (`tight_bends`; a smaller
-wiggle is cheaper driven than stopped for, and the sharp turns of a plan's 45 degree steps
-stay smoothed): at the turn speed's bounded yaw acceleration any smoothed turn takes at least
-sqrt(4 |turn| / accel) seconds (2.1 s for 90 degrees) and a bend that tight is taken well
-below the asked speed, while a turn in place is a stop and about half a second. Five cells
-is what measured fastest over the fuzzed plans (lab/path_inputs.py grid_fuzz_plan,
-seeds 11-14, 150 each, within 1.3 x length / speed + 3 s): 1 cell 525 of 600, 5 cells 558,
-8 cells 545 (wider bends turned in place stop more often than they save); 5 cells where the
-bend turns 40 degrees or more, 553 (the turns of 10-15 degrees that the plain rule stopped for
-belong to 45 degree steps, which are driven).
+staircase is no noise. A staircase that a straight line crosses cell by cell (one kind of step
+never twice in a row, runs of the other differing by at most one, as a line's staircase steps:
+`straight_runs`) is that line to a robot, so its cells are put onto the line before the fit
+(`straightened`; the corridor is still measured from the cells). Fitted to the cells
+themselves, the curve wiggled within them, and every wiggle was a turn slowed for at the grid
+turn speed (turnspeed.py). A run of diagonals then a run along an axis is no line's staircase:
+it is two runs and a 45 degree turn, left as it is.
+
+Corners are read from the straightened cells, not from a scale set by a noise estimate: the
+direction either side of a cell is the line through the cells within GRID_CORNER_CELLS of it
+(and half that): six cells, so each half-scale side holds three cells even along a diagonal
+(a side of two cells reads no direction: a 135 degree corner read so is no corner, and the fit
+bends it to a 9 mm radius, crawled at the turn speed). Turns of 90 degrees and more turn in
+place: at their cell's centre between straight runs, where two staircases' lines meet (within
+the cell) between staircases; a leg that runs straight into a corner is held along its run.
+45 degree steps are smoothed (condition.py). A bend the fit still makes tighter than
+GRID_TIGHT_CELLS cells of radius while turning GRID_TIGHT_TURN_DEG or more there, or tighter
+than one cell at all, is turned in place too (`tight_bends`): at the turn speed's bounded yaw
+acceleration any smoothed turn takes at least sqrt(4 |turn| / accel) seconds (2.1 s for 90
+degrees), while a turn in place is a stop and about half a second; a smaller bend is cheaper
+driven than stopped for. Over the fuzzed plans (python -m bench.grid_plans: lab/path_inputs.py
+grid_fuzz_plan, seeds 11-14, 150 each, within 1.3 x length / speed + 3 s) five cells is what
+measured best.
 """
 
 from __future__ import annotations
