@@ -12,6 +12,7 @@ import pytest
 
 from ddrt.config import load_config
 from ddrt.path import load_path
+from ddrt.path.gridplan import straight_runs, straightened
 from ddrt.path.report import pivot_runs
 from ddrt.path.sampled import Path
 from ddrt.path.spec import speed_limits
@@ -53,6 +54,25 @@ def test_a_grid_corner_turns_in_place_at_its_cell(moves, turn, k, centre) -> Non
     assert max(off) < (1e-9 if centre else 0.5 * 0.05)  # at the cell's centre, or within the cell
     assert np.abs(path.arrays()["kappa"]).max() < 1.0 / 0.05
     assert path.duration < 1.3 * path.length / 0.4  # 2.3x before
+
+
+@pytest.mark.parametrize("moves, runs", [
+    (["E", "N", "N"] * 10, [(1, 30)]),  # a line's staircase: one run (the plan's start stays in its cell)
+    (["E", "N"] * 6 + ["E", "E", "E", "N"] * 5, [(0, 14), (14, 31)]),  # two slopes sharing a cell; the last
+    # step, a rarer one, is left to the end cell
+    (["S"] * 17 + ["SE"] * 8, []),  # two runs of one step each and a 45 degree turn: left as they are
+    (["S"] * 10 + ["SE", "SE"] + ["S"] * 10, []),  # a jog is no staircase
+])
+def test_straight_runs_are_a_lines_staircases(moves, runs) -> None:
+    steps = {**STEPS, "SE": (1, -1)}
+    g = np.cumsum([(0, 0)] + [steps[m] for m in moves], axis=0).astype(float)
+    found = straight_runs(g)
+    assert [(a, b) for a, b, _ in found] == runs
+    q = (straightened(0.03 * (g + 0.5), 0.03, 0.0) / 0.03) - 0.5
+    assert np.abs(q - g).max() <= 0.49 + 1e-9  # every cell's point stays in its cell
+    for a, b, on in found:  # on one line
+        d = on - on[0]
+        assert np.abs(d[:, 0] * d[-1, 1] - d[:, 1] * d[-1, 0]).max() < 1e-6 * float(d[-1] @ d[-1])
 
 
 @pytest.mark.parametrize("moves", [["E", "N"] * 20, ["E", "NE"] * 20, ["E", "E", "NE"] * 12])

@@ -36,13 +36,19 @@ import numpy as np
 from ddrt.path.corners import CornerPin, find_corners
 from ddrt.path.geometry import Geometry
 
-__all__ = ["GRID_PIVOT_DEG", "corner_pin", "grid_axis", "grid_cell", "grid_corners", "steps_back", "tight_bends"]
+__all__ = ["GRID_PIVOT_DEG", "corner_pin", "grid_axis", "grid_cell", "grid_corners", "steps_back", "straight_runs",
+           "straightened", "tight_bends"]
 
 GRID_PIVOT_DEG = 67.5  # in a grid plan, turns of 90 degrees and more (90, 135, 180) pivot
 GRID_CORNER_CELLS = 6.0  # a grid plan's corner scale: each half-scale side holds 3 cells even diagonally
 GRID_CORNER_APART_CELLS = 2.0  # a grid plan's corners at least this far apart (cells)
 GRID_TIGHT_CELLS = 5.0  # a grid plan's fit bending tighter than this radius (cells) turns in place there
 GRID_TIGHT_TURN_DEG = 40.0  # if it turns by this much within that radius (or bends tighter than one cell)
+STRAIGHT_MARGIN_CELLS = 0.49  # a run of cells is straight when one line passes this close to each (< half a cell)
+STRAIGHT_MIN_STEPS = 3  # runs of fewer steps are left as they are (a corner's own cells)
+MEET_CELLS = 0.4  # two runs' lines meeting this close to their shared cell (along the axes) meet there
+_LINE_ANGLES = np.radians(np.linspace(-40.0, 40.0, 321))  # lines tried about a run's chord (0.25 degree steps)
+_FINE_ANGLES = np.radians(np.linspace(-0.25, 0.25, 101))  # and then about the best of those
 
 
 def grid_cell(p: np.ndarray) -> float | None:
@@ -142,12 +148,6 @@ def corner_pin(p: np.ndarray, u: np.ndarray, k: int, scale: float) -> CornerPin:
         return CornerPin(p[k].copy())
     return CornerPin(p[k].copy(), into, out)
 
-
-STRAIGHT_MARGIN_CELLS = 0.49  # a run of cells is straight when one line passes this close to each (< half a cell)
-STRAIGHT_MIN_STEPS = 3  # runs of fewer steps are left as they are (a corner's own cells)
-MEET_CELLS = 0.4  # two runs' lines meeting this close to their shared cell (along the axes) meet there
-_LINE_ANGLES = np.radians(np.linspace(-40.0, 40.0, 321))  # lines tried about a run's chord (0.25 degree steps)
-_FINE_ANGLES = np.radians(np.linspace(-0.25, 0.25, 101))  # and then about the best of those
 
 
 def _line_fit(g: np.ndarray) -> tuple[float, np.ndarray, float]:
