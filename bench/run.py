@@ -104,7 +104,7 @@ OWN_COMMAND: dict[int, str] = {
     23: "python -m bench.gyro_warmup --shipped",
     24: "python -m bench.population --workers 1 --variants dynamic,dynamic+adapt [--harsh]",
     25: "python -m bench.commissioning --only population --robots 100 --mismatch 0.15 --workers 1 --no-uncommissioned",
-    26: "python -m bench.soak --cycles 300 --every 10 [--ros2 | --foxglove]",
+    26: "python -m bench.soak --cycles 1000 --every 10 [--ros2] [--foxglove]",
 }
 
 
