@@ -100,11 +100,11 @@ OWN_COMMAND: dict[int, str] = {
         "--variants dynamic,dynamic+adapt [--harsh] and python -m bench.adaptation",
     20: "python -m bench.reload_stall --reloads 40 --repo OLDER_CHECKOUT --repo .",
     21: "python -m bench.gyro_faults and python -m bench.gyro_faults --before",
-    22: "the python -c loop in the section (grid_fuzz_plan) and python -m bench.paths_as_given --cases grid_5cm,...",
+    22: "python -m bench.grid_plans and python -m bench.paths_as_given --cases grid_5cm,...",
     23: "python -m bench.gyro_warmup --shipped",
     24: "python -m bench.population --workers 1 --variants dynamic,dynamic+adapt [--harsh]",
     25: "python -m bench.commissioning --only population --robots 100 --mismatch 0.15 --workers 1 --no-uncommissioned",
-    26: "python -m bench.soak --cycles 300 --every 10 [--ros2 | --foxglove]",
+    26: "python -m bench.soak --cycles 1000 --every 10 [--ros2] [--foxglove]",
 }
 
 

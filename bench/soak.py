@@ -265,11 +265,16 @@ def plot(result: Soak, out: FsPath) -> bool:
     except ImportError:
         return False
     fig, (ax, ax2) = plt.subplots(2, 1, figsize=(6.4, 4.4), sharex=True, height_ratios=(3, 1))
+    judged: list[int] = []  # the changes after the warm-up, which set the scale (a child still starting does not)
     for name, s in result.samples.items():
         if name in SHORT_LIVED:
             continue
         base = next((x.rss_kb for x in s if x.cycle >= WARMUP_CYCLES), s[0].rss_kb)
         ax.plot([x.cycle for x in s], [x.rss_kb - base for x in s], label=f"{name} (from {base / 1024:.1f} MiB)")
+        judged += [x.rss_kb - base for x in s if x.cycle >= WARMUP_CYCLES]
+    if judged:
+        pad = max(64, (max(judged) - min(judged)) // 5)
+        ax.set_ylim(min(judged) - pad, max(judged) + pad)
     ax.axvline(WARMUP_CYCLES, color="grey", lw=0.8, ls=":")
     ax.set_ylabel(f"RSS - RSS at cycle {WARMUP_CYCLES} (KiB)")
     ax.legend(fontsize=8)

@@ -11,7 +11,7 @@ from array import array
 
 import pytest
 
-from bench import accuracy, adaptation, io_bound, paths_as_given, run, tick_cost, velocity_mode
+from bench import accuracy, adaptation, grid_plans, io_bound, paths_as_given, run, tick_cost, velocity_mode
 from ddrt.config import load_config
 from ddrt.loop import ControlLoop
 from ddrt.path.spec import resolve_path
@@ -332,3 +332,16 @@ def test_capabilities_hold_every_section_once_and_headlines_survive_a_splice() -
     spliced = run.splice_section(doc, 10, run.headline(doc, 10) + ["new table"])
     assert spliced == doc.replace("old table", "new table")  # the group heading ends the section
     assert run.section_body(spliced, 10) == ["**Headline:** 80 of 80.", "", "new table"]
+
+
+@pytest.mark.parametrize("steps, turns", [
+    ([(1, 0)] * 10 + [(0, 1)] * 10, 1),  # a 90 degree corner
+    ([(1, 0), (0, 1)] * 10, 0),  # a staircase is its line
+    ([(1, 0)] * 8 + [(1, 1)] * 8 + [(1, 0)] * 8, 2),  # two 45 degree turns
+    ([(1, 0)] * 6 + [(1, 1), (1, 0)] * 5, 0),  # a 27 degree one, below 40
+])
+def test_grid_plans_counts_the_turns_the_cells_force(steps, turns) -> None:
+    import numpy as np
+
+    xy = 0.03 * (np.cumsum([(0, 0)] + steps, axis=0) + 0.5)
+    assert grid_plans.forced_turns(xy, 0.03) == turns

@@ -16,6 +16,7 @@ from ddrt.config.sections import PathsConfig
 from ddrt.loop import LoopState
 from ddrt.path.report import pivot_runs
 from ddrt.path import PathError, load_path
+from ddrt.path.condition import ascending
 from ddrt.path.geometry import GeometryOptions, polyline_geometry
 from ddrt.path.report import LABELS, active_limits, path_report
 from ddrt.path.sampled import Path
@@ -402,3 +403,16 @@ def test_ddrt_sim_and_a_follow_reply_report_the_deviation(tmp_path, capsys) -> N
     assert any("samples of a curve" in n and "largest deviation" in n for n in reply["notes"])
     assert "warnings" not in reply  # reading points as a curve is no cause for concern
     assert d.loop.path.deviation_m == pytest.approx(load_path(f, LIM).deviation_m, abs=1e-5)  # CSV: 6 decimals
+
+
+@pytest.mark.parametrize("found, kept", [
+    ([7, 5, 6], [7]),  # a reversal's tip moved past the two corners after it
+    ([3, 9, 4, 5, 10], [3, 9, 10]),
+    ([2, 2, 4, 4, 6], [2, 4, 6]),  # no two at one point
+    ([], []),
+])
+def test_corners_are_kept_in_order_against_the_last_kept(found, kept) -> None:
+    """Each corner is compared with the last one kept: compared with its neighbour in the list,
+    [7, 5, 6] kept 6 after 7 (5 dropped, then 6 > 5), and the legs between were cut backwards."""
+    assert ascending(found, key=lambda k: k) == kept
+    assert all(a < b for a, b in zip(kept[:-1], kept[1:]))

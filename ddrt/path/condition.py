@@ -10,11 +10,13 @@ A CSV or `points:` list arrives as a polyline. Three kinds are told apart (`clas
   diagonal of a common grid, a cell below the waypoint spacing). The plan says which cells
   are free, not that the robot must zig-zag through their centres: it is smoothed like
   samples with a tolerance of half a cell (or the path's own `tolerance:`) measured along
-  the grid's axes, so the corridor is each point's cell. Its corners are read from the cells
-  themselves (the staircase is exact, not noise; ddrt/path/gridplan.py): where the direction
-  of the lines through six cells either side, and three, turns by more than GRID_PIVOT_DEG
-  (90, 135 and 180 degree turns), the plan turns in place at that cell's centre; corners may
-  lie two cells apart. Staircases and 45 degree steps are smoothed within the cells. A turn
+  the grid's axes, so the corridor is each point's cell. A staircase that a straight line
+  crosses cell by cell is fitted as that line (ddrt/path/gridplan.py `straightened`; the
+  corridor still measured from the cells). Its corners are read from those cells (the
+  staircase is exact, not noise): where the direction of the lines through six cells either
+  side, and three, turns by more than GRID_PIVOT_DEG (90, 135 and 180 degree turns), the plan
+  turns in place at that cell (its centre, or where two staircases' lines meet within it);
+  corners may lie two cells apart. 45 degree steps are smoothed within the cells. A turn
   the fit still bends tighter than five cells' radius by 40 degrees or more (or tighter than a
   cell at all) is turned in place at its sharpest point too: the smoothed turns get one speed
   cap each that bounds the RMS of v^2 dkappa/ds over it (ddrt/path/turnspeed.py), so a turn
@@ -55,23 +57,26 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Callable, Sequence, TypeVar
 
 import numpy as np
 
 from ddrt.errors import DdrtError
 from ddrt.path.corners import CornerPin, corner_scale, find_corners, line_turns, refine_corner
 from ddrt.path.geometry import Geometry, GeometryOptions, Piece, line_piece, pivot_piece, polyline_geometry
-from ddrt.path.gridplan import corner_pin, grid_axis, grid_cell, grid_corners, steps_back, tight_bends
+from ddrt.path.gridplan import (
+    corner_pin, grid_axis, grid_cell, grid_corners, steps_back, straightened, tight_bends,
+)
 from ddrt.path.noise import TOLERANCE_FLOOR_M, arc_parameter, auto_tolerance, estimate_noise
 from ddrt.path.smoothing import (
     CurveStops, EndPin, FitError, FitRequest, FittedLeg, ToleranceUnmet, chord_length, fit_leg, staircase_noise,
 )
 from ddrt.path.turnspeed import turn_caps
 
-__all__ = ["ConditionOptions", "Conditioning", "ConditionError", "classify", "condition_polyline", "knot_spacing",
-           "point_noise", "run_tolerance"]
+__all__ = ["ConditionOptions", "Conditioning", "ConditionError", "ascending", "classify", "condition_polyline",
+           "knot_spacing", "point_noise", "run_tolerance"]
 
+_T = TypeVar("_T")
 WAYPOINTS, SAMPLES, GRID = "waypoints", "samples", "grid"
 GRID_TOLERANCE_CELLS = 0.5  # a grid plan's tolerance, in cells: the robot stays in the planned cells
 NOISE_FLOOR_M = 2e-5  # below this the points are exact (an export): smooth to this level
@@ -250,6 +255,7 @@ class _Plan:
     wrap: tuple[np.ndarray, np.ndarray] | None
     axis: float | None
     opt: GeometryOptions
+    fit_p: np.ndarray  # what the legs are fitted to: p, or a grid plan's straight runs put onto their lines
 
 
 def _leg_pins(ends: tuple[EndPin | None, EndPin | None],
@@ -267,18 +273,32 @@ def _leg_pins(ends: tuple[EndPin | None, EndPin | None],
     return list(zip(starts, stops))
 
 
+def ascending(items: Sequence[_T], key: Callable[[_T], int]) -> list[_T]:
+    """The items whose key exceeds every key kept before it: corners in order along the points,
+    no two at one point. A reversal's corner moves to its tip (corners.refine_corner), which
+    may lie past the next corner found; each is compared with the last one kept, not with the
+    one before it in the list, which may itself have been dropped."""
+    out: list[_T] = []
+    for item in items:
+        if not out or key(item) > key(out[-1]):
+            out.append(item)
+    return out
+
+
 def _plan(p: np.ndarray, mode: str, tol: float, cell: float | None, noise: float, opt: GeometryOptions,
           ends: tuple[EndPin | None, EndPin | None], forced: Sequence[int] = ()) -> _Plan:
     """Where the corners are (along the distance the points stand for, corners.py; `forced`:
     points where a fit stopped and turned back, corners whatever their sides say), each leg's
     ends, and whether the polyline closes on itself."""
     u = chord_length(p) if mode == GRID else arc_parameter(p, noise)
+    axis = grid_axis(p) if mode == GRID else None
+    fit_p = straightened(p, cell, axis) if cell is not None and axis is not None else p
     spacing = float(np.median(np.diff(u)))
     knot = knot_spacing(spacing, tol, cell)
     threshold = math.radians(opt.corner_pivot_deg)
     if mode == GRID:
         assert cell is not None
-        scale, corners = grid_corners(p, u, cell, threshold)
+        scale, corners = grid_corners(fit_p, u, cell, threshold)
     else:
         scale = corner_scale(tol, noise, spacing)
         corners = find_corners(p, u, scale, threshold, noise)
@@ -291,20 +311,20 @@ def _plan(p: np.ndarray, mode: str, tol: float, cell: float | None, noise: float
     mids = [0.5 * (u[a] + u[b]) for (a, _), (b, _) in zip(corners[:-1], corners[1:])]
     bounds = list(zip([-math.inf, *mids], [*mids, math.inf]))
     if mode == GRID:  # a grid plan turns at a cell's centre: its corner is that point
-        refined = [((k, t), (k, corner_pin(p, u, k, scale))) for k, t in corners]
+        refined = [((k, t), (k, corner_pin(fit_p, u, k, scale))) for k, t in corners]
     else:
         refined = [((k, t), refine_corner(p, u, k, scale, tol, bounds[i])) for i, (k, t) in enumerate(corners)]
     # A forced corner (the fit turned back there) stays at its point whatever its sides say.
     refined = [((k, t), (k, CornerPin(p[k].copy()))) if pin is None and k in forced else ((at, t), (at, pin))
                for (k, t), (at, pin) in refined]
     kept = [((at, t), pin) for (_, t), (at, pin) in refined if pin is not None and 0 < at < len(p) - 1]
-    kept = [c for i, c in enumerate(kept) if i == 0 or c[0][0] > kept[i - 1][0][0]]  # in order, no two at one point
+    kept = ascending(kept, key=lambda c: c[0][0])
     corners = [c for c, _ in kept]
     found = [pin for _, pin in kept]
     pinned = ends[0] is not None or ends[1] is not None
     wrap = _loop_wrap(p, knot, scale, threshold, tol, spacing) if not corners and not pinned else None
     pins = _leg_pins(ends, found)
-    return _Plan(p, mode, tol, noise, knot, scale, corners, pins, wrap, grid_axis(p) if mode == GRID else None, opt)
+    return _Plan(p, mode, tol, noise, knot, scale, corners, pins, wrap, axis, opt, fit_p)
 
 
 class _LegStops(DdrtError):
@@ -331,8 +351,8 @@ def _fit(plan: _Plan, j: int, a: int, b: int, where: str, names: Sequence[str]) 
     tries = [(start, end)] + ([loose] if loose[0] is not start or loose[1] is not end else [])
     for n, (s0, s1) in enumerate(tries):
         try:
-            return fit_leg(FitRequest(plan.p[a:b + 1], plan.tol, plan.noise, plan.knot, plan.opt, s0, s1,
-                                      plan.wrap, plan.axis))
+            return fit_leg(FitRequest(plan.fit_p[a:b + 1], plan.tol, plan.noise, plan.knot, plan.opt, s0, s1,
+                                      plan.wrap, plan.axis, None if plan.fit_p is plan.p else plan.p[a:b + 1]))
         except CurveStops as exc:
             first = len(plan.wrap[0]) if plan.wrap is not None else 0
             raise _LegStops(a + min(max(int(exc.index) - first, 0), b - a)) from None
@@ -394,7 +414,7 @@ def _assemble(plan: _Plan, caps: np.ndarray | None, info: Conditioning, where: s
         devs[sl] = np.maximum(devs[sl], leg.dev)
         for k, (x1, x2) in ((a, _corner_ends(plan, j)), (b, _corner_ends(plan, j + 1))):
             if x1 is not None and x2 is not None:  # a corner's own point against the corner
-                devs[k] = max(devs[k], _segment_distance(p[k], x1, x2))
+                devs[k] = max(devs[k], _segment_distance(p[k], x1, x2, plan.axis))
         if caps is not None:
             cap_s.extend((sigma + leg.sigma).tolist())
             cap_v.extend(caps[sl].tolist())
@@ -420,11 +440,17 @@ def _corner_ends(plan: _Plan, j: int) -> tuple[np.ndarray | None, np.ndarray | N
     return (None if end is None else end.point), (None if start is None else start.point)
 
 
-def _segment_distance(q: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> float:
+def _segment_distance(q: np.ndarray, x1: np.ndarray, x2: np.ndarray, axis: float | None = None) -> float:
+    """From q to its foot on the segment x1-x2; for a grid plan (`axis`), along the grid's axes
+    (the larger of the two), as its corridor is measured."""
     d = x2 - x1
     n2 = float(d @ d)
     t = min(max(float((q - x1) @ d) / n2, 0.0), 1.0) if n2 > 0.0 else 0.0
-    return float(math.hypot(*(q - x1 - t * d)))
+    e = q - x1 - t * d
+    if axis is None:
+        return float(math.hypot(*e))
+    c, s = math.cos(axis), math.sin(axis)
+    return max(abs(c * e[0] + s * e[1]), abs(c * e[1] - s * e[0]))
 
 
 def _joint(x1: np.ndarray | None, x2: np.ndarray | None, heading: float, theta0: float,

@@ -1,24 +1,29 @@
-"""Reading a grid planner's plan: its cell, its axes, and where it turns.
+"""Reading a grid planner's plan: its cell, its axes, its straight runs and where it turns.
 
 A grid plan (every step one cell along an axis or a diagonal of one grid) is exact: its
-staircase is no noise, so its corners are read from the cells, not from a scale set by a
-noise estimate. The direction either side of a cell is the line through the cells within
-GRID_CORNER_CELLS of it (and half that): six cells, so each half-scale side holds three cells
-even along a diagonal (a side of two cells reads no direction: a 135 degree corner read so
-is no corner, and the fit bends it to a 9 mm radius, crawled at the turn speed). Turns of 90
-degrees and more turn in place at their cell's centre, a leg that runs straight into one held
-along its run; staircases and 45 degree steps are smoothed (condition.py). A bend the fit
-still makes tighter than GRID_TIGHT_CELLS cells of radius while turning GRID_TIGHT_TURN_DEG or
-more there, or tighter than one cell at all, is turned in place too (`tight_bends`; a smaller
-wiggle is cheaper driven than stopped for, and the sharp turns of a plan's 45 degree steps
-stay smoothed): at the turn speed's bounded yaw acceleration any smoothed turn takes at least
-sqrt(4 |turn| / accel) seconds (2.1 s for 90 degrees) and a bend that tight is taken well
-below the asked speed, while a turn in place is a stop and about half a second. Five cells
-is what measured fastest over the fuzzed plans (lab/path_inputs.py grid_fuzz_plan,
-seeds 11-14, 150 each, within 1.3 x length / speed + 3 s): 1 cell 525 of 600, 5 cells 558,
-8 cells 545 (wider bends turned in place stop more often than they save); 5 cells where the
-bend turns 40 degrees or more, 553 (the turns of 10-15 degrees that the plain rule stopped for
-belong to 45 degree steps, which are driven).
+staircase is no noise. A staircase that a straight line crosses cell by cell (one kind of step
+never twice in a row, runs of the other differing by at most one, as a line's staircase steps:
+`straight_runs`) is that line to a robot, so its cells are put onto the line before the fit
+(`straightened`; the corridor is still measured from the cells). Fitted to the cells
+themselves, the curve wiggled within them, and every wiggle was a turn slowed for at the grid
+turn speed (turnspeed.py). A run of diagonals then a run along an axis is no line's staircase:
+it is two runs and a 45 degree turn, left as it is.
+
+Corners are read from the straightened cells, not from a scale set by a noise estimate: the
+direction either side of a cell is the line through the cells within GRID_CORNER_CELLS of it
+(and half that): six cells, so each half-scale side holds three cells even along a diagonal
+(a side of two cells reads no direction: a 135 degree corner read so is no corner, and the fit
+bends it to a 9 mm radius, crawled at the turn speed). Turns of 90 degrees and more turn in
+place: at their cell's centre between straight runs, where two staircases' lines meet (within
+the cell) between staircases; a leg that runs straight into a corner is held along its run.
+45 degree steps are smoothed (condition.py). A bend the fit still makes tighter than
+GRID_TIGHT_CELLS cells of radius while turning GRID_TIGHT_TURN_DEG or more there, or tighter
+than one cell at all, is turned in place too (`tight_bends`): at the turn speed's bounded yaw
+acceleration any smoothed turn takes at least sqrt(4 |turn| / accel) seconds (2.1 s for 90
+degrees), while a turn in place is a stop and about half a second; a smaller bend is cheaper
+driven than stopped for. Over the fuzzed plans (python -m bench.grid_plans: lab/path_inputs.py
+grid_fuzz_plan, seeds 11-14, 150 each, within 1.3 x length / speed + 3 s) five cells is what
+measured best.
 """
 
 from __future__ import annotations
@@ -31,13 +36,19 @@ import numpy as np
 from ddrt.path.corners import CornerPin, find_corners
 from ddrt.path.geometry import Geometry
 
-__all__ = ["GRID_PIVOT_DEG", "corner_pin", "grid_axis", "grid_cell", "grid_corners", "steps_back", "tight_bends"]
+__all__ = ["GRID_PIVOT_DEG", "corner_pin", "grid_axis", "grid_cell", "grid_corners", "steps_back", "straight_runs",
+           "straightened", "tight_bends"]
 
 GRID_PIVOT_DEG = 67.5  # in a grid plan, turns of 90 degrees and more (90, 135, 180) pivot
 GRID_CORNER_CELLS = 6.0  # a grid plan's corner scale: each half-scale side holds 3 cells even diagonally
 GRID_CORNER_APART_CELLS = 2.0  # a grid plan's corners at least this far apart (cells)
 GRID_TIGHT_CELLS = 5.0  # a grid plan's fit bending tighter than this radius (cells) turns in place there
 GRID_TIGHT_TURN_DEG = 40.0  # if it turns by this much within that radius (or bends tighter than one cell)
+STRAIGHT_MARGIN_CELLS = 0.49  # a run of cells is straight when one line passes this close to each (< half a cell)
+STRAIGHT_MIN_STEPS = 3  # runs of fewer steps are left as they are (a corner's own cells)
+MEET_CELLS = 0.4  # two runs' lines meeting this close to their shared cell (along the axes) meet there
+_LINE_ANGLES = np.radians(np.linspace(-40.0, 40.0, 321))  # lines tried about a run's chord (0.25 degree steps)
+_FINE_ANGLES = np.radians(np.linspace(-0.25, 0.25, 101))  # and then about the best of those
 
 
 def grid_cell(p: np.ndarray) -> float | None:
@@ -136,3 +147,139 @@ def corner_pin(p: np.ndarray, u: np.ndarray, k: int, scale: float) -> CornerPin:
     if into is None or out is None:
         return CornerPin(p[k].copy())
     return CornerPin(p[k].copy(), into, out)
+
+
+
+def _line_fit(g: np.ndarray) -> tuple[float, np.ndarray, float]:
+    """(deviation, unit normal, offset) of the line nearest to every cell centre `g` (grid units)
+    along the grid's axes: for a line of normal n through offset o, a centre c is |n.c - o| /
+    (|n_x| + |n_y|) from it that way, so the best offset for a direction is the midrange, and
+    the direction is searched within 40 degrees of the run's chord."""
+    d = g[-1] - g[0]
+    best = math.atan2(float(d[1]), float(d[0]))
+    for angles in (_LINE_ANGLES, _FINE_ANGLES):
+        phi = best + angles
+        nx, ny = -np.sin(phi), np.cos(phi)
+        o = nx[:, None] * g[None, :, 0] + ny[:, None] * g[None, :, 1]
+        spread = 0.5 * (o.max(axis=1) - o.min(axis=1)) / (np.abs(nx) + np.abs(ny))
+        k = int(np.argmin(spread))
+        best = float(phi[k])
+    return float(spread[k]), np.array([nx[k], ny[k]]), 0.5 * float(o[k].max() + o[k].min())
+
+
+def _onto(g: np.ndarray, n: np.ndarray, off: float) -> np.ndarray:
+    """Each centre moved onto the line along a diagonal of its cell (the nearest point of the
+    line along the grid's axes)."""
+    lam = (off - g @ n) / (abs(n[0]) + abs(n[1]))
+    return g + lam[:, None] * np.sign(n)[None, :]
+
+
+def _kinds(g: np.ndarray) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
+    """(the distinct steps of cells `g`, every step) as integer pairs."""
+    steps = [(int(a), int(b)) for a, b in np.round(np.diff(g, axis=0))]
+    return sorted(set(steps)), steps
+
+
+def _staircase(g: np.ndarray) -> bool:
+    """Whether cells `g` step as a straight line's staircase does: one step, or two kinds of
+    step where the rarer one never comes twice in a row and the runs of the other between
+    them differ by at most one (the first and last may be shorter). A run of diagonals then a
+    run along an axis (a planner's detour round a corner, or its choice among equally short
+    plans) is not one, however near a line its cells lie: it is two runs and a 45 degree turn."""
+    kinds, steps = _kinds(g)
+    if len(kinds) != 2:
+        return len(kinds) == 1
+    return _rare(g) is not None
+
+
+def _stepped(g: np.ndarray) -> bool:
+    """Whether cells `g` are a staircase with a whole run of the commoner step between two
+    rarer ones (a single rarer step between two runs is a jog, not a slope)."""
+    kinds, steps = _kinds(g)
+    return len(kinds) == 2 and min(steps.count(k) for k in kinds) >= 2
+
+
+def _rare(g: np.ndarray) -> tuple[int, int] | None:
+    """The rarer of a staircase's two kinds of step: the one that never comes twice in a row,
+    between runs of the other that differ by at most one (the first and last may be shorter);
+    the less frequent where both would do. None for one kind of step or no staircase."""
+    kinds, steps = _kinds(g)
+    if len(kinds) != 2:
+        return None
+    for rare in sorted(kinds, key=steps.count):
+        runs: list[int] = [0]
+        for k, st in enumerate(steps):
+            if st != rare:
+                runs[-1] += 1
+            elif k > 0 and steps[k - 1] == rare:
+                break  # two in a row
+            else:
+                runs.append(0)
+        else:
+            inner = runs[1:-1]
+            if not inner or (max(inner) - min(inner) <= 1 and max(runs[0], runs[-1]) <= min(inner) + 1):
+                return rare
+    return None
+
+
+def straight_runs(g: np.ndarray, margin: float = STRAIGHT_MARGIN_CELLS) -> list[tuple[int, int, np.ndarray]]:
+    """A grid plan's cells (grid units) cut, greedily from its start, into the longest runs one
+    line passes within `margin` cells of (along the axes) while the cells advance along it: the
+    staircases a planner leaves of a straight line. (first, last, the run's centres on that line)
+    for runs of at least STRAIGHT_MIN_STEPS steps; consecutive runs share their end cell."""
+    out: list[tuple[int, int, np.ndarray]] = []
+    i, n = 0, len(g)
+    while i < n - 1:
+        j, fit = i + 1, None
+        while j + 1 < n:
+            dev, nrm, off = _line_fit(g[i:j + 2])
+            on = _onto(g[i:j + 2], nrm, off)
+            along = np.diff(on, axis=0) @ np.array([nrm[1], -nrm[0]])
+            if dev > margin or not (np.all(along > 0.0) or np.all(along < 0.0)) or not _staircase(g[i:j + 2]):
+                break
+            j, fit = j + 1, on
+        a = i
+        if fit is not None:
+            # A rarer step at either end may be the first of a run of its own (a diagonal run
+            # after a straight one): it is left to the cells between the runs.
+            rare, steps = _rare(g[i:j + 1]), _kinds(g[i:j + 1])[1]
+            while rare is not None and j - i > STRAIGHT_MIN_STEPS and steps[j - 1 - i] == rare:
+                j -= 1
+            a = 1 if i == 0 and rare is not None and steps[0] == rare else i  # the plan's start stays
+            if j - a >= STRAIGHT_MIN_STEPS and _stepped(g[a:j + 1]):
+                out.append((a, j, fit[a - i:j - i + 1]))
+        i = j
+    return out
+
+
+def _meet(a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+    """Where the line through a[0], a[-1] meets the one through b[0], b[-1]; None if parallel."""
+    da, db = a[-1] - a[0], b[-1] - b[0]
+    den = float(da[0] * db[1] - da[1] * db[0])
+    if abs(den) < 1e-9 * float(np.hypot(*da) * np.hypot(*db)):
+        return None
+    r = b[0] - a[0]
+    return a[0] + float(r[0] * db[1] - r[1] * db[0]) / den * da
+
+
+def straightened(p: np.ndarray, cell: float, axis: float) -> np.ndarray:
+    """A grid plan's points with each straight run's cells (`straight_runs`) moved onto its
+    line: what the smoothing is fitted to, so a staircase becomes the straight line it stands
+    for (fitted to the cells themselves, it wiggles within them, and every wiggle is a turn
+    slowed for, ddrt/path/turnspeed.py). A cell where two runs meet goes where their lines
+    meet if that lies within the cell (a corner turned there leaves both legs on their lines),
+    else midway between its places on both. The corridor is still measured from the cells."""
+    c, s = math.cos(axis), math.sin(axis)
+    rot = np.array([[c, -s], [s, c]])  # grid units -> the plan's frame
+    g = ((p - p[0]) @ rot) / cell
+    q = g.copy()
+    runs = straight_runs(g)
+    for a, b, on in runs:
+        q[a + 1:b] = on[1:-1]
+        q[a], q[b] = (on[0], on[-1]) if a > 0 else (g[a], on[-1])
+    for (_, b0, on0), (a1, _, on1) in zip(runs[:-1], runs[1:]):
+        if b0 == a1:
+            x = _meet(on0, on1)
+            q[a1] = x if x is not None and np.max(np.abs(x - g[a1])) <= MEET_CELLS else 0.5 * (on0[-1] + on1[0])
+    q[0], q[-1] = g[0], g[-1]  # the plan's own ends stay
+    return p[0] + cell * (q @ rot.T)

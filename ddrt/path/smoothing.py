@@ -109,6 +109,7 @@ class FitRequest:
     end: EndPin | None = None  # the same for the last point
     wrap: tuple[np.ndarray, np.ndarray] | None = None  # a closed loop's points before and after it
     cell_axis: float | None = None  # a grid plan's axis: the corridor is each point's cell
+    cells: np.ndarray | None = None  # a grid plan's cell centres when `points` are their straightened stand-ins
 
 
 @dataclass
@@ -319,15 +320,16 @@ def chord_length(p: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------- legs
 
 
-def _short(p: np.ndarray, tol: float, opt: GeometryOptions) -> FittedLeg:
+def _short(p: np.ndarray, tol: float, opt: GeometryOptions, centres: np.ndarray | None = None) -> FittedLeg:
     """Few points (or a leg shorter than three knots): a straight line from the first to the
-    last if every point is within `tol` of it, else straight segments through them all (as
-    waypoints)."""
+    last if every point (or its cell's centre, `centres`) is within `tol` of it, else straight
+    segments through them all (as waypoints)."""
+    c = p if centres is None else centres
     d = p[-1] - p[0]
     length = float(math.hypot(d[0], d[1]))
     if length > 0.0:
-        t = np.clip(((p - p[0]) @ d) / (length * length), 0.0, 1.0)
-        dev = np.hypot(*(p - (p[0] + t[:, None] * d)).T)
+        t = np.clip(((c - p[0]) @ d) / (length * length), 0.0, 1.0)
+        dev = np.hypot(*(c - (p[0] + t[:, None] * d)).T)
         if np.all(dev <= tol):
             heading = math.atan2(d[1], d[0])
             return FittedLeg([line_piece(float(p[0, 0]), float(p[0, 1]), heading, length, opt.step)], heading,
@@ -342,7 +344,7 @@ def _short(p: np.ndarray, tol: float, opt: GeometryOptions) -> FittedLeg:
     seg = np.diff(q, axis=0)
     th0 = math.atan2(seg[0, 1], seg[0, 0])
     th1 = float(geo.pieces[-1].theta[-1])
-    return FittedLeg(geo.pieces, th0, th1, sig, np.zeros(len(p)))
+    return FittedLeg(geo.pieces, th0, th1, sig, np.hypot(*(c - p).T))
 
 
 def _sample_piece(sp: _Spline, step: float, start: np.ndarray | None, end: np.ndarray | None,
@@ -460,6 +462,8 @@ def fit_leg(req: FitRequest) -> FittedLeg:
 
     `req.cell_axis`: a grid plan's axis direction; the corridor is then each point's cell (the
     distance is taken along the grid's axes, at the point's foot), not a disc round it.
+    `req.cells`: the cells' own centres, where the points fitted are moved off them (a
+    staircase put onto its line, ddrt/path/gridplan.py): the corridor is measured from these.
 
     `req.wrap`: a closed loop's points before its start and after its end (the loop's own, taken
     round), fitted with it so its ends are smoothed as well as its middle; the reference
@@ -475,12 +479,14 @@ def fit_leg(req: FitRequest) -> FittedLeg:
         q[0] = fix0
     if fix1 is not None:
         q[-1] = fix1
+    centres = q if req.cells is None else np.concatenate((q[:1], req.cells[1:-1], q[-1:]))  # the ends as held
     if len(q) < 4 or float(np.sum(np.hypot(*np.diff(q, axis=0).T))) < 3.0 * knot:
-        return _short(q, tol, opt)
+        return _short(q, tol, opt, centres)
     core = slice(0, len(q))
     if wrap is not None:
         core = slice(len(wrap[0]), len(wrap[0]) + len(q))
         q = np.concatenate((wrap[0], q, wrap[1]))
+        centres = np.concatenate((wrap[0], centres, wrap[1]))
     u = chord_length(q) if cell_axis is not None else arc_parameter(q, req.noise)
     h = np.diff(u)
     w = 0.5 * (np.concatenate((h, [0.0])) + np.concatenate(([0.0], h)))
@@ -508,7 +514,7 @@ def fit_leg(req: FitRequest) -> FittedLeg:
         sp = fit.solve(lam)
         fits += 1
         d, uf = _project(sp, q, u)
-        dev = np.abs(d) if cell_axis is None else _cell_distance(sp, q, uf, cell_axis)
+        dev = np.abs(d) if cell_axis is None else _cell_distance(sp, centres, uf, cell_axis)
         bad = (dev > tol) & ~fixed
         if not bad.any():
             break
@@ -527,7 +533,7 @@ def fit_leg(req: FitRequest) -> FittedLeg:
             lam[near] = np.maximum(lam[near] * 0.25, lam_min)
     if np.any((dev > tol) & ~fixed):
         i = int(np.argmax(np.where(fixed, -1.0, dev)))
-        raise ToleranceUnmet(i, float(q[i, 0]), float(q[i, 1]), float(dev[i]), tol)
+        raise ToleranceUnmet(i, float(centres[i, 0]), float(centres[i, 1]), float(dev[i]), tol)
     ua, ub = float(u[core.start]), float(u[core.stop - 1])
     try:
         piece, s_of_u = _sample_piece(sp, opt.step, fix0, fix1, ua, ub)
