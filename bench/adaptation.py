@@ -262,7 +262,7 @@ def render(r: AdaptationResult) -> list[str]:
     return lines
 
 
-# --------------------------------------------------------------------------- events (issue 23 item 5)
+# --------------------------------------------------------------------------- events
 
 EVENT_CONFIGS = ("realistic/actuators_events.yaml", "realistic/payload_floor_fast.yaml")
 

@@ -1,6 +1,6 @@
 """`python -m bench.battery_sag`: the estimate at the end of a run on a sagging battery.
 
-Issue 23's Done-when "Battery sag": the realistic plant of configs/scenarios/realistic/
+Battery sag: the realistic plant of configs/scenarios/realistic/
 battery_sag.yaml (a 3S pack at 10.5 V open circuit with 0.25 ohm inside, while the config
 says 12 V; a 5 m lane change and half turn at 0.9 m/s, limits from the motors, ideal sensors),
 run with `ddrt sim`'s runner, with the supply measured (protocol v2, ddrt/loop/power.py) and

@@ -1,4 +1,4 @@
-"""`ddrt commission` measured (issue 20): wiring faults found and fixed, and a harsh population
+"""`ddrt commission` measured: wiring faults found and fixed, and a harsh population
 commissioned from ruler-and-datasheet configs.
 
 `python -m bench.commissioning [--robots 20] [--workers 2] [--only wiring|population]

@@ -217,7 +217,7 @@ def render_section(r: dict[str, Any]) -> list[str]:
         "worst, missed ticks the sum. Tick compute and lateness are the "
         "daemon's own (`--stats-json`); the loop thread's one added call (`VizRing.put`, outside the timed "
         "tick) is timed on its own and added to the difference. View age: the client's arrival time of each "
-        "/state message minus the tick start in it. Issue 15's targets beside the numbers.",
+        "/state message minus the tick start in it. The targets beside the numbers.",
         "",
         "| | Foxglove off | on, client subscribed | on - off | target |",
         "|---|---|---|---|---|",

@@ -1,6 +1,6 @@
 """`python -m bench.gyro_warmup`: the heading after ten minutes of driving while the gyro warms up.
 
-Issue 23's Done-when "Gyro warm-up": the seed robot (configs/sim.yaml) on the realistic plant
+Gyro warm-up: the seed robot (configs/sim.yaml) on the realistic plant
 whose gyro's die warms by RISE_C with a TAU_S time constant and whose zero-rate output follows
 at SLOPE_DPS_PER_C, so that it moves 1 deg/s over the first 5 minutes (1.04 in all); the output
 register holds each sample for a period of the MPU's own 200 Hz clock, 0.5 % fast. The robot

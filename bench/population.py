@@ -16,7 +16,7 @@ when it clamps). Controllers: dynamic with adaptation off, with it on (the defau
 `--rerun ROBOT/PATH --sim-seeds 1,2,3`: that one run with adaptation off and on at each sim
 seed, to tell a difference between the two from the plant's own spread.
 
-`--harsh`: the same robots with cheap parts on the realistic plant (issue 23; drawn per robot
+`--harsh`: the same robots with cheap parts on the realistic plant (drawn per robot
 from its name, so a robot is as harsh in every run): gyro sensitivity off by 2-3 % either
 way, zero-rate bias up to 5 deg/s either way, a coarse front encoder (400, 600 or 1024
 counts a turn), a driver deadband of 2-5 % of duty and 0.5-2 degrees of gearbox backlash.

@@ -1,6 +1,6 @@
 """Recorded paths as they come: a fuzz of arcs, S-curves, U-turns and lane changes, recorded
 at 5 mm to 10 cm spacing with 0 to 20 mm of noise, loaded at the default tolerance (`auto`)
-and driven on the simulated robot (issue 22).
+and driven on the simulated robot.
 
 `python -m bench.recorded_fuzz [--n N] [--seed S]` prints one line per path and the worst
 margins; tests/test_recorded_fuzz.py runs the same draws. Each path must load (no curve is

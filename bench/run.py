@@ -129,7 +129,7 @@ class BenchOptions:
     paths_cases: tuple[str, ...] | None = None  # None: every case of bench/paths_as_given.py
     paths_long: tuple[int, ...] = (10_000, 100_000)  # points of the long recordings timed
     robots: int = population.ROBOTS
-    foxglove_duration_s: float = 60.0  # each daemon run, off and on (issue 15: 60 s at 200 Hz)
+    foxglove_duration_s: float = 60.0  # each daemon run, off and on: 60 s at 200 Hz
     mcap_duration_s: float | None = None  # `ddrt sim` on the scenario, None: to the path's end
     mcap_repeats: int = 2
 

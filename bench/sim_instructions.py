@@ -40,7 +40,7 @@ from bench.sim_paired import RUN_SIM_CHILD
 from bench.sim_scaling import figure8_path
 
 REPO = FsPath(__file__).resolve().parent.parent
-TARGET_US = 1e6 / (200.0 * 200.0)  # issue 24: 200x real time at 200 Hz is 25 us of CPU a tick
+TARGET_US = 1e6 / (200.0 * 200.0)  # 200x real time at 200 Hz is 25 us of CPU a tick
 
 # The simulator's part of a tick alone: run_sim's loop without ControlLoop.tick (a fixed duty).
 _ROBOT_ONLY = r"""

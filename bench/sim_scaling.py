@@ -124,7 +124,7 @@ def render(results: list[CaseResult], repo: FsPath) -> str:
     return "\n".join(lines)
 
 
-TARGET_X = 200.0  # issue 24 item 4: at least 200x real time on one core, at 300 s as at 20 s
+TARGET_X = 200.0  # at least 200x real time on one core, at 300 s as at 20 s
 PERIOD_S = 0.005  # the controller's tick (200 Hz) in every case
 
 
@@ -156,7 +156,7 @@ def render_section(results: list[CaseResult]) -> list[str]:
     lines += ["", f"CPU per controller tick once started, all in (plant, estimator, reference, controller, "
               f"telemetry.csv, metrics), from the figure-eight pair: {tick_s * 1e6:.1f} us = {factor:.0f}x real time "
               f"per CPU second (20 s run {short.command_cpu_x:.0f}x and 300 s run {long.command_cpu_x:.0f}x with "
-              f"their start-up). Target (issue 24): at least {TARGET_X:.0f}x on one core on the figure-eight, at "
+              f"their start-up). Target: at least {TARGET_X:.0f}x on one core on the figure-eight, at "
               f"300 s as at 20 s, i.e. at most {PERIOD_S / TARGET_X * 1e6:.0f} us a tick: {verdict}."]
     return lines
 

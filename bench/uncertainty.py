@@ -8,7 +8,7 @@ section 15.)
    gyro_scale_std): on what share of ticks the true position lies within the reported 2 sigma
    (|true - estimate| <= 2 sqrt(std_x^2 + std_y^2)) and the heading within 2 std_theta, and
    how tight the figure is (the median of |error| / sigma).
-2. Pose fixes (issue 21's done-when): a 1 m circle at 0.4 m/s for 60 s with an uncalibrated
+2. Pose fixes: a 1 m circle at 0.4 m/s for 60 s with an uncalibrated
    2 % gyro scale error, followed in `map`, with and without a fix every second (the true pose
    plus 5 mm and 1 degree of noise, 0.1 s late), on the plain and the realistic plant, seeds
    1 to 5; and a gyro without scale error, its scale unknown or known to the model (what the

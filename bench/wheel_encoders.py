@@ -1,4 +1,4 @@
-"""Wheel encoders fused in the estimator (issue 23 item 4): `python -m bench.wheel_encoders [--robots N]`.
+"""Wheel encoders fused in the estimator: `python -m bench.wheel_encoders [--robots N]`.
 
 1. Seed scenarios (configs/scenarios/*.yaml): each run as configured (front omni encoder and
    gyro) and with the drive wheels' encoders and the gyro but no front encoder
