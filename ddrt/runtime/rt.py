@@ -177,7 +177,7 @@ def freeze_gc() -> None:
     gc.disable()
 
 
-INTERN_SETTLE = 16384  # strings interned and let go by settle_interned
+INTERN_SETTLE = 6144  # strings interned and let go by settle_interned
 
 
 def settle_interned(count: int = INTERN_SETTLE) -> None:
@@ -191,8 +191,9 @@ def settle_interned(count: int = INTERN_SETTLE) -> None:
     about 18 000 live strings). Later rebuilds keep that size. Interning `count` distinct
     strings and dropping them makes that first rebuild here, before the loop starts, so
     the daemon's memory is flat from its first command; it takes a few milliseconds.
-    `count` is more than the table's free slots for the daemon's strings and too few to
-    double it a second time.
+    `count` is more than the table's free slots for the daemon's strings (about 3000), and
+    small, since every string interned takes a slot until the next rebuild: afterwards, the
+    table has room for about 2000 reloads before it is rebuilt again, at the same size.
     """
     held = [sys.intern(f"ddrt settle {i}") for i in range(count)]
     del held
