@@ -1,12 +1,16 @@
 """The daemon's memory over many commands: with the collector stopped (rt.freeze_gc), what
 each command leaves in the interpreter's free lists is freed by rt.GcSweeper, so a few hundred
 command cycles (drive, stop, status, reload, estop, reset, a path followed) on a daemon's loop
-in process leave the traced memory flat; unswept, the same cycles grow it. bench/soak.py
-measures the real `ddrt run` over its socket."""
+in process leave the traced memory flat; unswept, the same cycles grow it. Strings interned
+and dropped after rt.settle_interned (as each reload's path parts are) leave it flat too;
+unsettled, the interned table doubles once. bench/soak.py measures the real `ddrt run`
+over its socket."""
 
 from __future__ import annotations
 
 import gc
+import subprocess
+import sys
 import tracemalloc
 from collections.abc import Iterator
 from pathlib import Path
@@ -87,3 +91,30 @@ def test_the_sweeper_collects_only_when_the_blocks_grew() -> None:
     assert sweeper.maybe() and sweeper.sweeps == 1
     assert not sweeper.maybe()  # the new level is the base
     del kept
+
+
+CHURN = """
+import sys, tracemalloc
+import ddrt.service.daemon  # the daemon's modules: its live interned strings
+from ddrt.runtime import rt
+tracemalloc.start()
+if {settle}:
+    rt.settle_interned()
+base = tracemalloc.get_traced_memory()[0]
+for i in range(30000):  # what reloads do, a few path parts each, over days
+    sys.intern(f"path part {{i}}")
+print(tracemalloc.get_traced_memory()[0] - base)
+"""
+
+
+def _churn_growth(settle: bool) -> int:
+    out = subprocess.run([sys.executable, "-c", CHURN.format(settle=settle)], capture_output=True, text=True,
+                         cwd=Path(__file__).resolve().parents[1], timeout=120, check=True)
+    return int(out.stdout.split()[-1])
+
+
+def test_interned_strings_dropped_after_start_up_leave_the_memory_flat() -> None:
+    settled = _churn_growth(settle=True)
+    unsettled = _churn_growth(settle=False)
+    assert settled < 64 * 1024, f"{settled} bytes after 30000 strings interned and dropped"
+    assert unsettled > 256 * 1024  # the check can fail: unsettled, the table doubles on the way

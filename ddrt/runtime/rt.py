@@ -177,6 +177,28 @@ def freeze_gc() -> None:
     gc.disable()
 
 
+INTERN_SETTLE = 6144  # strings interned and let go by settle_interned
+
+
+def settle_interned(count: int = INTERN_SETTLE) -> None:
+    """Grow the interpreter's table of interned strings, once, to the size it keeps.
+
+    Every string pathlib splits a path into is interned and leaves the table when the path
+    is dropped; each one still uses up a slot of the table until the table is rebuilt, at a
+    size set by the strings alive. So a reload (about 9 such strings: its config's path,
+    the files it names) brings that rebuild nearer, and the daemon's first one, after a few
+    hundred reloads, doubles the table: about 470 KiB more at once (32768 -> 65536 slots for its
+    about 18 000 live strings). Later rebuilds keep that size. Interning `count` distinct
+    strings and dropping them makes that first rebuild here, before the loop starts, so
+    the daemon's memory is flat from its first command; it takes a few milliseconds.
+    `count` is more than the table's free slots for the daemon's strings (about 3000), and
+    small, since every string interned takes a slot until the next rebuild: afterwards, the
+    table has room for about 2000 reloads before it is rebuilt again, at the same size.
+    """
+    held = [sys.intern(f"ddrt settle {i}") for i in range(count)]
+    del held
+
+
 SWEEP_BLOCKS = 256  # about 25 KB of small objects: what a few commands leave in the free lists
 
 

@@ -304,6 +304,7 @@ class Daemon:
                 raise _Interrupted()
             return clock.sleep_until(deadline)
 
+        rt.settle_interned()  # before the collector stops: the strings are freed at once
         rt.freeze_gc()
         try:
             loop.calibrate(sleep_unless_stopped, clock.now)
