@@ -26,15 +26,14 @@ _KINDS = {"float": float, "int": int, "bool": bool, "int | None": int}
 
 
 def _check_declared(obj: Any) -> None:
-    """Check every declared field of `obj` against its type and its declaration (the config's
-    `setting`), normalising a whole number to a float where the field is a float; ValueError
-    naming `<class>.<field>`. The plant is built in code too (tests, benches), not only from a
-    config the walker has checked."""
+    """Check every declared field of `obj` against its type, normalising a whole number to a
+    float where the field is a float, then against its declaration (`check_declared`, the
+    check of parameters built in code); ValueError naming `<class>.<field>`. The plant is
+    built in code too (tests, benches), not only from a config the walker has checked."""
     owner = type(obj).__name__
     values = vars(obj)
     for f in fields(obj):
-        decl = decl_of(f)
-        if decl is None:
+        if decl_of(f) is None:
             continue
         where, value = f"{owner}.{f.name}", values[f.name]
         kind = _KINDS[str(f.type)]
@@ -50,17 +49,12 @@ def _check_declared(obj: Any) -> None:
             if not math.isfinite(value):
                 raise ValueError(f"{where}: expected a finite number, got {value!r}")
             object.__setattr__(obj, f.name, float(value))
-        problem = decl.check(value, where)
-        if problem is not None:
-            raise ValueError(problem)
+    check_declared(obj, owner)
 
 
 def _checked_section(section: Any, where: str) -> None:
     """A `sim:` section built in code: its declared bounds, then its rules across fields."""
-    try:
-        check_declared(section, where)
-    except ValueError as exc:
-        raise ValueError(str(exc)) from None
+    check_declared(section, where)
     section.validate(where)
 
 
