@@ -275,11 +275,19 @@ def write_csv(fname: FsPath, xy: np.ndarray, speed: float | np.ndarray) -> None:
             fh.write(f"{x:.6f},{y:.6f},{s:g}\n")
 
 
+FULL_SEARCH_POINTS = 2000  # a curve this short is searched whole (1024 x 2000 distances a chunk)
+
+
 def curve_distance(curve: np.ndarray, xy: np.ndarray) -> np.ndarray:
     """Distance of each point to the polyline `curve`: a coarse search for the two nearest
-    stretches (where a figure-eight crosses itself both are near), then a window round each."""
+    stretches (where a figure-eight crosses itself both are near), then a window round each.
+    A curve of few points (a grid plan's cells) is searched whole: every 20th of its points
+    can all lie far from a point near the curve (one at 9.7 mm from a plan's last cells read
+    as 203 mm)."""
     if len(xy) == 0:
         return np.zeros(0)
+    if len(curve) <= FULL_SEARCH_POINTS:
+        return distances_to_polyline(curve, xy)
     stride = 20
     coarse = curve[::stride]
     near = np.empty((2, len(xy)), dtype=np.intp)

@@ -15,6 +15,7 @@ from ddrt.path import load_path
 from ddrt.path.gridplan import straight_runs, straightened
 from ddrt.path.report import pivot_runs
 from ddrt.path.sampled import Path
+from ddrt.path import turnspeed
 from ddrt.path.spec import speed_limits
 from lab import path_inputs as pg
 from tests.support.repo import SIM_YAML
@@ -32,7 +33,10 @@ def _cells(moves: list[str], cell: float = 0.05) -> np.ndarray:
 
 
 def _within_bound(path: Path, speed: float) -> bool:
-    """The issue's bound on the profile's duration: 1.3 x length / speed + 3 s."""
+    """The bound on the profile's duration, 1.3 x length / speed + 3 s, with the path's length
+    as ddrt measures progress: a turn in place counts its wheels' travel (pivot_radius x
+    angle). Against the plan's own length (its cells' polyline) fewer hold: 531 of 600 against
+    588 (docs/BENCHMARKS.md, grid plans)."""
     return path.duration <= 1.3 * path.length / speed + 3.0
 
 
@@ -82,6 +86,41 @@ def test_a_staircase_is_smoothed_not_turned(moves) -> None:
     assert path.duration < 1.15 * path.length / 0.4
 
 
+def _yaw_accel(path: Path, span: tuple[float, float]) -> tuple[float, float]:
+    """(RMS over time, largest) of the profile's d(omega)/dt over the intervals within `span`."""
+    a = path.arrays()
+    sig, dt, al = np.asarray(a["sigma"]), np.diff(a["t"]), np.asarray(a["alpha"])
+    sel = (sig[:-1] >= span[0]) & (sig[1:] <= span[1]) & (dt > 0)
+    return float(np.sqrt(np.sum(al[sel] ** 2 * dt[sel]) / np.sum(dt[sel]))), float(np.abs(al[sel]).max())
+
+
+def test_a_45_degree_grid_turn_is_blended_at_the_profiles_own_limits(monkeypatch) -> None:
+    """Taken at the gentle turn speed (RMS d(omega)/dt 1.4 rad/s^2) a 45 degree step lasts at
+    least 1.5 s; blended, it is left to the profile's limits: faster, rougher than gentle, and
+    within half a turn in place's yaw acceleration (its peak within a turn in place's)."""
+    xy = _cells(["E"] * 20 + ["NE"] * 20)
+    path = load_path({"points": xy.tolist(), "speed": 0.4}, LIM)
+    c = path.conditioning
+    assert not c.corners and len(c.blended) == 1
+    rms, peak = _yaw_accel(path, c.blended[0])
+    assert turnspeed.GRID_YAW_ACCEL < rms <= 0.5 * LIM.alpha_max and peak <= LIM.alpha_max
+    assert c.deviation_m <= 0.5 * 0.05 + 1e-9
+    monkeypatch.setattr(turnspeed, "BLENDED_TURN_DEG", 1e9)
+    gentle = load_path({"points": xy.tolist(), "speed": 0.4}, LIM)
+    assert not gentle.conditioning.blended
+    assert path.duration < gentle.duration - 0.3  # 6.4 s against 7.0 s
+
+
+def test_a_shallow_grid_turn_stays_gentle() -> None:
+    """A 27 degree turn (20 cells east, then a 2:1 staircase) is below BLENDED_TURN_DEG: taken
+    at the gentle turn speed, no span blended."""
+    xy = _cells(["E"] * 20 + ["E", "NE"] * 10)
+    path = load_path({"points": xy.tolist(), "speed": 0.4}, LIM)
+    assert not path.conditioning.blended and not path.conditioning.corners
+    rms, _ = _yaw_accel(path, (0.0, path.length))
+    assert rms <= turnspeed.GRID_YAW_ACCEL
+
+
 def _fuzz(seed: int, count: int) -> list[tuple[str, float, np.ndarray, Path]]:
     rng = np.random.default_rng(seed)
     out = []
@@ -120,11 +159,11 @@ def _slow(plans: list[tuple[str, float, np.ndarray, Path]]) -> list[tuple[str, f
 
 
 def test_fuzzed_grid_plans_mostly_hold_1_3_x_length_over_speed_plus_3_s() -> None:
-    """Staircases driven as their lines (gridplan.straightened): 35 of these 40 within the bound
-    (34 when the staircases were fitted cell by cell, 31 with only bends tighter than a cell
-    turned in place)."""
+    """Turns of 40 degrees or more blended (turnspeed.py): 39 of these 40 within the bound (35
+    with every smoothed turn gentle, 34 when the staircases were fitted cell by cell). The one
+    that misses, 5.4 cm cells and 8 turns in place in 5 m, takes 1.57 x length / speed."""
     slow = _slow(_fuzz(20263, 40))
-    assert len(slow) <= 5, slow
+    assert len(slow) <= 1, slow
 
 
 def test_a_staircase_between_turns_is_driven_as_its_line() -> None:

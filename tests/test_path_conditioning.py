@@ -118,17 +118,26 @@ def _only_sharp_turns_in_place(path: Path) -> None:
     assert all(abs(math.degrees(c.turn)) > 60.0 for c in corners), [math.degrees(c.turn) for c in corners]
 
 
-def _yaw_accel_rms(path: Path) -> float:
-    """RMS over time of the profile's d(omega)/dt while driving (what the bench measures on
-    omega_ref; turns in place are left out, as the bench's target leaves them out)."""
+def _yaw_accel_rms(path: Path, blended: bool = False) -> float:
+    """RMS over time of the profile's d(omega)/dt while driving gently (what the bench measures
+    on omega_ref; turns in place are left out, as the bench's target leaves them out, and so
+    are a grid plan's blended turns, taken instead of a turn in place at half its yaw
+    acceleration), or with `blended`, over the blended turns alone."""
     a = path.arrays()
     dt = np.diff(a["t"])
     dw = np.diff(a["omega"]) / dt
     piv = np.zeros(len(a["t"]), dtype=bool)
     for i, j in pivot_runs(path):
         piv[max(i - 1, 0):j + 1] = True
-    drive = ~(piv[:-1] | piv[1:]) & (dt > 0)
-    return float(np.sqrt(np.sum(dw[drive] ** 2 * dt[drive]) / np.sum(dt[drive])))
+    sig = np.asarray(a["sigma"])
+    blend = np.zeros(len(sig), dtype=bool)
+    c = path.conditioning
+    for s0, s1 in (c.blended if c is not None else ()):
+        i, j = np.searchsorted(sig, s0, side="left"), np.searchsorted(sig, s1, side="right")
+        blend[max(i - 1, 0):j + 1] = True
+    gentle = ~(piv[:-1] | piv[1:]) & ~(blend[:-1] | blend[1:])
+    sel = (blend[:-1] & blend[1:] & ~(piv[:-1] | piv[1:]) if blended else gentle) & (dt > 0)
+    return float(np.sqrt(np.sum(dw[sel] ** 2 * dt[sel]) / np.sum(dt[sel]))) if sel.any() else 0.0
 
 
 def test_random_grid_plans_turn_smoothly_within_their_cells() -> None:
@@ -143,6 +152,7 @@ def test_random_grid_plans_turn_smoothly_within_their_cells() -> None:
         assert c.mode == "grid" and c.grid_cell_m == pytest.approx(cell)
         _only_sharp_turns_in_place(path)
         assert _yaw_accel_rms(path) <= pg.TARGET_DOMEGA_RMS, (cell, len(xy))
+        assert _yaw_accel_rms(path, blended=True) <= 0.5 * LIM.alpha_max, (cell, len(xy))  # half a turn in place's
         assert c.deviation_m <= 0.5 * cell + 1e-9  # every point's cell is crossed
         d = pg.curve_distance(pg.dense(xy), _xy(path)[::5])
         assert d.max() <= 0.5 * math.sqrt(2.0) * cell  # never outside the planned cells' corridor

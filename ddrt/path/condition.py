@@ -115,6 +115,7 @@ class Conditioning:
     grid_cell_m: float | None = None
     smoothing_m: tuple[float, ...] = ()  # smoothing length of each fitted leg
     corners: tuple[Corner, ...] = ()  # corners that became turns in place
+    blended: tuple[tuple[float, float], ...] = ()  # a grid plan's blended turns: (start, end) progress
     point_sigma: np.ndarray | None = None  # progress of each point's foot on the reference
     spacing_m: float = 0.0  # median distance between consecutive points
     iterations: int = 0  # fits solved in total
@@ -129,7 +130,8 @@ class Conditioning:
         how = "auto, from the noise; " if self.auto else ""
         return (f"{len(self.points)} points as {kind}: smoothed within {self.tolerance_m * 1000:.1f} mm "
                 f"({how}largest deviation {self.deviation_m * 1000:.1f} mm at {self.names[self.worst]}; "
-                f"noise ~{self.noise_m * 1000:.2f} mm), {len(self.corners)} corner(s) turned in place")
+                f"noise ~{self.noise_m * 1000:.2f} mm), {len(self.corners)} corner(s) turned in place"
+                + (f", {len(self.blended)} turn(s) blended" if self.mode == GRID else ""))
 
 
 # --------------------------------------------------------------------------- classification
@@ -196,9 +198,11 @@ def _loop_wrap(p: np.ndarray, knot: float, scale: float, threshold: float, tol: 
 
 
 def _cap_turns(geo: Geometry, info: Conditioning) -> None:
-    """A grid plan's turns at a bounded yaw acceleration (ddrt/path/turnspeed.py), merged with
-    the points' own caps."""
-    ts, tv = turn_caps(geo.pieces)
+    """A grid plan's gentle turns at a bounded yaw acceleration, its sharp ones blended
+    (ddrt/path/turnspeed.py), merged with the points' own caps."""
+    caps = turn_caps(geo.pieces)
+    ts, tv = caps.sigma, caps.cap
+    info.blended = caps.blended
     if geo.cap_sigma is not None and geo.cap_value is not None:
         tv = np.minimum(tv, np.interp(ts, geo.cap_sigma, geo.cap_value))
     geo.cap_sigma, geo.cap_value = ts, tv

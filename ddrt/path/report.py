@@ -206,7 +206,7 @@ def path_report(path: Path, source: str) -> PathReport:
         pivots.append((float(s[i0]), float(a["x"][i0]), float(a["y"][i0]), float(a["theta"][i1] - a["theta"][i0])))
     c = path.conditioning
     mode = "shape" if c is None else c.mode
-    blends = int(c.extra.get("blends", 0)) if c is not None else 0
+    blends = (len(c.blended) if c.mode == "grid" else int(c.extra.get("blends", 0))) if c is not None else 0
     summary = "an analytic shape" if c is None else c.summary()
     return PathReport(
         source=source, length_m=path.length, duration_s=path.duration, v_cap=path.v_cap,
@@ -228,7 +228,7 @@ def report_text(r: PathReport, max_stretches: int = 24) -> str:
                  f"(path speed {r.v_cap:g} m/s)")
     radius = f" (radius {1.0 / r.kappa_max:.3g} m)" if r.kappa_max > 0 else ""
     lines.append(f"curvature     max {r.kappa_max:.3g} /m at {r.kappa_max_at_m:.3f} m{radius}")
-    lines.append(f"corners       {len(r.pivots)} turned in place" + (f", {r.blends} blended" if r.mode == "waypoints" else "")
+    lines.append(f"corners       {len(r.pivots)} turned in place" + (f", {r.blends} blended" if r.mode in ("waypoints", "grid") else "")
                  + f"; cusps: {len(r.cusps) or 'none'}"
                  + (f" ({r.reverse_m:.3f} m driven in reverse)" if r.reverse_m > 0 else ""))
     for sig, x, y in r.cusps[:12]:
