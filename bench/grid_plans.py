@@ -1,11 +1,15 @@
 """Grid plans against 1.3 x length / speed + 3 s: the profile's duration over fuzzed plans.
 
-`python -m bench.grid_plans [--seeds 11,12,13,14] [--count 150]` builds, per seed, `count`
-plans of lab/path_inputs.py `grid_fuzz_plan` (A* plans, A* plans through via points and
-walks of straight staircases; 4- and 8-connected; 2-10 cm cells), loads each at 0.4 m/s on
-configs/sim.yaml as `ddrt sim --path` would, and counts the profiles within the bound (no
-simulation: the time is the reference's own). For the plans that miss it prints each one,
-with the turns of 40 degrees or more its cells force (`forced_turns`) per metre.
+`python -m bench.grid_plans [--seeds 11,12,13,14] [--count 150] [--closed-loop N]` builds, per
+seed, `count` plans of lab/path_inputs.py `grid_fuzz_plan` (A* plans, A* plans through via
+points and walks of straight staircases; 4- and 8-connected; 2-10 cm cells), loads each at
+0.4 m/s on configs/sim.yaml as `ddrt sim --path` would, and counts the profiles within the
+bound (no simulation: the time is the reference's own). The length is counted two ways: the
+path's (ddrt's progress, a turn in place counting its wheels' travel, pivot_radius x angle)
+and the plan's own (the polyline through its cells, no time for turning in place). For the
+plans that miss it prints each one, with the turns of 40 degrees or more its cells force
+(`forced_turns`) per metre. `--closed-loop N` also drives the first N plans of each seed on
+the simulated robot (seed 1) and reports the true pose's distance from the plan's cells.
 """
 
 from __future__ import annotations
@@ -21,7 +25,9 @@ import numpy as np
 from bench.common import SIM_CONFIG
 from ddrt.config import load_config
 from ddrt.path.gridplan import straight_runs
+from ddrt.path.sampled import Path
 from ddrt.path.spec import load_path, speed_limits
+from ddrt.simrun.runner import run_sim
 from lab import path_inputs as pg
 
 FORCED_TURN_DEG = 40.0  # a turn the cells force when their runs' directions differ by this much
@@ -34,10 +40,13 @@ class PlanResult:
     kind: str
     cell_m: float
     diagonal: bool
-    length_m: float
+    length_m: float  # the path's: a turn in place counts pivot_radius x its angle
+    plan_length_m: float  # the polyline through the plan's cells
     duration_s: float
     turns_in_place: int
+    blended_turns: int
     forced_turns: int
+    yaw_accel_rms: float  # rad/s^2, the profile's d(omega)/dt over its gentle driving (turns in place and blended turns left out)
 
     @property
     def ideal_s(self) -> float:
@@ -46,6 +55,22 @@ class PlanResult:
     @property
     def within(self) -> bool:
         return self.duration_s <= 1.3 * self.ideal_s + 3.0
+
+    @property
+    def within_plan_length(self) -> bool:
+        return self.duration_s <= 1.3 * self.plan_length_m / pg.GRID_FUZZ_SPEED + 3.0
+
+
+@dataclass(frozen=True)
+class ClosedLoop:
+    seed: int
+    index: int
+    cell_m: float
+    completed: bool
+    time_s: float
+    true_rms_m: float  # the true pose's distance from the polyline through the plan's cells
+    true_max_m: float
+    saturated: float  # fraction of ticks
 
 
 def forced_turns(xy: np.ndarray, cell: float) -> int:
@@ -75,19 +100,42 @@ def forced_turns(xy: np.ndarray, cell: float) -> int:
     return sum(t >= math.radians(FORCED_TURN_DEG) for t in turn)
 
 
+def gentle_yaw_accel_rms(path: Path) -> float:
+    """RMS over time of the profile's d(omega)/dt on the intervals that are neither in a turn
+    in place nor in a blended turn (those are taken at the profile's own yaw limits)."""
+    a = path.arrays()
+    sig, dt, alpha = np.asarray(a["sigma"]), np.diff(a["t"]), np.asarray(a["alpha"])
+    keep = ~np.asarray(a["seg_pivot"], dtype=bool) & (dt > 0)
+    for s0, s1 in path.conditioning.blended:
+        keep &= ~((sig[1:] > s0) & (sig[:-1] < s1))
+    return float(np.sqrt(np.sum(alpha[keep] ** 2 * dt[keep]) / np.sum(dt[keep]))) if keep.any() else 0.0
+
+
 def measure(seed: int, count: int) -> list[PlanResult]:
     lim = speed_limits(load_config(SIM_CONFIG))
-    rng = np.random.default_rng(seed)
     out: list[PlanResult] = []
-    while len(out) < count:
-        plan = pg.grid_fuzz_plan(rng)
-        if plan is None:
-            continue
-        kind, cell, xy = plan
+    for kind, cell, xy in pg.grid_fuzz_plans(seed, count):
         path = load_path({"points": xy.tolist(), "speed": pg.GRID_FUZZ_SPEED}, lim)
         diagonal = bool(np.any(np.all(np.abs(np.diff(xy, axis=0)) > 1e-9, axis=1)))
-        out.append(PlanResult(seed, len(out), kind, cell, diagonal, path.length, path.duration,
-                              len(path.conditioning.corners), forced_turns(xy, cell)))
+        plan_length = float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
+        c = path.conditioning
+        out.append(PlanResult(seed, len(out), kind, cell, diagonal, path.length, plan_length, path.duration,
+                              len(c.corners), len(c.blended), forced_turns(xy, cell), gentle_yaw_accel_rms(path)))
+    return out
+
+
+def closed_loop(seed: int, count: int) -> list[ClosedLoop]:
+    """The first `count` plans of `seed` driven on the simulated robot (sim seed 1)."""
+    cfg = load_config(SIM_CONFIG)
+    lim = speed_limits(cfg)
+    out: list[ClosedLoop] = []
+    for i, (_, cell, xy) in enumerate(pg.grid_fuzz_plans(seed, count)):
+        path = load_path({"points": xy.tolist(), "speed": pg.GRID_FUZZ_SPEED}, lim)
+        res = run_sim(cfg, path, seed=1)
+        d = pg.curve_distance(xy, np.column_stack((res.column("x"), res.column("y"))))
+        m = res.metrics
+        out.append(ClosedLoop(seed, i, cell, bool(m["completed"]), float(m["sim_duration_s"]),
+                              float(np.sqrt(np.mean(d ** 2))), float(d.max()), float(m["saturated_fraction"])))
     return out
 
 
@@ -95,6 +143,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench.grid_plans", description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="11,12,13,14", help="comma-separated seeds (default 11,12,13,14)")
     ap.add_argument("--count", type=int, default=150, help="plans per seed (default 150)")
+    ap.add_argument("--closed-loop", type=int, default=0, metavar="N",
+                    help="also drive the first N plans of each seed on the simulated robot")
     args = ap.parse_args(argv)
     t0 = time.monotonic()
     results: list[PlanResult] = []
@@ -107,6 +157,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     missed = [r for r in results if not r.within]
     print(f"all: {len(held)} of {len(results)}; median {np.median(ratio):.2f} x length / speed "
           f"({time.monotonic() - t0:.0f} s)")
+    print(f"against the plan's own length (its cells' polyline): {sum(r.within_plan_length for r in results)} "
+          f"of {len(results)}")
+    gentle = np.array([r.yaw_accel_rms for r in results])
+    print(f"turns in place {sum(r.turns_in_place for r in results)}, blended {sum(r.blended_turns for r in results)}; "
+          f"gentle driving's RMS d(omega)/dt median {np.median(gentle):.2f}, 90th percentile "
+          f"{np.percentile(gentle, 90):.2f}, largest {gentle.max():.2f} rad/s^2")
     for lo, hi in ((0.0, 0.03), (0.03, 0.05), (0.05, 1.0)):
         band = [r for r in results if lo <= r.cell_m < hi]
         print(f"cells {lo * 100:.0f}-{hi * 100:.0f} cm: {sum(r.within for r in band)} of {len(band)}")
@@ -119,7 +175,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     for r in missed:
         print(f"  miss: seed {r.seed} #{r.index} {r.kind} {r.cell_m * 100:.1f} cm "
               f"{'8' if r.diagonal else '4'}-connected, {r.length_m:.2f} m, {r.duration_s:.1f} s against "
-              f"{1.3 * r.ideal_s + 3.0:.1f} s, {r.turns_in_place} turned in place, {r.forced_turns} forced turns")
+              f"{1.3 * r.ideal_s + 3.0:.1f} s, {r.turns_in_place} turned in place, {r.blended_turns} blended, "
+              f"{r.forced_turns} forced turns")
+    if args.closed_loop > 0:
+        runs = [c for seed in (int(s) for s in args.seeds.split(",")) for c in closed_loop(seed, args.closed_loop)]
+        rms = np.array([c.true_rms_m for c in runs]) * 1000.0
+        mx = np.array([c.true_max_m for c in runs]) * 1000.0
+        rel = np.array([c.true_max_m / c.cell_m for c in runs])
+        print(f"closed loop, {len(runs)} plans: {sum(c.completed for c in runs)} completed; true pose from the "
+              f"plan's cells RMS median {np.median(rms):.2f} mm (largest {rms.max():.2f}), max median "
+              f"{np.median(mx):.2f} mm (largest {mx.max():.2f}, {rel.max():.2f} cells); saturated at most "
+              f"{max(c.saturated for c in runs) * 100:.2f} % of ticks")
     return 0
 
 

@@ -382,3 +382,14 @@ def grid_fuzz_plan(rng: np.random.Generator) -> tuple[str, float, np.ndarray] | 
     if len(out) < 8:
         return None
     return kind, cell, np.array([((i + 0.5) * cell, (j + 0.5) * cell) for i, j in out])
+
+
+def grid_fuzz_plans(seed: int, count: int) -> list[tuple[str, float, np.ndarray]]:
+    """The first `count` plans `grid_fuzz_plan` draws from `seed` (skipping those it returns None for)."""
+    rng = np.random.default_rng(seed)
+    out: list[tuple[str, float, np.ndarray]] = []
+    while len(out) < count:
+        plan = grid_fuzz_plan(rng)
+        if plan is not None:
+            out.append(plan)
+    return out

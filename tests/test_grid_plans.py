@@ -112,24 +112,18 @@ def test_a_45_degree_grid_turn_is_blended_at_the_profiles_own_limits(monkeypatch
 
 
 def test_a_shallow_grid_turn_stays_gentle() -> None:
-    """A 27 degree turn (20 cells east, then a 2:1 staircase) is below BLENDED_TURN_DEG: taken
+    """An 18 degree turn (20 cells east, then a 3:1 staircase) is below BLENDED_TURN_DEG: taken
     at the gentle turn speed, no span blended."""
-    xy = _cells(["E"] * 20 + ["E", "NE"] * 10)
+    xy = _cells(["E"] * 20 + ["E", "E", "NE"] * 8)
     path = load_path({"points": xy.tolist(), "speed": 0.4}, LIM)
     assert not path.conditioning.blended and not path.conditioning.corners
     rms, _ = _yaw_accel(path, (0.0, path.length))
-    assert rms <= turnspeed.GRID_YAW_ACCEL
+    assert 0.0 < rms <= turnspeed.GRID_YAW_ACCEL
 
 
 def _fuzz(seed: int, count: int) -> list[tuple[str, float, np.ndarray, Path]]:
-    rng = np.random.default_rng(seed)
-    out = []
-    while len(out) < count:
-        plan = pg.grid_fuzz_plan(rng)
-        if plan is not None:
-            kind, cell, xy = plan
-            out.append((kind, cell, xy, load_path({"points": xy.tolist(), "speed": pg.GRID_FUZZ_SPEED}, LIM)))
-    return out
+    return [(kind, cell, xy, load_path({"points": xy.tolist(), "speed": pg.GRID_FUZZ_SPEED}, LIM))
+            for kind, cell, xy in pg.grid_fuzz_plans(seed, count)]
 
 
 def _check_shape(plans: list[tuple[str, float, np.ndarray, Path]]) -> None:
@@ -158,12 +152,19 @@ def _slow(plans: list[tuple[str, float, np.ndarray, Path]]) -> list[tuple[str, f
             for kind, cell, _, p in plans if not _within_bound(p, pg.GRID_FUZZ_SPEED)]
 
 
-def test_fuzzed_grid_plans_mostly_hold_1_3_x_length_over_speed_plus_3_s() -> None:
-    """Turns of 40 degrees or more blended (turnspeed.py): 39 of these 40 within the bound (35
-    with every smoothed turn gentle, 34 when the staircases were fitted cell by cell). The one
-    that misses, 5.4 cm cells and 8 turns in place in 5 m, takes 1.57 x length / speed."""
+def test_fuzzed_grid_plans_take_at_most_1_3_x_length_over_speed_plus_3_s() -> None:
+    """Turns of 25 degrees or more blended (turnspeed.py): all 40 within the bound (35 with
+    every smoothed turn gentle, 34 when the staircases were fitted cell by cell)."""
     slow = _slow(_fuzz(20263, 40))
-    assert len(slow) <= 1, slow
+    assert not slow, slow
+
+
+@pytest.mark.slow
+def test_the_benchs_600_fuzzed_grid_plans_hold_the_bound_but_a_few() -> None:
+    """python -m bench.grid_plans's plans (seeds 11-14, 150 each): 592 of 600 within the bound
+    (572 with every smoothed turn gentle); the 8 that miss are below."""
+    slow = [(seed, kind, cell, ratio) for seed in (11, 12, 13, 14) for kind, cell, ratio in _slow(_fuzz(seed, 150))]
+    assert len(slow) <= 8, slow
 
 
 def test_a_staircase_between_turns_is_driven_as_its_line() -> None:
@@ -182,13 +183,15 @@ def test_a_staircase_between_turns_is_driven_as_its_line() -> None:
     assert _within_bound(path, 0.4), path.duration / (path.length / 0.4)
 
 
-@pytest.mark.xfail(strict=True, reason="plans whose cells force many turns for their length: 28 of 600 fuzzed "
-                   "plans (seeds 11-14, python -m bench.grid_plans) and 5 of these 40 exceed the bound, every one "
-                   "with cells under 5 cm and a median of 2.7 turns of 40 degrees or more a metre (0.7 for the "
-                   "plans that hold it). Each such turn costs about 0.8 s beyond length / speed, in place (a "
-                   "45 degree turn in place: 0.81 s on configs/sim.yaml, a stop, the turn, a start) or driven "
-                   "within its cells at the grid turn speed (ddrt/path/turnspeed.py: at least sqrt(4 |turn| / "
-                   "1.4) s), against the bound's 0.3 x length / speed + 3 s (docs/BENCHMARKS.md, grid plans)")
-def test_fuzzed_grid_plans_take_at_most_1_3_x_length_over_speed_plus_3_s() -> None:
-    slow = _slow(_fuzz(20263, 40))
-    assert not slow, slow
+@pytest.mark.xfail(strict=True, reason="a plan of many 90 degree corners in small cells: 4-connected, 2.1 cm "
+                   "cells, 4.1 m with 10 corners turned in place, 17.8 s against the bound's 16.3 s. Each turn in "
+                   "place on configs/sim.yaml costs about 1 s (a stop from 0.4 m/s at 1 m/s^2, 0.4 s; 90 degrees at "
+                   "4 rad/s and 20 rad/s^2, 0.6 s) against the 0.37 s its wheels' travel adds to the bound, and a "
+                   "90 degree turn blended within half a 2 cm cell is no faster. 8 of the bench's 600 plans miss so, "
+                   "6 of them 4-connected (docs/BENCHMARKS.md, grid plans)")
+def test_a_grid_plan_of_many_tight_corners_takes_at_most_1_3_x_length_over_speed_plus_3_s() -> None:
+    kind, cell, xy = pg.grid_fuzz_plans(14, 120)[119]
+    assert kind == "via" and cell < 0.025
+    path = load_path({"points": xy.tolist(), "speed": pg.GRID_FUZZ_SPEED}, LIM)
+    assert len(path.conditioning.corners) >= 8
+    assert _within_bound(path, pg.GRID_FUZZ_SPEED), path.duration

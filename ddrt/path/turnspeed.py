@@ -40,7 +40,7 @@ from ddrt.path.geometry import Piece
 __all__ = ["BLENDED_TURN_DEG", "GRID_YAW_ACCEL", "STRAIGHT_KAPPA", "TurnCaps", "turn_caps"]
 
 GRID_YAW_ACCEL = 1.4  # rad/s^2: RMS of d(omega)/dt over each of a grid plan's gentle turns
-BLENDED_TURN_DEG = 40.0  # a turn this large is blended: left to the profile's own limits
+BLENDED_TURN_DEG = 25.0  # a turn this large is blended: left to the profile's own limits
 STRAIGHT_KAPPA = 0.25  # 1/m: below this a sample is on a straight (a kappa <= 0.25 rad/s^2 at 1 m/s^2)
 _NO_CAP = 1e3  # m/s: a sample whose curvature does not change
 
