@@ -100,7 +100,7 @@ OWN_COMMAND: dict[int, str] = {
         "--variants dynamic,dynamic+adapt [--harsh] and python -m bench.adaptation",
     20: "python -m bench.reload_stall --reloads 40 --repo OLDER_CHECKOUT --repo .",
     21: "python -m bench.gyro_faults and python -m bench.gyro_faults --before",
-    22: "python -m bench.grid_plans and python -m bench.paths_as_given --cases grid_5cm,...",
+    22: "python -m bench.grid_plans --closed-loop 15 and python -m bench.run --only 9",
     23: "python -m bench.gyro_warmup --shipped",
     24: "python -m bench.population --workers 1 --variants dynamic,dynamic+adapt [--harsh]",
     25: "python -m bench.commissioning --only population --robots 100 --mismatch 0.15 --workers 1 --no-uncommissioned",

@@ -351,7 +351,7 @@ def test_grid_plans_counts_both_lengths_and_drives_plans_in_closed_loop(capsys) 
     assert grid_plans.main(["--seeds", "11", "--count", "4", "--closed-loop", "1"]) == 0
     out = capsys.readouterr().out
     assert "seed 11: " in out and "of 4 within" in out
-    assert "against the plan's own length (its cells' polyline): " in out
+    assert "against the path's length (a turn in place counting its wheels' travel): " in out
     assert "closed loop, 1 plans: 1 completed" in out
     rs = grid_plans.measure(11, 4)
     assert all(r.plan_length_m > 0.0 and r.blended_turns >= 0 for r in rs)

@@ -15,7 +15,7 @@ from ddrt.path import load_path
 from ddrt.path.gridplan import straight_runs, straightened
 from ddrt.path.report import pivot_runs
 from ddrt.path.sampled import Path
-from ddrt.path import turnspeed
+from ddrt.path import gridplan, turnspeed
 from ddrt.path.spec import speed_limits
 from lab import path_inputs as pg
 from tests.support.repo import SIM_YAML
@@ -32,32 +32,47 @@ def _cells(moves: list[str], cell: float = 0.05) -> np.ndarray:
     return (np.array(c, dtype=float) + 0.5) * cell
 
 
-def _within_bound(path: Path, speed: float) -> bool:
-    """The bound on the profile's duration, 1.3 x length / speed + 3 s, with the path's length
-    as ddrt measures progress: a turn in place counts its wheels' travel (pivot_radius x
-    angle). Against the plan's own length (its cells' polyline) fewer hold: 531 of 600 against
-    588 (docs/BENCHMARKS.md, grid plans)."""
-    return path.duration <= 1.3 * path.length / speed + 3.0
+def _within_bound(path: Path, xy: np.ndarray, speed: float) -> bool:
+    """The bound on the profile's duration, 1.3 x length / speed + 3 s, with the plan's own
+    length (the polyline through its cells: no time allowed for turning in place)."""
+    return path.duration <= 1.3 * float(np.sum(np.hypot(*np.diff(xy, axis=0).T))) / speed + 3.0
 
 
-@pytest.mark.parametrize("moves, turn, k, centre", [
-    (["E"] * 20 + ["NW"] * 20, 135.0, 20, True),
-    (["E", "E", "NE"] * 8 + ["W", "NW"] * 10, 135.0, 24, False),  # staircases either side
-    (["E"] * 20 + ["N"] * 20, 90.0, 20, True),
+@pytest.mark.parametrize("moves, turn, k, centre, cell", [
+    (["E"] * 20 + ["NW"] * 20, 135.0, 20, True, 0.05),
+    (["E", "E", "NE"] * 8 + ["W", "NW"] * 10, 135.0, 24, False, 0.05),  # staircases either side
+    (["E"] * 20 + ["N"] * 20, 90.0, 20, True, 0.03),  # under GRID_BLEND_CELL_M
 ])
-def test_a_grid_corner_turns_in_place_at_its_cell(moves, turn, k, centre) -> None:
+def test_a_grid_corner_turns_in_place_at_its_cell(moves, turn, k, centre, cell) -> None:
     """A 135 degree corner was bent to a 9 mm radius and crawled (2.3x length / speed). Between
     straight runs it turns at the corner cell's centre; between staircases, where their lines
     meet within that cell (each staircase is driven as its line, gridplan.straightened)."""
-    xy = _cells(moves)
+    xy = _cells(moves, cell)
     path = load_path({"points": xy.tolist(), "speed": 0.4}, LIM)
     corners = path.conditioning.corners
     assert len(corners) == 1 and len(pivot_runs(path)) == 1
     assert abs(math.degrees(corners[0].turn)) == pytest.approx(turn, abs=20.0)
     off = (abs(corners[0].x - xy[k, 0]), abs(corners[0].y - xy[k, 1]))
-    assert max(off) < (1e-9 if centre else 0.5 * 0.05)  # at the cell's centre, or within the cell
-    assert np.abs(path.arrays()["kappa"]).max() < 1.0 / 0.05
-    assert path.duration < 1.3 * path.length / 0.4  # 2.3x before
+    assert max(off) < (1e-9 if centre else 0.5 * cell)  # at the cell's centre, or within the cell
+    assert np.abs(path.arrays()["kappa"]).max() < 1.0 / cell
+    assert _within_bound(path, xy, 0.4)  # a 135 degree corner bent to 9 mm: 2.3 x length / speed
+
+
+@pytest.mark.parametrize("cell", [0.04, 0.05, 0.08])
+def test_a_square_corner_in_cells_of_4_cm_or_more_is_blended_within_its_cell(cell, monkeypatch) -> None:
+    """Within half a cell a blended 90 degree corner's radius can reach 1.7 cells: from 4 cm
+    cells on that is faster than stopping to turn in place (configs/sim.yaml)."""
+    xy = _cells(["E"] * 20 + ["N"] * 20, cell)
+    path = load_path({"points": xy.tolist(), "speed": 0.4}, LIM)
+    c = path.conditioning
+    assert not c.corners and not pivot_runs(path) and len(c.blended) == 1
+    assert c.deviation_m <= 0.5 * cell + 1e-9
+    _, peak = _yaw_accel(path, c.blended[0])
+    assert peak <= LIM.alpha_max
+    monkeypatch.setattr(gridplan, "GRID_BLEND_CELL_M", 1.0)  # every cell turns in place
+    pivoted = load_path({"points": xy.tolist(), "speed": 0.4}, LIM)
+    assert len(pivoted.conditioning.corners) == 1
+    assert path.duration < pivoted.duration
 
 
 @pytest.mark.parametrize("moves, runs", [
@@ -148,23 +163,24 @@ def test_many_fuzzed_grid_plans_stay_in_their_cells_and_bend_no_tighter_than_a_c
 
 
 def _slow(plans: list[tuple[str, float, np.ndarray, Path]]) -> list[tuple[str, float, float]]:
-    return [(kind, round(cell, 3), round(p.duration / (p.length / pg.GRID_FUZZ_SPEED), 2))
-            for kind, cell, _, p in plans if not _within_bound(p, pg.GRID_FUZZ_SPEED)]
+    return [(kind, round(cell, 3), round(p.duration * pg.GRID_FUZZ_SPEED / float(np.sum(np.hypot(*np.diff(xy, axis=0).T))), 2))
+            for kind, cell, xy, p in plans if not _within_bound(p, xy, pg.GRID_FUZZ_SPEED)]
 
 
-def test_fuzzed_grid_plans_take_at_most_1_3_x_length_over_speed_plus_3_s() -> None:
-    """Turns of 25 degrees or more blended (turnspeed.py): all 40 within the bound (35 with
-    every smoothed turn gentle, 34 when the staircases were fitted cell by cell)."""
+def test_fuzzed_grid_plans_mostly_hold_1_3_x_length_over_speed_plus_3_s() -> None:
+    """36 of these 40 within the bound (31 with every smoothed turn gentle and every 90 degree
+    corner turned in place); the 4 that miss have cells under 5 cm but one (5.4 cm, 8 corners
+    in 5 m)."""
     slow = _slow(_fuzz(20263, 40))
-    assert not slow, slow
+    assert len(slow) <= 4, slow
 
 
 @pytest.mark.slow
-def test_the_benchs_600_fuzzed_grid_plans_hold_the_bound_but_a_few() -> None:
-    """python -m bench.grid_plans's plans (seeds 11-14, 150 each): 592 of 600 within the bound
-    (572 with every smoothed turn gentle); the 8 that miss are below."""
+def test_the_benchs_600_fuzzed_grid_plans_mostly_hold_the_bound() -> None:
+    """python -m bench.grid_plans's plans (seeds 11-14, 150 each): 563 of 600 within the bound
+    (517 with every smoothed turn gentle and every 90 degree corner turned in place)."""
     slow = [(seed, kind, cell, ratio) for seed in (11, 12, 13, 14) for kind, cell, ratio in _slow(_fuzz(seed, 150))]
-    assert len(slow) <= 8, slow
+    assert len(slow) <= 37, slow
 
 
 def test_a_staircase_between_turns_is_driven_as_its_line() -> None:
@@ -180,18 +196,15 @@ def test_a_staircase_between_turns_is_driven_as_its_line() -> None:
     assert np.mean(np.abs(a["kappa"][:-1][drive]) < 0.25) > 0.8  # straight but near its corners
     assert len(path.conditioning.corners) == 2 and len(pivot_runs(path)) == 2
     assert path.conditioning.deviation_m <= 0.5 * 0.02 + 1e-9
-    assert _within_bound(path, 0.4), path.duration / (path.length / 0.4)
+    assert _within_bound(path, xy, 0.4), path.duration
 
 
-@pytest.mark.xfail(strict=True, reason="a plan of many 90 degree corners in small cells: 4-connected, 2.1 cm "
-                   "cells, 4.1 m with 10 corners turned in place, 17.8 s against the bound's 16.3 s. Each turn in "
-                   "place on configs/sim.yaml costs about 1 s (a stop from 0.4 m/s at 1 m/s^2, 0.4 s; 90 degrees at "
-                   "4 rad/s and 20 rad/s^2, 0.6 s) against the 0.37 s its wheels' travel adds to the bound, and a "
-                   "90 degree turn blended within half a 2 cm cell is no faster. 8 of the bench's 600 plans miss so, "
-                   "6 of them 4-connected (docs/BENCHMARKS.md, grid plans)")
-def test_a_grid_plan_of_many_tight_corners_takes_at_most_1_3_x_length_over_speed_plus_3_s() -> None:
-    kind, cell, xy = pg.grid_fuzz_plans(14, 120)[119]
-    assert kind == "via" and cell < 0.025
-    path = load_path({"points": xy.tolist(), "speed": pg.GRID_FUZZ_SPEED}, LIM)
-    assert len(path.conditioning.corners) >= 8
-    assert _within_bound(path, pg.GRID_FUZZ_SPEED), path.duration
+@pytest.mark.xfail(strict=True, reason="plans of many tight corners in small cells: 4 of these 40 and 37 of the "
+                   "bench's 600 exceed the bound (python -m bench.grid_plans), 35 of the 37 with cells under 5 cm "
+                   "and 26 4-connected. A 90 degree corner costs about 1 s on configs/sim.yaml: in place, a stop "
+                   "from 0.4 m/s at 1 m/s^2 (0.4 s) and 90 degrees at 4 rad/s and 20 rad/s^2 (0.6 s); blended "
+                   "within half a cell under 4 cm, no faster; against the bound's 0.3 x length / speed + 3 s "
+                   "(docs/BENCHMARKS.md, grid plans)")
+def test_fuzzed_grid_plans_take_at_most_1_3_x_length_over_speed_plus_3_s() -> None:
+    slow = _slow(_fuzz(20263, 40))
+    assert not slow, slow

@@ -14,14 +14,15 @@ A CSV or `points:` list arrives as a polyline. Three kinds are told apart (`clas
   crosses cell by cell is fitted as that line (ddrt/path/gridplan.py `straightened`; the
   corridor still measured from the cells). Its corners are read from those cells (the
   staircase is exact, not noise): where the direction of the lines through six cells either
-  side, and three, turns by more than GRID_PIVOT_DEG (90, 135 and 180 degree turns), the plan
-  turns in place at that cell (its centre, or where two staircases' lines meet within it);
-  corners may lie two cells apart. 45 degree steps are smoothed within the cells. A turn
-  the fit still bends tighter than five cells' radius by 40 degrees or more (or tighter than a
-  cell at all) is turned in place at its sharpest point too: the smoothed turns get one speed
-  cap each that bounds the RMS of v^2 dkappa/ds over it (ddrt/path/turnspeed.py), so a turn
-  that tight is crawled (a 135 degree corner bent to 9 mm
-  doubles a whole plan's time), while a turn in place costs a stop and about half a second.
+  side, and three, turns by more than GRID_PIVOT_DEG (90, 135 and 180 degree turns; in
+  cells of 4 cm or more 135 and 180 only, their 90 degree corners blended), the plan turns in
+  place at that cell (its centre, or where two staircases' lines meet within it); corners
+  may lie two cells apart. 45 degree steps are smoothed within the cells. A turn the fit
+  still bends tighter than five cells' radius by 40 degrees or more (one cell where 90 degree
+  corners blend; or tighter than a cell at all) is turned in place at its sharpest point too:
+  that tight a turn is crawled (a 135 degree corner bent to 9 mm doubles a whole plan's
+  time), while a turn in place costs a stop and about half a second. Smoothed turns of 25
+  degrees or more are blended, smaller ones taken gently (ddrt/path/turnspeed.py).
 - **samples**: anything denser. The points are samples of a curve with noise (a recording,
   a planner's output, an exported curve). The reference is a smoothing spline through them
   that stays within the tolerance of every point; genuine corners (the direction turns by
