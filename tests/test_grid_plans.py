@@ -41,7 +41,7 @@ def _within_bound(path: Path, xy: np.ndarray, speed: float) -> bool:
 @pytest.mark.parametrize("moves, turn, k, centre, cell", [
     (["E"] * 20 + ["NW"] * 20, 135.0, 20, True, 0.05),
     (["E", "E", "NE"] * 8 + ["W", "NW"] * 10, 135.0, 24, False, 0.05),  # staircases either side
-    (["E"] * 20 + ["N"] * 20, 90.0, 20, True, 0.03),  # under GRID_BLEND_CELL_M
+    (["E"] * 20 + ["N"] * 20, 90.0, 20, True, 0.03),  # a corridor under GRID_BLEND_CORRIDOR_M
 ])
 def test_a_grid_corner_turns_in_place_at_its_cell(moves, turn, k, centre, cell) -> None:
     """A 135 degree corner was bent to a 9 mm radius and crawled (2.3x length / speed). Between
@@ -69,7 +69,7 @@ def test_a_square_corner_in_cells_of_4_cm_or_more_is_blended_within_its_cell(cel
     assert c.deviation_m <= 0.5 * cell + 1e-9
     _, peak = _yaw_accel(path, c.blended[0])
     assert peak <= LIM.alpha_max
-    monkeypatch.setattr(gridplan, "GRID_BLEND_CELL_M", 1.0)  # every cell turns in place
+    monkeypatch.setattr(gridplan, "GRID_BLEND_CORRIDOR_M", 1.0)  # every corner turns in place
     pivoted = load_path({"points": xy.tolist(), "speed": 0.4}, LIM)
     assert len(pivoted.conditioning.corners) == 1
     assert path.duration < pivoted.duration
@@ -107,6 +107,19 @@ def _yaw_accel(path: Path, span: tuple[float, float]) -> tuple[float, float]:
     sig, dt, al = np.asarray(a["sigma"]), np.diff(a["t"]), np.asarray(a["alpha"])
     sel = (sig[:-1] >= span[0]) & (sig[1:] <= span[1]) & (dt > 0)
     return float(np.sqrt(np.sum(al[sel] ** 2 * dt[sel]) / np.sum(dt[sel]))), float(np.abs(al[sel]).max())
+
+
+def test_a_paths_own_tolerance_of_2_cm_blends_a_square_corner_in_3_cm_cells() -> None:
+    """The corridor, not the cell, sets the radius a blended corner can have: 3 cm cells turn
+    a 90 degree corner in place within their half cell, and blend it within the path's own
+    `tolerance:` of 3 cm, staying within that."""
+    xy = _cells(["E"] * 20 + ["N"] * 20, 0.03)
+    own = load_path({"points": xy.tolist(), "speed": 0.4}, LIM)
+    wide = load_path({"points": xy.tolist(), "speed": 0.4, "tolerance": 0.03}, LIM)
+    assert len(own.conditioning.corners) == 1 and not own.conditioning.blended
+    assert not wide.conditioning.corners and len(wide.conditioning.blended) == 1
+    assert wide.conditioning.deviation_m <= 0.03 + 1e-9
+    assert wide.duration < own.duration
 
 
 def test_a_45_degree_grid_turn_is_blended_at_the_profiles_own_limits(monkeypatch) -> None:

@@ -14,8 +14,8 @@ A CSV or `points:` list arrives as a polyline. Three kinds are told apart (`clas
   crosses cell by cell is fitted as that line (ddrt/path/gridplan.py `straightened`; the
   corridor still measured from the cells). Its corners are read from those cells (the
   staircase is exact, not noise): where the direction of the lines through six cells either
-  side, and three, turns by more than GRID_PIVOT_DEG (90, 135 and 180 degree turns; in
-  cells of 4 cm or more 135 and 180 only, their 90 degree corners blended), the plan turns in
+  side, and three, turns by more than GRID_PIVOT_DEG (90, 135 and 180 degree turns; within a
+  corridor of 2 cm or more, 4 cm cells, 135 and 180 only, 90 degree corners blended), the plan turns in
   place at that cell (its centre, or where two staircases' lines meet within it); corners
   may lie two cells apart. 45 degree steps are smoothed within the cells. A turn the fit
   still bends tighter than five cells' radius by 40 degrees or more (one cell where 90 degree
@@ -303,7 +303,7 @@ def _plan(p: np.ndarray, mode: str, tol: float, cell: float | None, noise: float
     threshold = math.radians(opt.corner_pivot_deg)
     if mode == GRID:
         assert cell is not None
-        scale, corners = grid_corners(fit_p, u, cell, threshold)
+        scale, corners = grid_corners(fit_p, u, cell, threshold, tol)
     else:
         scale = corner_scale(tol, noise, spacing)
         corners = find_corners(p, u, scale, threshold, noise)
@@ -544,7 +544,7 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: GeometryOp
         info.extra["closed_loop"] = plan.wrap is not None
         try:
             geo = _assemble(plan, caps, info, where, names)
-            more = tight_bends(geo, info.point_sigma, cell, [k for k, _ in plan.corners]) if cell is not None else []
+            more = tight_bends(geo, info.point_sigma, cell, tol, [k for k, _ in plan.corners]) if cell is not None else []
             if not more or attempt == MAX_REPLANS - 1:
                 break
             tight.extend(more)

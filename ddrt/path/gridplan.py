@@ -16,13 +16,14 @@ direction either side of a cell is the line through the cells within GRID_CORNER
 bends it to a 9 mm radius, crawled at the turn speed). Turns of 90 degrees and more turn in
 place: at their cell's centre between straight runs, where two staircases' lines meet (within
 the cell) between staircases; a leg that runs straight into a corner is held along its run.
-In cells of GRID_BLEND_CELL_M or more, 90 degree corners are blended instead (only 135 and
-180 degrees turn in place): within half a cell such a corner's radius can reach 1.7 cells,
-and from 4 cm cells on that was faster than stopping to turn in place on the fuzzed plans
-(python -m bench.grid_plans: from 3 cm, 257 plans faster and 16 slower; from 4 cm, 234 and 6).
+Within a corridor of GRID_BLEND_CORRIDOR_M or more (half a 4 cm cell, or the path's own
+tolerance), 90 degree corners are blended instead (only 135 and 180 degrees turn in place):
+such a corner's radius can reach 3.4 corridors, and from 2 cm on that was faster than
+stopping to turn in place on the fuzzed plans (python -m bench.grid_plans: from 3 cm cells,
+257 plans faster and 16 slower; from 4 cm, 234 and 6).
 45 degree steps are smoothed (condition.py) and blended (turnspeed.py). A bend the fit still
 makes tighter than GRID_TIGHT_CELLS cells of radius while turning GRID_TIGHT_TURN_DEG or more
-there (in cells that blend their 90 degree corners, one cell), or tighter than one cell at
+there (where the corridor blends 90 degree corners, one cell), or tighter than one cell at
 all, is turned in place too (`tight_bends`): that tight a bend is crawled at the profile's
 yaw rate and lateral acceleration, while a turn in place is a stop and about half a second;
 a smaller bend is cheaper driven than stopped for. Over the fuzzed plans five cells is what
@@ -43,7 +44,7 @@ __all__ = ["GRID_PIVOT_DEG", "blends_square_corners", "corner_pin", "grid_axis",
            "straightened", "tight_bends"]
 
 GRID_PIVOT_DEG = 67.5  # in a grid plan, turns of 90 degrees and more (90, 135, 180) pivot
-GRID_BLEND_CELL_M = 0.04  # in cells this large 90 degree corners are blended, not turned in place
+GRID_BLEND_CORRIDOR_M = 0.02  # within a corridor this wide (half a 4 cm cell) 90 degree corners are blended
 GRID_BLEND_PIVOT_DEG = 112.5  # there, turns of 135 and 180 degrees still pivot
 GRID_CORNER_CELLS = 6.0  # a grid plan's corner scale: each half-scale side holds 3 cells even diagonally
 GRID_CORNER_APART_CELLS = 2.0  # a grid plan's corners at least this far apart (cells)
@@ -91,19 +92,21 @@ def grid_axis(p: np.ndarray) -> float:
     return ang - 0.25 * math.pi if diagonal else ang
 
 
-def blends_square_corners(cell: float) -> bool:
-    """Whether a grid of this cell blends its 90 degree corners: within half a cell a blended
-    corner's radius is at most 1.7 cells, and from 4 cm cells on that is faster than stopping to
-    turn in place on the fuzzed plans (python -m bench.grid_plans; under 3 cm it was slower)."""
-    return cell >= GRID_BLEND_CELL_M - 1e-9  # a cell read from the points to within rounding
+def blends_square_corners(corridor: float) -> bool:
+    """Whether a grid plan smoothed within `corridor` (its tolerance: half a cell, or the path's
+    own) blends its 90 degree corners: a blended corner's radius is at most 3.4 corridors, and
+    from 2 cm on (4 cm cells) that is faster than stopping to turn in place on the fuzzed plans
+    (python -m bench.grid_plans; within 1 cm, every 2 cm cell, it was slower on the whole)."""
+    return corridor >= GRID_BLEND_CORRIDOR_M - 1e-9  # a cell read from the points to within rounding
 
 
-def grid_corners(p: np.ndarray, u: np.ndarray, cell: float, threshold: float) -> tuple[float, list[tuple[int, float]]]:
-    """(corner scale, corners (index, turn)) of a grid plan: turns by more than `threshold` and
-    GRID_PIVOT_DEG (GRID_BLEND_PIVOT_DEG where the cells blend their 90 degree corners), read
-    over GRID_CORNER_CELLS cells and half that, GRID_CORNER_APART_CELLS apart."""
+def grid_corners(p: np.ndarray, u: np.ndarray, cell: float, threshold: float,
+                 corridor: float) -> tuple[float, list[tuple[int, float]]]:
+    """(corner scale, corners (index, turn)) of a grid plan smoothed within `corridor`: turns by
+    more than `threshold` and GRID_PIVOT_DEG (GRID_BLEND_PIVOT_DEG where the corridor blends 90
+    degree corners), read over GRID_CORNER_CELLS cells and half that, GRID_CORNER_APART_CELLS apart."""
     scale = GRID_CORNER_CELLS * cell
-    turn = max(threshold, math.radians(GRID_BLEND_PIVOT_DEG if blends_square_corners(cell) else GRID_PIVOT_DEG))
+    turn = max(threshold, math.radians(GRID_BLEND_PIVOT_DEG if blends_square_corners(corridor) else GRID_PIVOT_DEG))
     return scale, find_corners(p, u, scale, turn, apart=GRID_CORNER_APART_CELLS * cell)
 
 
@@ -115,9 +118,9 @@ def steps_back(p: np.ndarray) -> list[int]:
     return (np.flatnonzero(back) + 1).tolist()
 
 
-def tight_bends(geo: Geometry, sig: np.ndarray | None, cell: float, corners: Sequence[int]) -> list[int]:
+def tight_bends(geo: Geometry, sig: np.ndarray | None, cell: float, corridor: float, corners: Sequence[int]) -> list[int]:
     """A grid plan's points nearest to where the fit bends tighter than GRID_TIGHT_CELLS cells of
-    radius by GRID_TIGHT_TURN_DEG or more (where the cells blend their 90 degree corners, one
+    radius by GRID_TIGHT_TURN_DEG or more (where the corridor blends 90 degree corners, one
     cell), or tighter than one cell at all (the sharpest point of
     each such bend; not already a corner; a small wiggle is cheaper driven than stopped for): a turn that sharp is
     slower driven than turned in place (turnspeed.py slows it well below the asked speed)."""
@@ -127,7 +130,7 @@ def tight_bends(geo: Geometry, sig: np.ndarray | None, cell: float, corners: Seq
     for pc in geo.pieces:
         if not pc.pivot and len(pc.kappa):
             k = np.abs(pc.kappa)
-            over = k > 1.0 / ((1.0 if blends_square_corners(cell) else GRID_TIGHT_CELLS) * cell)
+            over = k > 1.0 / ((1.0 if blends_square_corners(corridor) else GRID_TIGHT_CELLS) * cell)
             edges = np.flatnonzero(np.diff(over.astype(np.int8))) + 1
             for a, b in zip(np.concatenate(([0], edges)).tolist(), np.concatenate((edges, [len(k)])).tolist()):
                 turn = abs(float(np.sum(pc.kappa[a:b - 1] * np.diff(pc.s[a:b])))) if b - a > 1 else 0.0
