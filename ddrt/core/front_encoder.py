@@ -55,15 +55,9 @@ class FrontEncoder:
         self.ds = delta * self.metres_per_count
 
     def fuse(self, est: "Estimator", sample: Sample, dt: float) -> None:
-        """Take the sample's count (as catch_up, written out: every fresh tick) and fuse the
-        distance since the reset."""
-        count = sample.encoder_count
-        delta = wrap_i32(count - self.last)
-        self.last = count
-        self.counts += delta
-        self.moved = moved = delta != 0
-        self.ds = delta * self.metres_per_count
-        est.fuse_travel(moved, self.counts * self.metres_per_count, dt)
+        """Take the sample's count and fuse the distance since the reset."""
+        self.catch_up(sample)
+        est.fuse_travel(self.moved, self.counts * self.metres_per_count, dt)
 
 
 class NoFront:
