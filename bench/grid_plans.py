@@ -25,6 +25,7 @@ import numpy as np
 from bench.common import SIM_CONFIG
 from ddrt.config import load_config
 from ddrt.path.gridplan import straight_runs
+from ddrt.path.report import turn_spans
 from ddrt.path.sampled import Path
 from ddrt.path.spec import load_path, speed_limits
 from ddrt.simrun.runner import run_sim
@@ -107,8 +108,8 @@ def gentle_yaw_accel_rms(path: Path) -> float:
     in place nor in a blended turn (those are taken at the profile's own yaw limits)."""
     a = path.arrays()
     sig, dt, alpha = np.asarray(a["sigma"]), np.diff(a["t"]), np.asarray(a["alpha"])
-    keep = ~np.asarray(a["seg_pivot"], dtype=bool) & (dt > 0)
-    for s0, s1 in path.conditioning.blended:
+    keep = dt > 0
+    for s0, s1 in turn_spans(path):
         keep &= ~((sig[1:] > s0) & (sig[:-1] < s1))
     return float(np.sqrt(np.sum(alpha[keep] ** 2 * dt[keep]) / np.sum(dt[keep]))) if keep.any() else 0.0
 

@@ -36,6 +36,7 @@ import numpy as np
 from bench.common import SIM_CONFIG
 from ddrt.config import load_config
 from ddrt.path.sampled import Path
+from ddrt.path.report import turn_spans
 from ddrt.path.spec import load_path, speed_limits
 from ddrt.simrun.runner import run_sim
 from lab.path_inputs import (CASES, TARGET_DOMEGA_RMS, TARGET_GRID_RMS_M, TARGET_SATURATION,
@@ -131,15 +132,9 @@ def _run(cfg, path: Path, seed: int, curve: np.ndarray) -> Run:
 
 def _gentle(path: Path, sigma: np.ndarray) -> np.ndarray:
     """Which ticks (by the reference's progress) are neither in a turn in place nor in a grid
-    plan's blended turn (taken at the profile's own yaw limits)."""
-    a = path.arrays()
-    sig = np.asarray(a["sigma"])
-    piv = np.asarray(a["seg_pivot"], dtype=bool)
-    spans = [(float(sig[i]), float(sig[i + 1])) for i in np.flatnonzero(piv)]
-    c = path.conditioning
-    spans += list(c.blended) if c is not None else []
+    plan's blended turn (ddrt/path/report.py `turn_spans`)."""
     out = np.ones(len(sigma), dtype=bool)
-    for s0, s1 in spans:
+    for s0, s1 in turn_spans(path):
         out &= ~((sigma >= s0) & (sigma <= s1))
     return out
 

@@ -164,6 +164,15 @@ def pivot_runs(path: Path) -> list[tuple[int, int]]:
     return runs
 
 
+def turn_spans(path: Path) -> list[tuple[float, float]]:
+    """(start, end) progress of the turns not driven gently: the turns in place, and a grid
+    plan's blended turns (taken at the profile's own yaw limits, ddrt/path/turnspeed.py)."""
+    sig = path.arrays()["sigma"]
+    spans = [(float(sig[i]), float(sig[j])) for i, j in pivot_runs(path)]
+    c = path.conditioning
+    return spans + list(c.blended) if c is not None else spans
+
+
 def _corridor(path: Path) -> float | None:
     """Largest distance of the reference's samples from the input polyline (samples only;
     None where the conditioning keeps no progress of its points, as for a path joined at
