@@ -70,7 +70,8 @@ from ddrt.path.gridplan import (
 )
 from ddrt.path.noise import TOLERANCE_FLOOR_M, arc_parameter, auto_tolerance, estimate_noise
 from ddrt.path.smoothing import (
-    CurveStops, EndPin, FitError, FitRequest, FittedLeg, ToleranceUnmet, chord_length, fit_leg, staircase_noise,
+    CurveStops, EndPin, FitError, FitRequest, FittedLeg, ToleranceUnmet, along_axes, chord_length, fit_leg,
+    staircase_noise,
 )
 from ddrt.path.turnspeed import turn_caps
 
@@ -452,10 +453,7 @@ def _segment_distance(q: np.ndarray, x1: np.ndarray, x2: np.ndarray, axis: float
     n2 = float(d @ d)
     t = min(max(float((q - x1) @ d) / n2, 0.0), 1.0) if n2 > 0.0 else 0.0
     e = q - x1 - t * d
-    if axis is None:
-        return float(math.hypot(*e))
-    c, s = math.cos(axis), math.sin(axis)
-    return max(abs(c * e[0] + s * e[1]), abs(c * e[1] - s * e[0]))
+    return float(math.hypot(*e)) if axis is None else float(along_axes(e[0], e[1], axis))
 
 
 def _joint(x1: np.ndarray | None, x2: np.ndarray | None, heading: float, theta0: float,

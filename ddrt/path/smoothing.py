@@ -48,8 +48,8 @@ from ddrt.errors import DdrtError
 from ddrt.path.geometry import GeometryOptions, Piece, line_piece, polyline_geometry
 from ddrt.path.noise import arc_parameter, chase_floor
 
-__all__ = ["CurveStops", "EndPin", "FitError", "FitRequest", "FittedLeg", "ToleranceUnmet", "chord_length",
-           "fit_leg", "staircase_noise"]
+__all__ = ["CurveStops", "EndPin", "FitError", "FitRequest", "FittedLeg", "ToleranceUnmet", "along_axes",
+           "chord_length", "fit_leg", "staircase_noise"]
 
 DISCREPANCY = 1.1  # RMS lateral residual allowed, in estimated noise sigmas
 MAX_SMOOTHING_M = 4.0  # longest smoothing length tried
@@ -434,13 +434,18 @@ def _choose_smoothing(q: np.ndarray, u: np.ndarray, w: np.ndarray, fixed: np.nda
     return ladder[lo], fits
 
 
+def along_axes(ex: np.ndarray | float, ey: np.ndarray | float, axis: float) -> np.ndarray | float:
+    """The length of the offset (ex, ey) measured along a grid's axes (at `axis`): the larger
+    of its two components there, as a grid plan's corridor is measured (arrays or floats)."""
+    c, s = math.cos(axis), math.sin(axis)
+    return np.maximum(np.abs(c * ex + s * ey), np.abs(c * ey - s * ex))
+
+
 def _cell_distance(sp: _Spline, q: np.ndarray, uf: np.ndarray, axis: float) -> np.ndarray:
     """How far each point's foot on the curve lies from the point along the grid's axes (the
     larger of the two): at most half a cell while the curve crosses the point's own cell."""
     x, y = sp.eval(uf)
-    ex, ey = q[:, 0] - x, q[:, 1] - y
-    c, s = math.cos(axis), math.sin(axis)
-    return np.maximum(np.abs(c * ex + s * ey), np.abs(c * ey - s * ex))
+    return along_axes(q[:, 0] - x, q[:, 1] - y, axis)
 
 
 def _settling(req: FitRequest, u: np.ndarray) -> np.ndarray:
