@@ -10,6 +10,8 @@ place counting its wheels' travel, pivot_radius x angle) is printed too. For the
 plans that miss it prints each one, with the turns of 40 degrees or more its cells force
 (`forced_turns`) per metre. `--closed-loop N` also drives the first N plans of each seed on
 the simulated robot (seed 1) and reports the true pose's distance from the plan's cells.
+Last it loads a straight staircase of about 1000 and 4000 cells: the time should grow with the
+cells, not their square.
 """
 
 from __future__ import annotations
@@ -142,6 +144,20 @@ def closed_loop(seed: int, count: int) -> list[ClosedLoop]:
     return out
 
 
+def staircase_load_s(cells: int, repeats: int = 3) -> tuple[int, float]:
+    """(cells, median seconds) to load one straight staircase of about `cells` 1 cm cells (slope
+    3/7, one run): how a plan's load time grows with its length (gridplan.straight_runs)."""
+    lim = speed_limits(load_config(SIM_CONFIG))
+    n = round(cells * 0.7)
+    xy = (np.array(pg.staircase((0, 0), (n, round(n * 3 / 7)), diagonal=False), dtype=float) + 0.5) * 0.01
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        load_path({"points": xy.tolist(), "speed": pg.GRID_FUZZ_SPEED}, lim)
+        times.append(time.perf_counter() - t0)
+    return len(xy), float(np.median(times))
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench.grid_plans", description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="11,12,13,14", help="comma-separated seeds (default 11,12,13,14)")
@@ -180,6 +196,9 @@ def main(argv: Sequence[str] | None = None) -> int:
               f"{'8' if r.diagonal else '4'}-connected, {r.plan_length_m:.2f} m, {r.duration_s:.1f} s against "
               f"{1.3 * r.ideal_s + 3.0:.1f} s, {r.turns_in_place} turned in place, {r.blended_turns} blended, "
               f"{r.forced_turns} forced turns")
+    (n1, t1), (n4, t4) = staircase_load_s(1000), staircase_load_s(4000)
+    print(f"a straight staircase loads in {t1:.2f} s at {n1} cells, {t4:.2f} s at {n4} ({t4 / t1:.1f}x for "
+          f"{n4 / n1:.1f}x the cells; median of 3)")
     if args.closed_loop > 0:
         runs = [c for seed in (int(s) for s in args.seeds.split(",")) for c in closed_loop(seed, args.closed_loop)]
         rms = np.array([c.true_rms_m for c in runs]) * 1000.0

@@ -5,6 +5,7 @@ within the planned cells and bends no tighter than a cell's radius (ddrt/path/gr
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -92,6 +93,82 @@ def test_straight_runs_are_a_lines_staircases(moves, runs) -> None:
     for a, b, on in found:  # on one line
         d = on - on[0]
         assert np.abs(d[:, 0] * d[-1, 1] - d[:, 1] * d[-1, 0]).max() < 1e-6 * float(d[-1] @ d[-1])
+
+
+def _is_line_staircase(steps: list[tuple[int, int]]) -> bool:
+    """The definition, read whole: one kind of step, or two where one of them (the rarer) never
+    comes twice in a row and the runs of the other between its occurrences differ by at most
+    one, the first and last run no longer than the shortest inner one plus one."""
+    kinds = set(steps)
+    if len(kinds) != 2:
+        return len(kinds) == 1
+    for rare in kinds:
+        if any(a == b == rare for a, b in zip(steps[:-1], steps[1:])):
+            continue
+        runs = [len(list(grp)) if key else 0 for key, grp in itertools.groupby(steps, key=lambda s: s != rare)]
+        # between rare steps (each a run of one): the lengths of the other's runs, with 0 where two rare steps
+        # would touch (they do not) and at either end when the run starts or ends with a rare step
+        others = [n for n in runs if n]
+        firsts = (steps[0] != rare, steps[-1] != rare)
+        inner = others[int(firsts[0]):len(others) - int(firsts[1])]
+        ends = [others[0] if firsts[0] else 0, others[-1] if firsts[1] else 0]
+        if not inner or (max(inner) - min(inner) <= 1 and max(ends) <= min(inner) + 1):
+            return True
+    return False
+
+
+def test_a_runs_staircase_is_read_as_it_grows() -> None:
+    """straight_runs reads whether a growing run is a staircase a step at a time; at every
+    length it agrees with the definition read over the whole run."""
+    rng = np.random.default_rng(4)
+    kinds = [(1, 0), (0, 1), (1, 1)]
+    checked = 0
+    for _ in range(400):
+        period = int(rng.integers(1, 6))
+        use = kinds[:int(rng.choice([2, 2, 2, 3]))]
+        steps = []
+        while len(steps) < 40:  # mostly staircases, with the odd slip
+            steps += [use[0]] * (period + int(rng.random() < 0.2)) + [use[1]]
+            if rng.random() < 0.1:
+                steps.append(use[int(rng.integers(len(use)))])
+        start = int(rng.integers(0, period + 1))
+        steps = steps[start:]
+        window = gridplan._StairWindow()
+        for n in range(1, len(steps) + 1):
+            assert window.add(steps[n - 1]) == _is_line_staircase(steps[:n]), steps[:n]
+            checked += 1
+    assert checked > 10_000
+
+
+def test_a_runs_line_is_fitted_over_its_hull() -> None:
+    """A run's line is fitted to its extremes only: over its hull's corners it is the line fitted
+    over every cell (random staircases and random clouds)."""
+    rng = np.random.default_rng(9)
+    for _ in range(200):
+        if rng.random() < 0.5:
+            steps = rng.choice([0, 1], size=(int(rng.integers(3, 80)), 1))
+            g = np.cumsum(np.vstack([[0, 0], np.hstack([1 - steps, steps])]), axis=0).astype(float)
+        else:
+            g = rng.normal(size=(int(rng.integers(3, 60)), 2)) * [5.0, 1.0]
+        hull = gridplan._hull(g.tolist(), list(range(len(g))))
+        assert len(hull) <= len(g)
+        dev, n, off = gridplan._line_fit(g)
+        dev_h, n_h, off_h = gridplan._line_fit(g[hull], g[-1] - g[0])
+        assert dev_h == pytest.approx(dev, abs=1e-12) and off_h == pytest.approx(off, abs=1e-9)
+        assert np.allclose(n_h, n, atol=1e-12)
+
+
+def test_a_long_staircase_is_read_in_linear_work(monkeypatch) -> None:
+    """A straight staircase of 3000 cells is one run, found by refitting its line over a few
+    hull corners a cell at a time: the cells every fit reads add up to a few per cell (refitting
+    every cell each time, n^2 / 2: a 2000-cell plan took 8 s to load)."""
+    g = np.array(pg.staircase((0, 0), (2100, 900), diagonal=False), dtype=float)
+    read = []
+    fit = gridplan._line_fit
+    monkeypatch.setattr(gridplan, "_line_fit", lambda pts, chord=None: (read.append(len(pts)), fit(pts, chord))[1])
+    runs = straight_runs(g)
+    assert [(a, b) for a, b, _ in runs] == [(0, len(g) - 1)] or [(a, b) for a, b, _ in runs] == [(1, len(g) - 1)]
+    assert sum(read) < 20 * len(g)
 
 
 @pytest.mark.parametrize("moves", [["E", "N"] * 20, ["E", "NE"] * 20, ["E", "E", "NE"] * 12])

@@ -33,6 +33,8 @@ measured best.
 from __future__ import annotations
 
 import math
+import sys
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
@@ -167,12 +169,13 @@ def corner_pin(p: np.ndarray, u: np.ndarray, k: int, scale: float) -> CornerPin:
 
 
 
-def _line_fit(g: np.ndarray) -> tuple[float, np.ndarray, float]:
+def _line_fit(g: np.ndarray, chord: np.ndarray | None = None) -> tuple[float, np.ndarray, float]:
     """(deviation, unit normal, offset) of the line nearest to every cell centre `g` (grid units)
     along the grid's axes: for a line of normal n through offset o, a centre c is |n.c - o| /
     (|n_x| + |n_y|) from it that way, so the best offset for a direction is the midrange, and
-    the direction is searched within 40 degrees of the run's chord."""
-    d = g[-1] - g[0]
+    the direction is searched within 40 degrees of the run's chord (`chord`, else g[-1] - g[0]).
+    Only the extremes count, so `g` may be just the run's convex hull."""
+    d = g[-1] - g[0] if chord is None else chord
     best = math.atan2(float(d[1]), float(d[0]))
     for angles in (_LINE_ANGLES, _FINE_ANGLES):
         phi = best + angles
@@ -182,6 +185,31 @@ def _line_fit(g: np.ndarray) -> tuple[float, np.ndarray, float]:
         k = int(np.argmin(spread))
         best = float(phi[k])
     return float(spread[k]), np.array([nx[k], ny[k]]), 0.5 * float(o[k].max() + o[k].min())
+
+
+def _hull(xy: list[list[float]], idx: list[int]) -> list[int]:
+    """The indices among `idx` of the convex hull's corners of points `xy[idx]` (collinear
+    points dropped): a run's line fit reads only its extremes, so a run grown a cell at a time
+    refits over its few hull corners instead of every cell."""
+    pts = sorted(set(idx), key=lambda k: xy[k])
+    if len(pts) < 3:
+        return pts
+
+    def turns_left(o: int, a: int, b: int) -> bool:
+        (ox, oy), (ax, ay), (bx, by) = xy[o], xy[a], xy[b]
+        return (ax - ox) * (by - oy) - (ay - oy) * (bx - ox) > 0.0
+
+    lower: list[int] = []
+    upper: list[int] = []
+    for k in pts:
+        while len(lower) >= 2 and not turns_left(lower[-2], lower[-1], k):
+            lower.pop()
+        lower.append(k)
+    for k in reversed(pts):
+        while len(upper) >= 2 and not turns_left(upper[-2], upper[-1], k):
+            upper.pop()
+        upper.append(k)
+    return lower[:-1] + upper[:-1]
 
 
 def _onto(g: np.ndarray, n: np.ndarray, off: float) -> np.ndarray:
@@ -195,18 +223,6 @@ def _kinds(g: np.ndarray) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]
     """(the distinct steps of cells `g`, every step) as integer pairs."""
     steps = [(int(a), int(b)) for a, b in np.round(np.diff(g, axis=0))]
     return sorted(set(steps)), steps
-
-
-def _staircase(g: np.ndarray) -> bool:
-    """Whether cells `g` step as a straight line's staircase does: one step, or two kinds of
-    step where the rarer one never comes twice in a row and the runs of the other between
-    them differ by at most one (the first and last may be shorter). A run of diagonals then a
-    run along an axis (a planner's detour round a corner, or its choice among equally short
-    plans) is not one, however near a line its cells lie: it is two runs and a 45 degree turn."""
-    kinds, steps = _kinds(g)
-    if len(kinds) != 2:
-        return len(kinds) == 1
-    return _rare(g) is not None
 
 
 def _stepped(g: np.ndarray) -> bool:
@@ -239,27 +255,101 @@ def _rare(g: np.ndarray) -> tuple[int, int] | None:
     return None
 
 
+@dataclass
+class _RarerRuns:
+    """`_rare`'s reading of a growing run for one candidate rarer step, a step at a time: the
+    runs of the other step before, between and after its occurrences."""
+
+    rare: tuple[int, int]
+    first: int = 0  # steps before the first rare one
+    last: int = 0  # steps since the last rare one
+    inner_min: int = sys.maxsize
+    inner_max: int = -1  # no run between two rare steps yet
+    seen: bool = False
+    prev: bool = False  # the last step was the rare one
+    twice: bool = False  # it came twice in a row
+
+    def add(self, step: tuple[int, int]) -> None:
+        if step != self.rare:
+            self.last += 1
+            self.prev = False
+            return
+        self.twice |= self.prev
+        if self.seen:
+            self.inner_min = min(self.inner_min, self.last)
+            self.inner_max = max(self.inner_max, self.last)
+        else:
+            self.first, self.seen = self.last, True
+        self.last, self.prev = 0, True
+
+    def holds(self) -> bool:
+        if self.twice:
+            return False
+        if self.inner_max < 0:
+            return True
+        return self.inner_max - self.inner_min <= 1 and max(self.first, self.last) <= self.inner_min + 1
+
+
+@dataclass
+class _StairWindow:
+    """Whether a run's steps, given one at a time, step as a straight line's staircase does: one
+    kind of step, or two where the rarer one never comes twice in a row and the runs of the
+    other between them differ by at most one (the first and last may be shorter; `_rare`). A
+    run of diagonals then a run along an axis (a planner's detour round a corner, or its choice
+    among equally short plans) is not one, however near a line its cells lie: it is two runs and
+    a 45 degree turn. Read as the run grows, so growing a run of n cells costs n steps, not n^2."""
+
+    steps: list[tuple[int, int]] = field(default_factory=list)
+    kinds: list[tuple[int, int]] = field(default_factory=list)
+    readings: list[_RarerRuns] = field(default_factory=list)
+
+    def add(self, step: tuple[int, int]) -> bool:
+        """Adds a step; whether the steps so far are a staircase."""
+        self.steps.append(step)
+        if step not in self.kinds:
+            self.kinds.append(step)
+            if len(self.kinds) == 2:
+                self.readings = [_RarerRuns(k) for k in self.kinds]
+                for st in self.steps:
+                    for r in self.readings:
+                        r.add(st)
+                return any(r.holds() for r in self.readings)
+        if len(self.kinds) != 2:
+            return len(self.kinds) == 1
+        for r in self.readings:
+            r.add(step)
+        return any(r.holds() for r in self.readings)
+
+
 def straight_runs(g: np.ndarray, margin: float = STRAIGHT_MARGIN_CELLS) -> list[tuple[int, int, np.ndarray]]:
     """A grid plan's cells (grid units) cut, greedily from its start, into the longest runs one
     line passes within `margin` cells of (along the axes) while the cells advance along it: the
     staircases a planner leaves of a straight line. (first, last, the run's centres on that line)
-    for runs of at least STRAIGHT_MIN_STEPS steps; consecutive runs share their end cell."""
+    for runs of at least STRAIGHT_MIN_STEPS steps; consecutive runs share their end cell. A run
+    grows a cell at a time, its line refitted over its hull's corners (`_hull`)."""
     out: list[tuple[int, int, np.ndarray]] = []
+    plan_steps = [(int(a), int(b)) for a, b in np.round(np.diff(g, axis=0))]
+    xy = g.tolist()
     i, n = 0, len(g)
     while i < n - 1:
         j, fit = i + 1, None
+        window, hull = _StairWindow(), [i, i + 1]
+        window.add(plan_steps[i])
         while j + 1 < n:
-            dev, nrm, off = _line_fit(g[i:j + 2])
+            if not window.add(plan_steps[j]):
+                break
+            hull = _hull(xy, hull + [j + 1])
+            dev, nrm, off = _line_fit(g[hull], g[j + 1] - g[i])
             on = _onto(g[i:j + 2], nrm, off)
             along = np.diff(on, axis=0) @ np.array([nrm[1], -nrm[0]])
-            if dev > margin or not (np.all(along > 0.0) or np.all(along < 0.0)) or not _staircase(g[i:j + 2]):
+            if dev > margin or not (np.all(along > 0.0) or np.all(along < 0.0)):
                 break
             j, fit = j + 1, on
         a = i
         if fit is not None:
             # A rarer step at either end may be the first of a run of its own (a diagonal run
             # after a straight one): it is left to the cells between the runs.
-            rare, steps = _rare(g[i:j + 1]), _kinds(g[i:j + 1])[1]
+            rare, steps = _rare(g[i:j + 1]), plan_steps[i:j]
             while rare is not None and j - i > STRAIGHT_MIN_STEPS and steps[j - 1 - i] == rare:
                 j -= 1
             a = 1 if i == 0 and rare is not None and steps[0] == rare else i  # the plan's start stays
