@@ -229,7 +229,7 @@ def _laps(result, laps: int = 5) -> list[float]:
 
 @pytest.mark.slow
 def test_offset_mass_figure8_fast_is_identified_and_tracks_as_the_nominal_robot() -> None:
-    """Issue 7's case at 1 kHz, where the model is what limits the tracking error: five laps
+    """The 2 kg offset mass at 1 kHz, where the model is what limits the tracking error: five laps
     of the 0.8 m/s figure-eight, the first being the adapter's learning lap."""
     five = str(REPO / "configs/paths/figure8_fast_5laps.yaml")
 

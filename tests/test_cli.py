@@ -1,4 +1,4 @@
-"""The `ddrt` command's own rough edges (issue 22): finding the daemon's socket, `ddrt sim`'s
+"""The `ddrt` command's own rough edges: finding the daemon's socket, `ddrt sim`'s
 --duration and exit status, strict metrics.json, and a closed pipe on stdout."""
 
 from __future__ import annotations

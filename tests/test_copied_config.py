@@ -1,4 +1,4 @@
-"""Issue 22 item 8: a config copied to another directory (its `path:` relative, now pointing
+"""A config copied to another directory (its `path:` relative, now pointing
 nowhere) still starts the daemon without --follow, with a warning naming the config file and
 the `path:` key; with --follow, and in `ddrt sim`, it is an error naming both."""
 

@@ -144,7 +144,7 @@ def test_last_line_without_newline_at_eof_is_answered(server: ControlServer, loo
     (b'{"command": "status"}', "missing field 'cmd'"),
     (b'{"cmd": 5}', "must be a string"),
     (b'{"cmd": "fly", "id": "x"}', "unknown command 'fly'"),
-    # issue 22 item 14: a duplicate key is refused, naming it (it used to run the last one)
+    # a duplicate key is refused, naming it, rather than the last one silently taking effect
     (b'{"cmd":"estop","cmd":"status"}', "duplicate key 'cmd'"),
     (b'{"cmd":"follow","pose":{"a":1,"a":2}}', "duplicate key 'a'"),
     (b"[" * 5000 + b"]" * 5000, None),  # too large here; deeply nested otherwise

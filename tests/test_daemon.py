@@ -509,7 +509,7 @@ def test_reload_over_socket_on_unchanged_file(daemon: DaemonProc) -> None:
     reply = daemon.request({"cmd": "reload"})
     assert reply == {"ok": True, "message": "applied: nothing changed", "applied": [], "next_path": [], "restart": []}
     after = daemon.status()["reloads"]
-    # issue 22 item 14: a reload that changed nothing is not counted as applied
+    # a reload that changed nothing is counted as unchanged, not as applied
     assert after == {"applied": before["applied"], "unchanged": before["unchanged"] + 1,
                      "rejected": before["rejected"]}
 

@@ -1,4 +1,4 @@
-"""Issue 22 item 4: the journal is the audit trail. Every change of the loop's state and every
+"""The journal is the audit trail. Every change of the loop's state and every
 safety command gets one line with its cause and who asked over which channel (the daemon's
 stderr here; the journal under systemd)."""
 
@@ -126,7 +126,7 @@ def test_no_change_costs_no_line(caplog: pytest.LogCaptureFixture) -> None:
 
 
 def test_reload_counts_applied_only_when_something_changed() -> None:
-    """issue 22 item 14: `applied` counts only reloads that put something new in force."""
+    """`applied` counts only reloads that put something new in force."""
     with ready_daemon() as d:
         write_config(d.config, d.telemetry_dir, controller={"inner": {"kp": 41.0}})
         reply = d.request({"cmd": "reload"})

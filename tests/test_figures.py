@@ -1,4 +1,4 @@
-"""The figures (issue 22 item 15): path.png says what happened at one look, path_report.png
+"""The figures: path.png says what happened at one look, path_report.png
 gives a thin path the room its aspect needs, legends sit outside the data.
 
 The runs here are made up (the path's own points, shifted sideways), so the figures are

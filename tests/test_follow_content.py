@@ -1,4 +1,4 @@
-"""Issue 22 item 7: `ddrt ctl follow FILE` sends the file's content, so a sandboxed daemon
+"""`ddrt ctl follow FILE` sends the file's content, so a sandboxed daemon
 (ProtectHome, PrivateTmp, its own user) can follow a user's file; the socket's `follow`
 takes `content` + `format` + `name`, checked as strictly as a file."""
 

@@ -1,5 +1,5 @@
 """The gyro's temperature-compensated bias (ddrt/core/gyro_bias.py), TEMP_OUT read at a low
-rate by both backends, and a reading's age with the register's hold (issue 23 item 3)."""
+rate by both backends, and a reading's age with the register's hold."""
 
 from __future__ import annotations
 

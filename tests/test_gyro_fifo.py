@@ -1,6 +1,6 @@
 """The heading from the gyro's FIFO (ddrt/core/gyro_fifo.py and the estimator's use of it):
 every sample integrated once over the part's own period, learnt; losses, junk and stale
-ticks accounted for (issue 23, sensors.gyro_fifo)."""
+ticks accounted for (sensors.gyro_fifo)."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """The MPU-6050's FIFO: the driver (hal/mpu6050.py read_gyro_fifo), the emulated part
 (sim_hal/mpu_emulator.py), the simulated robot's FIFO (sim_hal/plant.py) and the two
 backends that deliver it (SimHal, RealHal on the emulated devices): every sample once, and a
-full, garbled or failing FIFO reset and flagged, never a traceback (issue 23, sensors.gyro_fifo)."""
+full, garbled or failing FIFO reset and flagged, never a traceback (sensors.gyro_fifo)."""
 
 from __future__ import annotations
 

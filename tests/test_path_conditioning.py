@@ -266,10 +266,9 @@ def test_tolerance_that_cannot_be_met_names_file_and_line(tmp_path) -> None:
 
 
 def test_an_unmarked_reversal_is_one_turn_in_place(tmp_path) -> None:
-    """One rule for every input (issue 22, item 3): a recording that drives back the way it
+    """One rule for every input: a recording that drives back the way it
     came, unmarked, turns in place once at the far end, as waypoints 0 -> 1 -> 0 do and a grid
-    plan that steps back; marked with a negative v it is a cusp (tests/test_reverse.py). Main
-    refused the recording and the plan and accepted the waypoints."""
+    plan that steps back; marked with a negative v it is a cusp (tests/test_reverse.py)."""
     rng = np.random.default_rng(4)
     s = np.arange(0.0, 1.0, 0.01)
     there = np.column_stack((s, 0.02 * np.sin(3 * s)))

@@ -2,7 +2,7 @@
 prints) held against an independent measurement: for every input point, the exact distance
 to the polyline of the Path's own sampled x, y, by brute force over all its segments.
 
-Issue 13, item 1: "the deviation from the input is bounded and reported". So the reported
+The deviation from the input is bounded and reported, so the reported
 figure must be at least the true largest distance, and, where the conditioning says it
 smoothed within a tolerance, at most that tolerance. The one allowance is for sampling: the
 report measures against the spline, this check against the chords between its samples,
@@ -252,7 +252,7 @@ def test_manoeuvres_whose_cusps_cannot_all_be_shared(spacing, noise) -> None:
 def test_tight_tolerance_manoeuvres() -> None:
     """A path's own tolerance of 4-7 mm on 1-2 mm of noise: held where a curve that does not
     follow the noise can hold it; else refused with a tolerance that would work, which then
-    loads (issue 22: main met such a tolerance by bending towards the noisy points)."""
+    loads."""
     rng = np.random.default_rng(5)
     held = 0
     for trial, m, xy, v in _manoeuvres(5, 20, (0.005, 0.015), (0.001, 0.002)):

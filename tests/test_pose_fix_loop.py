@@ -1,6 +1,6 @@
 """Pose fixes in the closed loop on the simulated robot (ddrt/core/pose_fix.py, ddrt/path/frame.py):
 a path in `map` does not step the motor command at a fix, and with a fix every second a 2 %
-gyro scale error stops moving the robot off its path (issue 21's done-when, on the plain and
+gyro scale error stops moving the robot off its path (the target, on the plain and
 the realistic plant), once the first fixes have taught the map the scale."""
 
 from __future__ import annotations
@@ -114,8 +114,8 @@ BIG_CIRCLE = {"shape": "circle", "radius": 1.0, "laps": 4, "speed": 0.4}
 @pytest.mark.parametrize("plant", [GYRO_2PC, REALISTIC], ids=["plain", "realistic"])
 @pytest.mark.parametrize("seed", [1, 2])
 def test_fixes_every_second_hold_a_robot_with_a_2pc_gyro_scale_error_on_its_path(plant: dict, seed: int) -> None:
-    """Issue 21's done-when: a fix every second (5 mm, 1 degree, 0.1 s late), 60 s on a 1 m
-    circle at 0.4 m/s with an uncalibrated 2 % gyro scale error, default estimator settings."""
+    """The target's case: a fix every second (5 mm, 1 degree, 0.1 s late), 60 s on a 1 m circle
+    at 0.4 m/s with an uncalibrated 2 % gyro scale error, default estimator settings."""
     free = run_with_fixes(BIG_CIRCLE, 60.0, plant, fixes=False, seed=seed)
     fixed = run_with_fixes(BIG_CIRCLE, 60.0, plant, seed=seed)
     ct_free = cross_track(free.path, np.array(free.true_xy))

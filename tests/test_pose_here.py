@@ -1,4 +1,4 @@
-"""Issue 22 item 6: paths need not live in the power-on frame. `ddrt ctl pose X Y THETA` sets
+"""Paths need not live in the power-on frame. `ddrt ctl pose X Y THETA` sets
 the estimator's pose (refused while moving, named errors, nothing changed on a refusal),
 `reset` zeroes it, and `ddrt ctl follow FILE --here` moves the path to start at the robot's
 pose and heading."""

@@ -1,6 +1,5 @@
-"""Recorded paths whose noise exceeds the old 10 mm tolerance, a narrow recorded U-turn, and one
-reversal rule for every kind of input (issue 22, items 1-3). Each test failed on the commit
-the issue was filed against; the fuzz over all of them is tests/test_recorded_fuzz.py."""
+"""Recorded paths noisier than a fixed 10 mm tolerance can hold, a narrow recorded U-turn, and one
+reversal rule for every kind of input; the fuzz over all of them is tests/test_recorded_fuzz.py."""
 
 from __future__ import annotations
 

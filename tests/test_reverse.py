@@ -89,8 +89,8 @@ def test_a_path_driven_in_reverse_matches_its_mirror_image_driven_forward(cfg) -
 
 
 def test_an_unmarked_reversal_turns_in_place_and_a_marked_one_reverses(cfg, tmp_path) -> None:
-    """One rule (issue 22, item 3): unmarked, an out-and-back recording turns in place at the far
-    end (main refused it); marked with a negative v, the same points reverse at a cusp."""
+    """One rule: unmarked, an out-and-back recording turns in place at the far end; marked with
+    a negative v, the same points reverse at a cusp."""
     rows = ["x,y"] + [f"{0.01 * k:.3f},0" for k in range(0, 51)] + [f"{0.5 - 0.01 * k:.3f},0.001" for k in range(1, 40)]
     f = tmp_path / "out_and_back.csv"
     f.write_text("\n".join(rows) + "\n")

@@ -242,7 +242,7 @@ def test_random_marked_reverse_manoeuvres_are_driven_end_to_end() -> None:
     """~50 random three-point turns, parking manoeuvres and zig-zags (lab/cusp_inputs.py),
     recorded with 1-2 mm of noise at 5-15 mm spacing and marked with negative v on the reverse
     legs, loaded and driven: each completes or is refused at load with a PathError, and the
-    driven ones meet issue 13's targets: the true pose within 3 mm RMS of the curve the
+    driven ones meet the targets for sampled input: the true pose within 3 mm RMS of the curve the
     samples came from on every run, the reference within the tolerance of every input point
     (the runs share each cusp, ddrt/path/cusp.py, so nothing is shifted onto it), and no turn
     in place where the curve has none."""

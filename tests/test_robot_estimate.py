@@ -1,4 +1,4 @@
-"""robot.estimate: the full parameters derived from a minimal description (issue 22 item 10)."""
+"""robot.estimate: the full parameters derived from a minimal description."""
 
 from __future__ import annotations
 

@@ -181,7 +181,7 @@ def test_type_names_and_hashes_rclpy_reports_are_ours(bridged: DaemonProc, distr
 def test_a_localiser_pose_becomes_a_pose_fix(bridged: DaemonProc, distro: str) -> None:
     probe = bridged.request({"cmd": "pose_fix"})
     if "unknown command" in str(probe.get("error", "")):
-        pytest.skip("the daemon has no pose_fix command yet (issue 21 item 1)")
+        pytest.skip("the daemon has no pose_fix command, so a localiser's pose cannot become a fix")
     wait_state(bridged, ("idle", "stopped"))
     x0, y0, th0 = pose_of(bridged)
     before = bridged.status()["pose_fixes"]

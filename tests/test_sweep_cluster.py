@@ -1,4 +1,4 @@
-"""`ddrt sweep` on real Dask clusters (issue 24's done-when): a `dask scheduler` and `dask
+"""`ddrt sweep` on real Dask clusters: a `dask scheduler` and `dask
 worker` processes on loopback, started here and always stopped here.
 
 - the same 40-case campaign on that cluster and on a LocalCluster gives the same table;

@@ -134,7 +134,7 @@ def test_a_set_parameters_flood_is_refused_before_planning_and_the_loop_never_pl
     sdk_plans = [p for p in planned_on if p.startswith("sdk")]
     assert 1 <= len(sdk_plans) <= burst + rate * elapsed + 1, (len(sdk_plans), elapsed)
     assert not [p for p in planned_on if p.startswith("loop")], planned_on  # the loop only applied
-    # a set to the value in force is counted as unchanged, not applied (issue 22 item 14)
+    # a set to the value in force is counted as unchanged, not applied
     assert d.reloads["applied"] + d.reloads["unchanged"] == len(sdk_plans) and d.reloads["rejected"] == 0
     assert d.cfg.controller.inner.kp == d.loop.cfg.controller.inner.kp  # what was applied last is in force
     assert len(records) <= 2 * len(sdk_plans) + 10, len(records)  # a flood is not a flood of log lines
