@@ -264,7 +264,7 @@ def test_python_dash_m_ddrt_is_the_ddrt_command(tmp_path) -> None:
 
 def test_ctrl_c_at_a_commissioning_prompt_says_the_motors_are_off(tmp_path, monkeypatch, capsys) -> None:
     """A driven step's Ctrl-C says so itself (ddrt/commission/session.py); one at a prompt, between
-    steps, used to exit 130 without a word."""
+    steps, must say so too, not exit 130 without a word."""
     import ddrt.commission
 
     def interrupted(session, step):

@@ -273,8 +273,8 @@ def test_client_that_never_reads_replies(sockdir: str) -> None:
 def test_client_limit(sockdir: str) -> None:
     """At the cap a newcomer is still served: the longest-idle client is told and closed.
 
-    (This test used to require that the newcomer be refused with "too many clients": that is
-    how 32 idle connections locked out an estop. The message now goes to the evicted one.)
+    (Refusing the newcomer with "too many clients" would let 32 idle connections lock out an
+    estop, so that message goes to the evicted one.)
     """
     with ControlServer(os.path.join(sockdir, "m.sock"), commands={"status"}, max_clients=3) as srv:
         lp = Loop(srv)
@@ -497,7 +497,7 @@ IDLE_S = 2.0  # test_only_commands_keep_a_connection_open's idle timeout
 
 def test_only_commands_keep_a_connection_open(sockdir: str) -> None:
     """Blank lines, whitespace and malformed lines are no activity: the idle timeout still
-    closes the connection (it used to stay open for as long as the blank lines came). The
+    closes the connection (a stream of blank lines must not hold it open). The
     idle timeout is long beside the active client's 0.1 s between commands, so a loaded host
     cannot make that one look idle."""
     srv = ControlServer(os.path.join(sockdir, "i.sock"), commands={"status"}, idle_timeout_s=IDLE_S,
@@ -634,7 +634,7 @@ def test_non_finite_numbers_are_refused_in_strict_json(server: ControlServer, lo
         buf = b""
         while not buf.endswith(b"\n"):
             buf += s.recv(4096)
-    reply = strict(buf)  # the reply itself is strict JSON (an id of NaN used to come back as NaN)
+    reply = strict(buf)  # the reply itself is strict JSON (an id of NaN must not come back as NaN)
     assert reply["ok"] is False and reply.get("id") == rid
     assert f"{where} is {token}" in reply["error"] and "NaN or Infinity" in reply["error"]
     assert loop.seen == []

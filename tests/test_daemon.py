@@ -811,7 +811,7 @@ def test_replies_are_strict_json_and_refuse_nan(daemon: DaemonProc, line: bytes,
             chunk = s.recv(65536)
             assert chunk, buf
             buf += chunk
-    reply = strict_json(buf[: buf.index(b"\n")])  # a NaN id used to come back as NaN
+    reply = strict_json(buf[: buf.index(b"\n")])  # an id of NaN must not come back as NaN (not JSON)
     assert reply["ok"] is False and needle in reply["error"], reply
     assert daemon.status()["state"] == "idle"
 
@@ -916,7 +916,7 @@ def test_stats_json_on_a_bad_config_says_exit_2() -> None:
 
 
 def test_stats_json_on_a_missing_path_file_says_exit_2() -> None:
-    # This one used to write exit_code 0 for a process that exited 2.
+    # stats.json's exit_code is the process's own: 2 here, not 0.
     d = start_daemon("--follow", start=[0.0, 0.0, 0.0], path="/nonexistent/ddrt/path.yaml")
     try:
         rc, stats = _exit_and_stats(d)
@@ -956,8 +956,8 @@ def test_sigterm_during_calibration_exits_0_with_stats() -> None:
 def test_sigterm_while_the_start_path_is_built_exits_0_quietly() -> None:
     """Without a start pose the simulated robot starts where the config's path does, so the
     daemon waits for the worker to build it before it opens the robot: a SIGTERM then is a
-    requested stop like any other (it used to exit 2, as for a bad path file, with a
-    traceback from the worker's pipe closed under its reader)."""
+    requested stop like any other: exit 0, not 2 as for a bad path file, and no traceback
+    from the worker's pipe closed under its reader."""
     huge = {"shape": "circle", "radius": 300.0, "speed": 0.6}  # seconds of building
     d = start_daemon(path=huge, paths={"build_timeout_s": 600.0})
     try:

@@ -266,6 +266,6 @@ def test_a_follow_far_off_the_heading_turns_in_place_first_over_the_socket(fd: D
     assert s["progress"]["phase"] == "turn" and s["progress"]["sigma_m"] == 0.0, s["progress"]
     s = wait_for(lambda: (s := fd.status())["state"] == "stopped" and s, STATE_TIMEOUT_S, "the line's end")
     # At the end of the line, also when a loaded host stalled the loop on the way (a hold,
-    # resumed: it used to end 'stopped' where the stall caught it).
+    # resumed: not 'stopped' where the stall caught it).
     assert s["progress"]["phase"] in ("release", "follow") and s["progress"]["fraction"] == pytest.approx(1.0), s
     assert s["fault"] == "" and s["recovery"]["waits"] == 0 and s["recovery"]["resumes"] == s["recovery"]["holds"]

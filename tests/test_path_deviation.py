@@ -271,7 +271,7 @@ def test_tight_tolerance_manoeuvres() -> None:
 def test_the_report_claims_no_corridor_it_did_not_measure() -> None:
     """`ddrt path` on a recording joined at cusps: the deviation line gives the reported
     largest deviation, and no "within X mm of the input polyline" figure (that figure is not
-    computed for joined runs; it used to print 0.00 mm)."""
+    computed for joined runs, so printed it would read 0.00 mm)."""
     from ddrt.path.report import report_text
 
     _trial, _m, xy, v = next(_manoeuvres(2024, 1, (0.005, 0.015), (0.001, 0.002)))

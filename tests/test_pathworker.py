@@ -178,8 +178,8 @@ def test_a_worker_that_dies_is_reported_not_waited_for(worker: PathWorker) -> No
 
 def test_close_during_a_build_ends_it_quietly(caplog: pytest.LogCaptureFixture) -> None:
     """The daemon stopping while a path is read: the build ends with why, nothing is logged as
-    a failure (close used to close the worker's pipe under the helper thread's read: EBADF
-    and a traceback, or a read of whatever file took that descriptor next)."""
+    a failure (close must not close the worker's pipe under the helper thread's read: that
+    gives EBADF and a traceback, or a read of whatever file took that descriptor next)."""
     w = PathWorker()
     try:
         b = w.submit(BuildJob({"shape": "circle", "radius": 300.0, "speed": 0.6}, LIMITS, CFG.paths))

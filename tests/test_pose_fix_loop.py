@@ -138,7 +138,7 @@ def test_fixes_every_second_hold_a_robot_with_a_2pc_gyro_scale_error_on_its_path
 @pytest.mark.slow
 def test_a_bias_drift_the_error_model_does_not_allow_for_turns_fixes_into_outliers() -> None:
     """The realistic plant's drifting bias with the bias walk of the bias filters alone (1e-5
-    rad/s per sqrt(s), the error model before estimator.uncertainty_bias_walk): the map grows
+    rad/s per sqrt(s), estimator.uncertainty_bias_walk at 0): the map grows
     sure of a heading that is drifting away, and fixes are refused."""
     told_nothing = {"sim": REALISTIC_PLANT, "estimator": {"calibration_s": 0.2, "uncertainty_bias_walk": 0.0}}
     run = run_with_fixes(BIG_CIRCLE, 30.0, told_nothing)

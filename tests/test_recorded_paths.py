@@ -51,7 +51,8 @@ def _turns_deg(path) -> list[float]:
 
 def test_the_noise_is_estimated_without_the_curves_bending() -> None:
     """A planner's path at 10 cm spacing with +-4 mm of jitter (2.3 mm RMS across the curve):
-    main read 29-34 mm of noise, its curvature between the sparse points counted as noise."""
+    the curvature between the sparse points must not count as noise (counted, it reads as
+    29-34 mm)."""
     rng = np.random.default_rng(5)
     s = np.arange(0.0, 4.0001, 0.1)
     xy = np.column_stack((s, 0.5 * np.sin(2.0 * s))) + rng.uniform(-0.004, 0.004, (len(s), 2))
@@ -63,8 +64,9 @@ def test_the_noise_is_estimated_without_the_curves_bending() -> None:
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_auto_sets_the_tolerance_from_the_noise(seed: int) -> None:
-    """A GNSS/RTK-like recording (a gentle 2 m arc, 5 cm spacing, 15 mm of noise): main held it
-    to 10 mm, chased the noise (curvature 84 /m) and took 14.7 s for what takes 3 s."""
+    """A GNSS/RTK-like recording (a gentle 2 m arc, 5 cm spacing, 15 mm of noise): the tolerance
+    comes from the noise, not a fixed 10 mm, which can only be met by chasing the noise
+    (curvature 84 /m, 14.7 s for what takes 3 s)."""
     assert PathsConfig().tolerance_m == "auto"
     path = _load(_arc(3.0, 2.0, 0.05, 0.015, seed))
     c = path.conditioning
@@ -87,8 +89,8 @@ def test_auto_never_goes_below_its_floor_and_numbers_stay_accepted() -> None:
 
 
 def test_a_tolerance_too_tight_for_the_noise_is_refused_with_one_that_works() -> None:
-    """5 mm on 3 mm of noise: main met it by following the noise (curvature 282-1210 /m, the
-    robot at 0.02 m/s). Now refused, naming a tolerance that works; that one loads smooth."""
+    """5 mm on 3 mm of noise can only be met by following the noise (curvature 282-1210 /m, the
+    robot at 0.02 m/s), so it is refused, naming a tolerance that works; that one loads smooth."""
     xy = _arc(1.0, 2.0, 0.01, 0.003, 1)
     with pytest.raises(PathError) as exc:
         _load(xy, tolerance=0.005)
@@ -101,8 +103,8 @@ def test_a_tolerance_too_tight_for_the_noise_is_refused_with_one_that_works() ->
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_a_noisy_arc_is_never_a_reversal(seed: int) -> None:
-    """8 mm of noise at 5 mm spacing: main refused the arc (`the path reverses here (it turns
-    174 degrees)`), at 0.05 m too."""
+    """8 mm of noise at 5 mm spacing: the arc must load, not be read as a reversal (`the path
+    reverses here (it turns 174 degrees)`), at 0.05 m too."""
     xy = _arc(1.0, 1.5, 0.005, 0.008, seed)
     for tolerance in (None, 0.05):
         path = _load(xy, tolerance=tolerance)
@@ -127,10 +129,10 @@ def _u_turn(seed: int, gap: float = 0.02) -> np.ndarray:
 
 @pytest.mark.parametrize("seed", [1, 2, 3, 4])
 def test_a_narrow_recorded_u_turn_is_two_clean_legs_and_one_turn(seed: int) -> None:
-    """Legs 2 cm apart: main turned 126-139 degrees in place and hooked round the rest (up to
-    23 /m), the return leg keeping the recording's noise. Now the whole half turn is turned in
-    place (one turn, or a quarter turn onto the 2 cm between the legs and one off it) and each
-    leg is straight."""
+    """Legs 2 cm apart: the whole half turn is turned in place (one turn, or a quarter turn onto
+    the 2 cm between the legs and one off it) and each leg is straight, not 126-139 degrees
+    turned in place and the rest hooked round (up to 23 /m) with the return leg keeping the
+    recording's noise."""
     path = _load(_u_turn(seed), speed=0.5)
     turns = _turns_deg(path)
     assert 1 <= len(turns) <= 2 and abs(abs(sum(turns)) - 180.0) < 5.0, turns
