@@ -6,10 +6,13 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 
 from ddrt.ctlcli import FOLLOW_TIMEOUT_S, RELOAD_TIMEOUT_S, add_ctl_parser, control_socket
+
+if TYPE_CHECKING:
+    from ddrt.config import Config
 
 __all__ = ["main", "build_parser", "FOLLOW_TIMEOUT_S", "RELOAD_TIMEOUT_S", "control_socket", "sim_exit_status"]
 
@@ -52,8 +55,20 @@ def _run_name(config: str, source: object) -> str:
     return Path(config).name if what == Path(config).name else f"{Path(config).name}: {what}"
 
 
+def _start_from(args: argparse.Namespace, cfg: "Config") -> str:
+    """What put the simulated robot where `ddrt sim` started it (run_sim's order: --start, the
+    config's start, the path's start pose), named when a path that starts far from it is refused."""
+    if args.start is not None:
+        return "--start"
+    if cfg.start is not None:
+        return f"{cfg.source}: start"
+    given = args.path if args.path is not None else cfg.path if isinstance(cfg.path, str) else f"{cfg.source}: path"
+    return f"{given}: key 'start_pose' (or 'start')"
+
+
 def _cmd_sim(args: argparse.Namespace) -> int:
     from ddrt.config import load_config
+    from ddrt.loop import StartTooFar
     from ddrt.path.spec import path_source, resolve_path
     from ddrt.simrun.progress import StderrProgress
     from ddrt.simrun.runner import run_sim, summary_text, write_outputs
@@ -84,6 +99,11 @@ def _cmd_sim(args: argparse.Namespace) -> int:
     try:
         result = run_sim(cfg, path, duration=args.duration, seed=args.seed, start=args.start,
                          progress=progress, telemetry=Path(args.out) / "telemetry.csv", mcap=args.mcap)
+    except StartTooFar as exc:
+        if progress is not None:
+            progress.end()
+        x, y, theta = args.start or cfg.start or path.start_pose
+        raise ValueError(f"{_start_from(args, cfg)}: the robot starts at ({x:g}, {y:g}, {theta:g}); {exc}") from None
     except KeyboardInterrupt:
         if progress is not None:
             progress.end()  # past the progress line

@@ -274,3 +274,31 @@ def test_ctrl_c_at_a_commissioning_prompt_says_the_motors_are_off(tmp_path, monk
     code = cli.main(["commission", str(SIM), "--out", str(tmp_path / "c.yaml"), "--yes"])
     err = capsys.readouterr().err
     assert code == 130 and "stopped by Ctrl-C: the motors are off" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("source", ["path", "--start", "config"])
+def test_sim_names_what_put_the_robot_far_from_the_paths_start(tmp_path, capsys, source) -> None:
+    """`ddrt sim` refuses a path that starts beyond limits.max_path_error_m from the robot
+    (exit 2, no trace), naming what put the robot there: the path's start_pose, --start or the
+    config's start."""
+    import yaml
+
+    spec = {"points": [[0.0, 0.0], [1.0, 0.0]]}
+    if source == "path":
+        spec["start_pose"] = [5.0, 5.0, 0.0]
+    path = tmp_path / "far.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    cfg = SIM
+    if source == "config":
+        data = yaml.safe_load(SIM.read_text())
+        data["start"] = [5.0, 5.0, 0.0]
+        cfg = tmp_path / "started.yaml"
+        cfg.write_text(yaml.safe_dump(data))
+    argv = ["sim", str(cfg), "--path", str(path), "--duration", "0.1", "--quiet", "--out", str(tmp_path / "out")]
+    if source == "--start":
+        argv += ["--start", "5,5,0"]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    named = {"path": f"{path}: key 'start_pose'", "--start": "--start:", "config": f"{cfg}: start:"}[source]
+    assert named in err and "the robot starts at (5, 5, 0)" in err and "7.071 m from the robot" in err, err
+    assert "Traceback" not in err

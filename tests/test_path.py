@@ -300,6 +300,8 @@ BAD_YAML = [
     ("direction.yaml", "shape: circle\nradius: 0.3\ndirection: left\n", "key 'direction'", "cw"),
     ("unknown_key.yaml", "shape: circle\nradius: 0.3\nradiuss: 2\n", "key 'radiuss'", "unknown key"),
     ("not_mapping.yaml", "- 1\n- 2\n", "top level", "mapping"),
+    ("empty.yaml", "", "no path in it", "expected a mapping at the top level with one of shape:"),
+    ("comments.yaml", "# a path, some day\n", "no path in it", "only comments"),
     ("syntax.yaml", "shape: circle\nradius: [0.3\n", "line", "invalid YAML"),
     ("bad_point.yaml", "points: [[0, 0], [1, x]]\n", "key 'points[1][1]'", "expected a number"),
     ("bad_start.yaml", "shape: circle\nradius: 0.3\nstart: [1, 2]\n", "key 'start'", "theta"),

@@ -187,6 +187,31 @@ def test_a_header_that_names_no_usable_columns_is_refused(tmp_path, header, why)
         load_path(_write_csv(tmp_path / "h.csv", header, rows), LIM, paths=PATHS)
 
 
+@pytest.mark.parametrize("text, hint", [
+    ("0.0,0.0\n0.05,0\n0.1,0\n", "the first line holds numbers: the file needs a header line first"),
+    ("1,2,\n3,4,\n", "the first line holds numbers"),
+    ("x_mm;y_mm\n0;0\n500;0\n", "separated by semicolons"),
+    ("x;y\n0,5;0\n1,5;0\n", "separated by semicolons"),
+    ("x\ty\n0\t0\n1\t0\n", "separated by tabs"),
+    ("x y\n0 0\n1 0\n", "separated by spaces"),
+    ("x,y,\n0,0,\n1,0,\n", "an empty column name: a trailing comma?"),
+])
+def test_a_header_refused_for_a_usual_slip_says_which(tmp_path, text, hint) -> None:
+    """A planner's export without a header, with another separator or a trailing comma is
+    refused naming the file, the line and the slip, not only the column it could not read."""
+    f = tmp_path / "plan.csv"
+    f.write_text(text)
+    with pytest.raises(PathError) as exc:
+        load_path(f, LIM, paths=PATHS)
+    msg = str(exc.value)
+    assert "plan.csv: line 1: header must name the columns" in msg and hint in msg, msg
+
+
+def test_a_header_with_an_unknown_name_gets_no_hint() -> None:
+    assert csv_columns(["x", "y", "theta"]) == "unknown column 'theta'"
+    assert csv_columns(["x (mm)", "y (mm)"]) == "unknown column 'x (mm)'"  # two columns: no other separator
+
+
 def test_csv_columns_reads_any_order_and_one_unit() -> None:
     cols = csv_columns(["v", "y_in", "x_in"])
     assert not isinstance(cols, str)

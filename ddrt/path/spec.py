@@ -285,8 +285,11 @@ def _note_point_caps(caps: list[float], v_max: float, where: str, notes: list[st
 
 def _spec(m: Any, where: str, paths: PathsConfig) -> PathCommon:
     """The mapping as its kind's dataclass, via the config walker; errors name the key."""
+    if m is None:
+        raise PathError(f"{where}: no path in it (empty, or only comments): expected a mapping at the top level "
+                        "with one of shape:, points: or file:")
     if not isinstance(m, Mapping):
-        raise PathError(f"{where}: expected a mapping at the top level, got {type(m).__name__}")
+        raise PathError(f"{where}: expected a mapping at the top level (shape:, points: or file:), got {shorten(m)}")
     kinds = [k for k in ("shape", "points", "file") if k in m]
     other = not_a(m, PATH, where, "a path file") if not kinds else None
     if other is not None:

@@ -66,13 +66,35 @@ def csv_columns(header: Sequence[str]) -> CsvColumns | str:
         elif cell.lower() == "v":
             roles.append("v")
         else:
-            return f"unknown column {cell!r}"
+            return f"unknown column {cell!r}" + _header_hint(header, cell)
     if sorted(roles) not in (["x", "y"], ["v", "x", "y"]):
         return "columns x and y are required once each, and v at most once"
     if len(units) != 1:
         return "x and y must be in the same unit"
     unit = units.pop()
     return CsvColumns(tuple(roles), None if unit is None else UNITS[unit])
+
+
+def _is_number(cell: str) -> bool:
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
+
+
+def _header_hint(header: Sequence[str], cell: str) -> str:
+    """Why a header a person wrote may name no known column: the usual slips, said outright
+    (a file without a header, another separator, a trailing comma), else nothing."""
+    given = [c for c in header if c]
+    if given and all(_is_number(c) for c in given):
+        return " (the first line holds numbers: the file needs a header line first, such as x,y or x_mm,y_mm)"
+    for sep, name in ((";", "semicolons"), ("\t", "tabs"), (" ", "spaces")):
+        if len(header) == 1 and sep in cell.strip():
+            return f" (the columns look separated by {name}: separate them by commas, as in x,y)"
+    if cell == "":
+        return " (an empty column name: a trailing comma?)"
+    return ""
 
 
 ROOM_TYPICAL_M = 3.0  # the size of a lab's floor, for ordering the candidate units
