@@ -66,7 +66,7 @@ from ddrt.errors import DdrtError
 from ddrt.path.corners import CornerPin, corner_scale, find_corners, line_turns, refine_corner
 from ddrt.path.geometry import Geometry, GeometryOptions, Piece, line_piece, pivot_piece, polyline_geometry
 from ddrt.path.gridplan import (
-    corner_pin, grid_axis, grid_cell, grid_corners, steps_back, straightened, tight_bends,
+    corner_pin, grid_axis, grid_cell, grid_corners, read_grid, steps_back, straightened, tight_bends,
 )
 from ddrt.path.noise import TOLERANCE_FLOOR_M, arc_parameter, auto_tolerance, estimate_noise
 from ddrt.path.smoothing import (
@@ -228,12 +228,20 @@ def _noise(p: np.ndarray, cell: float | None = None) -> float:
     return max(estimate_noise(p), NOISE_FLOOR_M)
 
 
+def _as_planned(p: np.ndarray, mode: str) -> np.ndarray:
+    """A grid plan's points as the centres of the cells it was read as (gridplan.read_grid: the
+    rounding they were written with taken off, so a plan reads the same on any grid, rounded
+    or not); other points as they are."""
+    grid = read_grid(p) if mode == GRID else None
+    return p if grid is None else grid.points()
+
+
 def point_noise(pts: np.ndarray, copt: ConditionOptions) -> tuple[str, float]:
     """(mode, estimated lateral noise) of a polyline of distinct points, as condition_polyline
     finds them (for a cusp's estimate from two runs' points, ddrt/path/cusp.py)."""
     p = np.asarray(pts, dtype=float)
     mode, _, cell = classify(p, copt)
-    return (mode, 0.0) if mode == WAYPOINTS else (mode, _noise(p, cell))
+    return (mode, 0.0) if mode == WAYPOINTS else (mode, _noise(_as_planned(p, mode), cell))
 
 
 def run_tolerance(pts: np.ndarray, copt: ConditionOptions, noise: float | None) -> float:
@@ -243,7 +251,8 @@ def run_tolerance(pts: np.ndarray, copt: ConditionOptions, noise: float | None) 
     mode, tol, cell = classify(p, copt)
     if mode == WAYPOINTS:
         return TOLERANCE_FLOOR_M if not tol else tol
-    return resolve_tolerance(tol, _noise(p, cell) if noise is None else max(noise, NOISE_FLOOR_M), len(p))
+    return resolve_tolerance(tol, _noise(_as_planned(p, mode), cell) if noise is None else max(noise, NOISE_FLOOR_M),
+                             len(p))
 
 
 @dataclass
@@ -528,6 +537,7 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: GeometryOp
     seg = np.hypot(*np.diff(p, axis=0).T)
     spacing = float(np.median(seg)) if len(seg) else 0.0
     mode, given, cell = classify(p, copt)
+    p = _as_planned(p, mode)
     if mode == WAYPOINTS:
         return _waypoints(p, caps, opt, names, spacing, TOLERANCE_FLOOR_M if given is None else given)
     nz = _noise(p, cell) if noise is None else max(noise, NOISE_FLOOR_M)

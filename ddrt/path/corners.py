@@ -113,7 +113,9 @@ def find_corners(p: np.ndarray, u: np.ndarray, scale: float, threshold: float,
     cand = np.flatnonzero(score > threshold)
     if len(cand) == 0:
         return []
-    order = cand[np.argsort(-score[cand], kind="stable")]
+    # Equal turns (a grid plan's symmetric corners) are taken in order along the path, not in
+    # the order their last bits happen to give.
+    order = cand[np.argsort(-np.round(score[cand], 9), kind="stable")]
     gap = scale if apart is None else apart
     taken: list[int] = []
     for i in order.tolist():

@@ -42,7 +42,7 @@ import numpy as np
 from ddrt.path.corners import CornerPin, find_corners
 from ddrt.path.geometry import Geometry
 
-__all__ = ["GRID_PIVOT_DEG", "blends_square_corners", "corner_pin", "grid_axis", "grid_cell", "grid_corners", "steps_back", "straight_runs",
+__all__ = ["GRID_PIVOT_DEG", "blends_square_corners", "coordinate_quantum", "GridReading", "read_grid", "corner_pin", "grid_axis", "grid_cell", "grid_corners", "steps_back", "straight_runs",
            "straightened", "tight_bends"]
 
 GRID_PIVOT_DEG = 67.5  # in a grid plan, turns of 90 degrees and more (90, 135, 180) pivot
@@ -54,14 +54,49 @@ GRID_TIGHT_CELLS = 5.0  # a grid plan's fit bending tighter than this radius (ce
 GRID_TIGHT_TURN_DEG = 40.0  # if it turns by this much within that radius (or bends tighter than one cell)
 STRAIGHT_MARGIN_CELLS = 0.49  # a run of cells is straight when one line passes this close to each (< half a cell)
 STRAIGHT_MIN_STEPS = 3  # runs of fewer steps are left as they are (a corner's own cells)
+GRID_HAIR_CELLS = 0.05  # margin on bounds a grid's points lie exactly on (the nearest other distances are 0.17 cells off)
 MEET_CELLS = 0.4  # two runs' lines meeting this close to their shared cell (along the axes) meet there
 _LINE_ANGLES = np.radians(np.linspace(-40.0, 40.0, 321))  # lines tried about a run's chord (0.25 degree steps)
 _FINE_ANGLES = np.radians(np.linspace(-0.25, 0.25, 101))  # and then about the best of those
 
 
-def grid_cell(p: np.ndarray) -> float | None:
-    """The cell of a grid plan given cell by cell (every step one cell along an axis or a
-    diagonal of one grid, which may be rotated), else None."""
+_QUANTA = sorted((base * 10.0 ** -d for d in range(10) for base in (1.0, 0.0254, 0.3048)), reverse=True)  # m, in, ft
+
+
+def coordinate_quantum(p: np.ndarray) -> float:
+    """The step the points' coordinates were rounded to when they were written (a power of ten
+    of a metre, an inch or a foot: a planner writes its cell centres to so many decimals), the
+    coarsest every coordinate is a multiple of; 0.0 if none is (floats as computed)."""
+    for q in _QUANTA:
+        r = p / q
+        if np.all(np.abs(r - np.round(r)) <= 1e-6):
+            return q
+    return 0.0
+
+
+@dataclass(frozen=True)
+class GridReading:
+    """A grid plan read as its grid: each point's cell (integer indices along the grid's axes)
+    and the grid that puts the cells nearest to the points (least squares): its cell, the
+    direction of its first axis and the centre of cell (0, 0)."""
+
+    cell: float
+    axis: float
+    origin: np.ndarray
+    index: np.ndarray  # (n, 2) integers
+
+    def points(self) -> np.ndarray:
+        """The cells' centres: the points as planned, without the rounding they were written with."""
+        c, s = math.cos(self.axis), math.sin(self.axis)
+        return self.origin + self.cell * (self.index @ np.array([[c, s], [-s, c]]))
+
+
+def read_grid(p: np.ndarray) -> GridReading | None:
+    """A grid plan given cell by cell (every step one cell along an axis or a diagonal of one
+    grid, which may be rotated), read as its grid; None for other points. Each step may be off
+    by the error its coordinates' rounding puts in it (`coordinate_quantum`: up to sqrt(2)
+    quanta), so a plan written to a few decimals on a rotated grid still reads as one, and the
+    grid is fitted to every point, so no one step's rounding tilts or stretches it."""
     d = np.diff(p, axis=0)
     if len(d) < 3:
         return None
@@ -69,29 +104,48 @@ def grid_cell(p: np.ndarray) -> float | None:
     c = float(length.min())
     if not c > 0.0:
         return None
-    tol = 1e-3 * c
-    axis = np.abs(length - c) <= tol
-    diag = np.abs(length - c * math.sqrt(2.0)) <= tol
-    if not np.all(axis | diag):
+    slack = max(1e-3 * c, min(1.01 * math.sqrt(2.0) * coordinate_quantum(p), 0.15 * c))
+    along = np.abs(length - c) <= 2.0 * slack  # c itself may be short by one slack
+    diag = np.abs(length - c * math.sqrt(2.0)) <= 2.0 * slack
+    if not np.all(along | diag) or np.any(along & diag):
         return None
-    ang = np.arctan2(d[:, 1], d[:, 0])
-    k = (ang - ang[0]) / (0.25 * math.pi)
+    ang = np.arctan2(d[:, 1], d[:, 0]) - np.where(along, 0.0, 0.25 * math.pi)  # each step's axis
+    mean = 0.25 * math.atan2(float(np.mean(np.sin(4.0 * ang))), float(np.mean(np.cos(4.0 * ang))))
+    first = mean + 0.5 * math.pi * round((float(ang[0]) - mean) / (0.5 * math.pi))  # the axis nearest the first step
+    k = (np.arctan2(d[:, 1], d[:, 0]) - first) / (0.25 * math.pi)
     kr = np.round(k)
-    if np.max(np.abs(k - kr)) > 1e-3:
+    if np.max(np.abs(k - kr)) > max(1e-3, 2.0 * slack / c / (0.25 * math.pi)):
         return None
-    # Steps an odd number of eighths of a turn apart are of the other kind (axis vs diagonal).
-    parity = (kr.astype(np.int64) % 2) == 1
-    if not np.array_equal(parity, axis != axis[0]):
+    # Steps an odd number of eighths of a turn from the axis are diagonal, the others along it.
+    if not np.array_equal((kr.astype(np.int64) % 2) == 1, diag):
         return None
-    return c
+    cs, sn = math.cos(first), math.sin(first)
+    steps = np.round((d @ np.array([[cs, -sn], [sn, cs]])) / float(np.median(np.where(along, length, length / math.sqrt(2.0)))))
+    index = np.vstack(([0, 0], np.cumsum(steps, axis=0))).astype(np.int64)
+    # p = origin + a * index + b * index rotated a quarter turn, in least squares (a similarity).
+    i, j = index[:, 0].astype(float), index[:, 1].astype(float)
+    ones, zeros = np.ones_like(i), np.zeros_like(i)
+    m = np.vstack((np.column_stack((ones, zeros, i, -j)), np.column_stack((zeros, ones, j, i))))
+    sol = np.linalg.lstsq(m, np.concatenate((p[:, 0], p[:, 1])), rcond=None)[0]
+    cell, axis = float(math.hypot(sol[2], sol[3])), float(math.atan2(sol[3], sol[2]))
+    grid = GridReading(cell, axis, sol[:2].copy(), index)
+    if np.max(np.abs(grid.points() - p)) > 0.25 * cell:  # the steps do not add up to one grid
+        return None
+    return grid
+
+
+def grid_cell(p: np.ndarray) -> float | None:
+    """The cell of a grid plan given cell by cell (`read_grid`), else None."""
+    found = read_grid(p)
+    return None if found is None else found.cell
 
 
 def grid_axis(p: np.ndarray) -> float:
-    """The direction of a grid plan's first axis (its steps are along it, across it or diagonal)."""
-    d = p[1] - p[0]
-    ang = math.atan2(d[1], d[0])
-    diagonal = abs(math.hypot(d[0], d[1]) - float(np.min(np.hypot(*np.diff(p, axis=0).T)))) > 1e-6 * math.hypot(*d)
-    return ang - 0.25 * math.pi if diagonal else ang
+    """The direction of a grid plan's first axis (its steps are along it, across it or
+    diagonal): the one nearest its first step."""
+    found = read_grid(p)
+    assert found is not None, "grid_axis of points that are no grid plan"
+    return found.axis
 
 
 def blends_square_corners(corridor: float) -> bool:
@@ -99,7 +153,7 @@ def blends_square_corners(corridor: float) -> bool:
     own) blends its 90 degree corners: a blended corner's radius is at most 3.4 corridors, and
     from 2 cm on (4 cm cells) that is faster than stopping to turn in place on the fuzzed plans
     (python -m bench.grid_plans; within 1 cm, every 2 cm cell, it was slower on the whole)."""
-    return corridor >= GRID_BLEND_CORRIDOR_M - 1e-9  # a cell read from the points to within rounding
+    return corridor >= GRID_BLEND_CORRIDOR_M * (1.0 - 1e-3)  # a cell read from rounded points
 
 
 def grid_corners(p: np.ndarray, u: np.ndarray, cell: float, threshold: float,
@@ -107,9 +161,12 @@ def grid_corners(p: np.ndarray, u: np.ndarray, cell: float, threshold: float,
     """(corner scale, corners (index, turn)) of a grid plan smoothed within `corridor`: turns by
     more than `threshold` and GRID_PIVOT_DEG (GRID_BLEND_PIVOT_DEG where the corridor blends 90
     degree corners), read over GRID_CORNER_CELLS cells and half that, GRID_CORNER_APART_CELLS apart."""
-    scale = GRID_CORNER_CELLS * cell
+    # A grid's points lie whole cells (and diagonals) apart, exactly on these bounds: a hair over
+    # the scale and under the spacing keeps a point six cells off inside the window and corners
+    # two cells apart both, whatever the last bits of the coordinates (else they pick the corners).
+    scale = (GRID_CORNER_CELLS + GRID_HAIR_CELLS) * cell
     turn = max(threshold, math.radians(GRID_BLEND_PIVOT_DEG if blends_square_corners(corridor) else GRID_PIVOT_DEG))
-    return scale, find_corners(p, u, scale, turn, apart=GRID_CORNER_APART_CELLS * cell)
+    return scale, find_corners(p, u, scale, turn, apart=(GRID_CORNER_APART_CELLS - GRID_HAIR_CELLS) * cell)
 
 
 def steps_back(p: np.ndarray) -> list[int]:
@@ -182,7 +239,7 @@ def _line_fit(g: np.ndarray, chord: np.ndarray | None = None) -> tuple[float, np
         nx, ny = -np.sin(phi), np.cos(phi)
         o = nx[:, None] * g[None, :, 0] + ny[:, None] * g[None, :, 1]
         spread = 0.5 * (o.max(axis=1) - o.min(axis=1)) / (np.abs(nx) + np.abs(ny))
-        k = int(np.argmin(spread))
+        k = int(np.argmin(np.round(spread, 12)))  # of directions equally near, the first (not the last bit's pick)
         best = float(phi[k])
     return float(spread[k]), np.array([nx[k], ny[k]]), 0.5 * float(o[k].max() + o[k].min())
 
