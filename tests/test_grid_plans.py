@@ -312,3 +312,16 @@ def test_a_staircase_between_turns_is_driven_as_its_line() -> None:
 def test_fuzzed_grid_plans_take_at_most_1_3_x_length_over_speed_plus_3_s() -> None:
     slow = _slow(_fuzz(20263, 40))
     assert not slow, slow
+
+
+def test_a_plan_given_to_the_micrometre_is_read_on_its_own_grid() -> None:
+    """Rounding a plan's metres to the micrometre leaves its axis steps' lengths apart by more
+    than 1e-5 of a cell: its first axis is still read along its first step (not 45 degrees off,
+    reading its staircases on a grid turned by 45 degrees) and it is driven as the exact plan."""
+    for kind, cell, p in pg.grid_fuzz_plans(31, 12):
+        q = np.round(p, 6)
+        turn = gridplan.grid_axis(q) - gridplan.grid_axis(p)
+        assert abs((turn + 0.25 * math.pi) % (0.5 * math.pi) - 0.25 * math.pi) < 1e-3, (kind, cell)
+        exact = load_path({"points": p.tolist(), "speed": 0.4}, LIM)
+        given = load_path({"points": q.tolist(), "speed": 0.4}, LIM)
+        assert given.duration == pytest.approx(exact.duration, rel=0.01), (kind, cell)

@@ -87,10 +87,14 @@ def grid_cell(p: np.ndarray) -> float | None:
 
 
 def grid_axis(p: np.ndarray) -> float:
-    """The direction of a grid plan's first axis (its steps are along it, across it or diagonal)."""
+    """The direction of a grid plan's first axis (its steps are along it, across it or diagonal).
+    The first step is a diagonal when it is nearer a diagonal's length than the cell's: a plan's
+    coordinates given to the micrometre leave its axis steps' lengths apart by more than 1e-5 of
+    a cell (grid_cell allows 1e-3), and one read as a diagonal turns the grid by 45 degrees."""
     d = p[1] - p[0]
     ang = math.atan2(d[1], d[0])
-    diagonal = abs(math.hypot(d[0], d[1]) - float(np.min(np.hypot(*np.diff(p, axis=0).T)))) > 1e-6 * math.hypot(*d)
+    cell = float(np.min(np.hypot(*np.diff(p, axis=0).T)))
+    diagonal = math.hypot(d[0], d[1]) > 0.5 * (1.0 + math.sqrt(2.0)) * cell
     return ang - 0.25 * math.pi if diagonal else ang
 
 
