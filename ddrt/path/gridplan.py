@@ -283,6 +283,7 @@ class _RarerRuns:
     twice: bool = False  # it came twice in a row
 
     def add(self, step: tuple[int, int]) -> None:
+        """Counts one more step of the run."""
         if step != self.rare:
             self.last += 1
             self.prev = False
@@ -296,6 +297,7 @@ class _RarerRuns:
         self.last, self.prev = 0, True
 
     def holds(self) -> bool:
+        """Whether the steps so far are a line's staircase with `rare` as its rarer step."""
         if self.twice:
             return False
         if self.inner_max < 0:
