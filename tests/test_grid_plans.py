@@ -140,6 +140,18 @@ def test_a_runs_staircase_is_read_as_it_grows() -> None:
     assert checked > 10_000
 
 
+@pytest.mark.parametrize("kinds,length", [([(1, 0), (1, 1)], 13), ([(1, 0), (0, 1), (1, 1)], 8)])
+def test_every_short_run_is_read_as_a_staircase_as_the_definition_reads_it(kinds, length) -> None:
+    """Every sequence of `length` steps of these kinds, read a step at a time, agrees with the
+    definition at every length: the first and last runs too (a straight leg then a staircase is
+    no staircase: `[E] * 4 + [NE, E, NE]`), which random staircases seldom try."""
+    assert not _is_line_staircase([(1, 0)] * 4 + [(1, 1), (1, 0), (1, 1)])
+    for steps in itertools.product(kinds, repeat=length):
+        window = gridplan._StairWindow()
+        for n in range(1, length + 1):
+            assert window.add(steps[n - 1]) == _is_line_staircase(list(steps[:n])), steps[:n]
+
+
 def test_a_runs_line_is_fitted_over_its_hull() -> None:
     """A run's line is fitted to its extremes only: over its hull's corners it is the line fitted
     over every cell (random staircases and random clouds)."""
@@ -160,12 +172,14 @@ def test_a_runs_line_is_fitted_over_its_hull() -> None:
 
 def test_a_long_staircase_is_read_in_linear_work(monkeypatch) -> None:
     """A straight staircase of 3000 cells is one run, found by refitting its line over a few
-    hull corners a cell at a time: the cells every fit reads add up to a few per cell (refitting
-    every cell each time, n^2 / 2: a 2000-cell plan took 8 s to load)."""
+    hull corners a cell at a time and putting its cells onto the line once: the cells every fit
+    and every move onto a line read add up to a few per cell (reading the whole run at each
+    cell, n^2 / 2: a 2000-cell plan took 8 s to load)."""
     g = np.array(pg.staircase((0, 0), (2100, 900), diagonal=False), dtype=float)
     read = []
-    fit = gridplan._line_fit
+    fit, onto = gridplan._line_fit, gridplan._onto
     monkeypatch.setattr(gridplan, "_line_fit", lambda pts, chord=None: (read.append(len(pts)), fit(pts, chord))[1])
+    monkeypatch.setattr(gridplan, "_onto", lambda pts, n, off: (read.append(len(pts)), onto(pts, n, off))[1])
     runs = straight_runs(g)
     assert [(a, b) for a, b, _ in runs] == [(0, len(g) - 1)] or [(a, b) for a, b, _ in runs] == [(1, len(g) - 1)]
     assert sum(read) < 20 * len(g)
@@ -298,3 +312,16 @@ def test_a_staircase_between_turns_is_driven_as_its_line() -> None:
 def test_fuzzed_grid_plans_take_at_most_1_3_x_length_over_speed_plus_3_s() -> None:
     slow = _slow(_fuzz(20263, 40))
     assert not slow, slow
+
+
+def test_a_plan_given_to_the_micrometre_is_read_on_its_own_grid() -> None:
+    """Rounding a plan's metres to the micrometre leaves its axis steps' lengths apart by more
+    than 1e-5 of a cell: its first axis is still read along its first step (not 45 degrees off,
+    reading its staircases on a grid turned by 45 degrees) and it is driven as the exact plan."""
+    for kind, cell, p in pg.grid_fuzz_plans(31, 12):
+        q = np.round(p, 6)
+        turn = gridplan.grid_axis(q) - gridplan.grid_axis(p)
+        assert abs((turn + 0.25 * math.pi) % (0.5 * math.pi) - 0.25 * math.pi) < 1e-3, (kind, cell)
+        exact = load_path({"points": p.tolist(), "speed": 0.4}, LIM)
+        given = load_path({"points": q.tolist(), "speed": 0.4}, LIM)
+        assert given.duration == pytest.approx(exact.duration, rel=0.01), (kind, cell)

@@ -276,6 +276,15 @@ def _onto(g: np.ndarray, n: np.ndarray, off: float) -> np.ndarray:
     return g + lam[:, None] * np.sign(n)[None, :]
 
 
+def _advance(n: np.ndarray) -> np.ndarray:
+    """The vector w whose dot product with a step between two centres is how far the step
+    advances along the line of unit normal `n` once both centres are moved onto it (`_onto`):
+    the advance does not depend on the line's offset and is linear in the step, so a run's steps
+    all advance one way exactly when the corners of their hull do."""
+    t = np.array([n[1], -n[0]])
+    return t - n * float(np.sign(n) @ t) / (abs(n[0]) + abs(n[1]))
+
+
 def _kinds(g: np.ndarray) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
     """(the distinct steps of cells `g`, every step) as integer pairs."""
     steps = [(int(a), int(b)) for a, b in np.round(np.diff(g, axis=0))]
@@ -327,6 +336,7 @@ class _RarerRuns:
     twice: bool = False  # it came twice in a row
 
     def add(self, step: tuple[int, int]) -> None:
+        """Counts one more step of the run."""
         if step != self.rare:
             self.last += 1
             self.prev = False
@@ -340,6 +350,7 @@ class _RarerRuns:
         self.last, self.prev = 0, True
 
     def holds(self) -> bool:
+        """Whether the steps so far are a line's staircase with `rare` as its rarer step."""
         if self.twice:
             return False
         if self.inner_max < 0:
@@ -383,27 +394,30 @@ def straight_runs(g: np.ndarray, margin: float = STRAIGHT_MARGIN_CELLS) -> list[
     line passes within `margin` cells of (along the axes) while the cells advance along it: the
     staircases a planner leaves of a straight line. (first, last, the run's centres on that line)
     for runs of at least STRAIGHT_MIN_STEPS steps; consecutive runs share their end cell. A run
-    grows a cell at a time, its line refitted over its hull's corners (`_hull`)."""
+    grows a cell at a time reading a few points a cell, not the whole run: its line is refitted
+    over its hull's corners and its advance along the line read at its steps' hull's corners
+    (`_hull`, `_advance`); its cells are put onto the line once it stops growing."""
     out: list[tuple[int, int, np.ndarray]] = []
-    plan_steps = [(int(a), int(b)) for a, b in np.round(np.diff(g, axis=0))]
-    xy = g.tolist()
+    d = np.diff(g, axis=0)
+    plan_steps = [(int(a), int(b)) for a, b in np.round(d)]
+    xy, dxy = g.tolist(), d.tolist()
     i, n = 0, len(g)
     while i < n - 1:
-        j, fit = i + 1, None
-        window, hull = _StairWindow(), [i, i + 1]
+        j, line = i + 1, None
+        window, hull, moves = _StairWindow(), [i, i + 1], [i]
         window.add(plan_steps[i])
         while j + 1 < n:
             if not window.add(plan_steps[j]):
                 break
-            hull = _hull(xy, hull + [j + 1])
+            hull, moves = _hull(xy, hull + [j + 1]), _hull(dxy, moves + [j])
             dev, nrm, off = _line_fit(g[hull], g[j + 1] - g[i])
-            on = _onto(g[i:j + 2], nrm, off)
-            along = np.diff(on, axis=0) @ np.array([nrm[1], -nrm[0]])
+            along = d[moves] @ _advance(nrm)
             if dev > margin or not (np.all(along > 0.0) or np.all(along < 0.0)):
                 break
-            j, fit = j + 1, on
+            j, line = j + 1, (nrm, off)
         a = i
-        if fit is not None:
+        if line is not None:
+            fit = _onto(g[i:j + 1], *line)
             # A rarer step at either end may be the first of a run of its own (a diagonal run
             # after a straight one): it is left to the cells between the runs.
             rare, steps = _rare(g[i:j + 1]), plan_steps[i:j]
