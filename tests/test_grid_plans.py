@@ -361,3 +361,19 @@ def test_near_grid_points_that_do_not_add_up_to_one_grid_are_not_a_grid_plan() -
     straight = _cells(["E"] * 120, 0.05)
     straight[:, 1] += 0.001 * np.arange(len(p))  # one way only: a grid turned by 1.1 degrees
     assert gridplan.read_grid(np.round(straight, 3)) is not None
+
+
+def test_a_coarse_grid_plan_read_as_waypoints_says_so_and_how_to_smooth_it() -> None:
+    """Cells of paths.waypoint_spacing_m (25 cm) or more are waypoints, each staircase step a
+    turn in place: the reading says so, that a path's own tolerance is unused, and which key
+    smooths them; a polygon drawn on a grid (no staircase) gets no such note."""
+    xy = (np.array(pg.staircase((0, 0), (12, 5), diagonal=False), dtype=float) + 0.5) * 0.3
+    path = load_path({"points": xy.tolist(), "speed": 0.4, "tolerance": 0.05}, LIM)
+    c = path.conditioning
+    assert c.mode == "waypoints" and len(c.corners) >= 8
+    note = " ".join(path.notes)
+    assert "paths.waypoint_spacing_m" in note and "staircase" in note and "tolerance (50 mm) is not used" in note
+    assert c.note in c.summary() and c.note in note
+    square = [[0, 0], [1, 0], [2, 0], [2, 1], [2, 2], [1, 2], [0, 2], [0, 1], [0, 0]]
+    drawn = load_path({"points": square, "speed": 0.4}, LIM)
+    assert drawn.conditioning.mode == "waypoints" and not drawn.notes

@@ -122,11 +122,13 @@ class Conditioning:
     spacing_m: float = 0.0  # median distance between consecutive points
     iterations: int = 0  # fits solved in total
     auto: bool = False  # the tolerance was set from the noise (`auto`)
+    note: str = ""  # why points that look like more were read as waypoints (`waypoints_note`)
     extra: dict = field(default_factory=dict)
 
     def summary(self) -> str:
         if self.mode == WAYPOINTS:
-            return f"{len(self.points)} points as waypoints (median spacing {self.spacing_m * 1000:.0f} mm)"
+            return (f"{len(self.points)} points as waypoints (median spacing {self.spacing_m * 1000:.0f} mm)"
+                    + (f"; {self.note}" if self.note else ""))
         kind = (f"a grid plan ({self.grid_cell_m * 1000:.0f} mm cells)" if self.mode == GRID
                 else "samples of a curve")
         how = "auto, from the noise; " if self.auto else ""
@@ -157,6 +159,28 @@ def classify(p: np.ndarray, copt: ConditionOptions) -> tuple[str, float | None, 
     if spacing >= copt.waypoint_spacing:
         return WAYPOINTS, copt.tolerance, None
     return SAMPLES, copt.tolerance, None
+
+
+def waypoints_note(p: np.ndarray, copt: ConditionOptions, spacing: float) -> str:
+    """What a user may not expect of points read as waypoints for their spacing alone: a path's
+    own `tolerance:` that no fit uses, or a grid plan whose cells are that large (each step
+    then a waypoint, a staircase's every step turned in place; a polygon drawn on a grid, with
+    no staircase, is taken as meant); empty otherwise."""
+    if len(p) < 4 or copt.tolerance == 0.0 or spacing < copt.waypoint_spacing:
+        return ""
+    what = []
+    if copt.tolerance_given and copt.tolerance is not None:
+        what.append(f"its tolerance ({copt.tolerance * 1000:g} mm) is not used")
+    grid = read_grid(p)
+    steps = np.diff(grid.index, axis=0) if grid is not None else np.zeros((0, 2))
+    jogs = np.all(steps[:-2] == steps[2:], axis=1) & np.any(steps[1:-1] != steps[:-2], axis=1)
+    if np.any(jogs):  # a single step between two alike: a staircase, not a drawn polygon
+        what.append("a grid plan of cells this large is driven cell by cell, a staircase's every step a corner")
+    if not what:
+        return ""
+    return (f"{'; '.join(what)} (points {spacing:.3g} m apart, paths.waypoint_spacing_m = {copt.waypoint_spacing:g} m "
+            f"or more, are waypoints, driven through exactly; to smooth them, raise paths.waypoint_spacing_m "
+            f"above {spacing:.3g} m)")
 
 
 def resolve_tolerance(tol: float | None, noise: float, n: int) -> float:
@@ -539,7 +563,9 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: GeometryOp
     mode, given, cell = classify(p, copt)
     p = _as_planned(p, mode)
     if mode == WAYPOINTS:
-        return _waypoints(p, caps, opt, names, spacing, TOLERANCE_FLOOR_M if given is None else given)
+        geo, info = _waypoints(p, caps, opt, names, spacing, TOLERANCE_FLOOR_M if given is None else given)
+        info.note = waypoints_note(p, copt, spacing)
+        return geo, info
     nz = _noise(p, cell) if noise is None else max(noise, NOISE_FLOOR_M)
     tol = resolve_tolerance(given, nz, len(p))
     forced = steps_back(p) if mode == GRID else []

@@ -54,6 +54,7 @@ GRID_TIGHT_CELLS = 5.0  # a grid plan's fit bending tighter than this radius (ce
 GRID_TIGHT_TURN_DEG = 40.0  # if it turns by this much within that radius (or bends tighter than one cell)
 STRAIGHT_MARGIN_CELLS = 0.49  # a run of cells is straight when one line passes this close to each (< half a cell)
 STRAIGHT_MIN_STEPS = 3  # runs of fewer steps are left as they are (a corner's own cells)
+GRID_ROUNDING_CELLS = 0.05  # coordinates rounded to at most this much of a cell still read as a grid plan
 GRID_HAIR_CELLS = 0.05  # margin on bounds a grid's points lie exactly on (the nearest other distances are 0.17 cells off)
 MEET_CELLS = 0.4  # two runs' lines meeting this close to their shared cell (along the axes) meet there
 _LINE_ANGLES = np.radians(np.linspace(-40.0, 40.0, 321))  # lines tried about a run's chord (0.25 degree steps)
@@ -95,7 +96,8 @@ def read_grid(p: np.ndarray) -> GridReading | None:
     """A grid plan given cell by cell (every step one cell along an axis or a diagonal of one
     grid, which may be rotated), read as its grid; None for other points. Each step may be off
     by the error its coordinates' rounding puts in it (`coordinate_quantum`: up to sqrt(2)
-    quanta), so a plan written to a few decimals on a rotated grid still reads as one, and the
+    quanta, a quantum of up to GRID_ROUNDING_CELLS of a cell: the millimetre from 2 cm cells),
+    so a plan written to a few decimals on a rotated grid still reads as one, and the
     grid is fitted to every point, so no one step's rounding tilts or stretches it."""
     d = np.diff(p, axis=0)
     if len(d) < 3:
@@ -104,7 +106,10 @@ def read_grid(p: np.ndarray) -> GridReading | None:
     c = float(length.min())
     if not c > 0.0:
         return None
-    slack = max(1e-3 * c, min(1.01 * math.sqrt(2.0) * coordinate_quantum(p), 0.15 * c))
+    q = coordinate_quantum(p)
+    # Rounding finer than GRID_ROUNDING_CELLS of a cell is allowed for; coarser, a point's offset
+    # of one quantum may be meant (a recording's legs 1 mm apart at 1 cm spacing, written in mm).
+    slack = max(1e-3 * c, 1.01 * math.sqrt(2.0) * q if q <= GRID_ROUNDING_CELLS * float(np.median(length)) else 0.0)
     along = np.abs(length - c) <= 2.0 * slack  # c itself may be short by one slack
     diag = np.abs(length - c * math.sqrt(2.0)) <= 2.0 * slack
     if not np.all(along | diag) or np.any(along & diag):

@@ -400,6 +400,8 @@ def _finish(geo: Geometry, lim: SpeedLimits, v_cap: float, opt: GeometryOptions,
     path.warnings = [*lim.notes, *notes]
     if cond is not None and cond.mode != WAYPOINTS:
         path.notes = [f"{where}: {cond.summary()}"]
+    elif cond is not None and cond.note:
+        path.notes = [f"{where}: {cond.note}"]
     path.conditioning = cond
     return path
 
