@@ -324,14 +324,23 @@ def ascending(items: Sequence[_T], key: Callable[[_T], int]) -> list[_T]:
     return out
 
 
+def _fit_points(p: np.ndarray, mode: str, cell: float | None) -> tuple[np.ndarray, float | None]:
+    """(the points the legs are fitted to, a grid plan's axis): a grid plan's staircases put on
+    their lines (gridplan.straightened), read once for every replan of the same points."""
+    if mode != GRID or cell is None:
+        return p, None
+    axis = grid_axis(p)
+    return straightened(p, cell, axis), axis
+
+
 def _plan(p: np.ndarray, mode: str, tol: float, cell: float | None, noise: float, opt: GeometryOptions,
-          ends: tuple[EndPin | None, EndPin | None], forced: Sequence[int] = ()) -> _Plan:
+          ends: tuple[EndPin | None, EndPin | None], forced: Sequence[int], fitted: tuple[np.ndarray, float | None]
+          ) -> _Plan:
     """Where the corners are (along the distance the points stand for, corners.py; `forced`:
     points where a fit stopped and turned back, corners whatever their sides say), each leg's
-    ends, and whether the polyline closes on itself."""
+    ends, and whether the polyline closes on itself. `fitted`: `_fit_points`."""
     u = chord_length(p) if mode == GRID else arc_parameter(p, noise)
-    axis = grid_axis(p) if mode == GRID else None
-    fit_p = straightened(p, cell, axis) if cell is not None and axis is not None else p
+    fit_p, axis = fitted
     spacing = float(np.median(np.diff(u)))
     knot = knot_spacing(spacing, tol, cell)
     threshold = math.radians(opt.corner_pivot_deg)
@@ -571,10 +580,11 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: GeometryOp
     forced = steps_back(p) if mode == GRID else []
     tight: list[int] = []  # a grid plan's points where the fit bent too tight (gridplan.tight_bends): turned in place
     widened = 0
+    fitted = _fit_points(p, mode, cell)
     for attempt in range(MAX_REPLANS):
         info = Conditioning(mode, tol, p, names, noise_m=nz, grid_cell_m=cell, spacing_m=spacing,
                             auto=given is None and mode == SAMPLES)
-        plan = _plan(p, mode, tol, cell, nz, opt, ends, forced + tight)
+        plan = _plan(p, mode, tol, cell, nz, opt, ends, forced + tight, fitted)
         info.extra["closed_loop"] = plan.wrap is not None
         try:
             geo = _assemble(plan, caps, info, where, names)
