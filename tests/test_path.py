@@ -298,6 +298,8 @@ BAD_YAML = [
     ("bad_speed.yaml", "shape: line\nlength: 1\nspeed: -1\n", "key 'speed'", "> 0"),
     ("nan.yaml", "shape: ellipse\na: .nan\nb: 0.5\n", "key 'a'", "finite"),
     ("direction.yaml", "shape: circle\nradius: 0.3\ndirection: left\n", "key 'direction'", "cw"),
+    # a reversal always turns in place: no threshold blends a 180 degree corner
+    ("pivot_deg.yaml", "points: [[0, 0], [1, 0], [0, 0.01]]\ncorner_pivot_deg: 180\n", "key 'corner_pivot_deg'", "< 180 deg"),
     ("unknown_key.yaml", "shape: circle\nradius: 0.3\nradiuss: 2\n", "key 'radiuss'", "unknown key"),
     ("not_mapping.yaml", "- 1\n- 2\n", "top level", "mapping"),
     ("empty.yaml", "", "no path in it", "expected a mapping at the top level with one of shape:"),

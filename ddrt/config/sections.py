@@ -667,9 +667,9 @@ class PathsConfig(Section):
         doc="b: progress per radian of turn in a pivot (its angular speed cap is b x omega_max); at most "
             "`max_extent_m`. A path's own `pivot_radius:` replaces it.")
     corner_pivot_deg: float = setting(
-        30.0, unit="deg", ge=0,
-        doc="Corners of a polyline turning by more than this become turns in place; gentler ones are blended. "
-            "A path's own `corner_pivot_deg:` replaces it.")
+        30.0, unit="deg", ge=0, lt=180,
+        doc="Corners of a polyline turning by more than this become turns in place; gentler ones are blended "
+            "(below 180: a reversal always turns in place). A path's own `corner_pivot_deg:` replaces it.")
     blend_max_m: float = setting(
         0.15, unit="m", ge=MIN_PATH_SIZE_M,
         doc="Longest tangent of a gentle corner's curvature-continuous blend; at most `max_extent_m`. A path's "

@@ -47,7 +47,7 @@ class PathCommon(Section):
     pivot_radius: float | None = setting(
         None, unit="m", ge=MIN_PATH_SIZE_M, doc="Replaces `paths.pivot_radius_m` for this path.")
     corner_pivot_deg: float | None = setting(
-        None, unit="deg", ge=0, doc="Replaces `paths.corner_pivot_deg` for this path.")
+        None, unit="deg", ge=0, lt=180, doc="Replaces `paths.corner_pivot_deg` for this path.")
     blend_max: float | None = setting(
         None, unit="m", ge=MIN_PATH_SIZE_M, doc="Replaces `paths.blend_max_m` for this path.")
     start_pose: tuple[float, float, float] | None = setting(
