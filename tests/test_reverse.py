@@ -8,11 +8,13 @@ the reversing leg, which meets the forward leg in line (a cusp with no turn in p
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import pytest
 
 from ddrt.config import load_config
+from ddrt.path.report import pivot_runs
 from ddrt.path.spec import PathError, load_path, speed_limits
 from ddrt.simrun.runner import run_sim
 from tests.support.repo import SIM_YAML
@@ -213,3 +215,16 @@ def test_a_recorded_three_point_turn_meets_at_each_cusp_without_a_shift(cfg) -> 
         k = int(np.argmin(np.hypot(xy[:, 0] - a["x"][i], xy[:, 1] - a["y"][i])))
         assert math.hypot(*(xy[k] - (a["x"][i], a["y"][i]))) <= path.conditioning.tolerance_m
     assert path.deviation_m <= path.conditioning.tolerance_m
+
+
+def test_turns_in_place_meeting_at_one_point_load_without_a_drive_between(cfg, tmp_path) -> None:
+    """Marked reversals 1 cm apart whose runs meet at one point put two turns in place there
+    with a drive of no length between them: it is no motion and is left out (its samples share
+    one progress, which the profile cannot take: the path was refused, after numpy warnings)."""
+    f = tmp_path / "jog.csv"
+    f.write_text("x,y,v\n0,0,0.01\n-0.01,0,0.01\n0.01,0,-0.3\n0.001,0,0.01\n0.01,0,0.3\n0.05,0,0.01\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        path = load_path(f, speed_limits(cfg), paths=cfg.paths)
+    assert len(path.cusps) == 2 and np.all(np.isfinite(path.v)) and path.duration < 10.0
+    assert len(pivot_runs(path)) == 1  # the two meet as one half turn

@@ -381,6 +381,11 @@ def _finish(geo: Geometry, lim: SpeedLimits, v_cap: float, opt: GeometryOptions,
             start: tuple[float, float, float] | None, where: str, paths: PathsConfig, notes: list[str],
             cond: Conditioning | None = None) -> Path:
     """Check the sampled geometry against the bounds, then profile it into a Path."""
+    # A drive of no length (a nanometre or less: between two turns in place at one point, where a reversal's runs
+    # meet) is no motion, and its samples share one progress, which no profile can take.
+    driven = [pc for pc in geo.pieces if pc.pivot or pc.length > 1e-9]
+    if driven and len(driven) < len(geo.pieces):
+        geo.pieces = driven
     count = sum(len(pc.s) for pc in geo.pieces) - max(0, len(geo.pieces) - 1)
     _check_samples(float(count), where, paths, opt)
     length = sum(pc.length for pc in geo.pieces)
