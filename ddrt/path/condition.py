@@ -620,5 +620,7 @@ def _waypoints(p: np.ndarray, caps: np.ndarray | None, opt: GeometryOptions, nam
         sharp = np.abs(turn) > math.radians(opt.corner_pivot_deg)
         info.corners = tuple(Corner(int(i) + 1, float(turn[i]), float(p[i + 1, 0]), float(p[i + 1, 1]))
                              for i in np.flatnonzero(sharp))
-        info.extra["blends"] = int(np.sum(~sharp & (np.abs(turn) > 1e-9)))
+        # Counted for the report from a degree on: collinear points written to a few decimals
+        # meet at a few hundredths of a degree, blended but no turn to a reader.
+        info.extra["blends"] = int(np.sum(~sharp & (np.abs(turn) >= math.radians(1.0))))
     return geo, info
