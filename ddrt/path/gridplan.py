@@ -42,8 +42,8 @@ import numpy as np
 from ddrt.path.corners import CornerPin, find_corners
 from ddrt.path.geometry import Geometry
 
-__all__ = ["GRID_PIVOT_DEG", "blends_square_corners", "coordinate_quantum", "GridReading", "read_grid", "corner_pin", "grid_axis", "grid_cell", "grid_corners", "steps_back", "straight_runs",
-           "straightened", "tight_bends"]
+__all__ = ["GRID_PIVOT_DEG", "GridReading", "blends_square_corners", "coordinate_quantum", "corner_pin", "grid_axis",
+           "grid_cell", "grid_corners", "read_grid", "steps_back", "straight_runs", "straightened", "tight_bends"]
 
 GRID_PIVOT_DEG = 67.5  # in a grid plan, turns of 90 degrees and more (90, 135, 180) pivot
 GRID_BLEND_CORRIDOR_M = 0.02  # within a corridor this wide (half a 4 cm cell) 90 degree corners are blended
@@ -130,7 +130,8 @@ def read_grid(p: np.ndarray) -> GridReading | None:
     if not np.array_equal((kr.astype(np.int64) % 2) == 1, diag):
         return None
     cs, sn = math.cos(first), math.sin(first)
-    steps = np.round((d @ np.array([[cs, -sn], [sn, cs]])) / float(np.median(np.where(along, length, length / math.sqrt(2.0)))))
+    cell_steps = float(np.median(np.where(along, length, length / math.sqrt(2.0))))
+    steps = np.round((d @ np.array([[cs, -sn], [sn, cs]])) / cell_steps)
     index = np.vstack(([0, 0], np.cumsum(steps, axis=0))).astype(np.int64)
     # p = origin + a * index + b * index rotated a quarter turn, in least squares (a similarity).
     i, j = index[:, 0].astype(float), index[:, 1].astype(float)
