@@ -15,7 +15,7 @@ from ddrt.config import load_config
 from ddrt.path import load_path
 from ddrt.path.gridplan import straight_runs, straightened
 from ddrt.path.report import pivot_runs
-from ddrt.path.sampled import Path
+from ddrt.path.sampled import Path, distances_to_polyline
 from ddrt.path import gridplan, turnspeed
 from ddrt.path.spec import speed_limits
 from lab import path_inputs as pg
@@ -361,6 +361,51 @@ def test_near_grid_points_that_do_not_add_up_to_one_grid_are_not_a_grid_plan() -
     straight = _cells(["E"] * 120, 0.05)
     straight[:, 1] += 0.001 * np.arange(len(p))  # one way only: a grid turned by 1.1 degrees
     assert gridplan.read_grid(np.round(straight, 3)) is not None
+
+
+def _turned(p: np.ndarray, th: float) -> np.ndarray:
+    return p @ np.array([[math.cos(th), math.sin(th)], [-math.sin(th), math.cos(th)]])
+
+
+def test_points_a_grid_would_move_by_more_than_their_rounding_are_not_a_grid_plan() -> None:
+    """Gentle arcs densified at 2-3 cm and straight recordings at 2 cm (20 Hz at 0.4 m/s, noise
+    and a 4 mm sway), written to the millimetre, have every step one cell to within the
+    rounding, but no grid puts each point within a quantum of its cell (an arc of 8 m radius
+    over 0.8 m was read as a straight grid run, its points moved 5.7 mm, its deviation
+    reported as 0): they are samples, or a grid within a millimetre of every point."""
+    rng = np.random.default_rng(5)
+    cases = []
+    for radius, length, spacing in itertools.product((3.0, 5.0, 8.0, 20.0), (0.4, 0.8), (0.02, 0.03)):
+        t = np.arange(0.0, length + 1e-9, spacing) / radius
+        cases.append(_turned(np.c_[radius * np.sin(t), radius * (1.0 - np.cos(t))], 0.3) + [1.2345, 0.5])
+    for _ in range(12):
+        x = np.cumsum(0.02 + rng.normal(0.0, 0.0004, 40))
+        y = 0.004 * np.sin(3.0 * x) + rng.normal(0.0, 0.0004, 40)
+        cases.append(_turned(np.c_[x, y], rng.uniform(0.0, 2.0 * math.pi)) + 0.5)
+    read = 0
+    for p in (np.round(c, 3) for c in cases):
+        grid = gridplan.read_grid(p)
+        if grid is not None:
+            read += 1
+            assert np.abs(grid.points() - p).max() <= 0.001 + 1e-12
+    assert read < len(cases) // 2
+    arc = np.round(cases[11], 3)  # 8 m radius, 0.8 m, every 3 cm
+    path = load_path({"points": arc.tolist(), "speed": 0.4}, LIM)
+    a = path.arrays()
+    far = distances_to_polyline(np.c_[a["x"], a["y"]], arc).max()
+    assert path.conditioning.mode == "samples" and far <= path.deviation_m + 1e-6
+
+
+def test_a_plan_of_2_cm_cells_written_to_the_millimetre_is_read_at_any_angle() -> None:
+    """Its shortest step may be 1.4 mm short of the cell and its median step under 2 cm: the
+    millimetre is still within GRID_ROUNDING_CELLS (5 %) of the cell it can be, so the plan is
+    read as a grid plan at every angle (its points within a millimetre of their cells)."""
+    moves = [["E", "NE", "NE", "N", "NE", "NE", "E"], ["NE", "NE", "E", "NE", "NE"], ["E", "E", "N", "N", "W", "W"]]
+    for m, deg in itertools.product(moves, range(0, 360, 2)):
+        p = np.round(_turned(_cells(m, 0.02), math.radians(deg)) + [0.3, -0.7], 3)
+        grid = gridplan.read_grid(p)
+        assert grid is not None, (m, deg)
+        assert np.abs(grid.points() - p).max() <= 0.001 + 1e-12
 
 
 def test_a_coarse_grid_plan_read_as_waypoints_says_so_and_how_to_smooth_it() -> None:

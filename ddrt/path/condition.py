@@ -109,9 +109,9 @@ class Conditioning:
 
     mode: str  # waypoints | samples | grid
     tolerance_m: float
-    points: np.ndarray  # (n, 2) the input points (consecutive duplicates merged)
+    points: np.ndarray  # (n, 2) the input points (consecutive duplicates merged; a grid plan's on its cells' centres)
     names: Sequence[str]  # where each point came from ("line 7", "key 'points[3]'")
-    deviation_m: float = 0.0  # largest distance of an input point from the reference
+    deviation_m: float = 0.0  # largest distance of one of those points from the reference
     worst: int = 0  # that point's index
     noise_m: float = 0.0  # estimated noise of the points (1 sigma, lateral)
     grid_cell_m: float | None = None

@@ -42,8 +42,8 @@ import numpy as np
 from ddrt.path.corners import CornerPin, find_corners
 from ddrt.path.geometry import Geometry
 
-__all__ = ["GRID_PIVOT_DEG", "blends_square_corners", "coordinate_quantum", "GridReading", "read_grid", "corner_pin", "grid_axis", "grid_cell", "grid_corners", "steps_back", "straight_runs",
-           "straightened", "tight_bends"]
+__all__ = ["GRID_PIVOT_DEG", "GridReading", "blends_square_corners", "coordinate_quantum", "corner_pin", "grid_axis",
+           "grid_cell", "grid_corners", "read_grid", "steps_back", "straight_runs", "straightened", "tight_bends"]
 
 GRID_PIVOT_DEG = 67.5  # in a grid plan, turns of 90 degrees and more (90, 135, 180) pivot
 GRID_BLEND_CORRIDOR_M = 0.02  # within a corridor this wide (half a 4 cm cell) 90 degree corners are blended
@@ -98,7 +98,10 @@ def read_grid(p: np.ndarray) -> GridReading | None:
     by the error its coordinates' rounding puts in it (`coordinate_quantum`: up to sqrt(2)
     quanta, a quantum of up to GRID_ROUNDING_CELLS of a cell: the millimetre from 2 cm cells),
     so a plan written to a few decimals on a rotated grid still reads as one, and the
-    grid is fitted to every point, so no one step's rounding tilts or stretches it."""
+    grid is fitted to every point, so no one step's rounding tilts or stretches it. Each point
+    lies within one quantum of its cell's centre (a rounded plan's within half of one and the
+    fit's error, at most 0.83 quanta over 20000 fuzzed plans of 4-8 points): points the grid
+    would move further, a recording's or a densified arc's, are not its cells."""
     d = np.diff(p, axis=0)
     if len(d) < 3:
         return None
@@ -109,7 +112,9 @@ def read_grid(p: np.ndarray) -> GridReading | None:
     q = coordinate_quantum(p)
     # Rounding finer than GRID_ROUNDING_CELLS of a cell is allowed for; coarser, a point's offset
     # of one quantum may be meant (a recording's legs 1 mm apart at 1 cm spacing, written in mm).
-    slack = max(1e-3 * c, 1.01 * math.sqrt(2.0) * q if q <= GRID_ROUNDING_CELLS * float(np.median(length)) else 0.0)
+    # The cell is at most the shortest step and the rounding it may be short by.
+    rounding = q if q <= GRID_ROUNDING_CELLS * (c + 1.01 * math.sqrt(2.0) * q) else 0.0
+    slack = max(1e-3 * c, 1.01 * math.sqrt(2.0) * rounding)
     along = np.abs(length - c) <= 2.0 * slack  # c itself may be short by one slack
     diag = np.abs(length - c * math.sqrt(2.0)) <= 2.0 * slack
     if not np.all(along | diag) or np.any(along & diag):
@@ -125,7 +130,8 @@ def read_grid(p: np.ndarray) -> GridReading | None:
     if not np.array_equal((kr.astype(np.int64) % 2) == 1, diag):
         return None
     cs, sn = math.cos(first), math.sin(first)
-    steps = np.round((d @ np.array([[cs, -sn], [sn, cs]])) / float(np.median(np.where(along, length, length / math.sqrt(2.0)))))
+    cell_steps = float(np.median(np.where(along, length, length / math.sqrt(2.0))))
+    steps = np.round((d @ np.array([[cs, -sn], [sn, cs]])) / cell_steps)
     index = np.vstack(([0, 0], np.cumsum(steps, axis=0))).astype(np.int64)
     # p = origin + a * index + b * index rotated a quarter turn, in least squares (a similarity).
     i, j = index[:, 0].astype(float), index[:, 1].astype(float)
@@ -134,7 +140,7 @@ def read_grid(p: np.ndarray) -> GridReading | None:
     sol = np.linalg.lstsq(m, np.concatenate((p[:, 0], p[:, 1])), rcond=None)[0]
     cell, axis = float(math.hypot(sol[2], sol[3])), float(math.atan2(sol[3], sol[2]))
     grid = GridReading(cell, axis, sol[:2].copy(), index)
-    if np.max(np.abs(grid.points() - p)) > 0.25 * cell:  # the steps do not add up to one grid
+    if np.max(np.abs(grid.points() - p)) > max(1e-3 * c, rounding):  # the steps add up to no one grid
         return None
     return grid
 

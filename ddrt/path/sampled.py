@@ -126,7 +126,8 @@ class Path:
     @property
     def deviation_m(self) -> float:
         """Largest distance from a point of the input polyline to this path (0 for shapes and
-        waypoints, whose segments are the path)."""
+        waypoints, whose segments are the path; a grid plan's points as its cells' centres,
+        within one quantum of their coordinates' rounding: gridplan.read_grid)."""
         c = self.conditioning
         return 0.0 if c is None or c.mode == "waypoints" else float(c.deviation_m)
 
