@@ -422,3 +422,10 @@ def test_a_coarse_grid_plan_read_as_waypoints_says_so_and_how_to_smooth_it() -> 
     square = [[0, 0], [1, 0], [2, 0], [2, 1], [2, 2], [1, 2], [0, 2], [0, 1], [0, 0]]
     drawn = load_path({"points": square, "speed": 0.4}, LIM)
     assert drawn.conditioning.mode == "waypoints" and not drawn.notes
+
+
+def test_every_turn_in_place_is_a_corner_the_reading_counts() -> None:
+    """The reading's corners are the path's turns in place, those a short leg makes as
+    waypoints included (`ddrt path` said 4 corners and 5 turns in place for seed 20263's plan 11)."""
+    for kind, cell, xy, path in _fuzz(20263, 30):
+        assert len(path.conditioning.corners) == len(pivot_runs(path)), (kind, cell)

@@ -456,6 +456,9 @@ def _assemble(plan: _Plan, caps: np.ndarray | None, info: Conditioning, where: s
             if shift:
                 pc.theta = pc.theta + shift
             pieces.append(pc)
+            if pc.pivot:  # a short leg's own corner, driven as waypoints (smoothing._short)
+                near = a + int(np.argmin(np.hypot(p[a:b + 1, 0] - pc.x[0], p[a:b + 1, 1] - pc.y[0])))
+                kept.append(Corner(near, float(pc.theta[-1] - pc.theta[0]), float(pc.x[0]), float(pc.y[0])))
         heading = theta0 + (leg.theta1 - leg.theta0)
         sl = slice(a, b + 1)
         sig_pts[sl] = sigma + leg.sigma
