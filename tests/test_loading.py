@@ -295,7 +295,7 @@ def test_csv_and_point_speeds_above_v_max_are_clamped_and_reported(tmp_path: Pat
     f.write_text("x,y,v\n0,0,0.3\n1,0,2.0\n2,0,0.4\n2,1,3.0\n")
     path = load_path(f, CFG_LIMITS)
     _assert_within(path, CFG_LIMITS)
-    assert path.warnings == [f"{f}: 2 waypoint speed(s) up to 3 are above the config's 0.5 (limits.v_max); clamped to it"]
+    assert path.warnings == [f"{f}: 2 point speed(s) (column or third value v) up to 3 are above the config's 0.5 (limits.v_max); clamped to it"]
     spec = {"points": [[0, 0, 0.3], [1, 0, 2.0], [2, 0]], "speed": 0.4}
     inline = load_path(spec, CFG_LIMITS)
     _assert_within(inline, CFG_LIMITS)

@@ -279,7 +279,7 @@ def _clamped_limits(spec: PathCommon, limits: SpeedLimits, where: str,
 def _note_point_caps(caps: list[float], v_max: float, where: str, notes: list[str]) -> None:
     over = [abs(v) for v in caps if math.isfinite(v) and abs(v) > v_max]
     if over:
-        notes.append(f"{where}: {len(over)} waypoint speed(s) up to {max(over):g} are above the config's "
+        notes.append(f"{where}: {len(over)} point speed(s) (column or third value v) up to {max(over):g} are above the config's "
                      f"{v_max:g} (limits.v_max); clamped to it")
 
 
