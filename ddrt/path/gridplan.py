@@ -109,6 +109,8 @@ def read_grid(p: np.ndarray) -> GridReading | None:
     c = float(length.min())
     if not c > 0.0:
         return None
+    if not np.all((np.abs(length - c) <= 0.16 * c) | (np.abs(length - c * math.sqrt(2.0)) <= 0.16 * c)):
+        return None  # beyond any rounding allowed for (2 slacks, at most 0.155 c): a recording, at once
     q = coordinate_quantum(p)
     # Rounding finer than GRID_ROUNDING_CELLS of a cell is allowed for; coarser, a point's offset
     # of one quantum may be meant (a recording's legs 1 mm apart at 1 cm spacing, written in mm).
