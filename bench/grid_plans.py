@@ -174,8 +174,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ratio = [r.duration_s / r.ideal_s for r in results]
     held = [r for r in results if r.within]
     missed = [r for r in results if not r.within]
-    print(f"all: {len(held)} of {len(results)}; median {np.median(ratio):.2f} x length / speed "
-          f"({time.monotonic() - t0:.0f} s)")
+    print(f"all: {len(held)} of {len(results)}; median {np.median(ratio):.2f} x length / speed, "
+          f"{sum(r.duration_s for r in results):.0f} s in all ({time.monotonic() - t0:.0f} s)")
     print(f"against the path's length (a turn in place counting its wheels' travel): "
           f"{sum(r.within_path_length for r in results)} of {len(results)}")
     gentle = np.array([r.yaw_accel_rms for r in results])

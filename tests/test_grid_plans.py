@@ -429,3 +429,18 @@ def test_every_turn_in_place_is_a_corner_the_reading_counts() -> None:
     waypoints included (`ddrt path` said 4 corners and 5 turns in place for seed 20263's plan 11)."""
     for kind, cell, xy, path in _fuzz(20263, 30):
         assert len(path.conditioning.corners) == len(pivot_runs(path)), (kind, cell)
+
+
+@pytest.mark.parametrize("degrees", [0.0, 17.0, 30.0, 90.0, 133.7])
+def test_a_step_back_is_one_turn_in_place_on_a_grid_at_any_angle(degrees) -> None:
+    """A plan that steps back the way it came turns in place at that cell only: a corner read
+    a cell early over windows straddling the step back would leave a one-step leg and a turn
+    in place of a few degrees beside it, there or not as the coordinates' last bits fall."""
+    moves = ["E"] * 10 + ["W"] * 5 + ["N"] * 10 + ["NE"] * 6 + ["SW"] * 3 + ["N"] * 5
+    steps = {**STEPS, "SW": (-1, -1)}
+    g = np.cumsum([(0, 0)] + [steps[m] for m in moves], axis=0).astype(float)
+    th = math.radians(degrees)
+    xy = (g + 0.5) * 0.05 @ np.array([[math.cos(th), math.sin(th)], [-math.sin(th), math.cos(th)]]) + [1.234, 0.5]
+    path = load_path({"points": xy.tolist(), "speed": 0.4}, LIM)
+    turns = sorted(round(abs(math.degrees(c.turn))) for c in path.conditioning.corners)
+    assert turns == [135, 180, 180]

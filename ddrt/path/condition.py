@@ -66,7 +66,8 @@ from ddrt.errors import DdrtError
 from ddrt.path.corners import CornerPin, corner_scale, find_corners, line_turns, refine_corner
 from ddrt.path.geometry import Geometry, GeometryOptions, Piece, line_piece, pivot_piece, polyline_geometry
 from ddrt.path.gridplan import (
-    corner_pin, grid_axis, grid_cell, grid_corners, read_grid, steps_back, straightened, tight_bends,
+    GRID_CORNER_APART_CELLS, GRID_HAIR_CELLS, corner_pin, grid_axis, grid_cell, grid_corners, read_grid, steps_back,
+    straightened, tight_bends,
 )
 from ddrt.path.noise import TOLERANCE_FLOOR_M, arc_parameter, auto_tolerance, estimate_noise
 from ddrt.path.smoothing import (
@@ -355,6 +356,12 @@ def _plan(p: np.ndarray, mode: str, tol: float, cell: float | None, noise: float
     held0 = ends[0] is not None and ends[0].slope is not None
     held1 = ends[1] is not None and ends[1].slope is not None
     corners = [(k, t) for k, t in corners if not (held0 and u[k] < scale) and not (held1 and u[-1] - u[k] < scale)]
+    if mode == GRID and forced:
+        # Where a grid plan steps back, that cell is the corner: a turn read over windows that
+        # straddle it is the same corner a cell or so early, and both kept leave a leg of one
+        # step between them (a turn in place of a few degrees, or none, as the last bits fall).
+        near = (GRID_CORNER_APART_CELLS - GRID_HAIR_CELLS) * float(cell or 0.0)
+        corners = [(k, t) for k, t in corners if all(k == f or abs(u[k] - u[f]) >= near for f in forced)]
     corners = sorted(corners + [(k, math.pi) for k in forced if all(k != c for c, _ in corners)])
     mids = [0.5 * (u[a] + u[b]) for (a, _), (b, _) in zip(corners[:-1], corners[1:])]
     bounds = list(zip([-math.inf, *mids], [*mids, math.inf]))
