@@ -66,7 +66,7 @@ from ddrt.errors import DdrtError
 from ddrt.path.corners import CornerPin, corner_scale, find_corners, line_turns, refine_corner
 from ddrt.path.geometry import Geometry, GeometryOptions, Piece, line_piece, pivot_piece, polyline_geometry
 from ddrt.path.gridplan import (
-    GRID_CORNER_APART_CELLS, GRID_HAIR_CELLS, corner_pin, grid_axis, grid_cell, grid_corners, read_grid, steps_back,
+    GRID_CORNER_APART_CELLS, GRID_HAIR_CELLS, GridReading, corner_pin, grid_axis, grid_corners, read_grid, steps_back,
     straightened, tight_bends,
 )
 from ddrt.path.noise import TOLERANCE_FLOOR_M, arc_parameter, auto_tolerance, estimate_noise
@@ -146,16 +146,17 @@ def _wrap(a: np.ndarray) -> np.ndarray:
     return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
-def classify(p: np.ndarray, copt: ConditionOptions) -> tuple[str, float | None, float | None]:
-    """(mode, tolerance, grid cell) for the distinct points p (n, 2). The tolerance is None where
-    it is `auto` and the points are samples (`resolve_tolerance` sets it from their noise)."""
+def classify(p: np.ndarray, copt: ConditionOptions) -> tuple[str, float | None, GridReading | None]:
+    """(mode, tolerance, a grid plan's grid: gridplan.read_grid) for the distinct points p (n, 2).
+    The tolerance is None where it is `auto` and the points are samples (`resolve_tolerance`
+    sets it from their noise)."""
     if len(p) < 4 or copt.tolerance == 0.0:
         return WAYPOINTS, copt.tolerance, None
-    cell = grid_cell(p)
-    if cell is not None and cell < copt.waypoint_spacing:
+    grid = read_grid(p)
+    if grid is not None and grid.cell < copt.waypoint_spacing:
         given = copt.tolerance_given and copt.tolerance is not None
         floor = TOLERANCE_FLOOR_M if copt.tolerance is None else copt.tolerance
-        return GRID, copt.tolerance if given else max(floor, GRID_TOLERANCE_CELLS * cell), cell
+        return GRID, copt.tolerance if given else max(floor, GRID_TOLERANCE_CELLS * grid.cell), grid
     spacing = float(np.median(np.hypot(*np.diff(p, axis=0).T)))
     if spacing >= copt.waypoint_spacing:
         return WAYPOINTS, copt.tolerance, None
@@ -253,11 +254,10 @@ def _noise(p: np.ndarray, cell: float | None = None) -> float:
     return max(estimate_noise(p), NOISE_FLOOR_M)
 
 
-def _as_planned(p: np.ndarray, mode: str) -> np.ndarray:
+def _as_planned(p: np.ndarray, grid: GridReading | None) -> np.ndarray:
     """A grid plan's points as the centres of the cells it was read as (gridplan.read_grid: the
     rounding they were written with taken off, so a plan reads the same on any grid, rounded
     or not); other points as they are."""
-    grid = read_grid(p) if mode == GRID else None
     return p if grid is None else grid.points()
 
 
@@ -265,19 +265,22 @@ def point_noise(pts: np.ndarray, copt: ConditionOptions) -> tuple[str, float]:
     """(mode, estimated lateral noise) of a polyline of distinct points, as condition_polyline
     finds them (for a cusp's estimate from two runs' points, ddrt/path/cusp.py)."""
     p = np.asarray(pts, dtype=float)
-    mode, _, cell = classify(p, copt)
-    return (mode, 0.0) if mode == WAYPOINTS else (mode, _noise(_as_planned(p, mode), cell))
+    mode, _, grid = classify(p, copt)
+    if mode == WAYPOINTS:
+        return mode, 0.0
+    return mode, _noise(_as_planned(p, grid), None if grid is None else grid.cell)
 
 
 def run_tolerance(pts: np.ndarray, copt: ConditionOptions, noise: float | None) -> float:
     """The tolerance condition_polyline would hold these points to (`auto` from `noise`, else
     from their own estimate); the floor for waypoints, which no fit holds to anything."""
     p = np.asarray(pts, dtype=float)
-    mode, tol, cell = classify(p, copt)
+    mode, tol, grid = classify(p, copt)
     if mode == WAYPOINTS:
         return TOLERANCE_FLOOR_M if not tol else tol
-    return resolve_tolerance(tol, _noise(_as_planned(p, mode), cell) if noise is None else max(noise, NOISE_FLOOR_M),
-                             len(p))
+    if noise is None:
+        return resolve_tolerance(tol, _noise(_as_planned(p, grid), None if grid is None else grid.cell), len(p))
+    return resolve_tolerance(tol, max(noise, NOISE_FLOOR_M), len(p))
 
 
 @dataclass
@@ -325,13 +328,14 @@ def ascending(items: Sequence[_T], key: Callable[[_T], int]) -> list[_T]:
     return out
 
 
-def _fit_points(p: np.ndarray, mode: str, cell: float | None) -> tuple[np.ndarray, float | None]:
+def _fit_points(p: np.ndarray, grid: GridReading | None) -> tuple[np.ndarray, float | None]:
     """(the points the legs are fitted to, a grid plan's axis): a grid plan's staircases put on
-    their lines (gridplan.straightened), read once for every replan of the same points."""
-    if mode != GRID or cell is None:
+    their lines (gridplan.straightened), read once for every replan of the same points `p` (on
+    their cells' centres; the axis is read from them)."""
+    if grid is None:
         return p, None
     axis = grid_axis(p)
-    return straightened(p, cell, axis), axis
+    return straightened(p, grid.cell, axis), axis
 
 
 def _plan(p: np.ndarray, mode: str, tol: float, cell: float | None, noise: float, opt: GeometryOptions,
@@ -360,7 +364,8 @@ def _plan(p: np.ndarray, mode: str, tol: float, cell: float | None, noise: float
         # Where a grid plan steps back, that cell is the corner: a turn read over windows that
         # straddle it is the same corner a cell or so early, and both kept leave a leg of one
         # step between them (a turn in place of a few degrees, or none, as the last bits fall).
-        near = (GRID_CORNER_APART_CELLS - GRID_HAIR_CELLS) * float(cell or 0.0)
+        assert cell is not None
+        near = (GRID_CORNER_APART_CELLS - GRID_HAIR_CELLS) * cell
         corners = [(k, t) for k, t in corners if all(k == f or abs(u[k] - u[f]) >= near for f in forced)]
     corners = sorted(corners + [(k, math.pi) for k in forced if all(k != c for c, _ in corners)])
     mids = [0.5 * (u[a] + u[b]) for (a, _), (b, _) in zip(corners[:-1], corners[1:])]
@@ -579,8 +584,9 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: GeometryOp
     p = np.asarray(pts, dtype=float)
     seg = np.hypot(*np.diff(p, axis=0).T)
     spacing = float(np.median(seg)) if len(seg) else 0.0
-    mode, given, cell = classify(p, copt)
-    p = _as_planned(p, mode)
+    mode, given, grid = classify(p, copt)
+    cell = None if grid is None else grid.cell
+    p = _as_planned(p, grid)
     if mode == WAYPOINTS:
         geo, info = _waypoints(p, caps, opt, names, spacing, TOLERANCE_FLOOR_M if given is None else given)
         info.note = waypoints_note(p, copt, spacing)
@@ -590,7 +596,7 @@ def condition_polyline(pts: np.ndarray, caps: np.ndarray | None, opt: GeometryOp
     forced = steps_back(p) if mode == GRID else []
     tight: list[int] = []  # a grid plan's points where the fit bent too tight (gridplan.tight_bends): turned in place
     widened = 0
-    fitted = _fit_points(p, mode, cell)
+    fitted = _fit_points(p, grid)
     for attempt in range(MAX_REPLANS):
         info = Conditioning(mode, tol, p, names, noise_m=nz, grid_cell_m=cell, spacing_m=spacing,
                             auto=given is None and mode == SAMPLES)
