@@ -43,7 +43,7 @@ from ddrt.path.corners import CornerPin, find_corners
 from ddrt.path.geometry import Geometry
 
 __all__ = ["GRID_PIVOT_DEG", "GridReading", "blends_square_corners", "coordinate_quantum", "corner_pin", "grid_axis",
-           "grid_cell", "grid_corners", "read_grid", "steps_back", "straight_runs", "straightened", "tight_bends"]
+           "grid_corners", "read_grid", "steps_back", "straight_runs", "straightened", "tight_bends"]
 
 GRID_PIVOT_DEG = 67.5  # in a grid plan, turns of 90 degrees and more (90, 135, 180) pivot
 GRID_BLEND_CORRIDOR_M = 0.02  # within a corridor this wide (half a 4 cm cell) 90 degree corners are blended
@@ -145,12 +145,6 @@ def read_grid(p: np.ndarray) -> GridReading | None:
     if np.max(np.abs(grid.points() - p)) > max(1e-3 * c, rounding):  # the steps add up to no one grid
         return None
     return grid
-
-
-def grid_cell(p: np.ndarray) -> float | None:
-    """The cell of a grid plan given cell by cell (`read_grid`), else None."""
-    found = read_grid(p)
-    return None if found is None else found.cell
 
 
 def grid_axis(p: np.ndarray) -> float:
@@ -298,24 +292,20 @@ def _advance(n: np.ndarray) -> np.ndarray:
     return t - n * float(np.sign(n) @ t) / (abs(n[0]) + abs(n[1]))
 
 
-def _kinds(g: np.ndarray) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
-    """(the distinct steps of cells `g`, every step) as integer pairs."""
-    steps = [(int(a), int(b)) for a, b in np.round(np.diff(g, axis=0))]
-    return sorted(set(steps)), steps
-
-
-def _stepped(g: np.ndarray) -> bool:
-    """Whether cells `g` are a staircase with a whole run of the commoner step between two
-    rarer ones (a single rarer step between two runs is a jog, not a slope)."""
-    kinds, steps = _kinds(g)
+def _stepped(steps: list[tuple[int, int]]) -> bool:
+    """Whether cells stepping `steps` (integer pairs) are a staircase with a whole run of the
+    commoner step between two rarer ones (a single rarer step between two runs is a jog, not a
+    slope)."""
+    kinds = sorted(set(steps))
     return len(kinds) == 2 and min(steps.count(k) for k in kinds) >= 2
 
 
-def _rare(g: np.ndarray) -> tuple[int, int] | None:
-    """The rarer of a staircase's two kinds of step: the one that never comes twice in a row,
-    between runs of the other that differ by at most one (the first and last may be shorter);
-    the less frequent where both would do. None for one kind of step or no staircase."""
-    kinds, steps = _kinds(g)
+def _rare(steps: list[tuple[int, int]]) -> tuple[int, int] | None:
+    """The rarer of a staircase's two kinds of step (`steps`: integer pairs): the one that never
+    comes twice in a row, between runs of the other that differ by at most one (the first and
+    last may be shorter); the less frequent where both would do. None for one kind of step or
+    no staircase."""
+    kinds = sorted(set(steps))
     if len(kinds) != 2:
         return None
     for rare in sorted(kinds, key=steps.count):
@@ -433,11 +423,12 @@ def straight_runs(g: np.ndarray, margin: float = STRAIGHT_MARGIN_CELLS) -> list[
             fit = _onto(g[i:j + 1], *line)
             # A rarer step at either end may be the first of a run of its own (a diagonal run
             # after a straight one): it is left to the cells between the runs.
-            rare, steps = _rare(g[i:j + 1]), plan_steps[i:j]
+            steps = plan_steps[i:j]
+            rare = _rare(steps)
             while rare is not None and j - i > STRAIGHT_MIN_STEPS and steps[j - 1 - i] == rare:
                 j -= 1
             a = 1 if i == 0 and rare is not None and steps[0] == rare else i  # the plan's start stays
-            if j - a >= STRAIGHT_MIN_STEPS and _stepped(g[a:j + 1]):
+            if j - a >= STRAIGHT_MIN_STEPS and _stepped(plan_steps[a:j]):
                 out.append((a, j, fit[a - i:j - i + 1]))
         i = j
     return out
